@@ -1,0 +1,47 @@
+"""Exceptions for user mistakes and physical impossibilities.
+
+Every error carries a one-line message that says what is wrong and where, so the
+command line can print it without a traceback.
+"""
+
+from __future__ import annotations
+
+
+class ElasticPmDynError(Exception):
+    """Base class: a clear, user-facing error."""
+
+
+class ModelError(ElasticPmDynError):
+    """A model file is malformed or describes an impossible machine.
+
+    The message names the file, the key path and, where known, the line.
+    """
+
+    def __init__(self, file: str, key_path: str, message: str, line: int | None = None):
+        self.file = file
+        self.key_path = key_path
+        self.line = line
+        where = f"{file}:{line}" if line is not None else file
+        super().__init__(f"{where}: {key_path or '<root>'}: {message}")
+
+
+class InputError(ElasticPmDynError):
+    """Bad run input: torque tables, command-line values, states."""
+
+
+class AssemblyError(ElasticPmDynError):
+    """The closure cannot be satisfied (unreachable pose or wrong assembly mode)."""
+
+
+class SingularConfigurationError(ElasticPmDynError):
+    """The mechanism reached a configuration where the formulation breaks down.
+
+    ``time`` and ``residual`` say when and how badly; a simulator attaches the partial
+    result it had up to that moment as ``partial``.
+    """
+
+    def __init__(self, message: str, time: float | None = None, residual: float | None = None):
+        self.time = time
+        self.residual = residual
+        self.partial = None
+        super().__init__(message)

@@ -1,0 +1,1 @@
+"""Model description: YAML files -> typed model -> flat arrays for the kernels."""

@@ -1,0 +1,237 @@
+"""Typed description of a parallel manipulator as serial chains cut at the closure.
+
+Conventions (as in URDF):
+- Every joint has a frame. Its ``origin`` (xyz, rpy) places it in the frame of the
+  previous joint of the same chain (the world frame for the first joint).
+- A revolute joint turns its child frame about ``axis`` by q; a prismatic one shifts it
+  along ``axis`` by q. ``axis`` is a unit vector in the joint frame.
+- A body attached to a joint moves with the joint's child frame; its centre of mass and
+  inertia tensor (about the centre of mass) are given in that frame.
+- Roles (paper, section 2): ``active`` = motor (q_a), ``elastic`` = lumped spring/damper
+  DOF (q_e), ``passive`` = unactuated joint (q_p). q_ae = [q_a, q_e] are the
+  non-redundant coordinates.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+REVOLUTE = "revolute"
+PRISMATIC = "prismatic"
+JOINT_TYPES = (REVOLUTE, PRISMATIC)
+
+ACTIVE = "active"
+ELASTIC = "elastic"
+PASSIVE = "passive"
+ROLES = (ACTIVE, ELASTIC, PASSIVE)
+
+AXIS_NAMES = ("x", "y", "z")
+
+
+@dataclass(frozen=True)
+class Body:
+    """Rigid body: mass [kg], centre of mass [m] and inertia about it [kg m^2]."""
+
+    mass: float
+    com: np.ndarray
+    inertia: np.ndarray
+
+    def combined(self, other: Body) -> Body:
+        """One body with the mass properties of both (same frame), parallel axis theorem."""
+        m = self.mass + other.mass
+        com = (self.mass * self.com + other.mass * other.com) / m
+        inertia = np.zeros((3, 3))
+        for b in (self, other):
+            d = b.com - com
+            inertia += b.inertia + b.mass * (d @ d * np.eye(3) - np.outer(d, d))
+        return Body(m, com, inertia)
+
+    def moved(self, rotation: np.ndarray, offset: np.ndarray) -> Body:
+        """The same body expressed in a parent frame (x_parent = R x + offset)."""
+        return Body(self.mass, rotation @ self.com + offset, rotation @ self.inertia @ rotation.T)
+
+
+@dataclass(frozen=True)
+class Joint:
+    """One single-DOF joint of a serial chain and the body it carries."""
+
+    name: str
+    type: str
+    role: str
+    axis: np.ndarray
+    origin_xyz: np.ndarray
+    origin_rpy: np.ndarray
+    body: Body | None = None
+    stiffness: float = 0.0  # K [N/m or N m/rad], elastic joints
+    damping: float = 0.0  # D [N s/m or N m s/rad], elastic joints
+    rest: float = 0.0  # spring's unloaded position
+    friction: float = 0.0  # viscous friction [N s/m or N m s/rad]
+    rotor_inertia: float = 0.0  # reflected rotor inertia (armature) [kg m^2 or kg]
+
+    def origin_rotation(self) -> np.ndarray:
+        return rpy_to_matrix(self.origin_rpy)
+
+
+@dataclass(frozen=True)
+class Chain:
+    """A serial kinematic chain from the fixed base to its cut end."""
+
+    name: str
+    joints: tuple[Joint, ...]
+    end_xyz: np.ndarray  # chain end (closure point) in the last joint's frame
+
+
+@dataclass(frozen=True)
+class Closure:
+    """Point closure: the ends of ``chains`` coincide in the components ``components``.
+
+    The residual stacks S (p_0 - p_k) for k = 1 .. n-1 (eq 8), S selecting components.
+    """
+
+    chains: tuple[int, ...]
+    components: tuple[int, ...]
+
+    @property
+    def size(self) -> int:
+        return (len(self.chains) - 1) * len(self.components)
+
+
+@dataclass(frozen=True)
+class Branch:
+    """A named branch force: F = K u + D du/dt of one elastic joint, tension positive."""
+
+    name: str
+    joint: str
+
+
+@dataclass(frozen=True)
+class InitialState:
+    """Start pose: either active joint positions or an end-effector point.
+
+    ``guess`` seeds the assembly (and so selects the assembly mode); ``signs`` (+1/-1 per
+    joint name) is checked afterwards, so the wrong branch is an error, not a surprise.
+    """
+
+    active: dict[str, float] | None = None
+    end_effector: np.ndarray | None = None
+    guess: dict[str, float] = field(default_factory=dict)
+    signs: dict[str, int] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class Model:
+    """A parallel manipulator: chains, closure, gravity, start pose, branch names."""
+
+    name: str
+    chains: tuple[Chain, ...]
+    closure: Closure | None
+    gravity: np.ndarray
+    end_effector_mass: float
+    initial: InitialState
+    branches: tuple[Branch, ...]
+    source: str = "<memory>"
+    planar: bool = False  # closure/end effector in the x-y plane only
+
+    # --- joint bookkeeping in tree order (chains stacked, joints in chain order) ---
+    @property
+    def joints(self) -> tuple[Joint, ...]:
+        return tuple(j for c in self.chains for j in c.joints)
+
+    @property
+    def joint_names(self) -> list[str]:
+        return [j.name for j in self.joints]
+
+    def indices(self, role: str) -> np.ndarray:
+        return np.array([i for i, j in enumerate(self.joints) if j.role == role], dtype=np.int64)
+
+    @property
+    def active_names(self) -> list[str]:
+        return [self.joints[i].name for i in self.indices(ACTIVE)]
+
+    @property
+    def ae_indices(self) -> np.ndarray:
+        """Tree indices of the non-redundant coordinates q_ae = [q_a, q_e]."""
+        return np.concatenate([self.indices(ACTIVE), self.indices(ELASTIC)])
+
+    def joint_index(self, name: str) -> int:
+        return self.joint_names.index(name)
+
+    @property
+    def ee_components(self) -> tuple[int, ...]:
+        return (0, 1) if self.planar else (0, 1, 2)
+
+    def locked(self, role: str = ELASTIC) -> Model:
+        """The same machine with every joint of ``role`` frozen at its rest position.
+
+        The rigid model of the paper is the elastic one with the elastic DOF locked
+        (u = 0, c -> infinity): each locked joint becomes a fixed offset, its body merges
+        into its parent's, and the next joint's origin absorbs the offset.
+        """
+        chains = tuple(_lock_chain(c, role) for c in self.chains)
+        locked_names = {j.name for c in self.chains for j in c.joints if j.role == role}
+        branches = tuple(b for b in self.branches if b.joint not in locked_names)
+        return replace(self, chains=chains, branches=branches,
+                       name=f"{self.name} ({role} locked)")
+
+
+def rpy_to_matrix(rpy: np.ndarray) -> np.ndarray:
+    """URDF roll-pitch-yaw: R = Rz(yaw) Ry(pitch) Rx(roll)."""
+    r, p, y = rpy
+    cr, sr, cp, sp, cy, sy = np.cos(r), np.sin(r), np.cos(p), np.sin(p), np.cos(y), np.sin(y)
+    return np.array([
+        [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+        [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+        [-sp, cp * sr, cp * cr],
+    ])
+
+
+def matrix_to_rpy(R: np.ndarray) -> np.ndarray:
+    pitch = np.arcsin(np.clip(-R[2, 0], -1.0, 1.0))
+    if abs(np.cos(pitch)) > 1e-12:
+        roll = np.arctan2(R[2, 1], R[2, 2])
+        yaw = np.arctan2(R[1, 0], R[0, 0])
+    else:  # gimbal lock: put everything in yaw
+        roll = 0.0
+        yaw = np.arctan2(-R[0, 1], R[1, 1])
+    return np.array([roll, pitch, yaw])
+
+
+def joint_motion(joint: Joint, q: float) -> tuple[np.ndarray, np.ndarray]:
+    """Rotation and offset of the child frame in the joint frame at position q."""
+    axis = joint.axis
+    if joint.type == PRISMATIC:
+        return np.eye(3), axis * q
+    k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    return np.eye(3) + np.sin(q) * k + (1 - np.cos(q)) * k @ k, np.zeros(3)
+
+
+def _lock_chain(chain: Chain, role: str) -> Chain:
+    out: list[Joint] = []
+    # Transform of the pending fixed offset, from the frame the next kept joint's origin
+    # is written in to the frame of the last kept joint's child.
+    pend_R, pend_p = np.eye(3), np.zeros(3)
+    for j in chain.joints:
+        R0, p0 = j.origin_rotation(), j.origin_xyz
+        # Origin of this joint expressed in the last kept child frame.
+        R_in = pend_R @ R0
+        p_in = pend_R @ p0 + pend_p
+        if j.role != role:
+            out.append(replace(j, origin_xyz=p_in, origin_rpy=matrix_to_rpy(R_in)))
+            pend_R, pend_p = np.eye(3), np.zeros(3)
+            continue
+        Rm, pm = joint_motion(j, j.rest)
+        child_R = R_in @ Rm
+        child_p = R_in @ pm + p_in
+        if j.body is not None:
+            moved = j.body.moved(child_R, child_p)
+            if out:
+                prev = out[-1]
+                body = moved if prev.body is None else prev.body.combined(moved)
+                out[-1] = replace(prev, body=body)
+            # A locked joint before any kept joint carries its body on the fixed base:
+            # it never moves, so it has no dynamic effect and is dropped.
+        pend_R, pend_p = child_R, child_p
+    end = pend_R @ chain.end_xyz + pend_p
+    return replace(chain, joints=tuple(out), end_xyz=end)

@@ -1,0 +1,28 @@
+"""Flat array layout of a model, shared by the packer and the compiled kernels.
+
+The kernels take a handful of plain arrays instead of Python objects: compiled code
+reads them without boxing, and numba can cache the compiled functions on disk.
+"""
+
+# Columns of the per-joint float record ``jf`` (one row per tree joint).
+JF_ORIGIN_R = 0  # 9: rotation of the joint frame in the parent frame, row-major
+JF_ORIGIN_P = 9  # 3: joint frame origin in the parent frame
+JF_AXIS = 12  # 3: unit axis in the joint frame
+JF_MASS = 15  # body mass (0 = no body)
+JF_COM = 16  # 3: centre of mass in the child frame
+JF_INERTIA = 19  # 9: inertia about the centre of mass, child frame, row-major
+JF_ROTOR = 28  # reflected rotor inertia (armature)
+JF_STIFFNESS = 29
+JF_DAMPING = 30
+JF_FRICTION = 31
+JF_REST = 32
+JF_WIDTH = 33
+
+# Columns of the per-joint int record ``ji``.
+JI_TYPE = 0  # 0 revolute, 1 prismatic
+JI_ROLE = 1  # 0 active, 1 elastic, 2 passive
+JI_CHAIN = 2
+JI_WIDTH = 3
+
+TYPE_CODES = {"revolute": 0, "prismatic": 1}
+ROLE_CODES = {"active": 0, "elastic": 1, "passive": 2}

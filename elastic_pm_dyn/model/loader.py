@@ -1,0 +1,344 @@
+"""Model YAML -> :class:`Model`, with errors that name file, key path and line."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from elastic_pm_dyn.model.description import (
+    ACTIVE,
+    AXIS_NAMES,
+    ELASTIC,
+    JOINT_TYPES,
+    PASSIVE,
+    ROLES,
+    Body,
+    Branch,
+    Chain,
+    Closure,
+    InitialState,
+    Joint,
+    Model,
+)
+from elastic_pm_dyn.model.yaml_source import KeyPath, YamlSource
+
+_TOP_KEYS = {"name", "gravity", "chains", "closure", "end_effector", "initial_state",
+             "branches", "planar"}
+_JOINT_KEYS = {"name", "type", "role", "axis", "origin", "body", "stiffness", "damping",
+               "rest", "friction", "rotor_inertia"}
+
+
+class _Reader:
+    """Typed access to YAML data that reports errors at the right line."""
+
+    def __init__(self, src: YamlSource):
+        self.src = src
+
+    def node(self, path: KeyPath) -> Any:
+        data = self.src.data
+        for part in path:
+            data = data[part]
+        return data
+
+    def has(self, path: KeyPath) -> bool:
+        try:
+            self.node(path)
+        except (KeyError, IndexError, TypeError):
+            return False
+        return True
+
+    def mapping(self, path: KeyPath, allowed: set[str] | None = None) -> dict:
+        value = self.node(path)
+        if not isinstance(value, dict):
+            raise self.src.error(path, f"expected a mapping, got {_kind(value)}")
+        if allowed is not None:
+            for key in value:
+                if key not in allowed:
+                    raise self.src.error(path + (key,), f"unknown key (allowed: {', '.join(sorted(allowed))})")
+        return value
+
+    def sequence(self, path: KeyPath, min_len: int = 0) -> list:
+        value = self.node(path)
+        if not isinstance(value, list):
+            raise self.src.error(path, f"expected a list, got {_kind(value)}")
+        if len(value) < min_len:
+            raise self.src.error(path, f"needs at least {min_len} entries, got {len(value)}")
+        return value
+
+    def number(self, path: KeyPath, default: float | None = None, positive: bool = False,
+               nonnegative: bool = False) -> float:
+        if not self.has(path):
+            if default is None:
+                raise self.src.error(path, "missing required number")
+            return default
+        value = self.node(path)
+        if isinstance(value, bool) or not isinstance(value, (int, float, str)):
+            raise self.src.error(path, f"expected a number, got {_kind(value)}")
+        try:
+            x = float(value)  # YAML 1.1 reads 5.464e6 as a string
+        except ValueError:
+            raise self.src.error(path, f"expected a number, got {value!r}") from None
+        if not math.isfinite(x):
+            raise self.src.error(path, f"must be finite, got {value!r}")
+        if positive and x <= 0:
+            raise self.src.error(path, f"must be > 0, got {x:g}")
+        if nonnegative and x < 0:
+            raise self.src.error(path, f"must be >= 0, got {x:g}")
+        return x
+
+    def vector(self, path: KeyPath, n: int, default: list[float] | None = None) -> np.ndarray:
+        if not self.has(path):
+            if default is None:
+                raise self.src.error(path, f"missing required {n}-vector")
+            return np.array(default, dtype=float)
+        seq = self.sequence(path)
+        if len(seq) != n:
+            raise self.src.error(path, f"expected {n} numbers, got {len(seq)}")
+        return np.array([self.number(path + (i,)) for i in range(n)])
+
+    def string(self, path: KeyPath, default: str | None = None, choices: tuple[str, ...] | None = None) -> str:
+        if not self.has(path):
+            if default is None:
+                raise self.src.error(path, "missing required string")
+            return default
+        value = self.node(path)
+        if not isinstance(value, str) or not value:
+            raise self.src.error(path, f"expected a non-empty string, got {_kind(value)}")
+        if choices is not None and value not in choices:
+            raise self.src.error(path, f"unknown value {value!r} (expected one of: {', '.join(choices)})")
+        return value
+
+
+def _kind(value: Any) -> str:
+    if value is None:
+        return "nothing"
+    return {dict: "a mapping", list: "a list", str: f"the string {value!r}"}.get(type(value), repr(value))
+
+
+def load_model(path: str | Path) -> Model:
+    """Read and validate a model file."""
+    return parse_model(YamlSource.from_file(path))
+
+
+def parse_model(src: YamlSource) -> Model:
+    r = _Reader(src)
+    if not isinstance(src.data, dict):
+        raise src.error((), "a model file must be a mapping with 'chains' and 'closure'")
+    r.mapping((), _TOP_KEYS)
+    name = r.string(("name",), default=Path(src.file).stem)
+    gravity = r.vector(("gravity",), 3, default=[0.0, 0.0, 0.0])
+    planar = bool(src.data.get("planar", False))
+
+    chains: list[Chain] = []
+    seen: dict[str, KeyPath] = {}
+    for ci, _ in enumerate(r.sequence(("chains",), min_len=1)):
+        chains.append(_parse_chain(r, ("chains", ci), seen))
+    chain_names = [c.name for c in chains]
+    if len(set(chain_names)) != len(chain_names):
+        raise src.error(("chains",), f"chain names must be unique, got {chain_names}")
+
+    closure = _parse_closure(r, chain_names) if r.has(("closure",)) else None
+    if closure is None and len(chains) > 1:
+        raise src.error(("closure",), "several chains need a 'closure' that joins their ends")
+    if closure is not None and planar:
+        bad = [AXIS_NAMES[c] for c in closure.components if c == 2]
+        if bad:
+            raise src.error(("closure", "components"), "a planar model closes in x and y only")
+
+    ee_mass = 0.0
+    if r.has(("end_effector",)):
+        r.mapping(("end_effector",), {"mass"})
+        ee_mass = r.number(("end_effector", "mass"), default=0.0, nonnegative=True)
+    if ee_mass > 0:
+        chains = _lump_end_effector(chains, ee_mass, closure)
+
+    joint_names = [j.name for c in chains for j in c.joints]
+    branches = _parse_branches(r, chains, joint_names)
+    initial = _parse_initial(r, chains, joint_names)
+    model = Model(name=name, chains=tuple(chains), closure=closure, gravity=gravity,
+                  end_effector_mass=ee_mass, initial=initial, branches=branches,
+                  source=src.file, planar=planar)
+    _check_counts(r, model)
+    return model
+
+
+def _parse_chain(r: _Reader, path: KeyPath, seen: dict[str, KeyPath]) -> Chain:
+    r.mapping(path, {"name", "joints", "end"})
+    name = r.string(path + ("name",))
+    joints = []
+    for ji, _ in enumerate(r.sequence(path + ("joints",), min_len=1)):
+        jp = path + ("joints", ji)
+        joint = _parse_joint(r, jp)
+        if joint.name in seen:
+            raise r.src.error(jp + ("name",), f"joint name {joint.name!r} is used twice")
+        seen[joint.name] = jp
+        joints.append(joint)
+    end = np.zeros(3)
+    if r.has(path + ("end",)):
+        r.mapping(path + ("end",), {"xyz"})
+        end = r.vector(path + ("end", "xyz"), 3)
+    return Chain(name=name, joints=tuple(joints), end_xyz=end)
+
+
+def _parse_joint(r: _Reader, path: KeyPath) -> Joint:
+    r.mapping(path, _JOINT_KEYS)
+    name = r.string(path + ("name",))
+    jtype = r.string(path + ("type",), choices=JOINT_TYPES)
+    role = r.string(path + ("role",), choices=ROLES)
+    axis = r.vector(path + ("axis",), 3, default=[0.0, 0.0, 1.0])
+    norm = float(np.linalg.norm(axis))
+    if norm < 1e-12:
+        raise r.src.error(path + ("axis",), "axis must not be zero")
+    xyz, rpy = np.zeros(3), np.zeros(3)
+    if r.has(path + ("origin",)):
+        r.mapping(path + ("origin",), {"xyz", "rpy"})
+        xyz = r.vector(path + ("origin", "xyz"), 3, default=[0.0, 0.0, 0.0])
+        rpy = r.vector(path + ("origin", "rpy"), 3, default=[0.0, 0.0, 0.0])
+    body = _parse_body(r, path + ("body",)) if r.has(path + ("body",)) else None
+    stiffness = r.number(path + ("stiffness",), default=0.0, nonnegative=True)
+    damping = r.number(path + ("damping",), default=0.0, nonnegative=True)
+    if role == ELASTIC and stiffness <= 0:
+        raise r.src.error(path + ("stiffness",), "an elastic joint needs stiffness > 0")
+    if role != ELASTIC and (r.has(path + ("stiffness",)) or r.has(path + ("damping",))):
+        raise r.src.error(path, f"stiffness/damping belong to elastic joints, this one is {role}")
+    return Joint(
+        name=name, type=jtype, role=role, axis=axis / norm, origin_xyz=xyz, origin_rpy=rpy,
+        body=body, stiffness=stiffness, damping=damping,
+        rest=r.number(path + ("rest",), default=0.0),
+        friction=r.number(path + ("friction",), default=0.0, nonnegative=True),
+        rotor_inertia=r.number(path + ("rotor_inertia",), default=0.0, nonnegative=True),
+    )
+
+
+def _parse_body(r: _Reader, path: KeyPath) -> Body:
+    r.mapping(path, {"mass", "com", "inertia"})
+    mass = r.number(path + ("mass",), positive=True)
+    com = r.vector(path + ("com",), 3, default=[0.0, 0.0, 0.0])
+    inertia = np.zeros((3, 3))
+    if r.has(path + ("inertia",)):
+        ip = path + ("inertia",)
+        r.mapping(ip, {"ixx", "iyy", "izz", "ixy", "ixz", "iyz"})
+        names = {"ixx": (0, 0), "iyy": (1, 1), "izz": (2, 2), "ixy": (0, 1), "ixz": (0, 2), "iyz": (1, 2)}
+        for key, (a, b) in names.items():
+            inertia[a, b] = inertia[b, a] = r.number(ip + (key,), default=0.0)
+        eig = np.linalg.eigvalsh(inertia)
+        scale = max(1e-12, float(np.max(np.abs(eig))))
+        if eig[0] < -1e-12 * scale:
+            raise r.src.error(ip, f"inertia tensor is not positive (semi-)definite (eigenvalues {eig})")
+        # A rigid body's principal moments obey the triangle inequality.
+        if eig[0] + eig[1] < eig[2] - 1e-9 * scale:
+            raise r.src.error(ip, f"inertia tensor is not physical: principal moments {eig} violate "
+                              "the triangle inequality")
+    return Body(mass, com, inertia)
+
+
+def _parse_closure(r: _Reader, chain_names: list[str]) -> Closure:
+    path: KeyPath = ("closure",)
+    r.mapping(path, {"type", "chains", "components"})
+    r.string(path + ("type",), default="point", choices=("point",))
+    names = r.sequence(path + ("chains",), min_len=2)
+    idx = []
+    for i, n in enumerate(names):
+        if n not in chain_names:
+            raise r.src.error(path + ("chains", i), f"closure names a missing chain {n!r} "
+                              f"(chains: {', '.join(chain_names)})")
+        idx.append(chain_names.index(n))
+    comps = r.sequence(path + ("components",)) if r.has(path + ("components",)) else list(AXIS_NAMES)
+    cidx = []
+    for i, c in enumerate(comps):
+        if c not in AXIS_NAMES:
+            raise r.src.error(path + ("components", i), f"unknown component {c!r} (x, y or z)")
+        cidx.append(AXIS_NAMES.index(c))
+    return Closure(chains=tuple(idx), components=tuple(sorted(set(cidx))))
+
+
+def _lump_end_effector(chains: list[Chain], mass: float, closure: Closure | None) -> list[Chain]:
+    """Split a point-mass end effector equally over the chain ends it joins.
+
+    For a point mass this is exact: the ends move together, so the shares add up to the
+    same kinetic and potential energy.
+    """
+    owners = closure.chains if closure is not None else (0,)
+    out = list(chains)
+    share = mass / len(owners)
+    for ci in owners:
+        c = out[ci]
+        last = c.joints[-1]
+        point = Body(share, c.end_xyz.copy(), np.zeros((3, 3)))
+        body = point if last.body is None else last.body.combined(point)
+        joints = c.joints[:-1] + (replace(last, body=body),)
+        out[ci] = Chain(c.name, joints, c.end_xyz)
+    return out
+
+
+def _parse_branches(r: _Reader, chains: list[Chain], joint_names: list[str]) -> tuple[Branch, ...]:
+    elastic = [j.name for c in chains for j in c.joints if j.role == ELASTIC]
+    if not r.has(("branches",)):
+        return tuple(Branch(n, n) for n in elastic)
+    out = []
+    for i, _ in enumerate(r.sequence(("branches",))):
+        p = ("branches", i)
+        r.mapping(p, {"name", "joint"})
+        bname = r.string(p + ("name",))
+        joint = r.string(p + ("joint",))
+        if joint not in joint_names:
+            raise r.src.error(p + ("joint",), f"unknown joint {joint!r}")
+        if joint not in elastic:
+            raise r.src.error(p + ("joint",), f"branch joint {joint!r} is not elastic")
+        out.append(Branch(bname, joint))
+    return tuple(out)
+
+
+def _parse_initial(r: _Reader, chains: list[Chain], joint_names: list[str]) -> InitialState:
+    path: KeyPath = ("initial_state",)
+    if not r.has(path):
+        return InitialState()
+    r.mapping(path, {"active", "end_effector", "guess", "assembly_mode"})
+    active_names = [j.name for c in chains for j in c.joints if j.role == ACTIVE]
+    active = None
+    if r.has(path + ("active",)):
+        active = {}
+        for key in r.mapping(path + ("active",)):
+            if key not in active_names:
+                raise r.src.error(path + ("active", key), f"not an active joint (active: {', '.join(active_names)})")
+            active[key] = r.number(path + ("active", key))
+        missing = [n for n in active_names if n not in active]
+        if missing:
+            raise r.src.error(path + ("active",), f"missing active joints: {', '.join(missing)}")
+    ee = None
+    if r.has(path + ("end_effector",)):
+        n = len(r.sequence(path + ("end_effector",)))
+        if n not in (2, 3):
+            raise r.src.error(path + ("end_effector",), "expected [x, y] or [x, y, z]")
+        ee = r.vector(path + ("end_effector",), n)
+    if active is not None and ee is not None:
+        raise r.src.error(path, "give either 'active' or 'end_effector', not both")
+    guess: dict[str, float] = {}
+    if r.has(path + ("guess",)):
+        for key in r.mapping(path + ("guess",)):
+            if key not in joint_names:
+                raise r.src.error(path + ("guess", key), f"unknown joint {key!r}")
+            guess[key] = r.number(path + ("guess", key))
+    signs: dict[str, int] = {}
+    if r.has(path + ("assembly_mode",)):
+        for key in r.mapping(path + ("assembly_mode",)):
+            if key not in joint_names:
+                raise r.src.error(path + ("assembly_mode", key), f"unknown joint {key!r}")
+            sign = r.string(path + ("assembly_mode", key), choices=("positive", "negative"))
+            signs[key] = 1 if sign == "positive" else -1
+    return InitialState(active=active, end_effector=ee, guess=guess, signs=signs)
+
+
+def _check_counts(r: _Reader, model: Model) -> None:
+    n_active = len(model.indices(ACTIVE))
+    n_passive = len(model.indices(PASSIVE))
+    m = model.closure.size if model.closure is not None else 0
+    if n_active == 0:
+        raise r.src.error(("chains",), "the machine has no active joint")
+    if n_passive != m:
+        raise r.src.error(("closure",), f"the closure gives {m} equations but the chains have {n_passive} "
+                          "passive joints: the passive coordinates must be fixed by the closure (eq 8)")

@@ -1,0 +1,38 @@
+"""ament_python package: ``colcon build`` in a ROS 2 workspace, or ``pip install -e .``."""
+
+from glob import glob
+
+from setuptools import find_packages, setup
+
+PACKAGE = "elastic_pm_dyn"
+
+setup(
+    name=PACKAGE,
+    version="0.1.0",
+    description="Dynamics of elastic parallel manipulators: multipliers, Lagrange-D'Alembert, SCDD",
+    license="Apache-2.0",
+    python_requires=">=3.11",
+    packages=find_packages(exclude=["test", "test.*", "bench", "bench.*"]),
+    data_files=[
+        ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
+        (f"share/{PACKAGE}", ["package.xml"]),
+        (f"share/{PACKAGE}/config", glob("config/*.yaml")),
+        (f"share/{PACKAGE}/launch", glob("launch/*.launch.py")),
+    ],
+    install_requires=[
+        "setuptools",
+        "numpy>=1.26",
+        "scipy>=1.11",
+        "numba>=0.60",
+        "pyyaml>=6",
+        "matplotlib>=3.8",
+        "rosbags>=0.11,<0.12",
+    ],
+    extras_require={"test": ["pytest>=8", "ruff"], "bench": ["pin"]},
+    zip_safe=False,
+    entry_points={
+        "console_scripts": [
+            "elastic-pm-dyn = elastic_pm_dyn.cli:main",
+        ],
+    },
+)
