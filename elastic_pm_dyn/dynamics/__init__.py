@@ -1,0 +1,1 @@
+"""Direct and inverse dynamics: multipliers, compact Lagrange-D'Alembert, SCDD."""

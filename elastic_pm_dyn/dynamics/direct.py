@@ -1,0 +1,68 @@
+"""Direct dynamics behind one interface: ``Dynamics(mech, "scdd").accelerations(...)``."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from elastic_pm_dyn.dynamics.evaluate import FORMULATION_CODES, SCDD_ONE_PASS, accelerations
+from elastic_pm_dyn.errors import InputError, SingularConfigurationError
+from elastic_pm_dyn.kinematics.mechanism import Mechanism
+
+FORMULATIONS = tuple(FORMULATION_CODES)
+
+
+class Dynamics:
+    """Direct dynamics of a mechanism by one formulation.
+
+    ``scdd`` (exact, default), ``lda`` (compact Lagrange-D'Alembert), ``multipliers``
+    (Lagrange equations of the first kind) or ``scdd_one_pass`` (the paper's variant;
+    stateful: it remembers the last accelerations it returned).
+    """
+
+    def __init__(self, mech: Mechanism, formulation: str = "scdd", singular_tol: float = 1e-9):
+        if formulation not in FORMULATION_CODES:
+            raise InputError(f"unknown formulation {formulation!r} (expected one of: {', '.join(FORMULATIONS)})")
+        self.mech = mech
+        self.formulation = formulation
+        self.code = FORMULATION_CODES[formulation]
+        self.singular_tol = singular_tol
+        self.qdd_prev = np.zeros(mech.n)
+        self.cut_force = np.zeros(mech.m)
+
+    def tree_forces(self, tau_active: np.ndarray, ee_force: np.ndarray | None = None,
+                    q: np.ndarray | None = None) -> np.ndarray:
+        """Tree generalised forces: motor torques, plus J_ee^T f for an end-effector force."""
+        tau = self.mech.split_tau(tau_active)
+        if ee_force is not None:
+            if q is None:
+                raise InputError("an end-effector force needs the configuration q")
+            J_ee, _ = self.mech.end_effector_jacobian(self.mech.terms(q))
+            tau += J_ee.T @ np.asarray(ee_force, dtype=float)
+        return tau
+
+    def accelerations(self, q: np.ndarray, qd: np.ndarray, tau_active: np.ndarray,
+                      ee_force: np.ndarray | None = None, baumgarte: tuple[float, float] = (0.0, 0.0),
+                      ) -> np.ndarray:
+        """Tree accelerations qdd_t at (q_t, qd_t) under motor torques tau_active.
+
+        The cut forces (multipliers lambda of the closure rows) are left in ``cut_force``
+        (zero for L-D'A, which never forms them).
+        """
+        q = np.ascontiguousarray(q, dtype=float)
+        qd = np.ascontiguousarray(qd, dtype=float)
+        tau = self.tree_forces(tau_active, ee_force, q)
+        qdd = np.empty(self.mech.n)
+        lam = np.zeros(self.mech.m)
+        cond, gap = accelerations(self.code, self.mech.arrays, q, qd, tau, float(baumgarte[0]),
+                                  float(baumgarte[1]), self.qdd_prev, qdd, lam)
+        if cond < self.singular_tol:
+            raise SingularConfigurationError(
+                f"singular configuration for {self.formulation}: conditioning {cond:.3g} "
+                f"< {self.singular_tol:g} (closure residual {gap:.3g} m)", residual=gap)
+        if self.code == SCDD_ONE_PASS:
+            self.qdd_prev[:] = qdd
+        self.cut_force = lam
+        return qdd
+
+    def reset(self) -> None:
+        self.qdd_prev[:] = 0.0

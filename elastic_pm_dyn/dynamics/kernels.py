@@ -1,0 +1,229 @@
+"""Compiled formulations of the direct dynamics on the tree terms.
+
+All share the tree equations (eq 19, chain by chain eq 33)
+
+    M_t qdd_t + h_t = tau_t + A^T lambda,        A qdd_t = gamma,
+
+with A = dh/dq_t (eq 9) and gamma = -Adot qd_t (the differentiated closure, eq 8), and
+differ in how they eliminate the constraint:
+
+- :func:`multipliers`: the (n_t + m) KKT system of the Lagrange equations of the first
+  kind (eqs 3-5).
+- :func:`lagrange_dalembert`: the compact model on q_ae (eqs 18-26): W = dq_t/dq_ae,
+  M_c = W^T M_t W, an n_ae x n_ae solve.
+- :func:`scdd`: SCDD (eqs 33-41) with the calculation loop solved exactly: each chain
+  solves its own small system (eq 34) for its free accelerations and for the response to
+  unit cut forces; the cut forces then follow from the m x m Schur complement
+  (sum_i A_i M_i^-1 A_i^T) lambda = gamma - sum_i A_i M_i^-1 (tau_i - h_i).
+- :func:`scdd_one_pass`: the paper's loop closed once per evaluation with the previous
+  accelerations in eq 35 (virtual passive torques), mapped to cut forces by eq 39.
+
+Each returns a scale-free conditioning indicator (pivot ratio) of the matrix it inverts.
+"""
+
+import numpy as np
+from numba import njit
+
+from elastic_pm_dyn.small_linalg import (
+    cholesky,
+    cholesky_solve,
+    cholesky_solve_columns,
+    lu_factor,
+    lu_solve,
+    lu_solve_columns,
+    lu_solve_transposed,
+    matmul,
+    matmul_tn,
+    matvec,
+    matvec_t,
+)
+
+
+@njit(cache=True)
+def chain_responses(M, A, chain_start, tau_minus_h, x, Y):
+    """Per-chain solves of eq 34: x_i = M_i^-1 (tau_i - h_i), Y_i = M_i^-1 A_i^T.
+
+    Returns the Schur complement S = A M^-1 A^T (m x m), or an empty matrix with
+    S[0,0] = nan if a chain mass matrix is not positive definite.
+    """
+    m = A.shape[0]
+    S = np.zeros((m, m))
+    for c in range(chain_start.shape[0] - 1):
+        s = chain_start[c]
+        e = chain_start[c + 1]
+        L = M[s:e, s:e].copy()
+        if not cholesky(L):
+            S[:, :] = np.nan
+            return S
+        xs = tau_minus_h[s:e].copy()
+        cholesky_solve(L, xs)
+        x[s:e] = xs
+        if m == 0:
+            continue
+        Ys = A[:, s:e].T.copy()
+        cholesky_solve_columns(L, Ys)
+        Y[s:e, :] = Ys
+        for i in range(m):
+            for j in range(m):
+                acc = 0.0
+                for k in range(e - s):
+                    acc += A[i, s + k] * Ys[k, j]
+                S[i, j] += acc
+    return S
+
+
+@njit(cache=True)
+def scdd(M, h, A, gamma, tau, chain_start, qdd, lam):
+    """Exact SCDD (eqs 33-41, loop solved via the Schur complement). Returns pivot ratio."""
+    n = M.shape[0]
+    m = A.shape[0]
+    x = np.empty(n)
+    Y = np.empty((n, m))
+    S = chain_responses(M, A, chain_start, tau - h, x, Y)
+    if m == 0:
+        qdd[:] = x
+        return 1.0
+    if np.isnan(S[0, 0]):
+        return 0.0
+    r = gamma - matvec(A, x, np.empty(m))
+    piv = np.empty(m, dtype=np.int64)
+    ratio = lu_factor(S, piv)
+    if ratio == 0.0:
+        return 0.0
+    lu_solve(S, piv, r)
+    lam[:] = r
+    for i in range(n):
+        acc = x[i]
+        for j in range(m):
+            acc += Y[i, j] * r[j]
+        qdd[i] = acc
+    return ratio
+
+
+@njit(cache=True)
+def multipliers(M, h, A, gamma, tau, qdd, lam):
+    """Lagrange equations of the first kind (eqs 3-5): one KKT solve on the tree."""
+    n = M.shape[0]
+    m = A.shape[0]
+    K = np.zeros((n + m, n + m))
+    K[:n, :n] = M
+    K[:n, n:] = A.T
+    K[n:, :n] = A
+    rhs = np.empty(n + m)
+    rhs[:n] = tau - h
+    rhs[n:] = gamma
+    piv = np.empty(n + m, dtype=np.int64)
+    ratio = lu_factor(K, piv)
+    if ratio == 0.0:
+        return 0.0
+    lu_solve(K, piv, rhs)
+    qdd[:] = rhs[:n]
+    lam[:] = -rhs[n:]
+    return ratio
+
+
+@njit(cache=True)
+def passive_map(A, gamma, ae_index, p_index, Wp, cp):
+    """W's passive rows and the Wdot qd term from the closure (eqs 9, 12, 18).
+
+    qd_p = Wp qd_ae with Wp = -(dh/dq_p)^-1 dh/dq_ae, and qdd_p = Wp qdd_ae + cp with
+    cp = (dh/dq_p)^-1 gamma. Returns the pivot ratio of dh/dq_p.
+    """
+    m = A.shape[0]
+    nae = ae_index.shape[0]
+    Ap = np.empty((m, m))
+    for i in range(m):
+        for j in range(m):
+            Ap[i, j] = A[i, p_index[j]]
+        for j in range(nae):
+            Wp[i, j] = -A[i, ae_index[j]]
+        cp[i] = gamma[i]
+    piv = np.empty(m, dtype=np.int64)
+    ratio = lu_factor(Ap, piv)
+    if ratio == 0.0:
+        return 0.0
+    lu_solve_columns(Ap, piv, Wp)
+    lu_solve(Ap, piv, cp)
+    return ratio
+
+
+@njit(cache=True)
+def lagrange_dalembert(M, h, A, gamma, tau, ae_index, p_index, qdd):
+    """Compact Lagrange-D'Alembert direct dynamics (eq 26) with M_c = W^T M_t W (eq 21)."""
+    n = M.shape[0]
+    m = A.shape[0]
+    nae = ae_index.shape[0]
+    Wp = np.empty((m, nae))
+    cp = np.empty(m)
+    ratio = passive_map(A, gamma, ae_index, p_index, Wp, cp)
+    if ratio == 0.0:
+        return 0.0
+    W = np.zeros((n, nae))
+    c = np.zeros(n)
+    for j in range(nae):
+        W[ae_index[j], j] = 1.0
+    for i in range(m):
+        W[p_index[i], :] = Wp[i, :]
+        c[p_index[i]] = cp[i]
+    MW = matmul(M, W, np.empty((n, nae)))
+    Mc = matmul_tn(W, MW, np.empty((nae, nae)))  # eq 21
+    f = tau - h - matvec(M, c, np.empty(n))
+    rhs = matvec_t(W, f, np.empty(nae))
+    if not cholesky(Mc):
+        return 0.0
+    cholesky_solve(Mc, rhs)  # eq 26
+    matvec(W, rhs, qdd)
+    qdd += c
+    return ratio
+
+
+@njit(cache=True)
+def scdd_one_pass(M, h, A, gamma, tau, ae_index, p_index, chain_start, qdd_prev, qdd, lam):
+    """The paper's SCDD with the calculation loop closed once, by the previous accelerations.
+
+    1. Passive accelerations consistent with the closure from the previous q_ae
+       accelerations (eq 12 differentiated).
+    2. Virtual passive torques (eq 35) of those accelerations; the condition tau_p = 0
+       (eq 37) gives the cut forces through (dh/dq_p)^-T (eqs 38-39, 41).
+    3. Each chain's direct dynamics with those cut forces (eq 34).
+    Exact only when the previous accelerations are the current ones: the lag is what lets
+    the closure gap drift (the paper's Fig. 4).
+    """
+    n = M.shape[0]
+    m = A.shape[0]
+    Ap = np.empty((m, m))
+    for i in range(m):
+        for j in range(m):
+            Ap[i, j] = A[i, p_index[j]]
+    piv = np.empty(m, dtype=np.int64)
+    ratio = lu_factor(Ap, piv)
+    if ratio == 0.0:
+        return 0.0
+    qk = qdd_prev.copy()
+    rp = gamma.copy()
+    for i in range(m):
+        for j in range(ae_index.shape[0]):
+            rp[i] -= A[i, ae_index[j]] * qdd_prev[ae_index[j]]
+    lu_solve(Ap, piv, rp)
+    for j in range(m):
+        qk[p_index[j]] = rp[j]
+    tp = np.empty(m)
+    for j in range(m):
+        pj = p_index[j]
+        acc = h[pj] - tau[pj]
+        for k in range(n):
+            acc += M[pj, k] * qk[k]
+        tp[j] = acc
+    lu_solve_transposed(Ap, piv, tp)
+    lam[:] = tp
+    rhs = tau - h + matvec_t(A, tp, np.empty(n))
+    for c in range(chain_start.shape[0] - 1):
+        s = chain_start[c]
+        e = chain_start[c + 1]
+        L = M[s:e, s:e].copy()
+        if not cholesky(L):
+            return 0.0
+        xs = rhs[s:e].copy()
+        cholesky_solve(L, xs)
+        qdd[s:e] = xs
+    return ratio

@@ -1,0 +1,1 @@
+"""Per-chain kinematics, closure residual and Jacobians, assembly."""

@@ -1,0 +1,133 @@
+"""Assembly: find tree coordinates that satisfy the closure (and an end-effector target).
+
+Newton-Raphson on the chosen free joints with a backtracking line search, so a rough
+guess converges to the assembly mode it lies in (the guess selects the mode; the sign
+check in :func:`initial_state` makes a wrong mode an error, not a surprise).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from elastic_pm_dyn.errors import AssemblyError
+from elastic_pm_dyn.kinematics.mechanism import Mechanism
+
+TOLERANCE = 1e-13  # [m]: a few ulps of the link lengths
+
+
+def _residual(mech: Mechanism, q: np.ndarray, target: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    t = mech.terms(q)
+    r, jac = [t.residual], [t.A]
+    if target is not None:
+        J_ee, _ = mech.end_effector_jacobian(t)
+        r.append(mech.end_effector(q) - target)
+        jac.append(J_ee)
+    return np.concatenate(r), np.vstack(jac)
+
+
+def solve_pose(mech: Mechanism, q_guess: np.ndarray, free: np.ndarray,
+               target: np.ndarray | None = None, max_iter: int = 60) -> np.ndarray:
+    """Tree coordinates with h(q) = 0 (and end effector = target), moving only ``free``.
+
+    Raises :class:`AssemblyError` with the remaining residual if Newton does not converge
+    (target out of reach) or the Jacobian is singular there.
+    """
+    q = np.array(q_guess, dtype=float)
+    r, jac = _residual(mech, q, target)
+    for _ in range(max_iter):
+        norm = float(np.linalg.norm(r))
+        if norm <= TOLERANCE:
+            return q
+        step, *_ = np.linalg.lstsq(jac[:, free], r, rcond=None)
+        lam = 1.0
+        while lam > 1e-6:
+            trial = q.copy()
+            trial[free] -= lam * step
+            r_new, jac_new = _residual(mech, trial, target)
+            if np.linalg.norm(r_new) < norm:
+                break
+            lam *= 0.5
+        else:
+            break
+        q, r, jac = trial, r_new, jac_new
+    norm = float(np.linalg.norm(r))
+    if norm <= TOLERANCE:
+        return q
+    what = "end-effector target" if target is not None else "closure"
+    raise AssemblyError(f"cannot assemble the {what}: residual {norm:.3g} m after Newton "
+                        "(out of reach, or a singular configuration)")
+
+
+def solve_velocity(mech: Mechanism, q: np.ndarray, free: np.ndarray, fixed_qd: np.ndarray,
+                   ee_velocity: np.ndarray | None = None) -> np.ndarray:
+    """Tree velocity with A qd = 0 (and J_ee qd = ee_velocity); qd is fixed_qd off ``free``."""
+    t = mech.terms(q)
+    jac = t.A
+    rhs = np.zeros(mech.m)
+    if ee_velocity is not None:
+        J_ee, _ = mech.end_effector_jacobian(t)
+        jac = np.vstack([jac, J_ee])
+        rhs = np.concatenate([rhs, ee_velocity])
+    qd = np.array(fixed_qd, dtype=float)
+    fixed = np.setdiff1d(np.arange(mech.n), free)
+    qd[free] = _solve_square(jac[:, free], rhs - jac[:, fixed] @ qd[fixed])
+    return qd
+
+
+def solve_acceleration(mech: Mechanism, q: np.ndarray, qd: np.ndarray, free: np.ndarray,
+                       fixed_qdd: np.ndarray, ee_acceleration: np.ndarray | None = None) -> np.ndarray:
+    """Tree acceleration with A qdd = gamma (and J_ee qdd + Jdot_ee qd = ee_acceleration)."""
+    t = mech.terms(q, qd)
+    jac, rhs = t.A, t.gamma
+    if ee_acceleration is not None:
+        J_ee, a_ee = mech.end_effector_jacobian(t)
+        jac = np.vstack([jac, J_ee])
+        rhs = np.concatenate([rhs, ee_acceleration - a_ee])
+    qdd = np.array(fixed_qdd, dtype=float)
+    fixed = np.setdiff1d(np.arange(mech.n), free)
+    qdd[free] = _solve_square(jac[:, free], rhs - jac[:, fixed] @ qdd[fixed])
+    return qdd
+
+
+def _solve_square(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    if a.shape[0] != a.shape[1]:
+        raise AssemblyError(f"{a.shape[0]} equations for {a.shape[1]} unknowns: the machine is not "
+                            "non-redundant for this task")
+    s = np.linalg.svd(a, compute_uv=False)
+    if s[-1] <= 1e-10 * max(s[0], 1e-300):
+        raise AssemblyError(f"singular configuration (condition number {s[0] / max(s[-1], 1e-300):.3g})")
+    return np.linalg.solve(a, b)
+
+
+def initial_state(mech: Mechanism) -> np.ndarray:
+    """Start pose from the model's ``initial_state``: elastic joints at rest, at rest."""
+    model = mech.model
+    init = model.initial
+    q = np.zeros(mech.n)
+    for j, joint in enumerate(model.joints):
+        q[j] = init.guess.get(joint.name, joint.rest)
+    for j in mech.elastic:
+        q[j] = model.joints[j].rest
+    if init.active is not None:
+        for name, value in init.active.items():
+            q[model.joint_index(name)] = value
+        q = solve_pose(mech, q, mech.passive)
+    elif init.end_effector is not None:
+        target = np.asarray(init.end_effector, dtype=float)
+        if target.shape[0] != len(mech.ee_components):
+            raise AssemblyError(f"initial end_effector has {target.shape[0]} coordinates, "
+                                f"the model's end effector {len(mech.ee_components)}")
+        free = np.sort(np.concatenate([mech.active, mech.passive]))
+        q = solve_pose(mech, q, free, target)
+    else:
+        q = solve_pose(mech, q, mech.passive)
+    check_assembly_mode(mech, q)
+    return q
+
+
+def check_assembly_mode(mech: Mechanism, q: np.ndarray) -> None:
+    for name, sign in mech.model.initial.signs.items():
+        value = q[mech.model.joint_index(name)]
+        if np.sign(np.sin(value)) != sign:
+            raise AssemblyError(f"start pose is in the wrong assembly mode: {name} = {value:.4f} rad, "
+                                f"expected {'positive' if sign > 0 else 'negative'} (sin)")

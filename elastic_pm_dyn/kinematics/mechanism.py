@@ -1,0 +1,131 @@
+"""The compiled view of a model: kinematics, closure and the tree terms at a state."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from elastic_pm_dyn.kinematics.kernels import chain_points, closure_rows, tree_terms
+from elastic_pm_dyn.model.arrays import ModelArrays, pack
+from elastic_pm_dyn.model.description import ACTIVE, ELASTIC, PASSIVE, Model
+
+
+@dataclass
+class TreeTerms:
+    """Everything the formulations need at one state (eqs 8, 9, 19, 33)."""
+
+    M: np.ndarray  # (n_t, n_t) block-diagonal tree mass matrix M_t
+    h: np.ndarray  # (n_t,) bias: Coriolis/centrifugal, gravity, K q, D qd, friction
+    J: np.ndarray  # (n_chains, 3, n_t) chain-end Jacobians J_i in tree columns
+    a_tip: np.ndarray  # (n_chains, 3) chain-end bias accelerations Jdot_i qd_i
+    p_tip: np.ndarray  # (n_chains, 3) chain-end positions
+    A: np.ndarray  # (m, n_t) closure Jacobian dh/dq_t
+    gamma: np.ndarray  # (m,) -Adot qd_t
+    residual: np.ndarray  # (m,) h(q_t)
+
+
+class Mechanism:
+    """A model compiled for evaluation. Coordinates are tree coordinates q_t (n_t,).
+
+    Index sets (tree order): ``active``, ``elastic``, ``passive``, ``ae`` = [q_a, q_e].
+    """
+
+    def __init__(self, model: Model):
+        self.model = model
+        self.arrays: ModelArrays = pack(model)
+        self.n = len(model.joints)
+        self.n_chains = len(model.chains)
+        self.m = model.closure.size if model.closure is not None else 0
+        self.active = model.indices(ACTIVE)
+        self.elastic = model.indices(ELASTIC)
+        self.passive = model.indices(PASSIVE)
+        self.ae = model.ae_indices
+        self.joint_names = model.joint_names
+        self.active_names = [self.joint_names[i] for i in self.active]
+        self.ee_components = np.array(model.ee_components)
+
+    # ----------------------------------------------------------------- evaluation
+    def terms(self, q: np.ndarray, qd: np.ndarray | None = None) -> TreeTerms:
+        n, nc, m = self.n, self.n_chains, self.m
+        q = np.ascontiguousarray(q, dtype=float)
+        qd = np.zeros(n) if qd is None else np.ascontiguousarray(qd, dtype=float)
+        M, h = np.empty((n, n)), np.empty(n)
+        J, a_tip, p_tip = np.empty((nc, 3, n)), np.empty((nc, 3)), np.empty((nc, 3))
+        ma = self.arrays
+        tree_terms(ma.jf, ma.ji, ma.chain_start, ma.chain_end, ma.gravity, q, qd, M, h, J, a_tip, p_tip)
+        A, gamma, res = np.zeros((m, n)), np.zeros(m), np.zeros(m)
+        if m:
+            closure_rows(ma.closure_chains, ma.closure_components, J, a_tip, p_tip, A, gamma, res)
+        return TreeTerms(M, h, J, a_tip, p_tip, A, gamma, res)
+
+    def points(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """World positions of joint origins (n_t, 3), body centres (n_t, 3), chain ends (n_c, 3)."""
+        n = self.n
+        origins, coms, tips = np.empty((n, 3)), np.empty((n, 3)), np.empty((self.n_chains, 3))
+        ma = self.arrays
+        chain_points(ma.jf, ma.ji, ma.chain_start, ma.chain_end, np.ascontiguousarray(q, dtype=float),
+                     origins, coms, tips)
+        return origins, coms, tips
+
+    def end_effector(self, q: np.ndarray) -> np.ndarray:
+        """End-effector point: the first closure chain's end (x, y for planar models)."""
+        chain = self.model.closure.chains[0] if self.model.closure is not None else 0
+        return self.points(q)[2][chain][self.ee_components]
+
+    def end_effector_jacobian(self, terms: TreeTerms) -> tuple[np.ndarray, np.ndarray]:
+        """(J_ee, Jdot_ee qd) of the end-effector point in tree coordinates."""
+        chain = self.model.closure.chains[0] if self.model.closure is not None else 0
+        return terms.J[chain][self.ee_components], terms.a_tip[chain][self.ee_components]
+
+    def gap(self, q: np.ndarray) -> float:
+        """Closure gap |h(q_t)| [m] (the paper's Fig. 4)."""
+        return float(np.linalg.norm(self.terms(q).residual))
+
+    # -------------------------------------------------------------- coordinates
+    def passive_map(self, terms: TreeTerms) -> tuple[np.ndarray, np.ndarray]:
+        """W = dq_t/dq_ae (eq 18) and Wdot qd_ae, from the closure (eqs 9, 12).
+
+        Raises numpy's LinAlgError when dh/dq_p is singular.
+        """
+        A_p = terms.A[:, self.passive]
+        A_ae = terms.A[:, self.ae]
+        W = np.zeros((self.n, len(self.ae)))
+        W[self.ae, np.arange(len(self.ae))] = 1.0
+        c = np.zeros(self.n)
+        if self.m:
+            W[self.passive] = -np.linalg.solve(A_p, A_ae)
+            c[self.passive] = np.linalg.solve(A_p, terms.gamma)
+        return W, c
+
+    def tree_velocity(self, q: np.ndarray, qd_ae: np.ndarray) -> np.ndarray:
+        """qd_t = W qd_ae (eq 12)."""
+        W, _ = self.passive_map(self.terms(q))
+        return W @ np.asarray(qd_ae, dtype=float)
+
+    def split_tau(self, tau_active: np.ndarray) -> np.ndarray:
+        """Tree generalised forces with the motor torques on the active joints."""
+        tau = np.zeros(self.n)
+        tau[self.active] = tau_active
+        return tau
+
+    # ----------------------------------------------------------------- energy
+    def energy(self, q: np.ndarray, qd: np.ndarray) -> tuple[float, float]:
+        """Kinetic and potential (gravity + springs) energy [J]."""
+        t = self.terms(q)
+        kinetic = 0.5 * float(qd @ t.M @ qd)
+        _, coms, _ = self.points(q)
+        jf = self.arrays.jf
+        from elastic_pm_dyn.model.layout import JF_MASS, JF_REST, JF_STIFFNESS
+        gravity = -float(np.sum(jf[:, JF_MASS] * (coms @ self.arrays.gravity)))
+        spring = 0.5 * float(np.sum(jf[:, JF_STIFFNESS] * (q - jf[:, JF_REST]) ** 2))
+        return kinetic, gravity + spring
+
+    def branch_forces(self, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
+        """F = K u + D du/dt for each named branch, tension positive [N]."""
+        out = np.empty(len(self.model.branches))
+        for k, b in enumerate(self.model.branches):
+            j = self.joint_names.index(b.joint)
+            joint = self.model.joints[j]
+            out[k] = joint.stiffness * (q[j] - joint.rest) + joint.damping * qd[j]
+        return out

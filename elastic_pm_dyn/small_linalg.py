@@ -1,0 +1,190 @@
+"""Dense linear algebra for the tiny matrices of one chain (compiled, no LAPACK call).
+
+LAPACK's per-call overhead dominates for 2x2 to 12x12 systems; these loops do not.
+"""
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True)
+def cholesky(A):
+    """In-place lower Cholesky factor of a symmetric positive definite A; False if not PD."""
+    n = A.shape[0]
+    for j in range(n):
+        d = A[j, j]
+        for k in range(j):
+            d -= A[j, k] * A[j, k]
+        if not d > 0.0:
+            return False
+        d = np.sqrt(d)
+        A[j, j] = d
+        for i in range(j + 1, n):
+            s = A[i, j]
+            for k in range(j):
+                s -= A[i, k] * A[j, k]
+            A[i, j] = s / d
+    return True
+
+
+@njit(cache=True)
+def cholesky_solve(L, b):
+    """Solve (L L^T) x = b in place for a vector b."""
+    n = L.shape[0]
+    for i in range(n):
+        s = b[i]
+        for k in range(i):
+            s -= L[i, k] * b[k]
+        b[i] = s / L[i, i]
+    for i in range(n - 1, -1, -1):
+        s = b[i]
+        for k in range(i + 1, n):
+            s -= L[k, i] * b[k]
+        b[i] = s / L[i, i]
+
+
+@njit(cache=True)
+def cholesky_solve_columns(L, B):
+    """Solve (L L^T) X = B in place, column by column.
+
+    (A separate function, not recursion: numba's on-disk cache crashes on recursive
+    functions specialised for several argument types.)
+    """
+    for c in range(B.shape[1]):
+        cholesky_solve(L, B[:, c])
+
+
+@njit(cache=True)
+def lu_factor(A, piv):
+    """In-place LU with partial pivoting. Returns min|pivot| / max|pivot| (0 = singular).
+
+    The pivot ratio is a cheap, scale-free singularity indicator.
+    """
+    n = A.shape[0]
+    pmin = np.inf
+    pmax = 0.0
+    for k in range(n):
+        p = k
+        best = abs(A[k, k])
+        for i in range(k + 1, n):
+            if abs(A[i, k]) > best:
+                best = abs(A[i, k])
+                p = i
+        piv[k] = p
+        if p != k:
+            for j in range(n):
+                t = A[k, j]
+                A[k, j] = A[p, j]
+                A[p, j] = t
+        pmin = min(pmin, best)
+        pmax = max(pmax, best)
+        if best == 0.0:
+            continue
+        for i in range(k + 1, n):
+            A[i, k] /= A[k, k]
+            f = A[i, k]
+            for j in range(k + 1, n):
+                A[i, j] -= f * A[k, j]
+    if n == 0:
+        return 1.0
+    if pmax == 0.0:
+        return 0.0
+    return pmin / pmax
+
+
+@njit(cache=True)
+def lu_solve(LU, piv, b):
+    """Solve A x = b in place for a vector b, with the factors of :func:`lu_factor`."""
+    n = LU.shape[0]
+    for k in range(n):
+        p = piv[k]
+        if p != k:
+            t = b[k]
+            b[k] = b[p]
+            b[p] = t
+    for i in range(n):
+        s = b[i]
+        for k in range(i):
+            s -= LU[i, k] * b[k]
+        b[i] = s
+    for i in range(n - 1, -1, -1):
+        s = b[i]
+        for k in range(i + 1, n):
+            s -= LU[i, k] * b[k]
+        b[i] = s / LU[i, i]
+
+
+@njit(cache=True)
+def lu_solve_columns(LU, piv, B):
+    """Solve A X = B in place, column by column."""
+    for c in range(B.shape[1]):
+        lu_solve(LU, piv, B[:, c])
+
+
+@njit(cache=True)
+def lu_solve_transposed(LU, piv, b):
+    """Solve A^T x = b in place with the factors of A."""
+    n = LU.shape[0]
+    for i in range(n):  # U^T y = b
+        s = b[i]
+        for k in range(i):
+            s -= LU[k, i] * b[k]
+        b[i] = s / LU[i, i]
+    for i in range(n - 1, -1, -1):  # L^T z = y
+        s = b[i]
+        for k in range(i + 1, n):
+            s -= LU[k, i] * b[k]
+        b[i] = s
+    for k in range(n - 1, -1, -1):  # undo the row swaps
+        p = piv[k]
+        if p != k:
+            t = b[k]
+            b[k] = b[p]
+            b[p] = t
+
+
+@njit(cache=True)
+def matvec(A, x, out):
+    """out = A x (no BLAS: its call overhead dominates at these sizes)."""
+    for i in range(A.shape[0]):
+        s = 0.0
+        for k in range(A.shape[1]):
+            s += A[i, k] * x[k]
+        out[i] = s
+    return out
+
+
+@njit(cache=True)
+def matvec_t(A, x, out):
+    """out = A^T x."""
+    for j in range(A.shape[1]):
+        out[j] = 0.0
+    for i in range(A.shape[0]):
+        xi = x[i]
+        for j in range(A.shape[1]):
+            out[j] += A[i, j] * xi
+    return out
+
+
+@njit(cache=True)
+def matmul(A, B, out):
+    """out = A B."""
+    for i in range(A.shape[0]):
+        for j in range(B.shape[1]):
+            s = 0.0
+            for k in range(A.shape[1]):
+                s += A[i, k] * B[k, j]
+            out[i, j] = s
+    return out
+
+
+@njit(cache=True)
+def matmul_tn(A, B, out):
+    """out = A^T B."""
+    for i in range(A.shape[1]):
+        for j in range(B.shape[1]):
+            s = 0.0
+            for k in range(A.shape[0]):
+                s += A[k, i] * B[k, j]
+            out[i, j] = s
+    return out
