@@ -1,0 +1,169 @@
+"""The ``elastic-pm-dyn`` command: one entry point, one subcommand per job.
+
+User mistakes end with a one-line reason and a non-zero exit, never a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+from elastic_pm_dyn.errors import ElasticPmDynError, SingularConfigurationError
+
+EXIT_USER_ERROR = 2
+EXIT_RUN_FAILED = 1
+
+
+def _add_simulation_options(p: argparse.ArgumentParser) -> None:
+    from elastic_pm_dyn.dynamics.direct import FORMULATIONS
+    from elastic_pm_dyn.sim.simulator import INTEGRATORS, STABILISATIONS
+    p.add_argument("--method", choices=FORMULATIONS, default="scdd", help="formulation (default scdd)")
+    p.add_argument("--integrator", choices=INTEGRATORS, default="rk4")
+    p.add_argument("--dt", type=float, default=1e-4, help="RK4 step [s] (default 1e-4)")
+    p.add_argument("--rtol", type=float, default=1e-10, help="dop853 relative tolerance")
+    p.add_argument("--atol", type=float, default=1e-12, help="dop853 absolute tolerance")
+    p.add_argument("--stabilization", choices=tuple(STABILISATIONS), default="projection")
+    p.add_argument("--sample", type=float, default=1e-3, help="output interval [s] (default 1e-3)")
+
+
+def _options(args: argparse.Namespace):
+    from elastic_pm_dyn.sim.simulator import SimulationOptions
+    return SimulationOptions(formulation=args.method, integrator=args.integrator, dt=args.dt, rtol=args.rtol,
+                             atol=args.atol, stabilization=args.stabilization, sample=args.sample)
+
+
+def cmd_simulate(args: argparse.Namespace) -> int:
+    from elastic_pm_dyn.kinematics.mechanism import Mechanism
+    from elastic_pm_dyn.model.loader import load_model
+    from elastic_pm_dyn.sim.simulator import Simulator
+    from elastic_pm_dyn.sim.torque import load_torque_csv
+    mech = Mechanism(load_model(args.model))
+    torque = load_torque_csv(args.torques, mech.active_names, args.hold)
+    sim = Simulator(mech, _options(args))
+    try:
+        result = sim.run(torque, args.duration)
+    except SingularConfigurationError as err:
+        if err.partial is not None:
+            err.partial.to_csv(args.out)
+            print(f"partial output ({len(err.partial.t)} samples) written to {args.out}", file=sys.stderr)
+        raise
+    result.to_csv(args.out)
+    print(f"{len(result.t)} samples -> {args.out}  (max gap {result.gap.max():.3g} m)")
+    return 0
+
+
+def cmd_feedforward(args: argparse.Namespace) -> int:
+    from elastic_pm_dyn.feedforward import line_torques
+    from elastic_pm_dyn.model.loader import load_model
+    from elastic_pm_dyn.sim.torque import write_torque_csv
+    from elastic_pm_dyn.trajectory import QuinticLine
+    model = load_model(args.model)
+    a, b = np.array(args.line[:len(args.line) // 2]), np.array(args.line[len(args.line) // 2:])
+    line = QuinticLine(a, b, args.move, args.hold)
+    times, torques, names = line_torques(model, line, args.rate)
+    write_torque_csv(args.out, times, torques, names)
+    print(f"{len(times)} samples at {args.rate:g} Hz -> {args.out}  (peak |tau| "
+          + ", ".join(f"{n} {v:.3f} N m" for n, v in zip(names, np.abs(torques).max(0), strict=True)) + ")")
+    return 0
+
+
+def cmd_check(args: argparse.Namespace) -> int:
+    from elastic_pm_dyn.dynamics.linear import elastic_modes
+    from elastic_pm_dyn.kinematics.assembly import initial_state
+    from elastic_pm_dyn.kinematics.mechanism import Mechanism
+    from elastic_pm_dyn.model.loader import load_model
+    model = load_model(args.model)
+    mech = Mechanism(model)
+    print(f"model {model.name} ({model.source}): {mech.n_chains} chains, {mech.n} tree joints")
+    for role, idx in (("active", mech.active), ("elastic", mech.elastic), ("passive", mech.passive)):
+        print(f"  {role:8s} {len(idx)}: {', '.join(mech.joint_names[i] for i in idx) or '-'}")
+    print(f"  closure equations {mech.m}; non-redundant coordinates q_ae: {len(mech.ae)}")
+    q = initial_state(mech)
+    print("start pose:")
+    for name, value in zip(mech.joint_names, q, strict=True):
+        print(f"  {name:20s} {value: .9f}")
+    print(f"  end effector {np.array2string(mech.end_effector(q), precision=6)} m")
+    print(f"  closure residual {mech.gap(q):.3g} m")
+    if len(mech.elastic):
+        modes = elastic_modes(mech, q, clamp_motors=True)
+        print("elastic modes at the start pose (motors clamped):")
+        for k, f in enumerate(modes.natural_hz):
+            zeta = modes.damping_ratio[k] if k < len(modes.damping_ratio) else float("nan")
+            print(f"  mode {k + 1}: {f:9.2f} Hz undamped, damping ratio {zeta:.4f}")
+    return 0
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    from elastic_pm_dyn.demo import run_offline_demo
+    run_offline_demo(Path(args.out), Path(args.model))
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="elastic-pm-dyn", description="Dynamics of elastic parallel manipulators")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("simulate", help="simulate a model under a torque table")
+    p.add_argument("--model", required=True)
+    p.add_argument("--torques", required=True, help="CSV with header t,<active joint names>")
+    p.add_argument("--duration", type=float, required=True, help="[s]")
+    p.add_argument("--out", required=True, help="output CSV")
+    p.add_argument("--hold", choices=("zoh", "linear"), default="zoh")
+    _add_simulation_options(p)
+    p.set_defaults(func=cmd_simulate)
+
+    p = sub.add_parser("feedforward", help="rigid inverse-dynamics torques of a quintic straight line")
+    p.add_argument("--model", required=True)
+    p.add_argument("--line", type=float, nargs="+", required=True, metavar="X",
+                   help="start and end point: XA YA XB YB (planar) or six numbers (spatial)")
+    p.add_argument("--move", type=float, default=0.2, help="move time [s]")
+    p.add_argument("--hold", type=float, default=0.3, help="hold time at the end [s]")
+    p.add_argument("--rate", type=float, default=1000.0, help="sample rate [Hz]")
+    p.add_argument("--out", required=True)
+    p.set_defaults(func=cmd_feedforward)
+
+    p = sub.add_parser("check", help="DOF, start pose, closure residual, natural frequencies")
+    p.add_argument("model")
+    p.set_defaults(func=cmd_check)
+
+    p = sub.add_parser("demo", help="the reference manoeuvre: feedforward -> SCDD and L-D'A -> CSV + plots")
+    p.add_argument("--model", default=str(Path(__file__).resolve().parent.parent / "config" / "five_bar.yaml"))
+    p.add_argument("--out", default="runs/demo")
+    p.set_defaults(func=cmd_demo)
+    return parser
+
+
+def _validate(args: argparse.Namespace) -> None:
+    from elastic_pm_dyn.errors import InputError
+    if args.command == "feedforward" and len(args.line) not in (4, 6):
+        raise InputError("--line takes 4 numbers (planar) or 6 (spatial)")
+    for name in ("duration", "rate"):
+        value = getattr(args, name, None)
+        if value is not None and not (np.isfinite(value) and value > 0):
+            raise InputError(f"--{name} must be a positive number, got {value}")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    func: Callable[[argparse.Namespace], int] = args.func
+    try:
+        _validate(args)
+        return func(args)
+    except SingularConfigurationError as err:
+        print(f"elastic-pm-dyn: error: {err}", file=sys.stderr)
+        return EXIT_RUN_FAILED
+    except ElasticPmDynError as err:
+        print(f"elastic-pm-dyn: error: {err}", file=sys.stderr)
+        return EXIT_USER_ERROR
+    except OSError as err:
+        print(f"elastic-pm-dyn: error: {err}", file=sys.stderr)
+        return EXIT_USER_ERROR
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,1 @@
+"""Simulation: integrators, constraint stabilisation, torque sources, results."""

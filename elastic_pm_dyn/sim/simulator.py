@@ -1,0 +1,175 @@
+"""Run a mechanism forward in time under a torque source."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.integrate import solve_ivp
+
+from elastic_pm_dyn.dynamics.evaluate import FORMULATION_CODES, LDA, accelerations
+from elastic_pm_dyn.errors import InputError, SingularConfigurationError
+from elastic_pm_dyn.kinematics.assembly import initial_state
+from elastic_pm_dyn.kinematics.mechanism import Mechanism
+from elastic_pm_dyn.sim import kernels
+from elastic_pm_dyn.sim.result import SimulationResult
+from elastic_pm_dyn.sim.torque import TorqueSource
+
+INTEGRATORS = ("rk4", "dop853")
+STABILISATIONS = {"none": 0, "baumgarte": kernels.STAB_BAUMGARTE, "projection": kernels.STAB_PROJECTION,
+                  "both": kernels.STAB_BAUMGARTE | kernels.STAB_PROJECTION}
+
+
+@dataclass
+class SimulationOptions:
+    formulation: str = "scdd"
+    integrator: str = "rk4"
+    dt: float = 1e-4  # RK4 step [s]; shortened so steps end on samples and torque steps
+    rtol: float = 1e-10  # adaptive integrator
+    atol: float = 1e-12
+    stabilization: str = "projection"  # none | baumgarte | projection | both
+    baumgarte_alpha: float = 200.0  # [1/s]: hdd + 2 alpha hd + beta^2 h = 0
+    baumgarte_beta: float = 200.0
+    sample: float = 1e-3  # output interval [s]
+    closure_tol: float = 1e-14  # [m] Newton / projection target
+    singular_tol: float = 1e-8  # conditioning below which the run stops
+
+    def validate(self) -> None:
+        if self.formulation not in FORMULATION_CODES:
+            raise InputError(f"unknown formulation {self.formulation!r} "
+                             f"(expected one of: {', '.join(FORMULATION_CODES)})")
+        if self.integrator not in INTEGRATORS:
+            raise InputError(f"unknown integrator {self.integrator!r} (expected rk4 or dop853)")
+        if self.stabilization not in STABILISATIONS:
+            raise InputError(f"unknown stabilization {self.stabilization!r} "
+                             f"(expected one of: {', '.join(STABILISATIONS)})")
+        for name in ("dt", "rtol", "atol", "sample"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value > 0):
+                raise InputError(f"{name} must be a positive number, got {value!r}")
+
+
+class Simulator:
+    """Integrates the tree state; see :mod:`elastic_pm_dyn.sim.kernels` for the methods."""
+
+    def __init__(self, mech: Mechanism, options: SimulationOptions | None = None):
+        self.mech = mech
+        self.options = options or SimulationOptions()
+        self.options.validate()
+        self.code = FORMULATION_CODES[self.options.formulation]
+        self.stab = STABILISATIONS[self.options.stabilization]
+        self.qdd_prev = np.zeros(mech.n)
+        self.lam = np.zeros(mech.m)
+
+    # ------------------------------------------------------------------ stepping
+    def advance(self, q: np.ndarray, qd: np.ndarray, torque: TorqueSource, t0: float, t1: float) -> None:
+        """Integrate (q, qd) in place from t0 to t1, which must lie inside one torque piece.
+
+        Raises SingularConfigurationError (state left at the last good step).
+        """
+        o = self.options
+        n_steps = max(1, int(np.ceil((t1 - t0) / o.dt - 1e-9)))
+        h = (t1 - t0) / n_steps
+        if o.integrator == "dop853":
+            self._advance_adaptive(q, qd, torque, t0, t1)
+            return
+        info = np.zeros(3)
+        # A table's piece is one polynomial over the whole call; a function is refitted
+        # through the stage times of every step.
+        calls = [(t0 + k * h, 1) for k in range(n_steps)] if torque.smooth else [(t0, n_steps)]
+        coef = np.zeros((3, self.mech.n))
+        for start, steps in calls:
+            coef[:, self.mech.active] = torque.coefficients(start, steps * h)
+            status = kernels.rk4_steps(self.code, self.mech.arrays, q, qd, coef, h, steps, self.stab,
+                                       o.baumgarte_alpha, o.baumgarte_beta, o.closure_tol, o.singular_tol,
+                                       self.qdd_prev, self.lam, info)
+            if status != kernels.OK:
+                t_fail = start + info[0] * h
+                what = ("singular configuration" if status == kernels.SINGULAR
+                        else "the state became NaN/Inf")
+                raise SingularConfigurationError(
+                    f"{what} at t = {t_fail:.6g} s (conditioning {info[1]:.3g}, "
+                    f"closure residual {info[2]:.3g} m)", time=t_fail, residual=float(info[2]))
+
+    def _advance_adaptive(self, q: np.ndarray, qd: np.ndarray, torque: TorqueSource, t0: float, t1: float) -> None:
+        o, mech, n = self.options, self.mech, self.mech.n
+        a = o.baumgarte_alpha if self.stab & kernels.STAB_BAUMGARTE else 0.0
+        b = o.baumgarte_beta if self.stab & kernels.STAB_BAUMGARTE else 0.0
+        coef = None if torque.smooth else torque.coefficients(t0, t1 - t0)
+        tau = np.zeros(n)
+        qdd = np.empty(n)
+        worst = [1.0]
+
+        def rhs(t: float, y: np.ndarray) -> np.ndarray:
+            qq, vv = y[:n].copy(), y[n:].copy()
+            if self.code == LDA:
+                kernels.partition(mech.arrays, qq, vv, o.closure_tol, 4)
+            s = t - t0
+            tau[mech.active] = torque.value(t) if coef is None else coef[0] + s * (coef[1] + s * coef[2])
+            cond, _ = accelerations(self.code, mech.arrays, qq, vv, tau, a, b, self.qdd_prev, qdd, self.lam)
+            self.qdd_prev[:] = qdd
+            worst[0] = min(worst[0], cond)
+            return np.concatenate([vv, qdd])
+
+        sol = solve_ivp(rhs, (t0, t1), np.concatenate([q, qd]), method="DOP853", rtol=o.rtol, atol=o.atol)
+        if not sol.success or worst[0] < o.singular_tol:
+            raise SingularConfigurationError(
+                f"adaptive integration failed between t = {t0:.6g} and {t1:.6g} s "
+                f"(conditioning {worst[0]:.3g}; {sol.message})", time=t0, residual=mech.gap(q))
+        q[:], qd[:] = sol.y[:n, -1], sol.y[n:, -1]
+        if self.code == LDA:
+            kernels.partition(mech.arrays, q, qd, o.closure_tol, 4)
+        elif self.stab & kernels.STAB_PROJECTION:
+            kernels.project(mech.arrays, q, qd, o.closure_tol, 3)
+
+    # ------------------------------------------------------------------ runs
+    def run(self, torque: TorqueSource, duration: float, q0: np.ndarray | None = None,
+            qd0: np.ndarray | None = None, t0: float = 0.0) -> SimulationResult:
+        """Simulate ``duration`` seconds; samples every ``options.sample`` from t0.
+
+        Starts from the model's initial state at rest unless q0/qd0 are given. On a
+        singular configuration the error carries the samples so far as ``partial``.
+        """
+        if not (np.isfinite(duration) and duration > 0):
+            raise InputError(f"duration must be a positive number of seconds, got {duration!r}")
+        mech = self.mech
+        q = initial_state(mech) if q0 is None else np.array(q0, dtype=float)
+        qd = np.zeros(mech.n) if qd0 is None else np.array(qd0, dtype=float)
+        if q.shape != (mech.n,) or qd.shape != (mech.n,):
+            raise InputError(f"initial state must have {mech.n} tree coordinates")
+        self.qdd_prev[:] = 0.0
+        o = self.options
+        t_end = t0 + duration
+        n_out = int(np.floor(duration / o.sample + 1e-9))
+        out_times = np.append(t0 + o.sample * np.arange(n_out + 1), t_end)  # the end is always recorded
+        brk = torque.breakpoints()
+        grid = np.unique(np.concatenate([out_times, brk[(brk > t0) & (brk < t_end)]]))
+        grid = grid[np.concatenate([[True], np.diff(grid) > 1e-12])]
+        is_out = np.isin(np.round(grid / 1e-12), np.round(out_times / 1e-12))
+
+        ts, qs, qds, taus = [], [], [], []
+
+        def record(t: float) -> None:
+            ts.append(t)
+            qs.append(q.copy())
+            qds.append(qd.copy())
+            taus.append(torque.value(t))
+
+        record(grid[0])
+        try:
+            for a, b, out in zip(grid[:-1], grid[1:], is_out[1:], strict=True):
+                self.advance(q, qd, torque, a, b)
+                if out:
+                    record(b)
+        except SingularConfigurationError as err:
+            err.partial = self._result(ts, qs, qds, taus)
+            raise
+        return self._result(ts, qs, qds, taus)
+
+    def _result(self, ts, qs, qds, taus) -> SimulationResult:
+        n_a = len(self.mech.active)
+        return SimulationResult(self.mech, np.array(ts), np.array(qs).reshape(-1, self.mech.n),
+                                np.array(qds).reshape(-1, self.mech.n), np.array(taus).reshape(-1, n_a),
+                                self.options.formulation,
+                                {"integrator": self.options.integrator, "dt": self.options.dt,
+                                 "stabilization": self.options.stabilization})

@@ -1,0 +1,151 @@
+"""Motor torque sources for simulation.
+
+Every source answers two questions for the integrator: where the torque is not smooth
+(``breakpoints``: a step never straddles one) and what polynomial in time it follows over
+a step (``coefficients``).
+"""
+
+from __future__ import annotations
+
+import csv
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+from elastic_pm_dyn.errors import InputError
+
+HOLDS = ("zoh", "linear")
+
+
+class TorqueSource:
+    """Base: motor torques for the active joints, in the mechanism's active order."""
+
+    smooth = False  # True: arbitrary function, needs a fit per step
+
+    def breakpoints(self) -> np.ndarray:
+        return np.zeros(0)
+
+    def value(self, t: float) -> np.ndarray:
+        raise NotImplementedError
+
+    def coefficients(self, t: float, h: float) -> np.ndarray:
+        """(3, n_a): tau(t + s) = c0 + c1 s + c2 s^2 for s in [0, h], h within one piece."""
+        raise NotImplementedError
+
+
+class ConstantTorque(TorqueSource):
+    def __init__(self, values: np.ndarray):
+        self.values = _finite(np.atleast_1d(np.asarray(values, dtype=float)), "constant torque")
+
+    def value(self, t: float) -> np.ndarray:
+        return self.values.copy()
+
+    def coefficients(self, t: float, h: float) -> np.ndarray:
+        return np.vstack([self.values, np.zeros_like(self.values), np.zeros_like(self.values)])
+
+
+class FunctionTorque(TorqueSource):
+    """tau = f(t) for a Python callable (e.g. continuous feedforward)."""
+
+    smooth = True
+
+    def __init__(self, function: Callable[[float], np.ndarray]):
+        self.function = function
+
+    def value(self, t: float) -> np.ndarray:
+        return _finite(np.asarray(self.function(t), dtype=float), f"torque function at t = {t:g} s")
+
+    def coefficients(self, t: float, h: float) -> np.ndarray:
+        # The quadratic through RK4's three stage times reproduces f exactly there.
+        f0, f1, f2 = self.value(t), self.value(t + 0.5 * h), self.value(t + h)
+        return np.vstack([f0, (4 * f1 - 3 * f0 - f2) / h, 2 * (f0 - 2 * f1 + f2) / h**2])
+
+
+class TorqueTable(TorqueSource):
+    """Sampled torques. ``zoh``: sample k acts on [t_k, t_k+1), as a digital controller
+    applies it; ``linear``: interpolated. After the last sample the last value holds."""
+
+    def __init__(self, times: np.ndarray, values: np.ndarray, hold: str = "zoh"):
+        if hold not in HOLDS:
+            raise InputError(f"unknown hold {hold!r} (expected zoh or linear)")
+        self.times = np.asarray(times, dtype=float)
+        self.values = np.atleast_2d(np.asarray(values, dtype=float))
+        if self.times.ndim != 1 or len(self.times) == 0 or len(self.times) != len(self.values):
+            raise InputError("a torque table needs one row of values per time")
+        if np.any(np.diff(self.times) <= 0):
+            k = int(np.argmax(np.diff(self.times) <= 0)) + 1
+            raise InputError(f"torque table times must increase strictly (row {k + 1}: t = {self.times[k]:g})")
+        _finite(self.values, "torque table")
+        self.hold = hold
+
+    def breakpoints(self) -> np.ndarray:
+        return self.times
+
+    def value(self, t: float) -> np.ndarray:
+        if t < self.times[0] - 1e-12:
+            raise InputError(f"no torque before the table's first sample ({self.times[0]:g} s) at t = {t:g} s")
+        if self.hold == "zoh":
+            k = int(np.searchsorted(self.times, t + 1e-12, side="right")) - 1
+            return self.values[max(k, 0)].copy()
+        return np.array([np.interp(t, self.times, col) for col in self.values.T])
+
+    def coefficients(self, t: float, h: float) -> np.ndarray:
+        if self.hold == "zoh":
+            # The midpoint is unambiguous: a step never crosses a sample time.
+            v = self.value(t + 0.5 * h)
+            return np.vstack([v, np.zeros_like(v), np.zeros_like(v)])
+        v0, v1 = self.value(t), self.value(t + h)
+        return np.vstack([v0, (v1 - v0) / h, np.zeros_like(v0)])
+
+
+def _finite(values: np.ndarray, what: str) -> np.ndarray:
+    if not np.all(np.isfinite(values)):
+        raise InputError(f"{what}: NaN or Inf torque")
+    return values
+
+
+def load_torque_csv(path: str | Path, active_names: list[str], hold: str = "zoh") -> TorqueTable:
+    """Read ``t,<active joint names>`` (any column order); every active joint is required."""
+    p = Path(path)
+    try:
+        with p.open(newline="") as fh:
+            rows = list(csv.reader(fh))
+    except OSError as exc:
+        raise InputError(f"{p}: cannot read torque file: {exc.strerror}") from None
+    rows = [r for r in rows if r and not r[0].lstrip().startswith("#")]
+    if not rows:
+        raise InputError(f"{p}: empty torque file")
+    header = [h.strip() for h in rows[0]]
+    if header[0] != "t":
+        raise InputError(f"{p}: line 1: the first column must be 't', got {header[0]!r}")
+    unknown = [h for h in header[1:] if h not in active_names]
+    if unknown:
+        raise InputError(f"{p}: line 1: unknown joint(s) {', '.join(unknown)} "
+                         f"(active joints: {', '.join(active_names)})")
+    missing = [n for n in active_names if n not in header]
+    if missing:
+        raise InputError(f"{p}: line 1: missing column(s) for active joint(s) {', '.join(missing)}")
+    order = [header.index(n) for n in active_names]
+    times, values = [], []
+    for line, row in enumerate(rows[1:], start=2):
+        if len(row) != len(header):
+            raise InputError(f"{p}: line {line}: expected {len(header)} values, got {len(row)}")
+        try:
+            nums = [float(x) for x in row]
+        except ValueError as exc:
+            raise InputError(f"{p}: line {line}: {exc}") from None
+        bad = [header[i] for i, x in enumerate(nums) if not np.isfinite(x)]
+        if bad:
+            raise InputError(f"{p}: line {line}: NaN or Inf in column(s) {', '.join(bad)}")
+        times.append(nums[0])
+        values.append([nums[i] for i in order])
+    if not times:
+        raise InputError(f"{p}: no torque samples after the header")
+    return TorqueTable(np.array(times), np.array(values), hold)
+
+
+def write_torque_csv(path: str | Path, times: np.ndarray, values: np.ndarray, names: list[str]) -> None:
+    """Write a table that :func:`load_torque_csv` reads back exactly (17 digits)."""
+    data = np.column_stack([times, values])
+    np.savetxt(path, data, delimiter=",", header=",".join(["t", *names]), comments="", fmt="%.17g")
