@@ -66,3 +66,20 @@ class Dynamics:
 
     def reset(self) -> None:
         self.qdd_prev[:] = 0.0
+
+
+def one_pass_convergence_factor(mech: Mechanism, q: np.ndarray) -> float:
+    """Spectral radius of the paper's calculation loop (eqs 34-39) as an iteration.
+
+    One pass maps the previous q_ae accelerations to new ones linearly:
+    qdd_ae <- G qdd_ae + const with G = [M^-1 A^T]_ae (dh/dq_p)^-T M_p W. Closed once
+    per evaluation with last step's accelerations (``scdd_one_pass``), the lag only
+    shrinks where rho(G) < 1; where rho(G) >= 1 successive evaluations amplify it and the
+    run diverges. Exact SCDD solves the loop instead and has no such limit.
+    """
+    t = mech.terms(q)
+    W, _ = mech.passive_map(t)
+    Y = np.linalg.solve(t.M, t.A.T)
+    A_p = t.A[:, mech.passive]
+    G = Y[mech.ae] @ np.linalg.solve(A_p.T, t.M[mech.passive] @ W)
+    return float(np.max(np.abs(np.linalg.eigvals(G))))

@@ -25,6 +25,10 @@ from elastic_pm_dyn.small_linalg import lu_factor, lu_solve, matvec
 STAB_BAUMGARTE = 1
 STAB_PROJECTION = 2
 
+# Newton on q_p left this much closure residual [m]: the passive coordinates are no
+# longer determined by q_ae (a parallel singularity of the rigid machine is near).
+NEWTON_FAILED = 1e-9
+
 OK = 0
 SINGULAR = 1
 NOT_FINITE = 2
@@ -163,7 +167,11 @@ def rk4_steps(form, ma, q, qd, tau_coef, dt, n_steps, stab, alpha, beta, tol, si
                     v4[i] = qd[i] + dt * a3[i]
                 qs, vs, acc = q4, v4, a4
             if form == LDA:
-                partition(ma, qs, vs, tol, 4)
+                g, cond = partition(ma, qs, vs, tol, 4)
+                if cond < singular_tol or not g <= NEWTON_FAILED:
+                    info[1] = cond
+                    info[2] = g
+                    return SINGULAR
             cond, g = accelerations(form, ma, qs, vs, tau, a, b, qdd_prev, acc, lam)
             qdd_prev[:] = acc
             if stage == 0:
@@ -178,6 +186,10 @@ def rk4_steps(form, ma, q, qd, tau_coef, dt, n_steps, stab, alpha, beta, tol, si
             qd[i] += dt / 6.0 * (a1[i] + 2.0 * a2[i] + 2.0 * a3[i] + a4[i])
         if form == LDA:
             gap, cond = partition(ma, q, qd, tol, 4)
+            if cond < singular_tol or not gap <= NEWTON_FAILED:
+                info[1] = cond
+                info[2] = gap
+                return SINGULAR
         elif stab & STAB_PROJECTION:
             project(ma, q, qd, tol, 3)
         for i in range(n):

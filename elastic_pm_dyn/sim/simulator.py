@@ -19,6 +19,14 @@ INTEGRATORS = ("rk4", "dop853")
 STABILISATIONS = {"none": 0, "baumgarte": kernels.STAB_BAUMGARTE, "projection": kernels.STAB_PROJECTION,
                   "both": kernels.STAB_BAUMGARTE | kernels.STAB_PROJECTION}
 
+# What breaks down at a singular configuration, per formulation.
+SINGULAR_MATRIX = {
+    "lda": "dh/dq_p is singular or Newton cannot solve the passive joints: a parallel singularity",
+    "scdd_one_pass": "dh/dq_p is singular: a parallel singularity",
+    "scdd": "the cut-force Schur complement is singular",
+    "multipliers": "the KKT matrix is singular",
+}
+
 
 @dataclass
 class SimulationOptions:
@@ -85,8 +93,8 @@ class Simulator:
                                        self.qdd_prev, self.lam, info)
             if status != kernels.OK:
                 t_fail = start + info[0] * h
-                what = ("singular configuration" if status == kernels.SINGULAR
-                        else "the state became NaN/Inf")
+                what = (f"singular configuration ({SINGULAR_MATRIX[o.formulation]})"
+                        if status == kernels.SINGULAR else "the state became NaN/Inf")
                 raise SingularConfigurationError(
                     f"{what} at t = {t_fail:.6g} s (conditioning {info[1]:.3g}, "
                     f"closure residual {info[2]:.3g} m)", time=t_fail, residual=float(info[2]))
