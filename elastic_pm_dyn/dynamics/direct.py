@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from elastic_pm_dyn.dynamics.evaluate import FORMULATION_CODES, SCDD_ONE_PASS, accelerations
+from elastic_pm_dyn.dynamics.evaluate import FORMULATION_CODES, SCDD_ONE_PASS, accelerations_flat
 from elastic_pm_dyn.errors import InputError, SingularConfigurationError
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 
@@ -14,9 +14,11 @@ FORMULATIONS = tuple(FORMULATION_CODES)
 class Dynamics:
     """Direct dynamics of a mechanism by one formulation.
 
-    ``scdd`` (exact, default), ``lda`` (compact Lagrange-D'Alembert), ``multipliers``
-    (Lagrange equations of the first kind) or ``scdd_one_pass`` (the paper's variant;
-    stateful: it remembers the last accelerations it returned).
+    ``scdd`` (exact, default; reduced onto the platform where the model has one),
+    ``scdd_stacked`` (exact, all cut forces stacked), ``lda`` (compact
+    Lagrange-D'Alembert), ``multipliers`` (Lagrange equations of the first kind) or
+    ``scdd_one_pass`` (the paper's variant; stateful: it remembers the last accelerations
+    it returned).
     """
 
     def __init__(self, mech: Mechanism, formulation: str = "scdd", singular_tol: float = 1e-9):
@@ -53,8 +55,8 @@ class Dynamics:
         tau = self.tree_forces(tau_active, ee_force, q)
         qdd = np.empty(self.mech.n)
         lam = np.zeros(self.mech.m)
-        cond, gap = accelerations(self.code, self.mech.arrays, q, qd, tau, float(baumgarte[0]),
-                                  float(baumgarte[1]), self.qdd_prev, qdd, lam)
+        cond, gap = accelerations_flat(self.code, *self.mech.arrays, q, qd, tau, float(baumgarte[0]),
+                                       float(baumgarte[1]), self.qdd_prev, qdd, lam)
         if cond < self.singular_tol:
             raise SingularConfigurationError(
                 f"singular configuration for {self.formulation}: conditioning {cond:.3g} "

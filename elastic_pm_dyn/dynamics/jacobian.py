@@ -18,7 +18,7 @@ def branch_directions(mech: Mechanism, q: np.ndarray) -> np.ndarray:
     t = mech.terms(q)
     comps = mech.model.closure.components
     cols = []
-    for ci in mech.model.closure.chains:
+    for ci in _branch_chains(mech):
         lo, hi = mech.arrays.chain_start[ci], mech.arrays.chain_start[ci + 1]
         passive = [j for j in mech.passive if lo <= j < hi]
         Jp = t.J[ci][np.ix_(comps, passive)]
@@ -43,7 +43,7 @@ def parallel_jacobian_transpose(mech: Mechanism, q: np.ndarray) -> np.ndarray:
     t = mech.terms(q)
     W, _ = mech.passive_map(t)
     comps = list(mech.model.closure.components)
-    chains = mech.model.closure.chains
+    chains = _branch_chains(mech)
     S = branch_directions(mech, q)
     if S.shape[0] != S.shape[1]:
         raise SingularConfigurationError(f"the static matrix S is {S.shape[0]}x{S.shape[1]}, not square")
@@ -56,3 +56,9 @@ def parallel_jacobian_transpose(mech: Mechanism, q: np.ndarray) -> np.ndarray:
         U[b * k:(b + 1) * k, b] = S[:, b]
         Jt[b * k:(b + 1) * k] = t.J[ci][comps]
     return W.T @ Jt.T @ U @ np.linalg.inv(S)
+
+
+def _branch_chains(mech: Mechanism) -> tuple[int, ...]:
+    """Chains whose ends carry a branch force: all closure chains, or the legs of a platform."""
+    closure = mech.model.closure
+    return closure.chains[1:] if closure.hub >= 0 else closure.chains

@@ -227,3 +227,112 @@ def scdd_one_pass(M, h, A, gamma, tau, ae_index, p_index, chain_start, qdd_prev,
         cholesky_solve(L, xs)
         qdd[s:e] = xs
     return ratio
+
+
+@njit(cache=True)
+def _chol_conditioning(L):
+    """(min L_ii / max L_ii)^2 of a Cholesky factor: a cheap conditioning indicator."""
+    lo = np.inf
+    hi = 0.0
+    for i in range(L.shape[0]):
+        lo = min(lo, L[i, i])
+        hi = max(hi, L[i, i])
+    return (lo / hi) ** 2 if hi > 0.0 else 0.0
+
+
+@njit(cache=True)
+def scdd_platform(M, h, A, gamma, tau, chain_start, point_chain, closure_pairs, n_comp, hub, qdd, lam):
+    """SCDD reduced onto a moving platform's coordinates (DESIGN.md §3).
+
+    Every closure pair k joins the end of one leg chain i to a point of the platform
+    (hub) chain H: A_i qdd_i - B_i xdd = gamma_k. Each leg alone (in parallel, eq 34):
+    x_i = M_i^-1 (tau_i - h_i), Y_i = M_i^-1 A_i^T and its end-point inertia
+    Lambda_i = (A_i Y_i)^-1, so that its cut force is lambda_i = Lambda_i (gamma_k + B_i xdd
+    - A_i x_i). The platform then obeys
+    (M_H + sum B_i^T Lambda_i B_i) xdd = tau_H - h_H - sum B_i^T Lambda_i (gamma_k - A_i x_i),
+    one n_H x n_H solve (6 for a hexapod) instead of the stacked 3 n_legs cut forces.
+    Returns a conditioning indicator (0 if a leg or the platform system is singular).
+    """
+    n = M.shape[0]
+    c = n_comp
+    n_pairs = closure_pairs.shape[0]
+    hs = chain_start[hub]
+    he = chain_start[hub + 1]
+    nh = he - hs
+    N = M[hs:he, hs:he].copy()
+    r = tau[hs:he] - h[hs:he]
+    Lam = np.empty((n_pairs, c, c))
+    B = np.empty((n_pairs, c, nh))
+    g = np.empty((n_pairs, c))
+    Y = np.zeros((n, c))
+    cond = 1.0
+    in_pair = np.zeros(chain_start.shape[0] - 1, dtype=np.bool_)
+    in_pair[hub] = True
+    for k in range(n_pairs):
+        leg = point_chain[closure_pairs[k, 0]]
+        in_pair[leg] = True
+        s = chain_start[leg]
+        e = chain_start[leg + 1]
+        L = M[s:e, s:e].copy()
+        if not cholesky(L):
+            return 0.0
+        xs = tau[s:e] - h[s:e]
+        cholesky_solve(L, xs)
+        qdd[s:e] = xs
+        Ai = A[k * c:(k + 1) * c, s:e]
+        Ys = Ai.T.copy()
+        cholesky_solve_columns(L, Ys)
+        Y[s:e, :] = Ys
+        Li = matmul(Ai, Ys, np.empty((c, c)))  # Lambda_i^-1, symmetric positive definite
+        if not cholesky(Li):
+            return 0.0
+        cond = min(cond, _chol_conditioning(Li))
+        eye = np.eye(c)
+        cholesky_solve_columns(Li, eye)
+        Lam[k] = eye
+        for i in range(c):
+            for j in range(nh):
+                B[k, i, j] = -A[k * c + i, hs + j]
+            acc = gamma[k * c + i]
+            for j in range(e - s):
+                acc -= Ai[i, j] * xs[j]
+            g[k, i] = acc
+        LB = matmul(Lam[k], B[k], np.empty((c, nh)))
+        Lg = matvec(Lam[k], g[k], np.empty(c))
+        for i in range(nh):
+            for j in range(nh):
+                acc = 0.0
+                for t in range(c):
+                    acc += B[k, t, i] * LB[t, j]
+                N[i, j] += acc
+            acc = 0.0
+            for t in range(c):
+                acc += B[k, t, i] * Lg[t]
+            r[i] -= acc
+    if not cholesky(N):
+        return 0.0
+    cond = min(cond, _chol_conditioning(N))
+    cholesky_solve(N, r)
+    qdd[hs:he] = r
+    for k in range(n_pairs):
+        leg = point_chain[closure_pairs[k, 0]]
+        s = chain_start[leg]
+        e = chain_start[leg + 1]
+        rhs = g[k] + matvec(B[k], r, np.empty(c))
+        lk = matvec(Lam[k], rhs, np.empty(c))
+        lam[k * c:(k + 1) * c] = lk
+        for i in range(s, e):
+            for j in range(c):
+                qdd[i] += Y[i, j] * lk[j]
+    for ch in range(chain_start.shape[0] - 1):  # chains outside the closure move freely
+        if in_pair[ch]:
+            continue
+        s = chain_start[ch]
+        e = chain_start[ch + 1]
+        L = M[s:e, s:e].copy()
+        if not cholesky(L):
+            return 0.0
+        xs = tau[s:e] - h[s:e]
+        cholesky_solve(L, xs)
+        qdd[s:e] = xs
+    return cond

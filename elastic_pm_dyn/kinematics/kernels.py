@@ -4,7 +4,8 @@ For each serial chain i (paper, eq 33) this computes, in one forward sweep:
 - the mass matrix M_i (bodies plus reflected rotor inertia),
 - the bias h_i = C_i qd_i + eta_i + K_i (q_i - q_rest) + D_i qd_i (Coriolis/centrifugal,
   gravity, springs, dampers and viscous friction), i.e. everything but M_i qdd_i,
-- the chain end position p_i, its Jacobian J_i and its bias acceleration Jdot_i qd_i.
+- the positions of the chain's attachment points (its end, platform joints), their
+  Jacobians J_i and bias accelerations Jdot_i qd_i.
 
 Method: velocities and bias accelerations (qdd = 0) of every body are propagated from the
 base outwards; generalised forces are projected with the body Jacobians (Kane's form of
@@ -43,11 +44,12 @@ def _store(a, i, t):
 
 
 @njit(cache=True)
-def chain_terms(jf, ji, s, e, end, grav, q, qd, M, h, J, a_tip, p_tip, wz, wo, jv, jw):
-    """Terms of the chain whose joints are tree indices s..e-1 (written in place).
+def chain_terms(jf, ji, chain, s, e, points, point_chain, grav, q, qd, M, h, J, a_pt, p_pt, wz, wo, jv, jw):
+    """Terms of the chain with index ``chain``, whose joints are tree indices s..e-1 (written in place).
 
-    M (n_t x n_t) receives its diagonal block, h its segment, J (3 x n_t) its columns;
-    a_tip, p_tip (3,) the chain end's bias acceleration and position.
+    M (n_t x n_t) receives its diagonal block, h its segment; for every attachment point
+    of the chain (all on its last body), J (n_points x 3 x n_t) receives its Jacobian
+    columns, a_pt / p_pt (n_points x 3) its bias acceleration and position.
     wz, wo, jv, jw are (n_t, 3) scratch arrays.
     """
     g = (grav[0], grav[1], grav[2])
@@ -109,18 +111,21 @@ def chain_terms(jf, ji, s, e, end, grav, q, qd, M, h, J, a_tip, p_tip, wz, wo, j
                 if a != b:
                     M[b, a] += val
 
-    pt = v.add(o, v.mv(R, (end[0], end[1], end[2])))
-    r = v.sub(pt, o)
-    at = v.add(v.add(ao, v.cross(al, r)), v.cross(w, v.cross(w, r)))
-    for i in range(3):
-        p_tip[i] = pt[i]
-        a_tip[i] = at[i]
-    for j in range(s, e):
-        zj = (wz[j, 0], wz[j, 1], wz[j, 2])
-        col = zj if ji[j, JI_TYPE] == 1 else v.cross(zj, v.sub(pt, (wo[j, 0], wo[j, 1], wo[j, 2])))
-        J[0, j] = col[0]
-        J[1, j] = col[1]
-        J[2, j] = col[2]
+    for ip in range(points.shape[0]):
+        if point_chain[ip] != chain:
+            continue
+        pt = v.add(o, v.mv(R, (points[ip, 0], points[ip, 1], points[ip, 2])))
+        r = v.sub(pt, o)
+        at = v.add(v.add(ao, v.cross(al, r)), v.cross(w, v.cross(w, r)))
+        for i in range(3):
+            p_pt[ip, i] = pt[i]
+            a_pt[ip, i] = at[i]
+        for j in range(s, e):
+            zj = (wz[j, 0], wz[j, 1], wz[j, 2])
+            col = zj if ji[j, JI_TYPE] == 1 else v.cross(zj, v.sub(pt, (wo[j, 0], wo[j, 1], wo[j, 2])))
+            J[ip, 0, j] = col[0]
+            J[ip, 1, j] = col[1]
+            J[ip, 2, j] = col[2]
     for k in range(s, e):
         M[k, k] += jf[k, JF_ROTOR]
         h[k] += jf[k, JF_STIFFNESS] * (q[k] - jf[k, JF_REST]) + \
@@ -128,11 +133,12 @@ def chain_terms(jf, ji, s, e, end, grav, q, qd, M, h, J, a_tip, p_tip, wz, wo, j
 
 
 @njit(cache=True)
-def tree_terms(jf, ji, chain_start, chain_end, grav, q, qd, M, h, J, a_tip, p_tip):
+def tree_terms(jf, ji, chain_start, points, point_chain, grav, q, qd, M, h, J, a_pt, p_pt):
     """Tree structure terms (eq 19) chain by chain (eq 33).
 
-    M (n_t x n_t) block diagonal, h (n_t), J (n_chains x 3 x n_t) chain-end Jacobians in
-    tree columns, a_tip / p_tip (n_chains x 3) chain-end bias accelerations / positions.
+    M (n_t x n_t) block diagonal, h (n_t), J (n_points x 3 x n_t) attachment-point
+    Jacobians in tree columns, a_pt / p_pt (n_points x 3) their bias accelerations
+    Jdot qd and positions. Points 0..n_chains-1 are the chain ends.
     """
     n = q.shape[0]
     M[:, :] = 0.0
@@ -143,31 +149,32 @@ def tree_terms(jf, ji, chain_start, chain_end, grav, q, qd, M, h, J, a_tip, p_ti
     jv = np.empty((n, 3))
     jw = np.empty((n, 3))
     for c in range(chain_start.shape[0] - 1):
-        chain_terms(jf, ji, chain_start[c], chain_start[c + 1], chain_end[c], grav, q, qd,
-                    M, h, J[c], a_tip[c], p_tip[c], wz, wo, jv, jw)
+        chain_terms(jf, ji, c, chain_start[c], chain_start[c + 1], points, point_chain, grav, q, qd,
+                    M, h, J, a_pt, p_pt, wz, wo, jv, jw)
 
 
 @njit(cache=True)
-def closure_rows(closure_chains, closure_components, J, a_tip, p_tip, A, gamma, res):
+def closure_rows(closure_pairs, closure_components, J, a_pt, p_pt, A, gamma, res):
     """Closure residual h(q_t) (eq 8), its Jacobian A = dh/dq_t and gamma = -Adot qd_t.
 
-    Rows stack S (p_0 - p_k), k = 1..n-1, so that A qdd_t = gamma holds on the manifold.
+    Row block k holds S (p_a - p_b) for the k-th point pair (a, b), so that
+    A qdd_t = gamma holds on the constraint manifold.
     """
     nc = closure_components.shape[0]
-    c0 = closure_chains[0]
-    for k in range(1, closure_chains.shape[0]):
-        ck = closure_chains[k]
+    for k in range(closure_pairs.shape[0]):
+        pa = closure_pairs[k, 0]
+        pb = closure_pairs[k, 1]
         for i in range(nc):
             comp = closure_components[i]
-            r = (k - 1) * nc + i
-            A[r, :] = J[c0, comp, :] - J[ck, comp, :]
-            res[r] = p_tip[c0, comp] - p_tip[ck, comp]
-            gamma[r] = -(a_tip[c0, comp] - a_tip[ck, comp])
+            r = k * nc + i
+            A[r, :] = J[pa, comp, :] - J[pb, comp, :]
+            res[r] = p_pt[pa, comp] - p_pt[pb, comp]
+            gamma[r] = -(a_pt[pa, comp] - a_pt[pb, comp])
 
 
 @njit(cache=True)
-def chain_points(jf, ji, chain_start, chain_end, q, origins, coms, tips):
-    """Forward kinematics only: joint origins, body centres of mass, chain ends (world)."""
+def chain_points(jf, ji, chain_start, points, point_chain, q, origins, coms, p_pt):
+    """Forward kinematics only: joint origins, body centres of mass, attachment points (world)."""
     for c in range(chain_start.shape[0] - 1):
         R = IDENTITY
         o = ZERO
@@ -183,5 +190,6 @@ def chain_points(jf, ji, chain_start, chain_end, q, origins, coms, tips):
                 R = v.mm(Rj, v.axis_rotation(ax, q[k]))
             _store(origins, k, o)
             _store(coms, k, v.add(o, v.mv(R, v.row3(jf, k, JF_COM))))
-        end = chain_end[c]
-        _store(tips, c, v.add(o, v.mv(R, (end[0], end[1], end[2]))))
+        for ip in range(points.shape[0]):
+            if point_chain[ip] == c:
+                _store(p_pt, ip, v.add(o, v.mv(R, (points[ip, 0], points[ip, 1], points[ip, 2]))))

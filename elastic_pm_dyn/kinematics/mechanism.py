@@ -17,9 +17,9 @@ class TreeTerms:
 
     M: np.ndarray  # (n_t, n_t) block-diagonal tree mass matrix M_t
     h: np.ndarray  # (n_t,) bias: Coriolis/centrifugal, gravity, K q, D qd, friction
-    J: np.ndarray  # (n_chains, 3, n_t) chain-end Jacobians J_i in tree columns
-    a_tip: np.ndarray  # (n_chains, 3) chain-end bias accelerations Jdot_i qd_i
-    p_tip: np.ndarray  # (n_chains, 3) chain-end positions
+    J: np.ndarray  # (n_points, 3, n_t) attachment-point Jacobians in tree columns (chain ends first)
+    a_tip: np.ndarray  # (n_points, 3) their bias accelerations Jdot qd
+    p_tip: np.ndarray  # (n_points, 3) their positions
     A: np.ndarray  # (m, n_t) closure Jacobian dh/dq_t
     gamma: np.ndarray  # (m,) -Adot qd_t
     residual: np.ndarray  # (m,) h(q_t)
@@ -36,6 +36,7 @@ class Mechanism:
         self.arrays: ModelArrays = pack(model)
         self.n = len(model.joints)
         self.n_chains = len(model.chains)
+        self.n_points = len(model.point_list())
         self.m = model.closure.size if model.closure is not None else 0
         self.active = model.indices(ACTIVE)
         self.elastic = model.indices(ELASTIC)
@@ -47,35 +48,36 @@ class Mechanism:
 
     # ----------------------------------------------------------------- evaluation
     def terms(self, q: np.ndarray, qd: np.ndarray | None = None) -> TreeTerms:
-        n, nc, m = self.n, self.n_chains, self.m
+        n, npt, m = self.n, self.n_points, self.m
         q = np.ascontiguousarray(q, dtype=float)
         qd = np.zeros(n) if qd is None else np.ascontiguousarray(qd, dtype=float)
         M, h = np.empty((n, n)), np.empty(n)
-        J, a_tip, p_tip = np.empty((nc, 3, n)), np.empty((nc, 3)), np.empty((nc, 3))
+        J, a_tip, p_tip = np.empty((npt, 3, n)), np.empty((npt, 3)), np.empty((npt, 3))
         ma = self.arrays
-        tree_terms(ma.jf, ma.ji, ma.chain_start, ma.chain_end, ma.gravity, q, qd, M, h, J, a_tip, p_tip)
+        tree_terms(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_chain, ma.gravity, q, qd, M, h, J, a_tip, p_tip)
         A, gamma, res = np.zeros((m, n)), np.zeros(m), np.zeros(m)
         if m:
-            closure_rows(ma.closure_chains, ma.closure_components, J, a_tip, p_tip, A, gamma, res)
+            closure_rows(ma.closure_pairs, ma.closure_components, J, a_tip, p_tip, A, gamma, res)
         return TreeTerms(M, h, J, a_tip, p_tip, A, gamma, res)
 
     def points(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """World positions of joint origins (n_t, 3), body centres (n_t, 3), chain ends (n_c, 3)."""
+        """World positions of joint origins (n_t, 3), body centres (n_t, 3) and attachment
+        points (n_points, 3; the chain ends first, so row i is chain i's end)."""
         n = self.n
-        origins, coms, tips = np.empty((n, 3)), np.empty((n, 3)), np.empty((self.n_chains, 3))
+        origins, coms, tips = np.empty((n, 3)), np.empty((n, 3)), np.empty((self.n_points, 3))
         ma = self.arrays
-        chain_points(ma.jf, ma.ji, ma.chain_start, ma.chain_end, np.ascontiguousarray(q, dtype=float),
+        chain_points(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_chain, np.ascontiguousarray(q, dtype=float),
                      origins, coms, tips)
         return origins, coms, tips
 
     def end_effector(self, q: np.ndarray) -> np.ndarray:
-        """End-effector point: the first closure chain's end (x, y for planar models)."""
-        chain = self.model.closure.chains[0] if self.model.closure is not None else 0
-        return self.points(q)[2][chain][self.ee_components]
+        """End-effector point: the end of the closure's first chain (the platform's reference
+        point where there is one); x, y for planar models."""
+        return self.points(q)[2][self.model.end_effector_chain][self.ee_components]
 
     def end_effector_jacobian(self, terms: TreeTerms) -> tuple[np.ndarray, np.ndarray]:
         """(J_ee, Jdot_ee qd) of the end-effector point in tree coordinates."""
-        chain = self.model.closure.chains[0] if self.model.closure is not None else 0
+        chain = self.model.end_effector_chain
         return terms.J[chain][self.ee_components], terms.a_tip[chain][self.ee_components]
 
     def gap(self, q: np.ndarray) -> float:

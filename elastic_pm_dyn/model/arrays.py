@@ -16,10 +16,12 @@ class ModelArrays(NamedTuple):
     jf: np.ndarray  # (n_t, JF_WIDTH) float
     ji: np.ndarray  # (n_t, JI_WIDTH) int
     chain_start: np.ndarray  # (n_chains + 1,) int: tree index of each chain's first joint
-    chain_end: np.ndarray  # (n_chains, 3) float: chain end in the last joint's frame
+    points: np.ndarray  # (n_points, 3) float: attachment points in their chain's last joint frame
+    point_chain: np.ndarray  # (n_points,) int: the chain each point belongs to (ends first)
     gravity: np.ndarray  # (3,)
-    closure_chains: np.ndarray  # (k,) int: chains whose ends coincide (first is the reference)
+    closure_pairs: np.ndarray  # (n_pairs, 2) int: point indices a, b with S (p_a - p_b) = 0
     closure_components: np.ndarray  # (c,) int: constrained components (0 x, 1 y, 2 z)
+    hub: int  # platform chain onto which SCDD reduces, -1 for none
     ae_index: np.ndarray  # (n_ae,) int: tree indices of q_ae = [q_a, q_e]
     p_index: np.ndarray  # (n_p,) int: tree indices of q_p
 
@@ -49,15 +51,19 @@ def pack(model: Model) -> ModelArrays:
             k += 1
         starts.append(k)
     if model.closure is not None:
-        cl_chains = np.array(model.closure.chains, dtype=np.int64)
+        pairs = np.array(model.closure.pairs, dtype=np.int64).reshape(-1, 2)
         cl_comp = np.array(model.closure.components, dtype=np.int64)
+        hub = model.closure.hub
     else:
-        cl_chains = np.zeros(0, dtype=np.int64)
+        pairs = np.zeros((0, 2), dtype=np.int64)
         cl_comp = np.zeros(0, dtype=np.int64)
+        hub = -1
+    plist = model.point_list()
     return ModelArrays(
         jf=jf, ji=ji, chain_start=np.array(starts, dtype=np.int64),
-        chain_end=np.array([c.end_xyz for c in model.chains], dtype=float).reshape(-1, 3),
+        points=np.array([xyz for _, xyz, _ in plist], dtype=float).reshape(-1, 3),
+        point_chain=np.array([ci for ci, _, _ in plist], dtype=np.int64),
         gravity=np.asarray(model.gravity, dtype=float).copy(),
-        closure_chains=cl_chains, closure_components=cl_comp,
+        closure_pairs=pairs, closure_components=cl_comp, hub=int(hub),
         ae_index=model.ae_indices.astype(np.int64), p_index=model.indices(PASSIVE).astype(np.int64),
     )

@@ -76,26 +76,36 @@ class Joint:
 
 @dataclass(frozen=True)
 class Chain:
-    """A serial kinematic chain from the fixed base to its cut end."""
+    """A serial kinematic chain from the fixed base to its cut end.
+
+    Besides its end, a chain may carry named attachment points (e.g. the joints of a
+    moving platform); all of them sit on the chain's last body.
+    """
 
     name: str
     joints: tuple[Joint, ...]
-    end_xyz: np.ndarray  # chain end (closure point) in the last joint's frame
+    end_xyz: np.ndarray  # chain end in the last joint's frame
+    points: tuple[tuple[str, np.ndarray], ...] = ()  # further named points, same frame
 
 
 @dataclass(frozen=True)
 class Closure:
-    """Point closure: the ends of ``chains`` coincide in the components ``components``.
+    """Loop closure as coinciding point pairs: S (p_a - p_b) = 0 for each pair (eq 8).
 
-    The residual stacks S (p_0 - p_k) for k = 1 .. n-1 (eq 8), S selecting components.
+    Point indices refer to :meth:`Model.point_list` (chain ends first, then the named
+    points); S selects ``components``. ``chains[0]`` carries the end effector. With a
+    moving platform, ``hub`` is the platform chain and every pair joins one leg's end to
+    a platform point: SCDD then reduces onto the platform's coordinates.
     """
 
-    chains: tuple[int, ...]
+    pairs: tuple[tuple[int, int], ...]
     components: tuple[int, ...]
+    chains: tuple[int, ...]
+    hub: int = -1
 
     @property
     def size(self) -> int:
-        return (len(self.chains) - 1) * len(self.components)
+        return len(self.pairs) * len(self.components)
 
 
 @dataclass(frozen=True)
@@ -161,6 +171,18 @@ class Model:
     @property
     def ee_components(self) -> tuple[int, ...]:
         return (0, 1) if self.planar else (0, 1, 2)
+
+    def point_list(self) -> list[tuple[int, np.ndarray, str]]:
+        """All attachment points as (chain index, xyz in its last joint's frame, label):
+        the chain ends first (index = chain index), then each chain's named points."""
+        out = [(ci, c.end_xyz, f"{c.name}.end") for ci, c in enumerate(self.chains)]
+        for ci, c in enumerate(self.chains):
+            out.extend((ci, xyz, f"{c.name}.{name}") for name, xyz in c.points)
+        return out
+
+    @property
+    def end_effector_chain(self) -> int:
+        return self.closure.chains[0] if self.closure is not None else 0
 
     def locked(self, role: str = ELASTIC) -> Model:
         """The same machine with every joint of ``role`` frozen at its rest position.
@@ -234,4 +256,5 @@ def _lock_chain(chain: Chain, role: str) -> Chain:
             # it never moves, so it has no dynamic effect and is dropped.
         pend_R, pend_p = child_R, child_p
     end = pend_R @ chain.end_xyz + pend_p
-    return replace(chain, joints=tuple(out), end_xyz=end)
+    points = tuple((name, pend_R @ xyz + pend_p) for name, xyz in chain.points)
+    return replace(chain, joints=tuple(out), end_xyz=end, points=points)

@@ -141,7 +141,7 @@ def parse_model(src: YamlSource) -> Model:
     if len(set(chain_names)) != len(chain_names):
         raise src.error(("chains",), f"chain names must be unique, got {chain_names}")
 
-    closure = _parse_closure(r, chain_names) if r.has(("closure",)) else None
+    closure = _parse_closure(r, chains) if r.has(("closure",)) else None
     if closure is None and len(chains) > 1:
         raise src.error(("closure",), "several chains need a 'closure' that joins their ends")
     if closure is not None and planar:
@@ -167,7 +167,7 @@ def parse_model(src: YamlSource) -> Model:
 
 
 def _parse_chain(r: _Reader, path: KeyPath, seen: dict[str, KeyPath]) -> Chain:
-    r.mapping(path, {"name", "joints", "end"})
+    r.mapping(path, {"name", "joints", "end", "points"})
     name = r.string(path + ("name",))
     joints = []
     for ji, _ in enumerate(r.sequence(path + ("joints",), min_len=1)):
@@ -181,7 +181,13 @@ def _parse_chain(r: _Reader, path: KeyPath, seen: dict[str, KeyPath]) -> Chain:
     if r.has(path + ("end",)):
         r.mapping(path + ("end",), {"xyz"})
         end = r.vector(path + ("end", "xyz"), 3)
-    return Chain(name=name, joints=tuple(joints), end_xyz=end)
+    points = []
+    if r.has(path + ("points",)):
+        for pname in r.mapping(path + ("points",)):
+            if pname == "end":
+                raise r.src.error(path + ("points", pname), "'end' is the chain end; name points otherwise")
+            points.append((pname, r.vector(path + ("points", pname), 3)))
+    return Chain(name=name, joints=tuple(joints), end_xyz=end, points=tuple(points))
 
 
 def _parse_joint(r: _Reader, path: KeyPath) -> Joint:
@@ -236,24 +242,64 @@ def _parse_body(r: _Reader, path: KeyPath) -> Body:
     return Body(mass, com, inertia)
 
 
-def _parse_closure(r: _Reader, chain_names: list[str]) -> Closure:
+def _parse_closure(r: _Reader, chains: list[Chain]) -> Closure:
+    """``type: point`` (the ends of ``chains`` coincide) or ``type: platform`` (each leg's
+    end coincides with a named point of the platform chain)."""
     path: KeyPath = ("closure",)
-    r.mapping(path, {"type", "chains", "components"})
-    r.string(path + ("type",), default="point", choices=("point",))
-    names = r.sequence(path + ("chains",), min_len=2)
-    idx = []
-    for i, n in enumerate(names):
-        if n not in chain_names:
-            raise r.src.error(path + ("chains", i), f"closure names a missing chain {n!r} "
-                              f"(chains: {', '.join(chain_names)})")
-        idx.append(chain_names.index(n))
+    chain_names = [c.name for c in chains]
+    r.mapping(path, {"type", "chains", "components", "platform", "legs"})
+    kind = r.string(path + ("type",), default="point", choices=("point", "platform"))
+
+    def chain_index(p: KeyPath) -> int:
+        name = r.string(p)
+        if name not in chain_names:
+            raise r.src.error(p, f"closure names a missing chain {name!r} (chains: {', '.join(chain_names)})")
+        return chain_names.index(name)
+
     comps = r.sequence(path + ("components",)) if r.has(path + ("components",)) else list(AXIS_NAMES)
     cidx = []
     for i, c in enumerate(comps):
         if c not in AXIS_NAMES:
             raise r.src.error(path + ("components", i), f"unknown component {c!r} (x, y or z)")
         cidx.append(AXIS_NAMES.index(c))
-    return Closure(chains=tuple(idx), components=tuple(sorted(set(cidx))))
+    components = tuple(sorted(set(cidx)))
+
+    if kind == "point":
+        for key in ("platform", "legs"):
+            if r.has(path + (key,)):
+                raise r.src.error(path + (key,), "belongs to 'type: platform'")
+        idx = [chain_index(path + ("chains", i)) for i, _ in enumerate(r.sequence(path + ("chains",), min_len=2))]
+        if len(set(idx)) != len(idx):
+            raise r.src.error(path + ("chains",), "a chain is named twice")
+        pairs = tuple((idx[0], k) for k in idx[1:])  # chain ends are points 0..n-1
+        return Closure(pairs=pairs, components=components, chains=tuple(idx))
+
+    if r.has(path + ("chains",)):
+        raise r.src.error(path + ("chains",), "a platform closure lists 'legs', not 'chains'")
+    hub = chain_index(path + ("platform",))
+    point_index = {}
+    k = len(chains)
+    for ci, c in enumerate(chains):
+        for pname, _ in c.points:
+            point_index[(ci, pname)] = k
+            k += 1
+    pairs, legs = [], []
+    for leg_name in r.mapping(path + ("legs",)):
+        lp = path + ("legs", leg_name)
+        if leg_name not in chain_names:
+            raise r.src.error(lp, f"closure names a missing chain {leg_name!r} (chains: {', '.join(chain_names)})")
+        leg = chain_names.index(leg_name)
+        if leg == hub:
+            raise r.src.error(lp, "the platform cannot be its own leg")
+        pname = r.string(lp)
+        if (hub, pname) not in point_index:
+            names = [n for n, _ in chains[hub].points]
+            raise r.src.error(lp, f"platform {chain_names[hub]!r} has no point {pname!r} (points: {', '.join(names)})")
+        pairs.append((leg, point_index[(hub, pname)]))
+        legs.append(leg)
+    if not pairs:
+        raise r.src.error(path + ("legs",), "a platform closure needs at least one leg")
+    return Closure(pairs=tuple(pairs), components=components, chains=(hub, *legs), hub=hub)
 
 
 def _lump_end_effector(chains: list[Chain], mass: float, closure: Closure | None) -> list[Chain]:
@@ -262,7 +308,12 @@ def _lump_end_effector(chains: list[Chain], mass: float, closure: Closure | None
     For a point mass this is exact: the ends move together, so the shares add up to the
     same kinetic and potential energy.
     """
-    owners = closure.chains if closure is not None else (0,)
+    if closure is None:
+        owners: tuple[int, ...] = (0,)
+    elif closure.hub >= 0:
+        owners = (closure.hub,)  # on the platform's reference point
+    else:
+        owners = closure.chains
     out = list(chains)
     share = mass / len(owners)
     for ci in owners:

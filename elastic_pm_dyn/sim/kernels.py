@@ -20,6 +20,7 @@ from numba import njit
 from elastic_pm_dyn.dynamics.evaluate import LDA, accelerations
 from elastic_pm_dyn.dynamics.kernels import chain_responses
 from elastic_pm_dyn.kinematics.kernels import closure_rows, tree_terms
+from elastic_pm_dyn.model.arrays import ModelArrays
 from elastic_pm_dyn.small_linalg import lu_factor, lu_solve, matvec
 
 STAB_BAUMGARTE = 1
@@ -35,9 +36,9 @@ NOT_FINITE = 2
 
 
 @njit(cache=True)
-def _closure(ma, q, qd, M, h, J, a_tip, p_tip, A, gamma, res):
-    tree_terms(ma.jf, ma.ji, ma.chain_start, ma.chain_end, ma.gravity, q, qd, M, h, J, a_tip, p_tip)
-    closure_rows(ma.closure_chains, ma.closure_components, J, a_tip, p_tip, A, gamma, res)
+def _closure(ma, q, qd, M, h, J, a_pt, p_pt, A, gamma, res):
+    tree_terms(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_chain, ma.gravity, q, qd, M, h, J, a_pt, p_pt)
+    closure_rows(ma.closure_pairs, ma.closure_components, J, a_pt, p_pt, A, gamma, res)
     return np.sqrt(np.sum(res * res))
 
 
@@ -48,19 +49,19 @@ def partition(ma, q, qd, tol, max_iter):
     Returns (gap, pivot ratio of dh/dq_p).
     """
     n = q.shape[0]
-    nc = ma.chain_start.shape[0] - 1
+    npt = ma.points.shape[0]
     m = ma.p_index.shape[0]
     if m == 0:
         return 0.0, 1.0
     M, h = np.empty((n, n)), np.empty(n)
-    J, a_tip, p_tip = np.empty((nc, 3, n)), np.empty((nc, 3)), np.empty((nc, 3))
+    J, a_pt, p_pt = np.empty((npt, 3, n)), np.empty((npt, 3)), np.empty((npt, 3))
     A, gamma, res = np.empty((m, n)), np.empty(m), np.empty(m)
     Ap = np.empty((m, m))
     piv = np.empty(m, dtype=np.int64)
     gap = 0.0
     ratio = 0.0
     for it in range(max_iter + 1):
-        gap = _closure(ma, q, qd, M, h, J, a_tip, p_tip, A, gamma, res)
+        gap = _closure(ma, q, qd, M, h, J, a_pt, p_pt, A, gamma, res)
         for i in range(m):
             for j in range(m):
                 Ap[i, j] = A[i, ma.p_index[j]]
@@ -91,12 +92,12 @@ def project(ma, q, qd, tol, max_iter):
     per-chain responses, so this costs one tree evaluation per iteration.
     """
     n = q.shape[0]
-    nc = ma.chain_start.shape[0] - 1
+    npt = ma.points.shape[0]
     m = ma.p_index.shape[0]
     if m == 0:
         return 0.0
     M, h = np.empty((n, n)), np.empty(n)
-    J, a_tip, p_tip = np.empty((nc, 3, n)), np.empty((nc, 3)), np.empty((nc, 3))
+    J, a_pt, p_pt = np.empty((npt, 3, n)), np.empty((npt, 3)), np.empty((npt, 3))
     A, gamma, res = np.empty((m, n)), np.empty(m), np.empty(m)
     x = np.empty(n)
     Y = np.empty((n, m))
@@ -104,7 +105,7 @@ def project(ma, q, qd, tol, max_iter):
     piv = np.empty(m, dtype=np.int64)
     gap0 = -1.0
     for it in range(max_iter + 1):
-        gap = _closure(ma, q, zero, M, h, J, a_tip, p_tip, A, gamma, res)
+        gap = _closure(ma, q, zero, M, h, J, a_pt, p_pt, A, gamma, res)
         if gap0 < 0.0:
             gap0 = gap
         S = chain_responses(M, A, ma.chain_start, zero, x, Y)
@@ -201,3 +202,15 @@ def rk4_steps(form, ma, q, qd, tau_coef, dt, n_steps, stab, alpha, beta, tol, si
     info[1] = worst
     info[2] = gap
     return OK
+
+
+@njit(cache=True)
+def rk4_steps_flat(form, jf, ji, chain_start, points, point_chain, gravity, closure_pairs, closure_components,
+                   hub, ae_index, p_index, q, qd, tau_coef, dt, n_steps, stab, alpha, beta, tol, singular_tol,
+                   qdd_prev, lam, info):
+    """:func:`rk4_steps` with the model as separate arrays (``*mech.arrays``): the cheap
+    entry point from Python (see ``accelerations_flat``)."""
+    ma = ModelArrays(jf, ji, chain_start, points, point_chain, gravity, closure_pairs, closure_components,
+                     hub, ae_index, p_index)
+    return rk4_steps(form, ma, q, qd, tau_coef, dt, n_steps, stab, alpha, beta, tol, singular_tol,
+                     qdd_prev, lam, info)

@@ -28,16 +28,9 @@ class SimulationResult:
         self.branch_forces = np.empty((n, len(mech.model.branches)))
         self.gap = np.empty(n)
         for k in range(n):
-            _, _, tips = mech.points(self.q[k])
             self.ee[k] = mech.end_effector(self.q[k])
             self.branch_forces[k] = mech.branch_forces(self.q[k], self.qd[k])
-            if mech.model.closure is not None:
-                ch = mech.model.closure.chains
-                comps = list(mech.model.closure.components)
-                d = tips[ch[0]][comps] - tips[list(ch[1:])][:, comps]
-                self.gap[k] = float(np.linalg.norm(d))
-            else:
-                self.gap[k] = 0.0
+            self.gap[k] = mech.gap(self.q[k])
 
     def header(self) -> list[str]:
         mech = self.mech

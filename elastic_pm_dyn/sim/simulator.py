@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from elastic_pm_dyn.dynamics.evaluate import FORMULATION_CODES, LDA, accelerations
+from elastic_pm_dyn.dynamics.evaluate import FORMULATION_CODES, LDA, accelerations_flat
 from elastic_pm_dyn.errors import InputError, SingularConfigurationError
 from elastic_pm_dyn.kinematics.assembly import initial_state
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
@@ -23,7 +23,8 @@ STABILISATIONS = {"none": 0, "baumgarte": kernels.STAB_BAUMGARTE, "projection": 
 SINGULAR_MATRIX = {
     "lda": "dh/dq_p is singular or Newton cannot solve the passive joints: a parallel singularity",
     "scdd_one_pass": "dh/dq_p is singular: a parallel singularity",
-    "scdd": "the cut-force Schur complement is singular",
+    "scdd": "the cut-force Schur complement (or a leg's end-point inertia) is singular",
+    "scdd_stacked": "the cut-force Schur complement is singular",
     "multipliers": "the KKT matrix is singular",
 }
 
@@ -88,7 +89,7 @@ class Simulator:
         coef = np.zeros((3, self.mech.n))
         for start, steps in calls:
             coef[:, self.mech.active] = torque.coefficients(start, steps * h)
-            status = kernels.rk4_steps(self.code, self.mech.arrays, q, qd, coef, h, steps, self.stab,
+            status = kernels.rk4_steps_flat(self.code, *self.mech.arrays, q, qd, coef, h, steps, self.stab,
                                        o.baumgarte_alpha, o.baumgarte_beta, o.closure_tol, o.singular_tol,
                                        self.qdd_prev, self.lam, info)
             if status != kernels.OK:
@@ -114,7 +115,7 @@ class Simulator:
                 kernels.partition(mech.arrays, qq, vv, o.closure_tol, 4)
             s = t - t0
             tau[mech.active] = torque.value(t) if coef is None else coef[0] + s * (coef[1] + s * coef[2])
-            cond, _ = accelerations(self.code, mech.arrays, qq, vv, tau, a, b, self.qdd_prev, qdd, self.lam)
+            cond, _ = accelerations_flat(self.code, *mech.arrays, qq, vv, tau, a, b, self.qdd_prev, qdd, self.lam)
             self.qdd_prev[:] = qdd
             worst[0] = min(worst[0], cond)
             return np.concatenate([vv, qdd])
