@@ -28,11 +28,15 @@ setup(
         "matplotlib>=3.8",
         "rosbags>=0.11,<0.12",
     ],
-    extras_require={"test": ["pytest>=8", "ruff"], "bench": ["pin"]},
+    # pin: the Pinocchio cross-check test (and the benchmark); mujoco: the benchmark only.
+    extras_require={"test": ["pytest>=8", "ruff", "pin"], "bench": ["pin", "mujoco"]},
     zip_safe=False,
     entry_points={
         "console_scripts": [
             "elastic-pm-dyn = elastic_pm_dyn.cli:main",
+            "plant_node = elastic_pm_dyn.ros.plant_node:main",
+            "feedforward_node = elastic_pm_dyn.ros.feedforward_node:main",
+            "recorder_node = elastic_pm_dyn.ros.recorder:main",
         ],
     },
 )

@@ -76,7 +76,7 @@ def cmd_check(args: argparse.Namespace) -> int:
     from elastic_pm_dyn.kinematics.assembly import initial_state
     from elastic_pm_dyn.kinematics.mechanism import Mechanism
     from elastic_pm_dyn.model.loader import load_model
-    model = load_model(args.model)
+    model = load_model(args.model, args.elastic_dof_per_chain)
     mech = Mechanism(model)
     print(f"model {model.name} ({model.source}): {mech.n_chains} chains, {mech.n} tree joints")
     for role, idx in (("active", mech.active), ("elastic", mech.elastic), ("passive", mech.passive)):
@@ -94,12 +94,51 @@ def cmd_check(args: argparse.Namespace) -> int:
         for k, f in enumerate(modes.natural_hz):
             zeta = modes.damping_ratio[k] if k < len(modes.damping_ratio) else float("nan")
             print(f"  mode {k + 1}: {f:9.2f} Hz undamped, damping ratio {zeta:.4f}")
+        # RK4 is stable for undamped modes while |h omega| <= 2 sqrt(2).
+        dt_max = 2 * np.sqrt(2) / (2 * np.pi * modes.natural_hz.max())
+        print(f"  fixed-step RK4 needs dt < {dt_max:.3g} s for the fastest mode (use about a quarter "
+              "of that for accuracy)")
     return 0
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
     from elastic_pm_dyn.demo import run_offline_demo
     run_offline_demo(Path(args.out), Path(args.model))
+    return 0
+
+
+def _ros_argv(params_file: str | None, overrides: dict[str, str], extra: list[str]) -> list[str]:
+    """argv for a node's main(): our options as one --ros-args section, then the user's own."""
+    argv = ["elastic-pm-dyn", "--ros-args"]
+    if params_file:
+        argv += ["--params-file", params_file]
+    for name, value in overrides.items():
+        argv += ["-p", f"{name}:={value}"]
+    return argv + extra
+
+
+def cmd_plant(args: argparse.Namespace) -> int:
+    from elastic_pm_dyn.ros.plant_node import main as plant_main
+    overrides = {k: v for k, v in (("sync_mode", args.sync), ("model", args.model)) if v}
+    return plant_main(_ros_argv(args.params_file, overrides, args.ros_args))
+
+
+def cmd_record(args: argparse.Namespace) -> int:
+    from elastic_pm_dyn.ros.recorder import main as recorder_main
+    overrides = {"output": args.out, "storage": args.storage}
+    if args.topics:
+        overrides["topics"] = "[" + ", ".join(args.topics) + "]"
+    return recorder_main(_ros_argv(args.params_file, overrides, args.ros_args))
+
+
+def cmd_ros_demo(args: argparse.Namespace) -> int:
+    from elastic_pm_dyn.ros.demo import run_ros_demo
+    from elastic_pm_dyn.ros.processes import NodeProcessError
+    try:
+        run_ros_demo(Path(args.out), Path(args.model), args.sync, args.storage, args.timeout, args.domain_id)
+    except NodeProcessError as err:
+        print(f"elastic-pm-dyn: error: {err}", file=sys.stderr)
+        return EXIT_RUN_FAILED
     return 0
 
 
@@ -128,12 +167,41 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("check", help="DOF, start pose, closure residual, natural frequencies")
     p.add_argument("model")
+    p.add_argument("--elastic-dof-per-chain", type=int, default=None,
+                   help="override the model's discretisation of flexible links")
     p.set_defaults(func=cmd_check)
 
     p = sub.add_parser("demo", help="the reference manoeuvre: feedforward -> SCDD and L-D'A -> CSV + plots")
     p.add_argument("--model", default=str(Path(__file__).resolve().parent.parent / "config" / "five_bar.yaml"))
     p.add_argument("--out", default="runs/demo")
     p.set_defaults(func=cmd_demo)
+
+    ros_args_help = "further ROS arguments, e.g. --ros-args -p dt:=5.0e-5"
+    p = sub.add_parser("plant", help="ROS 2 plant node: the elastic model in the loop (see config/plant.yaml)")
+    p.add_argument("--params-file", help="ROS parameter YAML (e.g. config/plant.yaml)")
+    p.add_argument("--sync", choices=("realtime", "fast", "lockstep"), help="sync mode (overrides the file)")
+    p.add_argument("--model", help="model YAML (overrides the file)")
+    p.add_argument("ros_args", nargs=argparse.REMAINDER, help=ros_args_help)
+    p.set_defaults(func=cmd_plant)
+
+    p = sub.add_parser("record", help="record ROS 2 topics into a rosbag2 (mcap or sqlite3) with rosbags")
+    p.add_argument("--out", default="bag", help="bag directory to create (default: bag)")
+    p.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap")
+    p.add_argument("--topics", nargs="+", metavar="TOPIC", help="topics (default: the demo's)")
+    p.add_argument("--params-file", help="ROS parameter YAML (e.g. config/recorder.yaml)")
+    p.add_argument("ros_args", nargs=argparse.REMAINDER, help=ros_args_help)
+    p.set_defaults(func=cmd_record)
+
+    p = sub.add_parser("ros-demo", help="the reference manoeuvre through ROS 2: plant + feedforward + recorder "
+                       "processes -> bag, plots, summary")
+    p.add_argument("--model", default=str(Path(__file__).resolve().parent.parent / "config" / "five_bar.yaml"))
+    p.add_argument("--out", default="runs/demo")
+    p.add_argument("--sync", choices=("lockstep", "realtime"), default="lockstep",
+                   help="lockstep: deterministic, equals offline simulate (default); realtime: wall-clock paced")
+    p.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap")
+    p.add_argument("--timeout", type=float, default=120.0, help="[s] limit for the manoeuvre run")
+    p.add_argument("--domain-id", type=int, help="ROS domain id (default: a private one from the process id)")
+    p.set_defaults(func=cmd_ros_demo)
     return parser
 
 

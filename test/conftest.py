@@ -26,14 +26,16 @@ def five_bar_vertical() -> Mechanism:
     return Mechanism(load_model(CONFIG / "five_bar_vertical.yaml"))
 
 
-def random_state(mech: Mechanism, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def random_state(mech: Mechanism, rng: np.random.Generator, spread: float = 0.2
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A consistent (q, qd) near the start pose and random motor torques.
 
-    Motors within +-0.2 rad, springs within +-0.1 mm, rates up to 2 rad/s and 5 cm/s.
+    Motors within +-spread (rad or m), elastic joints within +-0.1 mm (or mrad), rates up
+    to 2 rad/s and 5 cm/s.
     """
     q = initial_state(mech)
     n_a = len(mech.active)
-    q[mech.active] += rng.uniform(-0.2, 0.2, n_a)
+    q[mech.active] += rng.uniform(-spread, spread, n_a)
     q[mech.elastic] += rng.uniform(-1e-4, 1e-4, len(mech.elastic))
     q = solve_pose(mech, q, mech.passive)
     qd_ae = np.concatenate([rng.uniform(-2, 2, n_a), rng.uniform(-0.05, 0.05, len(mech.elastic))])

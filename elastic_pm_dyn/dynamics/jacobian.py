@@ -34,28 +34,44 @@ def branch_directions(mech: Mechanism, q: np.ndarray) -> np.ndarray:
 
 
 def parallel_jacobian_transpose(mech: Mechanism, q: np.ndarray) -> np.ndarray:
-    """G^{+T} = W^T J_t^T U S^{-1} (eq 31): end-effector force -> forces on q_ae (eq 32).
+    """G^{+T} = W^T J_t^T U S^{-1} (eq 31): end-effector force/wrench -> forces on q_ae (eq 32).
 
-    S = [s_1 ... s_na] maps branch forces to the end-effector force (eq 27); U stacks the
-    s_i block-diagonally (eq 29) so that U S^-1 f distributes f over the chain ends
-    (eq 40); J_t (eq 30) and W (eq 18) carry them to the joints.
+    S maps the branch forces to the end-effector load (eq 27): its column i is the
+    branch direction s_i (eq 28), or for a platform that can turn the wrench of a unit
+    force along s_i through the leg's platform point, [s_i; (a_i - c) x s_i]. U stacks
+    the s_i block-diagonally (eq 29), so that U S^-1 w distributes the load over the
+    chain ends (eq 40); J_t (eq 30) and W (eq 18) carry it to the joints. The load is a
+    force (planar/translational machines) or a wrench [force; moment about the end
+    effector] (platforms with orientation DOF). Returns n_ae x (size of the load).
     """
     t = mech.terms(q)
     W, _ = mech.passive_map(t)
-    comps = list(mech.model.closure.components)
+    closure = mech.model.closure
+    comps = list(closure.components)
     chains = _branch_chains(mech)
     S = branch_directions(mech, q)
+    k = len(comps)
+    if closure.hub >= 0 and _platform_turns(mech):
+        _, _, points = mech.points(q)
+        centre = points[mech.model.end_effector_chain]
+        arms = [points[b] - centre for _, b in closure.pairs]
+        S = np.vstack([S, np.array([np.cross(a, s) for a, s in zip(arms, S.T, strict=True)]).T])
     if S.shape[0] != S.shape[1]:
         raise SingularConfigurationError(f"the static matrix S is {S.shape[0]}x{S.shape[1]}, not square")
     if np.linalg.cond(S) > 1e12:
-        raise SingularConfigurationError("the static matrix S is singular (branch forces parallel)")
-    k = len(comps)
+        raise SingularConfigurationError("the static matrix S is singular (branch forces cannot carry the load)")
     U = np.zeros((k * len(chains), len(chains)))
     Jt = np.zeros((k * len(chains), mech.n))
     for b, ci in enumerate(chains):
-        U[b * k:(b + 1) * k, b] = S[:, b]
+        U[b * k:(b + 1) * k, b] = S[:k, b]
         Jt[b * k:(b + 1) * k] = t.J[ci][comps]
     return W.T @ Jt.T @ U @ np.linalg.inv(S)
+
+
+def _platform_turns(mech: Mechanism) -> bool:
+    """A platform chain with revolute joints has orientation DOF: loads are wrenches."""
+    chain = mech.model.chains[mech.model.closure.hub]
+    return any(j.type == "revolute" for j in chain.joints)
 
 
 def _branch_chains(mech: Mechanism) -> tuple[int, ...]:

@@ -27,7 +27,10 @@ from elastic_pm_dyn.model.description import (
 from elastic_pm_dyn.model.yaml_source import KeyPath, YamlSource
 
 _TOP_KEYS = {"name", "gravity", "chains", "closure", "end_effector", "initial_state",
-             "branches", "planar"}
+             "branches", "planar", "elastic_dof_per_chain"}
+_FLEX_KEYS = {"name", "kind", "length", "mass", "direction", "axis", "bending_stiffness", "axial_stiffness",
+              "damping", "origin"}
+MAX_ELASTIC_DOF_PER_CHAIN = 8
 _JOINT_KEYS = {"name", "type", "role", "axis", "origin", "body", "stiffness", "damping",
                "rest", "friction", "rotor_inertia"}
 
@@ -119,16 +122,26 @@ def _kind(value: Any) -> str:
     return {dict: "a mapping", list: "a list", str: f"the string {value!r}"}.get(type(value), repr(value))
 
 
-def load_model(path: str | Path) -> Model:
-    """Read and validate a model file."""
-    return parse_model(YamlSource.from_file(path))
+def load_model(path: str | Path, elastic_dof_per_chain: int | None = None) -> Model:
+    """Read and validate a model file.
+
+    ``elastic_dof_per_chain`` overrides the file's value: how many lumped elastic joints
+    each ``flexible_link`` is discretised into.
+    """
+    return parse_model(YamlSource.from_file(path), elastic_dof_per_chain)
 
 
-def parse_model(src: YamlSource) -> Model:
+def parse_model(src: YamlSource, elastic_dof_per_chain: int | None = None) -> Model:
     r = _Reader(src)
     if not isinstance(src.data, dict):
         raise src.error((), "a model file must be a mapping with 'chains' and 'closure'")
     r.mapping((), _TOP_KEYS)
+    n_flex = elastic_dof_per_chain
+    if n_flex is None:
+        n_flex = int(r.number(("elastic_dof_per_chain",), default=1.0, nonnegative=True))
+    if not 0 <= n_flex <= MAX_ELASTIC_DOF_PER_CHAIN or n_flex != int(n_flex):
+        raise src.error(("elastic_dof_per_chain",),
+                        f"must be a whole number from 0 to {MAX_ELASTIC_DOF_PER_CHAIN}, got {n_flex}")
     name = r.string(("name",), default=Path(src.file).stem)
     gravity = r.vector(("gravity",), 3, default=[0.0, 0.0, 0.0])
     planar = bool(src.data.get("planar", False))
@@ -136,7 +149,7 @@ def parse_model(src: YamlSource) -> Model:
     chains: list[Chain] = []
     seen: dict[str, KeyPath] = {}
     for ci, _ in enumerate(r.sequence(("chains",), min_len=1)):
-        chains.append(_parse_chain(r, ("chains", ci), seen))
+        chains.append(_parse_chain(r, ("chains", ci), seen, int(n_flex)))
     chain_names = [c.name for c in chains]
     if len(set(chain_names)) != len(chain_names):
         raise src.error(("chains",), f"chain names must be unique, got {chain_names}")
@@ -166,21 +179,32 @@ def parse_model(src: YamlSource) -> Model:
     return model
 
 
-def _parse_chain(r: _Reader, path: KeyPath, seen: dict[str, KeyPath]) -> Chain:
+def _parse_chain(r: _Reader, path: KeyPath, seen: dict[str, KeyPath], n_flex: int) -> Chain:
     r.mapping(path, {"name", "joints", "end", "points"})
     name = r.string(path + ("name",))
-    joints = []
+    joints: list[Joint] = []
+    carry = np.zeros(3)  # offset a flexible link leaves for the next joint's origin
     for ji, _ in enumerate(r.sequence(path + ("joints",), min_len=1)):
         jp = path + ("joints", ji)
-        joint = _parse_joint(r, jp)
-        if joint.name in seen:
-            raise r.src.error(jp + ("name",), f"joint name {joint.name!r} is used twice")
-        seen[joint.name] = jp
-        joints.append(joint)
+        if isinstance(r.node(jp), dict) and "flexible_link" in r.node(jp):
+            r.mapping(jp, {"flexible_link"})
+            new, carry = _expand_flexible_link(r, jp + ("flexible_link",), joints, carry, n_flex)
+        else:
+            joint = _parse_joint(r, jp)
+            new = [replace(joint, origin_xyz=joint.origin_xyz + carry)]
+            carry = np.zeros(3)
+        for joint in new:
+            if joint.name in seen:
+                raise r.src.error(jp, f"joint name {joint.name!r} is used twice")
+            seen[joint.name] = jp
+        joints.extend(new)
+    if not joints:
+        raise r.src.error(path + ("joints",), "a chain needs at least one joint")
     end = np.zeros(3)
     if r.has(path + ("end",)):
         r.mapping(path + ("end",), {"xyz"})
         end = r.vector(path + ("end", "xyz"), 3)
+    end = end + carry
     points = []
     if r.has(path + ("points",)):
         for pname in r.mapping(path + ("points",)):
@@ -218,6 +242,60 @@ def _parse_joint(r: _Reader, path: KeyPath) -> Joint:
         friction=r.number(path + ("friction",), default=0.0, nonnegative=True),
         rotor_inertia=r.number(path + ("rotor_inertia",), default=0.0, nonnegative=True),
     )
+
+
+def _expand_flexible_link(r: _Reader, path: KeyPath, joints: list[Joint], carry: np.ndarray,
+                          n: int) -> tuple[list[Joint], np.ndarray]:
+    """A slender link discretised into n + 1 rigid segments joined by n lumped elastic joints.
+
+    ``kind: bending``: revolute elastic joints about ``axis``, each with stiffness EI / l
+    (l = length / (n + 1)), the lumped beam of elastic-robot modelling. ``kind: axial``:
+    prismatic elastic joints along the link, n springs of n EA / L in series (together
+    EA / L). Each segment carries mass / (n + 1) as a thin rod. The first segment is
+    rigid with the previous body; the next joint's origin is taken from the link's end.
+    Returns the new joints and the offset (in the last new frame) to the link's end.
+    """
+    r.mapping(path, _FLEX_KEYS)
+    name = r.string(path + ("name",))
+    kind = r.string(path + ("kind",), default="bending", choices=("bending", "axial"))
+    length = r.number(path + ("length",), positive=True)
+    mass = r.number(path + ("mass",), positive=True)
+    d = r.vector(path + ("direction",), 3, default=[1.0, 0.0, 0.0])
+    if np.linalg.norm(d) < 1e-12:
+        raise r.src.error(path + ("direction",), "direction must not be zero")
+    d = d / np.linalg.norm(d)
+    xyz, rpy = carry.copy(), np.zeros(3)
+    if r.has(path + ("origin",)):
+        r.mapping(path + ("origin",), {"xyz"})
+        xyz = xyz + r.vector(path + ("origin", "xyz"), 3, default=[0.0, 0.0, 0.0])
+    damping = r.number(path + ("damping",), default=0.0, nonnegative=True)
+    seg = length / (n + 1)
+    m_seg = mass / (n + 1)
+    rod = Body(m_seg, d * seg / 2, m_seg * seg**2 / 12 * (np.eye(3) - np.outer(d, d)))
+    if kind == "bending":
+        axis = r.vector(path + ("axis",), 3, default=[0.0, 0.0, 1.0])
+        if np.linalg.norm(axis) < 1e-12 or abs(axis @ d) > 1e-9 * np.linalg.norm(axis):
+            raise r.src.error(path + ("axis",), "the bending axis must be a non-zero vector normal to direction")
+        axis = axis / np.linalg.norm(axis)
+        stiffness = r.number(path + ("bending_stiffness",), positive=True) / seg
+        jtype = "revolute"
+    else:
+        axis = d
+        stiffness = n * r.number(path + ("axial_stiffness",), positive=True) / length if n else 0.0
+        jtype = "prismatic"
+    # Segment 0 rides on the previous body (a link at the base never moves).
+    first = rod.moved(np.eye(3), xyz)
+    if joints:
+        prev = joints[-1]
+        joints[-1] = replace(prev, body=first if prev.body is None else prev.body.combined(first))
+    if n == 0:
+        return [], xyz + d * length  # rigid link: one body, the whole length
+    out = []
+    for k in range(1, n + 1):
+        origin = xyz + d * seg if k == 1 else d * seg
+        out.append(Joint(name=f"{name}_flex{k}", type=jtype, role=ELASTIC, axis=axis, origin_xyz=origin,
+                         origin_rpy=rpy, body=rod, stiffness=stiffness, damping=damping))
+    return out, d * seg
 
 
 def _parse_body(r: _Reader, path: KeyPath) -> Body:
