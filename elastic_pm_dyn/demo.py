@@ -15,7 +15,9 @@ import numpy as np
 from elastic_pm_dyn.analysis import metrics, plots
 from elastic_pm_dyn.feedforward import line_torques
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
+from elastic_pm_dyn.model.description import Model
 from elastic_pm_dyn.model.loader import load_model
+from elastic_pm_dyn.sim.result import SimulationResult
 from elastic_pm_dyn.sim.simulator import SimulationOptions, Simulator
 from elastic_pm_dyn.sim.torque import TorqueTable, write_torque_csv
 from elastic_pm_dyn.trajectory import QuinticLine
@@ -32,18 +34,26 @@ RUNS = {  # label: (formulation, stabilisation)
 }
 
 
+def simulate_reference(model: Model, line: QuinticLine = REFERENCE_LINE, runs: dict = RUNS,
+                       sample: float = SAMPLE) -> tuple[np.ndarray, np.ndarray, list[str], dict[str, SimulationResult]]:
+    """The rigid feedforward torques of ``line`` (held, ZOH) driving the elastic model once per entry of
+    ``runs`` (label: (formulation, stabilisation)). Returns (times, torques, motor names, results)."""
+    mech = Mechanism(model)
+    times, torques, names = line_torques(model, line, CONTROL_RATE)
+    table = TorqueTable(times, torques, "zoh")
+    results = {}
+    for label, (formulation, stab) in runs.items():
+        sim = Simulator(mech, SimulationOptions(formulation=formulation, stabilization=stab, sample=sample))
+        results[label] = sim.run(table, line.duration)
+    return times, torques, names, results
+
+
 def run_offline_demo(out: Path, model_path: Path, line: QuinticLine = REFERENCE_LINE) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     model = load_model(model_path)
-    mech = Mechanism(model)
-    times, torques, names = line_torques(model, line, CONTROL_RATE)
+    times, torques, names, results = simulate_reference(model, line)
     write_torque_csv(out / "torques.csv", times, torques, names)
-    table = TorqueTable(times, torques, "zoh")
-
-    results = {}
     for label, (formulation, stab) in RUNS.items():
-        sim = Simulator(mech, SimulationOptions(formulation=formulation, stabilization=stab, sample=SAMPLE))
-        results[label] = sim.run(table, line.duration)
         slug = f"{formulation}_{stab}"
         results[label].to_csv(out / f"{slug}.csv")
         print(f"  {label:26s} -> {out / (slug + '.csv')}")

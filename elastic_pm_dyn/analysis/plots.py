@@ -14,7 +14,7 @@ backend of a caller such as a notebook or a GUI.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -266,13 +266,15 @@ def plot_tracking_error(
     quantity: str = "end-effector position error",
     unit: str = "m",
     log_scale: bool = False,
+    title: str | None = None,
 ) -> Path:
     """Tracking error over time, one line per run, in an SI-prefixed unit (e.g. µm).
 
     An error series may be a magnitude (N) or error vectors (N x k, whose norm is
     drawn). ``quantity`` and ``unit`` name what is plotted (e.g. "joint error", "rad").
     ``log_scale`` puts runs whose errors differ by orders of magnitude (rigid vs
-    elastic) on one readable axis; exact zeros are then left out.
+    elastic) on one readable axis; exact zeros are then left out. ``title`` replaces
+    the default "Tracking: <quantity>" (e.g. for differences between runs).
     """
     fig = _new_figure(9.0, 5.0)
     ax = fig.subplots()
@@ -288,7 +290,7 @@ def plot_tracking_error(
         ax.set_yscale("log")
     ax.set_xlabel("time [s]")
     ax.set_ylabel(f"{quantity} [{label_unit}]")
-    ax.set_title(f"Tracking: {quantity}")
+    ax.set_title(title or f"Tracking: {quantity}")
     ax.grid(True, alpha=0.3)
     ax.legend(loc="best", fontsize="small")
     return _save(fig, path_png)
@@ -297,16 +299,17 @@ def plot_tracking_error(
 def plot_spectrum(
     path_png: str | Path,
     freqs_amps_by_run: Mapping[str, tuple[ArrayLike, ArrayLike]],
-    f_model: float | None = None,
+    f_model: float | Sequence[float] | None = None,
     fs: float | None = None,
     unit: str = "N",
+    title: str = "Amplitude spectrum",
 ) -> Path:
     """Amplitude spectra (e.g. from :func:`metrics.spectrum`), one line per run, log scale.
 
-    ``f_model`` [Hz], the model's natural frequency, is marked by a vertical
-    line, the Nyquist frequency ``fs / 2`` by another. If ``f_model`` is at or
-    above Nyquist, the frequency where it appears after sampling is marked too,
-    the unobservable band is shaded and the title warns.
+    ``f_model`` [Hz], the model's natural frequency (or several: one line each), is
+    marked by a vertical line, the Nyquist frequency ``fs / 2`` by another. If a model
+    frequency is at or above Nyquist, the frequency where it appears after sampling is
+    marked too, the unobservable band is shaded and the title warns.
     """
     fig = _new_figure(9.0, 5.0)
     ax = fig.subplots()
@@ -326,35 +329,24 @@ def plot_spectrum(
         # floors of clean simulations would otherwise squash the peaks.
         ax.set_ylim(bottom=max(0.5 * floor, peak * 1e-7))
 
-    title = "Amplitude spectrum"
     nyq = None if fs is None else 0.5 * fs
     if nyq is not None:
         ax.axvline(nyq, color="0.3", ls=":", lw=1.5, label=f"Nyquist {nyq:.0f} Hz")
-    if f_model is not None:
-        ax.axvline(
-            f_model, color="r", ls="--", lw=1.5, label=f"model f_n {f_model:.0f} Hz"
-        )
-        if nyq is not None and f_model >= nyq:
-            f_alias = alias_frequency(f_model, fs)
-            ax.axvline(
-                f_alias,
-                color="r",
-                ls=":",
-                lw=1.5,
-                label=f"alias of f_n {f_alias:.0f} Hz",
-            )
-            ax.axvspan(
-                nyq,
-                max(1.1 * f_model, f_max),
-                color="0.9",
-                zorder=0,
-                label=f"above Nyquist of {fs:g} Hz sampling",
-            )
-            title = (
-                f"ALIASED: model mode {f_model:.0f} Hz > Nyquist {nyq:.0f} Hz, "
-                f"seen at {f_alias:.0f} Hz"
-            )
-        ax.set_xlim(0.0, max(1.1 * f_model, f_max))
+    f_models = [] if f_model is None else [float(f_model)] if np.ndim(f_model) == 0 else [float(x) for x in f_model]
+    aliased = [f for f in f_models if nyq is not None and f >= nyq]
+    for f in f_models:
+        ax.axvline(f, color="r", ls="--", lw=1.5, label=f"model f_n {f:.0f} Hz")
+        if f in aliased:
+            f_alias = alias_frequency(f, fs)
+            ax.axvline(f_alias, color="r", ls=":", lw=1.5, label=f"alias of f_n {f_alias:.0f} Hz")
+    if aliased:
+        top = max(aliased)
+        ax.axvspan(nyq, max(1.1 * top, f_max), color="0.9", zorder=0, label=f"above Nyquist of {fs:g} Hz sampling")
+        seen = ", ".join(f"{alias_frequency(f, fs):.0f}" for f in aliased)
+        title = (f"ALIASED: model mode {', '.join(f'{f:.0f}' for f in aliased)} Hz > Nyquist {nyq:.0f} Hz, "
+                 f"seen at {seen} Hz")
+    if f_models:
+        ax.set_xlim(0.0, max(1.1 * max(f_models), f_max))
     ax.set_xlabel("frequency [Hz]")
     ax.set_ylabel(f"amplitude [{unit}]" if unit else "amplitude")
     ax.set_title(title, color="r" if title.startswith("ALIASED") else "k")

@@ -1,0 +1,105 @@
+"""``elastic-pm-dyn paper-figures``: the seed paper's comparison (Figs. 2-4) on the reference five-bar.
+
+The rigid model's feedforward torques of the reference manoeuvre (1 kHz, zero-order
+hold) drive the elastic model computed by L-D'A and by SCDD (exact, with and without
+projection; the paper's one-pass variant): :func:`elastic_pm_dyn.demo.simulate_reference`.
+The runs go through the same metrics and plots as a bag (:mod:`report`), the figures
+named after the paper; ``paper_figures.json`` holds the numbers behind each figure and
+``fig*.csv`` the plotted series.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from elastic_pm_dyn.analysis.report import PLOT_NAMES, clean, write_report
+from elastic_pm_dyn.analysis.run_data import ModelInfo, RunData, run_from_simulation
+from elastic_pm_dyn.demo import REFERENCE_LINE, RUNS, SAMPLE, simulate_reference
+from elastic_pm_dyn.trajectory import QuinticLine
+
+PAPER_NAMES = {**PLOT_NAMES, "path": "fig2_path.png", "branch_forces": "fig3_branch_forces.png",
+               "gap": "fig4_gap.png"}
+
+
+def paper_figures(out: Path, model_path: Path, line: QuinticLine = REFERENCE_LINE, runs: dict = RUNS,
+                  sample: float = SAMPLE) -> dict:
+    """Simulate, then write the figures, ``summary.json``/``.md``, ``paper_figures.json`` and CSVs."""
+    out.mkdir(parents=True, exist_ok=True)
+    info = ModelInfo.load(model_path)
+    times, torques, _, results = simulate_reference(info.model, line, runs, sample)
+    data: list[RunData] = []
+    for label, res in results.items():
+        ref = np.array([line(t)[0] for t in res.t])
+        data.append(run_from_simulation(res, label, reference=ref, hold_start=line.move, torque_times=times,
+                                        torques=torques))
+    extra = {"manoeuvre": {"start_m": line.start.tolist(), "end_m": line.end.tolist(), "move_s": line.move,
+                           "hold_s": line.hold, "control_rate_hz": 1.0 / (times[1] - times[0]),
+                           "output_sample_s": sample},
+             "formulations": {k: {"formulation": f, "stabilization": s} for k, (f, s) in runs.items()}}
+    summary = write_report(out, data, info, names=PAPER_NAMES, extra=extra)
+    figures = _figure_numbers(summary, data, results)
+    (out / "paper_figures.json").write_text(json.dumps(clean(figures), indent=2))
+    _write_series(out, data)
+    return figures
+
+
+def _figure_numbers(summary: dict, data: list[RunData], results: dict) -> dict:
+    runs = summary["runs"]
+
+    def pick(section: str, keys: tuple[str, ...]) -> dict:
+        return {label: {k: (m.get(section) or {}).get(k) for k in keys} for label, m in runs.items()}
+
+    figures = {
+        "model": summary["model"], "model_natural_hz": summary["model_natural_hz"],
+        "manoeuvre": summary["manoeuvre"], "formulations": summary["formulations"],
+        "fig2_path": {"file": PAPER_NAMES["path"], "data": "fig2_path.csv",
+                      "runs": pick("path", ("max_path_deviation_m", "max_error_m", "rms_error_m",
+                                            "final_position_error_m"))},
+        "fig3_branch_forces": {"file": PAPER_NAMES["branch_forces"], "data": "fig3_branch_forces.csv",
+                               "runs": {label: {"peak_N": (m.get("branch_forces") or {}).get("peak_N"),
+                                                "residual_vibration": {b: {k: v.get(k) for k in (
+                                                    "f_d_hz", "zeta", "amplitude_N", "model_f_n_hz")}
+                                                    for b, v in (m.get("vibration") or {}).items()}}
+                                        for label, m in runs.items()}},
+        "fig4_gap": {"file": PAPER_NAMES["gap"], "data": "fig4_gap.csv",
+                     "runs": pick("gap", ("max_m", "t_max_s", "at_hold_start_m", "final_m"))},
+    }
+    # Agreement of every run with the first (L-D'A): the paper's claim that SCDD equals it.
+    base_label = data[0].label
+    base = results[base_label]
+    figures["difference_to_" + base_label] = {
+        label: {"max_joint_difference": float(np.abs(r.q - base.q).max()),
+                "max_branch_force_difference_N": float(np.abs(r.branch_forces - base.branch_forces).max()),
+                "max_end_effector_difference_m": float(np.linalg.norm(r.ee - base.ee, axis=1).max())}
+        for label, r in results.items() if label != base_label and r.q.shape == base.q.shape}
+    return figures
+
+
+def _write_series(out: Path, data: list[RunData]) -> None:
+    """The plotted series, one CSV per figure, runs side by side on the common time grid."""
+    t = data[0].t
+    same = all(r.t is not None and r.t.shape == t.shape and np.allclose(r.t, t) for r in data)
+    if not same:
+        return
+    ref = data[0].reference_at(t)
+    cols, head = [t, ref[:, 0], ref[:, 1]], ["t", "reference_x", "reference_y"]
+    for r in data:
+        cols += [r.ee[:, 0], r.ee[:, 1]]
+        head += [f"{r.label} x", f"{r.label} y"]
+    _csv(out / "fig2_path.csv", head, cols)
+    cols, head = [t], ["t"]
+    for r in data:
+        for b, f in r.forces.items():
+            cols.append(f)
+            head.append(f"{r.label} F_{b}")
+    _csv(out / "fig3_branch_forces.csv", head, cols)
+    _csv(out / "fig4_gap.csv", ["t"] + [f"{r.label} gap" for r in data], [t] + [r.gap for r in data])
+
+
+def _csv(path: Path, head: list[str], cols: list[np.ndarray]) -> None:
+    # Quote the names: run labels contain commas-free text but spaces and apostrophes (L-D'A).
+    header = ",".join('"' + h.replace('"', '""') + '"' for h in head)
+    np.savetxt(path, np.column_stack(cols), delimiter=",", header=header, comments="", fmt="%.17g")

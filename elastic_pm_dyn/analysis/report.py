@@ -1,0 +1,473 @@
+"""Metrics of runs, side by side: summary.json, summary.md and the PNG plots.
+
+:func:`run_metrics` reduces a :class:`RunData` to numbers (path deviation, final error,
+branch-force peaks, residual vibration of the hold phase, closure gap, torques, stream
+timing, command age); :func:`write_report` writes them for one run or several (the
+first is the baseline of the differences) with the plots of :mod:`plots`.
+:func:`analyze` is ``elastic-pm-dyn analyze``: bags in, report out.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from elastic_pm_dyn.analysis import metrics, plots
+from elastic_pm_dyn.analysis.run_data import ModelInfo, RunData
+
+# Plot file names by figure; paper-figures uses the paper's numbering.
+PLOT_NAMES = {"path": "path.png", "branch_forces": "branch_forces.png", "gap": "gap.png",
+              "torques": "torques.png", "tracking_error": "tracking_error.png", "spectrum": "spectrum.png",
+              "force_difference": "difference_branch_forces.png", "path_difference": "difference_path.png"}
+ZOOM = (-0.01, 0.04)  # [s] around the hold start: the residual vibration in the branch-force plot
+
+
+# ----------------------------------------------------------------------------- metrics
+def _finite_rows(*arrays: np.ndarray) -> np.ndarray:
+    ok = np.ones(len(arrays[0]), dtype=bool)
+    for a in arrays:
+        ok &= np.isfinite(a).all(axis=1) if a.ndim == 2 else np.isfinite(a)
+    return ok
+
+
+def path_metrics(run: RunData) -> dict | None:
+    """Deviation of the end effector from the reference, on the states inside the reference's span."""
+    if run.ee is None or run.t is None:
+        return None
+    ref = run.reference_at(run.t)
+    if ref is None:
+        return None
+    ok = _finite_rows(run.ee, ref) & (run.t >= run.t_ref.min() - 1e-9) & (run.t <= run.t_ref.max() + 1e-9)
+    if ok.sum() < 2:
+        return {"note": "joint states and reference do not overlap in time"}
+    dev = metrics.path_deviation(run.t[ok], run.ee[ok], ref[ok])
+    return {
+        "max_error_m": dev["max"], "rms_error_m": dev["rms"], "t_max_error_s": dev["t_max"],
+        "max_path_deviation_m": dev["perpendicular_max"], "rms_path_deviation_m": dev["perpendicular_rms"],
+        "final_position_error_m": dev["final_error"], "final_error_vector_m": dev["final_error_vector"].tolist(),
+        "samples": int(ok.sum()), "compared_from_s": float(run.t[ok][0]), "compared_to_s": float(run.t[ok][-1]),
+        "actual": run.ee_source, "reference": run.ee_ref_source,
+    }
+
+
+def _f_hint(natural_hz: Sequence[float]) -> float | None:
+    # The fit searches +-30 % around the hint, so one value covers modes close together.
+    return float(np.median(natural_hz)) if len(natural_hz) else None
+
+
+def vibration_metrics(run: RunData, natural_hz: Sequence[float]) -> dict:
+    """Damped-sinusoid fit of each branch force in the hold phase (see metrics.residual_vibration)."""
+    if run.hold_start is None or run.t_vib is None:
+        return {}
+    out = {}
+    for b, f in run.forces_vib.items():
+        ok = _finite_rows(f) & (run.t_vib >= run.hold_start)
+        if ok.sum() < 10:
+            out[b] = {"note": f"only {int(ok.sum())} samples after the hold start {run.hold_start:.4g} s"}
+            continue
+        if np.ptp(f[ok]) <= 1e-12 * max(1.0, float(np.abs(f[ok]).max())):
+            out[b] = {"note": "constant in the hold phase: no vibration to fit"}
+            continue
+        try:
+            v = metrics.residual_vibration(run.t_vib[ok], f[ok], run.hold_start, f_hint=_f_hint(natural_hz))
+        except ValueError as err:
+            out[b] = {"note": str(err)}
+            continue
+        nearest = min(natural_hz, key=lambda fn: abs(fn - v["f_d"])) if len(natural_hz) else None
+        out[b] = {"f_d_hz": v["f_d"], "f_n_hz": v["f_n"], "zeta": v["zeta"], "amplitude_N": v["amplitude"],
+                  "decay_rate_1_s": v["sigma"], "offset_N": v["offset"], "f_apparent_hz": v["f_apparent"],
+                  "aliased": v["aliased"], "sample_rate_hz": v["fs"], "samples": v["n_samples"],
+                  "residual_rms_N": v["residual_rms"], "model_f_n_hz": nearest, "warnings": v["warnings"]}
+    return out
+
+
+def _value_at(t: np.ndarray, x: np.ndarray, at: float) -> float:
+    k = int(np.clip(np.searchsorted(t, at), 0, len(t) - 1))
+    return float(x[k])
+
+
+def run_metrics(run: RunData, natural_hz: Sequence[float]) -> dict:
+    """All numbers of one run (JSON-ready after :func:`clean`)."""
+    m: dict = {"label": run.label, "time_zero": {"stamp_s": run.t0, "from": run.t0_source},
+               "hold_phase": {"start_s": run.hold_start, "from": run.hold_source or None}}
+    if run.bag:
+        m["bag"] = run.bag
+    m["path"] = path_metrics(run)
+    if run.forces:
+        m["branch_forces"] = {"source": run.force_source, "peak_N": run.peak_force,
+                              "max_N": {b: float(np.nanmax(f)) for b, f in run.forces.items()},
+                              "min_N": {b: float(np.nanmin(f)) for b, f in run.forces.items()}}
+    m["vibration"] = vibration_metrics(run, natural_hz)
+    if run.gap is not None and np.isfinite(run.gap).any():
+        g = run.gap
+        k = int(np.nanargmax(g))
+        m["gap"] = {"source": run.gap_source, "max_m": float(g[k]), "t_max_s": float(run.t_gap[k]),
+                    "final_m": float(g[-1])}
+        if run.hold_start is not None:
+            m["gap"]["at_hold_start_m"] = _value_at(run.t_gap, g, run.hold_start)
+    if run.torques:
+        m["torques"] = {"source": run.torque_source,
+                        "peak_Nm": {n: float(np.nanmax(np.abs(x))) if np.isfinite(x).any() else None
+                                    for n, x in run.torques.items()}}
+    m["command_age"] = run.command_age
+    m["streams"] = run.streams
+    if run.diagnostics:
+        m["diagnostics"] = run.diagnostics
+    m["warnings"] = _warnings(run, m, natural_hz)
+    return m
+
+
+def _warnings(run: RunData, m: dict, natural_hz: Sequence[float]) -> list[str]:
+    w = list(run.notes)
+    for s in run.streams.values():
+        if s.get("gaps"):
+            w.append(f"{s['topic']}: {s['gaps']} gaps in the stream (longest {s['longest_gap_s'] * 1e3:.3g} ms, "
+                     f"median period {s['period_median_s'] * 1e3:.3g} ms)")
+        if s.get("out_of_order"):
+            w.append(f"{s['topic']}: {s['out_of_order']} stamps earlier than their predecessor")
+    fs = _force_rate(run)
+    if natural_hz and fs:
+        text = metrics.nyquist_warning(max(natural_hz), fs)
+        if text:
+            w.append(f"branch forces: {text}")
+    for b, v in m["vibration"].items():
+        w.extend(f"vibration fit {b}: {x}" for x in v.get("warnings", []) if not x.startswith("aliased"))
+    return w
+
+
+def _force_rate(run: RunData) -> float | None:
+    if run.t_vib is None or len(run.t_vib) < 2:
+        return None
+    try:
+        return metrics.sample_rate(run.t_vib)
+    except ValueError:
+        return None
+
+
+# --------------------------------------------------------------------------- comparison
+def _leaves(d: Mapping, prefix: str = "") -> dict[str, float]:
+    out = {}
+    for k, v in d.items():
+        key = f"{prefix}{k}"
+        if isinstance(v, Mapping):
+            out.update(_leaves(v, key + "."))
+        elif isinstance(v, (int, float)) and not isinstance(v, bool) and v is not None:
+            out[key] = float(v)
+    return out
+
+
+COMPARED = ("path", "branch_forces", "vibration", "gap", "torques", "command_age")
+
+
+def compare(base: RunData, other: RunData, m_base: dict, m_other: dict) -> dict:
+    """``other`` - ``base``: every scalar metric both have, plus differences of the time series."""
+    a = _leaves({k: m_base.get(k) or {} for k in COMPARED})
+    b = _leaves({k: m_other.get(k) or {} for k in COMPARED})
+    out: dict = {"baseline": base.label, "other": other.label,
+                 "metric_difference": {k: b[k] - a[k] for k in a if k in b}}
+    series = {}
+    for br in base.forces:
+        if br in other.forces and base.t_force is not None and other.t_force is not None:
+            d = _on_base(base.t_force, base.forces[br], other.t_force, other.forces[br])
+            if d is not None:
+                series[f"branch_force_{br}_max_abs_N"] = float(np.nanmax(np.abs(d)))
+                series[f"branch_force_{br}_rms_N"] = float(np.sqrt(np.nanmean(d * d)))
+    if base.ee is not None and other.ee is not None:
+        d = _ee_difference(base, other)
+        if d is not None:
+            series["end_effector_max_distance_m"] = float(np.nanmax(d))
+            series["end_effector_rms_distance_m"] = float(np.sqrt(np.nanmean(d * d)))
+    out["series_difference"] = series
+    return out
+
+
+def _on_base(t_a: np.ndarray, x_a: np.ndarray, t_b: np.ndarray, x_b: np.ndarray) -> np.ndarray | None:
+    """x_b - x_a on the times of a that lie within b's span (linear interpolation), NaN outside."""
+    ok = np.isfinite(x_b)
+    if ok.sum() < 2:
+        return None
+    tb, xb = t_b[ok], x_b[ok]
+    order = np.argsort(tb, kind="stable")
+    y = np.interp(t_a, tb[order], xb[order])
+    y[(t_a < tb.min()) | (t_a > tb.max())] = np.nan
+    return y - x_a
+
+
+def _ee_difference(base: RunData, other: RunData) -> np.ndarray | None:
+    cols = [_on_base(base.t, base.ee[:, k], other.t, other.ee[:, k]) for k in range(base.ee.shape[1])]
+    if any(c is None for c in cols):
+        return None
+    return np.linalg.norm(np.column_stack(cols), axis=1)
+
+
+# ------------------------------------------------------------------------------- plots
+def _zoom(runs: Sequence[RunData]) -> tuple[float, float] | None:
+    h = next((r.hold_start for r in runs if r.hold_start is not None), None)
+    return None if h is None else (h + ZOOM[0], h + ZOOM[1])
+
+
+def _spectra(runs: Sequence[RunData]) -> tuple[dict, float | None, list[tuple[str, str]]]:
+    """Branch-force spectra of the hold phase (whole record without one), per run and branch."""
+    spectra, notes, fs = {}, [], None
+    for r in runs:
+        if r.t_vib is None:
+            continue
+        for b, f in r.forces_vib.items():
+            sel = _finite_rows(f) & (r.t_vib >= (r.hold_start if r.hold_start is not None else -np.inf))
+            t, x = r.t_vib[sel], f[sel]
+            if len(t) < 8:
+                continue
+            try:
+                freq, amp = metrics.spectrum(t, x)
+            except ValueError:  # jittery stamps: resample on purpose, and say so
+                rate = metrics.sample_rate(t)
+                grid = np.arange(t[0], t[-1], 1.0 / rate)
+                freq, amp = metrics.spectrum(grid, np.interp(grid, t, x))
+                notes.append((r.label, f"spectrum {b}: non-uniform stamps, computed from linearly resampled data"))
+            fs = fs or metrics.sample_rate(t)
+            spectra[f"{r.label}: {b}" if len(runs) > 1 else b] = (freq, amp)
+    return spectra, fs, notes
+
+
+def write_plots(out: Path, runs: Sequence[RunData], natural_hz: Sequence[float],
+                names: Mapping[str, str] = PLOT_NAMES) -> tuple[dict[str, str], list[tuple[str, str]]]:
+    """The PNG figures of ``runs`` (all in one figure each); returns name -> file and (run, note)s."""
+    files: dict[str, Path] = {}
+    notes: list[tuple[str, str]] = []
+    with_ee = [r for r in runs if r.ee is not None]
+    ref_run = next((r for r in runs if r.ee_ref is not None), None)
+    if with_ee:
+        files["path"] = plots.plot_path(out / names["path"], {r.label: r.ee for r in with_ee},
+                                        None if ref_run is None else ref_run.ee_ref)
+    with_f = [r for r in runs if r.forces]
+    if with_f:
+        t_by, f_by = {}, {}
+        for r in with_f:
+            t_by[r.label], f_by[r.label] = r.t_force, r.forces
+            if r.t_vib is not r.t_force and r.t_vib is not None:  # decimated: show the full-rate window too
+                label = f"{r.label} (full rate)"
+                t_by[label], f_by[label] = r.t_vib, r.forces_vib
+        files["branch_forces"] = plots.plot_branch_forces(out / names["branch_forces"], t_by, f_by, zoom=_zoom(runs))
+    with_gap = [r for r in runs if r.gap is not None]
+    if with_gap:
+        files["gap"] = plots.plot_gap(out / names["gap"], {r.label: r.t_gap for r in with_gap},
+                                      {r.label: r.gap for r in with_gap})
+    with_tau = [r for r in runs if r.torques]
+    if with_tau:
+        t_by, tau = {}, {}
+        for r in with_tau:
+            for n, x in r.torques.items():
+                key = f"{r.label}: {n}" if len(runs) > 1 else n
+                t_by[key], tau[key] = r.t_torque, x
+        files["torques"] = plots.plot_torques(out / names["torques"], t_by, tau)
+    errs = {r.label: (r.t, r.ee - r.reference_at(r.t)) for r in with_ee if r.ee_ref is not None}
+    if errs:
+        files["tracking_error"] = plots.plot_tracking_error(
+            out / names["tracking_error"], {k: v[0] for k, v in errs.items()}, {k: v[1] for k, v in errs.items()})
+    spectra, fs, spec_notes = _spectra(runs)
+    notes += spec_notes
+    if spectra:
+        where = "hold phase" if any(r.hold_start is not None for r in runs) else "whole record"
+        files["spectrum"] = plots.plot_spectrum(out / names["spectrum"], spectra, f_model=list(natural_hz) or None,
+                                                fs=fs, title=f"Branch forces, {where}: amplitude spectrum")
+    if len(runs) > 1:
+        files.update(_difference_plots(out, runs, names))
+    return {k: v.name for k, v in files.items()}, notes
+
+
+def _difference_plots(out: Path, runs: Sequence[RunData], names: Mapping[str, str]) -> dict[str, Path]:
+    base, files = runs[0], {}
+    t_by, d_by = {}, {}
+    for r in runs[1:]:
+        for b in base.forces:
+            if b in r.forces and (d := _on_base(base.t_force, base.forces[b], r.t_force, r.forces[b])) is not None:
+                key = f"{r.label} - {base.label}: {b}"
+                t_by[key], d_by[key] = base.t_force, d
+    if d_by:
+        files["force_difference"] = plots.plot_tracking_error(
+            out / names["force_difference"], t_by, d_by, quantity="branch force difference", unit="N",
+            title="Difference between runs: branch forces")
+    t_by, d_by = {}, {}
+    for r in runs[1:]:
+        if base.ee is not None and r.ee is not None and (d := _ee_difference(base, r)) is not None:
+            key = f"|{r.label} - {base.label}|"
+            t_by[key], d_by[key] = base.t, d
+    if d_by:
+        files["path_difference"] = plots.plot_tracking_error(
+            out / names["path_difference"], t_by, d_by, quantity="end-effector distance between runs",
+            title="Difference between runs: end-effector position")
+    return files
+
+
+# ----------------------------------------------------------------------------- output
+def clean(x: object) -> object:
+    """JSON-ready: numpy scalars/arrays to Python, NaN and infinities to None."""
+    if isinstance(x, Mapping):
+        return {str(k): clean(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [clean(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return clean(x.tolist())
+    if isinstance(x, (np.bool_, bool)):
+        return bool(x)
+    if isinstance(x, (np.integer, int)):
+        return int(x)
+    if isinstance(x, (np.floating, float)):
+        return float(x) if math.isfinite(x) else None
+    if isinstance(x, Path):
+        return str(x)
+    return x
+
+
+def write_report(out: Path, runs: Sequence[RunData], info: ModelInfo, plots_on: bool = True,
+                 names: Mapping[str, str] = PLOT_NAMES, extra: Mapping | None = None) -> dict:
+    """summary.json, summary.md and (``plots_on``) the plots of ``runs`` in ``out``."""
+    out.mkdir(parents=True, exist_ok=True)
+    q_hold = _hold_pose(runs[0])
+    natural = info.natural_hz(q_hold)
+    summary: dict = {"model": str(info.path), "model_natural_hz": natural,
+                     "natural_hz_at": "hold pose of the first run" if q_hold is not None else "start pose",
+                     "runs": {r.label: run_metrics(r, natural) for r in runs}}
+    if len(runs) > 1:
+        base = runs[0]
+        summary["comparison"] = [compare(base, r, summary["runs"][base.label], summary["runs"][r.label])
+                                 for r in runs[1:]]
+    if extra:
+        summary.update(extra)
+    if plots_on:
+        summary["plots"], notes = write_plots(out, runs, natural, names)
+        for label, note in notes:
+            summary["runs"][label]["warnings"].append(note)
+    summary = clean(summary)
+    (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    (out / "summary.md").write_text(markdown(summary))
+    return summary
+
+
+def _hold_pose(run: RunData) -> np.ndarray | None:
+    if run.q is None or run.t is None or not len(run.t):
+        return None
+    at = run.hold_start if run.hold_start is not None else run.t[-1]
+    k = int(np.clip(np.searchsorted(run.t, at), 0, len(run.t) - 1))
+    return run.q[k] if np.all(np.isfinite(run.q[k])) else None
+
+
+# ----------------------------------------------------------------------------- markdown
+def _fmt(v: object, scale: float = 1.0, digits: int = 4) -> str:
+    if v is None:
+        return "-"
+    if isinstance(v, bool):
+        return "yes" if v else "no"
+    if isinstance(v, (int, float)):
+        return f"{v * scale:.{digits}g}"
+    return str(v)
+
+
+def _get(m: Mapping, path: str) -> object:
+    for key in path.split("/"):
+        if not isinstance(m, Mapping) or key not in m:
+            return None
+        m = m[key]
+    return m
+
+
+def _metric_rows(runs: Mapping[str, dict]) -> list[tuple[str, list[object], float]]:
+    """(row label, value per run, display scale) in a fixed order."""
+    rows: list[tuple[str, str, float]] = [
+        ("max end-effector error [µm]", "path/max_error_m", 1e6),
+        ("RMS end-effector error [µm]", "path/rms_error_m", 1e6),
+        ("max deviation from the path [µm]", "path/max_path_deviation_m", 1e6),
+        ("RMS deviation from the path [µm]", "path/rms_path_deviation_m", 1e6),
+        ("final position error [µm]", "path/final_position_error_m", 1e6),
+    ]
+    branches = list(dict.fromkeys(b for m in runs.values() for b in (_get(m, "branch_forces/peak_N") or {})))
+    rows += [(f"peak branch force {b} [N]", f"branch_forces/peak_N/{b}", 1.0) for b in branches]
+    vib = list(dict.fromkeys(b for m in runs.values() for b in (m.get("vibration") or {})))
+    for b in vib:
+        rows += [(f"residual vibration {b}: frequency [Hz]", f"vibration/{b}/f_d_hz", 1.0),
+                 (f"residual vibration {b}: amplitude [N]", f"vibration/{b}/amplitude_N", 1.0),
+                 (f"residual vibration {b}: damping ratio [-]", f"vibration/{b}/zeta", 1.0)]
+    rows += [("max closure gap [m]", "gap/max_m", 1.0), ("final closure gap [m]", "gap/final_m", 1.0)]
+    motors = list(dict.fromkeys(n for m in runs.values() for n in (_get(m, "torques/peak_Nm") or {})))
+    rows += [(f"peak torque {n} [N m]", f"torques/peak_Nm/{n}", 1.0) for n in motors]
+    rows += [("command age, max [ms]", "command_age/from_stamps/max_s", 1e3),
+             ("command age reported by the plant, max [ms]", "command_age/reported_by_plant/max", 1e3),
+             ("hold phase starts at [s]", "hold_phase/start_s", 1.0)]
+    return [(label, [_get(m, path) for m in runs.values()], scale) for label, path, scale in rows
+            if any(_get(m, path) is not None for m in runs.values())]
+
+
+def markdown(summary: Mapping) -> str:
+    runs: Mapping[str, dict] = summary["runs"]
+    labels = list(runs)
+    lines = ["# Run analysis", "", f"Model: `{summary['model']}`; elastic modes "
+             + (", ".join(f"{f:.1f} Hz" for f in summary.get("model_natural_hz") or []) or "none")
+             + f" (at the {summary.get('natural_hz_at', 'start pose')}).", ""]
+    for label, m in runs.items():
+        bag = m.get("bag")
+        if bag:
+            lines.append(f"- **{label}**: `{bag['path']}` ({bag['storage']}, {_fmt(bag['duration_s'])} s); "
+                         f"time zero = {m['time_zero']['from']}; hold phase from "
+                         f"{_fmt(m['hold_phase']['start_s'])} s ({m['hold_phase']['from'] or 'not found'})")
+    lines += ["", "## Metrics", ""]
+    two = len(labels) == 2
+    head = ["metric", *labels] + ([f"{labels[1]} - {labels[0]}"] if two else [])
+    lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for name, values, scale in _metric_rows(runs):
+        cells = [_fmt(v, scale) for v in values]
+        if two:
+            a, b = values
+            cells.append(_fmt(b - a, scale) if isinstance(a, (int, float)) and isinstance(b, (int, float))
+                         and not isinstance(a, bool) else "-")
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    lines += ["", "End-effector error: distance to the reference at the same time (includes lag along the path, "
+              "e.g. the half-sample delay of a zero-order-held feedforward); deviation from the path: distance "
+              "to the reference path as a curve. Vibration: damped sinusoid fitted to the hold phase."]
+    for comp in summary.get("comparison", []):
+        if comp["series_difference"]:
+            lines += ["", f"Time-series differences {comp['other']} - {comp['baseline']}: "
+                      + ", ".join(f"{k} {_fmt(v)}" for k, v in comp["series_difference"].items())]
+    lines += ["", "## Message streams", "",
+              "| run | role | topic | messages | rate [Hz] | gaps | longest gap [ms] | p99 period [ms] | stamps |",
+              "|---|---|---|---|---|---|---|---|---|"]
+    for label, m in runs.items():
+        for role, s in (m.get("streams") or {}).items():
+            lines.append(f"| {label} | {role} | `{s['topic']}` | {s['messages']} | {_fmt(s['rate_hz'])} | "
+                         f"{_fmt(s['gaps'])} | {_fmt(s['longest_gap_s'], 1e3)} | {_fmt(s['period_p99_s'], 1e3)} | "
+                         f"{s['stamps']}{'' if s.get('exact', True) else ' (histogram)'} |")
+    warnings = [(label, w) for label, m in runs.items() for w in m.get("warnings", [])]
+    if warnings:
+        lines += ["", "## Warnings", ""] + [f"- {label}: {w}" for label, w in warnings]
+    if summary.get("plots"):
+        lines += ["", "## Plots", ""] + [f"![{k}]({v})" for k, v in summary["plots"].items()]
+    return "\n".join(lines) + "\n"
+
+
+# ------------------------------------------------------------------------------ analyze
+def analyze(bags: Sequence[str | Path], model: str | Path, out: str | Path,
+            topics: Mapping[str, str | None] | None = None, hold_start: float | None = None,
+            labels: Sequence[str] | None = None, plots_on: bool = True, max_samples: int | None = None,
+            window_samples: int | None = None) -> dict:
+    """``elastic-pm-dyn analyze``: one or more bags -> plots, summary.json, summary.md in ``out``."""
+    from elastic_pm_dyn.analysis import bags as bagmod
+    from elastic_pm_dyn.analysis.run_data import run_from_bag
+
+    info = ModelInfo.load(model)
+    labels = list(labels) if labels else _labels(bags)
+    kw = {k: v for k, v in (("max_samples", max_samples), ("window_samples", window_samples)) if v}
+    runs = []
+    for bag, label in zip(bags, labels, strict=True):
+        data = bagmod.read_bag(bag, topics, hold_start=hold_start, **kw)
+        runs.append(run_from_bag(data, info, label, hold_start))
+    return write_report(Path(out), runs, info, plots_on)
+
+
+def _labels(bags: Sequence[str | Path]) -> list[str]:
+    names = [Path(b).resolve().name for b in bags]
+    if len(set(names)) < len(names):
+        names = [f"{chr(65 + k)}: {n}" for k, n in enumerate(names)]
+    return names
