@@ -45,13 +45,31 @@ def cholesky_solve(L, b):
 
 @njit(cache=True)
 def cholesky_solve_columns(L, B):
-    """Solve (L L^T) X = B in place, column by column.
+    """Solve (L L^T) X = B in place for all columns of B in one sweep.
 
-    (A separate function, not recursion: numba's on-disk cache crashes on recursive
-    functions specialised for several argument types.)
+    Row-oriented (axpy) updates let the independent columns overlap instead of waiting on
+    each other, and each row pays one division. (Not written as recursion into
+    :func:`cholesky_solve`: numba's on-disk cache crashes on recursive functions
+    specialised for several argument types.)
     """
-    for c in range(B.shape[1]):
-        cholesky_solve(L, B[:, c])
+    n = L.shape[0]
+    nc = B.shape[1]
+    for i in range(n):
+        for k in range(i):
+            lik = L[i, k]
+            for t in range(nc):
+                B[i, t] -= lik * B[k, t]
+        r = 1.0 / L[i, i]
+        for t in range(nc):
+            B[i, t] *= r
+    for i in range(n - 1, -1, -1):
+        for k in range(i + 1, n):
+            lki = L[k, i]
+            for t in range(nc):
+                B[i, t] -= lki * B[k, t]
+        r = 1.0 / L[i, i]
+        for t in range(nc):
+            B[i, t] *= r
 
 
 @njit(cache=True)

@@ -55,19 +55,21 @@ def chain_responses(M, A, chain_start, tau_minus_h, x, Y):
         if not cholesky(L):
             S[:, :] = np.nan
             return S
-        xs = tau_minus_h[s:e].copy()
-        cholesky_solve(L, xs)
-        x[s:e] = xs
-        if m == 0:
-            continue
-        Ys = A[:, s:e].T.copy()
-        cholesky_solve_columns(L, Ys)
-        Y[s:e, :] = Ys
+        XY = np.empty((e - s, 1 + m))  # [tau_i - h_i, A_i^T]: one sweep solves both
+        for i in range(e - s):
+            XY[i, 0] = tau_minus_h[s + i]
+            for j in range(m):
+                XY[i, 1 + j] = A[j, s + i]
+        cholesky_solve_columns(L, XY)
+        for i in range(e - s):
+            x[s + i] = XY[i, 0]
+            for j in range(m):
+                Y[s + i, j] = XY[i, 1 + j]
         for i in range(m):
             for j in range(m):
                 acc = 0.0
                 for k in range(e - s):
-                    acc += A[i, s + k] * Ys[k, j]
+                    acc += A[i, s + k] * XY[k, 1 + j]
                 S[i, j] += acc
     return S
 
@@ -276,12 +278,16 @@ def scdd_platform(M, h, A, gamma, tau, chain_start, point_chain, closure_pairs, 
         L = M[s:e, s:e].copy()
         if not cholesky(L):
             return 0.0
-        xs = tau[s:e] - h[s:e]
-        cholesky_solve(L, xs)
-        qdd[s:e] = xs
         Ai = A[k * c:(k + 1) * c, s:e]
-        Ys = Ai.T.copy()
-        cholesky_solve_columns(L, Ys)
+        XY = np.empty((e - s, 1 + c))  # [tau_i - h_i, A_i^T]: one sweep solves both
+        for i in range(e - s):
+            XY[i, 0] = tau[s + i] - h[s + i]
+            for j in range(c):
+                XY[i, 1 + j] = Ai[j, i]
+        cholesky_solve_columns(L, XY)
+        xs = XY[:, 0].copy()
+        Ys = XY[:, 1:]
+        qdd[s:e] = xs
         Y[s:e, :] = Ys
         Li = matmul(Ai, Ys, np.empty((c, c)))  # Lambda_i^-1, symmetric positive definite
         if not cholesky(Li):

@@ -167,7 +167,8 @@ def closure_rows(closure_pairs, closure_components, J, a_pt, p_pt, A, gamma, res
         for i in range(nc):
             comp = closure_components[i]
             r = k * nc + i
-            A[r, :] = J[pa, comp, :] - J[pb, comp, :]
+            for j in range(A.shape[1]):  # element-wise: a row expression would allocate
+                A[r, j] = J[pa, comp, j] - J[pb, comp, j]
             res[r] = p_pt[pa, comp] - p_pt[pb, comp]
             gamma[r] = -(a_pt[pa, comp] - a_pt[pb, comp])
 
