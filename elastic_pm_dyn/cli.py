@@ -108,13 +108,18 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 
 def _ros_argv(params_file: str | None, overrides: dict[str, str], extra: list[str]) -> list[str]:
-    """argv for a node's main(): our options as one --ros-args section, then the user's own."""
+    """argv for a node's main(): one --ros-args section, the user's own arguments last (they win)."""
     argv = ["elastic-pm-dyn", "--ros-args"]
     if params_file:
         argv += ["--params-file", params_file]
     for name, value in overrides.items():
         argv += ["-p", f"{name}:={value}"]
     return argv + extra
+
+
+def _add_ros_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--ros-args", dest="ros_args", nargs=argparse.REMAINDER, default=[], metavar="ARG",
+                   help="the rest of the line goes to ROS, e.g. --ros-args -p dt:=5.0e-5 -r __node:=plant2")
 
 
 def cmd_plant(args: argparse.Namespace) -> int:
@@ -176,12 +181,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="runs/demo")
     p.set_defaults(func=cmd_demo)
 
-    ros_args_help = "further ROS arguments, e.g. --ros-args -p dt:=5.0e-5"
     p = sub.add_parser("plant", help="ROS 2 plant node: the elastic model in the loop (see config/plant.yaml)")
     p.add_argument("--params-file", help="ROS parameter YAML (e.g. config/plant.yaml)")
     p.add_argument("--sync", choices=("realtime", "fast", "lockstep"), help="sync mode (overrides the file)")
     p.add_argument("--model", help="model YAML (overrides the file)")
-    p.add_argument("ros_args", nargs=argparse.REMAINDER, help=ros_args_help)
+    _add_ros_args(p)
     p.set_defaults(func=cmd_plant)
 
     p = sub.add_parser("record", help="record ROS 2 topics into a rosbag2 (mcap or sqlite3) with rosbags")
@@ -189,7 +193,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap")
     p.add_argument("--topics", nargs="+", metavar="TOPIC", help="topics (default: the demo's)")
     p.add_argument("--params-file", help="ROS parameter YAML (e.g. config/recorder.yaml)")
-    p.add_argument("ros_args", nargs=argparse.REMAINDER, help=ros_args_help)
+    _add_ros_args(p)
     p.set_defaults(func=cmd_record)
 
     p = sub.add_parser("ros-demo", help="the reference manoeuvre through ROS 2: plant + feedforward + recorder "
@@ -202,6 +206,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--timeout", type=float, default=120.0, help="[s] limit for the manoeuvre run")
     p.add_argument("--domain-id", type=int, help="ROS domain id (default: a private one from the process id)")
     p.set_defaults(func=cmd_ros_demo)
+    from elastic_pm_dyn.analysis.cli import register_cli as register_analysis
+    register_analysis(sub)
     return parser
 
 

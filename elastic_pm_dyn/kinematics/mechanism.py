@@ -6,6 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from elastic_pm_dyn.errors import SingularConfigurationError
 from elastic_pm_dyn.kinematics.kernels import chain_points, closure_rows, tree_terms
 from elastic_pm_dyn.model.arrays import ModelArrays, pack
 from elastic_pm_dyn.model.description import ACTIVE, ELASTIC, PASSIVE, Model
@@ -88,7 +89,8 @@ class Mechanism:
     def passive_map(self, terms: TreeTerms) -> tuple[np.ndarray, np.ndarray]:
         """W = dq_t/dq_ae (eq 18) and Wdot qd_ae, from the closure (eqs 9, 12).
 
-        Raises numpy's LinAlgError when dh/dq_p is singular.
+        Raises SingularConfigurationError where dh/dq_p is singular (a parallel
+        singularity: the passive joints are not determined by q_ae).
         """
         A_p = terms.A[:, self.passive]
         A_ae = terms.A[:, self.ae]
@@ -96,8 +98,14 @@ class Mechanism:
         W[self.ae, np.arange(len(self.ae))] = 1.0
         c = np.zeros(self.n)
         if self.m:
-            W[self.passive] = -np.linalg.solve(A_p, A_ae)
-            c[self.passive] = np.linalg.solve(A_p, terms.gamma)
+            try:
+                sol = np.linalg.solve(A_p, np.column_stack([A_ae, terms.gamma]))
+            except np.linalg.LinAlgError:
+                raise SingularConfigurationError(
+                    "dh/dq_p is singular: the passive joints are not determined by q_ae (parallel singularity)",
+                    residual=float(np.linalg.norm(terms.residual))) from None
+            W[self.passive] = -sol[:, :-1]
+            c[self.passive] = sol[:, -1]
         return W, c
 
     def tree_velocity(self, q: np.ndarray, qd_ae: np.ndarray) -> np.ndarray:

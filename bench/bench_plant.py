@@ -1,0 +1,234 @@
+"""Plant node benchmark: realtime at 1 kHz (rate, jitter, headroom, CPU) and fast mode (real-time factor).
+
+    .venv/bin/python bench/bench_plant.py            # ~45 s: realtime 10 s, fast 2 x 10 s
+    .venv/bin/python bench/bench_plant.py --duration 3
+
+The plant node runs as its own process (``python -m elastic_pm_dyn.ros.plant_node``) on a
+private loopback domain, five-bar, SCDD + RK4 dt = 1e-4 s (10 kHz) + projection, no
+command (zero torque: the physics costs the same). This process subscribes like a
+controller would (SingleThreadedExecutor) and measures:
+- realtime: arrival times of ``joint_states`` over the window (rate = 1 / median
+  inter-arrival, std, p99, max, count / window), the plant's own step and cycle times
+  from ``/diagnostics`` (headroom = cycle time / period; cycle = step + publishing), and
+  the plant process's CPU (utime + stime over the window, /proc); the CPU that other
+  processes used meanwhile is reported too (the machine is shared: read results with it);
+- fast: real-time factor = simulated time / wall time over the window, from the first
+  and last ``/diagnostics`` of the window (sim_time_s), at publish rates 1 kHz and 100 Hz,
+  with no state subscriber (on 2 cores a subscriber at 2-5 kHz competes with the plant).
+Writes bench/results/plant.json (all numbers, machine, load) and plant.md (the table).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+from elastic_pm_dyn.analysis.metrics import stream_stats  # noqa: E402
+from elastic_pm_dyn.ros.processes import NodeProcess, private_domain_id, ros_env  # noqa: E402
+
+WARM_UP = 3.0  # [s] after start-up: discovery, first diagnostics
+TARGET = {"rate_hz": 990.0, "period_std_ms": 0.3, "fast_rtf": 5.0}
+
+
+class Probe:
+    """The subscriber side: joint_states arrival times (``states``), /diagnostics values."""
+
+    def __init__(self, domain: int, states: bool):
+        os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+        import rclpy
+        from diagnostic_msgs.msg import DiagnosticArray
+        from rclpy.executors import SingleThreadedExecutor
+        from sensor_msgs.msg import JointState
+
+        from elastic_pm_dyn.ros.qos import DIAGNOSTICS_QOS, STATE_QOS
+        self.rclpy = rclpy
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context, domain_id=domain)
+        self.node = rclpy.create_node("bench_probe", context=self.context)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.arrivals: list[float] = []
+        self.diagnostics: list[tuple[float, dict[str, str]]] = []
+        self.record = False
+        if states:
+            self.node.create_subscription(JointState, "joint_states", self._on_state, STATE_QOS)
+        self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diag, DIAGNOSTICS_QOS)
+
+    def _on_state(self, _msg: object) -> None:
+        if self.record:
+            self.arrivals.append(time.perf_counter())
+
+    def _on_diag(self, msg: object) -> None:
+        self.diagnostics.append((time.perf_counter(), {kv.key: kv.value for kv in msg.status[0].values}))
+
+    def spin(self, seconds: float) -> None:
+        end = time.perf_counter() + seconds
+        while time.perf_counter() < end:
+            self.executor.spin_once(timeout_sec=0.05)
+
+    def close(self) -> None:
+        self.node.destroy_node()
+        self.executor.shutdown(timeout_sec=2.0)
+        self.rclpy.try_shutdown(context=self.context)
+
+
+def _cpu_seconds(pid: int) -> float:
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")  # utime + stime
+
+
+def _busy_seconds() -> float:
+    """CPU time of the whole machine (all cores) spent outside idle and iowait [s]."""
+    user, nice, system, _idle, _iowait, irq, softirq, steal = (
+        int(x) for x in Path("/proc/stat").read_text().split("\n", 1)[0].split()[1:9])
+    return (user + nice + system + irq + softirq + steal) / os.sysconf("SC_CLK_TCK")
+
+
+class CpuWindow:
+    """CPU used over a window by the plant, by this process, and by everything else (other users)."""
+
+    def __init__(self, plant_pid: int):
+        self.pid = plant_pid
+        self.start = (time.perf_counter(), _cpu_seconds(plant_pid), _cpu_seconds(os.getpid()), _busy_seconds())
+
+    def stop(self) -> dict:
+        wall, plant, own, busy = (b - a for a, b in zip(self.start, (
+            time.perf_counter(), _cpu_seconds(self.pid), _cpu_seconds(os.getpid()), _busy_seconds()), strict=True))
+        return {"plant_cpu_percent": 100.0 * plant / wall, "probe_cpu_percent": 100.0 * own / wall,
+                "other_processes_cpu_percent": 100.0 * (busy - plant - own) / wall}
+
+
+def _start_plant(sync: str, publish_rate: float, log_dir: Path, domain: int) -> NodeProcess:
+    args = ["--params-file", str(REPO / "config" / "plant.yaml"), "-p", f"sync_mode:={sync}",
+            "-p", f"publish_rate:={publish_rate!r}", "-p", "dt:=0.0001", "-p", "formulation:=scdd",
+            "-p", "stabilization:=projection", "-p", "diagnostics_rate:=1.0"]
+    return NodeProcess(f"plant_{sync}_{publish_rate:g}", "elastic_pm_dyn.ros.plant_node", args, ros_env(domain),
+                       log_dir)
+
+
+def run_realtime(duration: float, log_dir: Path, domain: int) -> dict:
+    plant = _start_plant("realtime", 1000.0, log_dir, domain)
+    probe = Probe(domain, states=True)
+    try:
+        probe.spin(WARM_UP)
+        plant.check_running()
+        cpu = CpuWindow(plant.proc.pid)
+        probe.record = True
+        n_diag = len(probe.diagnostics)
+        probe.spin(duration)
+        probe.record = False
+        usage = cpu.stop()
+        plant.check_running()
+    finally:
+        probe.close()
+        plant.stop()
+    stats = stream_stats(probe.arrivals)
+    diags = [d for _, d in probe.diagnostics[n_diag + 1:]]  # windows wholly inside the measurement
+    step = [float(d["step_time_mean_us"]) for d in diags]
+    cycle = [float(d["cycle_time_mean_us"]) for d in diags]
+    return {
+        "window_s": duration, "received": stats["count"], "rate_hz": stats["rate"],
+        "mean_rate_hz": (stats["count"] - 1) / stats["duration"], "period_std_ms": stats["period_std"] * 1e3,
+        "period_p99_ms": stats["period_p99"] * 1e3, "period_max_ms": stats["period_max"] * 1e3,
+        "gaps_over_2_periods": stats["gaps"], "step_time_mean_us": float(np.median(step)),
+        "step_time_max_us": max(float(d["step_time_max_us"]) for d in diags),
+        "cycle_time_mean_us": float(np.median(cycle)),
+        "cycle_time_max_us": max(float(d["cycle_time_max_us"]) for d in diags),
+        "headroom": float(np.median(cycle)) / 1e3, "overruns": int(diags[-1]["overruns"]),
+        **usage,
+    }
+
+
+def run_fast(duration: float, publish_rate: float, log_dir: Path, domain: int) -> dict:
+    plant = _start_plant("fast", publish_rate, log_dir, domain)
+    probe = Probe(domain, states=False)  # a 2-5 kHz subscriber would take the CPU the plant is measured on
+    try:
+        probe.spin(WARM_UP)
+        plant.check_running()
+        cpu = CpuWindow(plant.proc.pid)
+        n_diag = len(probe.diagnostics)
+        probe.spin(duration)
+        usage = cpu.stop()
+        plant.check_running()
+    finally:
+        probe.close()
+        plant.stop()
+    window = probe.diagnostics[n_diag:]
+    (w0, d0), (w1, d1) = window[0], window[-1]
+    rtf = (float(d1["sim_time_s"]) - float(d0["sim_time_s"])) / (w1 - w0)
+    return {"window_s": w1 - w0, "publish_rate_hz": publish_rate, "real_time_factor": rtf,
+            "step_time_mean_us": float(np.median([float(d["step_time_mean_us"]) for _, d in window])),
+            "cycle_time_mean_us": float(np.median([float(d["cycle_time_mean_us"]) for _, d in window])),
+            **usage}
+
+
+def table(r: dict) -> str:
+    rt, f1, f2 = r["realtime"], r["fast_1000"], r["fast_100"]
+    ok = {True: "yes", False: "**no**"}
+    rows = [
+        ("realtime 1 kHz: received rate (1 / median inter-arrival)", f"{rt['rate_hz']:.1f} Hz",
+         f">= {TARGET['rate_hz']:g} Hz", ok[rt["rate_hz"] >= TARGET["rate_hz"]]),
+        ("realtime 1 kHz: mean rate (count / window)", f"{rt['mean_rate_hz']:.1f} Hz", "", ""),
+        ("realtime 1 kHz: inter-arrival std", f"{rt['period_std_ms']:.3f} ms", f"< {TARGET['period_std_ms']:g} ms",
+         ok[rt["period_std_ms"] < TARGET["period_std_ms"]]),
+        ("realtime 1 kHz: inter-arrival p99 / max", f"{rt['period_p99_ms']:.2f} / {rt['period_max_ms']:.2f} ms",
+         "", ""),
+        ("realtime 1 kHz: step time (physics, 10 RK4 steps) mean / max",
+         f"{rt['step_time_mean_us']:.0f} / {rt['step_time_max_us']:.0f} us", "", ""),
+        ("realtime 1 kHz: headroom = cycle time / period (cycle = step + publish)",
+         f"{rt['headroom']:.2f} ({rt['cycle_time_mean_us']:.0f} us)", "< 1", ok[rt["headroom"] < 1.0]),
+        ("realtime 1 kHz: plant process CPU", f"{rt['plant_cpu_percent']:.0f} %", "", ""),
+        ("fast, dt 1e-4 s, publish 1 kHz: real-time factor", f"{f1['real_time_factor']:.2f}",
+         f">= {TARGET['fast_rtf']:g}", ok[f1["real_time_factor"] >= TARGET["fast_rtf"]]),
+        ("fast, dt 1e-4 s, publish 100 Hz: real-time factor", f"{f2['real_time_factor']:.2f}",
+         f">= {TARGET['fast_rtf']:g}", ok[f2["real_time_factor"] >= TARGET["fast_rtf"]]),
+    ]
+    lines = ["| quantity | measured | target | met |", "|---|---|---|---|"]
+    lines += [f"| {a} | {b} | {c} | {d} |" for a, b, c, d in rows]
+    others = ", ".join(f"{k} {r[k]['other_processes_cpu_percent']:.0f} %" for k in ("realtime", "fast_1000",
+                                                                                 "fast_100"))
+    lines.append(f"\nCPU of other processes during the windows (2 cores = 200 %): {others}.")
+    return "\n".join(lines)
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--duration", type=float, default=10.0, help="measurement window per run [s]")
+    parser.add_argument("--out", type=Path, default=REPO / "bench" / "results")
+    args = parser.parse_args()
+    domain = private_domain_id()
+    results: dict = {"machine": {"cpus": os.cpu_count(), "platform": platform.platform(),
+                                 "python": platform.python_version(), "load_before": os.getloadavg()},
+                     "commit": subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", "HEAD"],
+                                              capture_output=True, text=True).stdout.strip()}
+    with tempfile.TemporaryDirectory() as logs:
+        log_dir = Path(logs)
+        print(f"realtime 1 kHz, {args.duration:g} s ...", flush=True)
+        results["realtime"] = run_realtime(args.duration, log_dir, domain)
+        for rate in (1000.0, 100.0):
+            print(f"fast, publish {rate:g} Hz, {args.duration:g} s ...", flush=True)
+            results[f"fast_{rate:g}"] = run_fast(args.duration, rate, log_dir, domain)
+    results["machine"]["load_after"] = os.getloadavg()
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "plant.json").write_text(json.dumps(results, indent=2))
+    md = table(results)
+    (args.out / "plant.md").write_text(md + "\n")
+    print(md)
+    print(f"load average before/after: {results['machine']['load_before']} / {results['machine']['load_after']}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

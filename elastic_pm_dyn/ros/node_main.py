@@ -1,0 +1,72 @@
+"""What every console script of a node does: init, build the node, spin, shut down cleanly.
+
+A node that cannot start (bad parameter, model file, ROS arguments) prints one line
+``<program>: error: <reason>`` on stderr and the process exits with status 2. SIGINT and
+SIGTERM only ask the spin loop to stop (rclpy's own handlers would invalidate the context
+first), so the node's ``close()`` still runs with ROS up: the recorder closes its bag and
+its last log lines still reach /rosout.
+"""
+
+from __future__ import annotations
+
+import signal
+import sys
+from collections.abc import Callable
+
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.impl.implementation_singleton import rclpy_implementation
+from rclpy.node import Node
+from rclpy.signals import SignalHandlerOptions
+
+from elastic_pm_dyn.errors import ElasticPmDynError
+
+EXIT_START_FAILED = 2
+SPIN_TIMEOUT = 0.1  # [s] longest time until a stop request or node.done is seen
+
+
+class ManagedNode(Node):
+    """A node run by :func:`run_node`: set ``done`` to end the process, override ``close``."""
+
+    done = False
+
+    def close(self) -> None:
+        """Release resources before the node is destroyed (called once, also on signals)."""
+
+
+def run_node(program: str, factory: Callable[[], ManagedNode], args: list[str] | None = None) -> int:
+    """Run one node in its own process; returns the exit status."""
+    try:
+        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    except rclpy_implementation.RCLError as err:  # e.g. a malformed --params-file
+        reason = str(err).split(", at ")[0]  # drop rcl's source locations
+        print(f"{program}: error: ROS arguments rejected: {reason}", file=sys.stderr)
+        return EXIT_START_FAILED
+    stop: list[int] = []
+
+    def request_stop(signum: int, _frame: object) -> None:
+        if stop:  # a second signal: the loop did not get to it, stop the hard way
+            raise KeyboardInterrupt
+        stop.append(signum)
+
+    previous = {sig: signal.signal(sig, request_stop) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        try:
+            node = factory()
+        except ElasticPmDynError as err:
+            print(f"{program}: error: {err}", file=sys.stderr)
+            return EXIT_START_FAILED
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        try:
+            while rclpy.ok() and not node.done and not stop:
+                executor.spin_once(timeout_sec=SPIN_TIMEOUT)
+        finally:
+            node.close()
+            executor.remove_node(node)
+            node.destroy_node()
+        return 0
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+        rclpy.try_shutdown()

@@ -1,0 +1,110 @@
+"""Parameter declaration and validation shared by the nodes.
+
+A node lists its parameters as :class:`Param` specs; :func:`read_parameters` declares
+them read-only with their descriptions, checks names, types, choices and ranges, and
+returns a plain dict, or raises :class:`ParameterError` whose one-line message names the
+parameter and says what is expected (the node then refuses to start with that line).
+:func:`reject_unknown` refuses overrides that no spec declares (typos in a YAML file).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
+from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.exceptions import InvalidParameterTypeException
+from rclpy.node import Node
+
+from elastic_pm_dyn.errors import InputError
+
+PACKAGE = "elastic_pm_dyn"
+COMMAND_JOINTS = "command_joints"
+# Declared by rclpy itself for every node; never "unknown".
+_BUILTIN_PARAMETERS = ("use_sim_time", "start_type_description_service")
+
+_TYPE_WORDS = {bool: "a boolean (true/false)", int: "an integer", float: "a float (e.g. 1000.0, not 1000)",
+               str: "a string"}
+
+
+class ParameterError(InputError):
+    """An invalid node parameter (one line: name, value, what is expected)."""
+
+
+@dataclass(frozen=True)
+class Param:
+    name: str
+    default: bool | int | float | str | list
+    description: str
+    choices: tuple[str, ...] = ()
+    positive: bool = False  # numbers (or every list entry) > 0; list defaults must not be empty
+
+
+def reject_unknown(node: Node, known: Iterable[str]) -> None:
+    """Refuse overrides (--params-file, -p) that the node does not declare: they are typos."""
+    known = set(known)
+    # rclpy has no public getter for the overrides; _parameter_overrides is stable since Foxy.
+    unknown = sorted(n for n in node._parameter_overrides
+                     if n not in known and n not in _BUILTIN_PARAMETERS and not n.startswith("qos_overrides."))
+    if unknown:
+        raise ParameterError(f"unknown parameter(s) {', '.join(unknown)} "
+                             f"(known: {', '.join(sorted(known))})")
+
+
+def read_parameters(node: Node, specs: Iterable[Param]) -> dict[str, Any]:
+    """Declare ``specs`` on ``node`` (read-only) and return their checked values by name."""
+    return {s.name: _check(s, _declare(node, s)) for s in specs}
+
+
+def command_joints_param(active_names: Sequence[str]) -> Param:
+    """Joint order of Float64MultiArray commands; its default depends on the model."""
+    return Param(COMMAND_JOINTS, list(active_names),
+                 "joint order of Float64MultiArray commands (default: the model's active joints)")
+
+
+def _declare(node: Node, spec: Param) -> Any:
+    descriptor = ParameterDescriptor(description=spec.description, read_only=True)
+    try:
+        value = node.declare_parameter(spec.name, spec.default, descriptor).value
+    except InvalidParameterTypeException:
+        given = node._parameter_overrides[spec.name]
+        expected = (f"a list of {_TYPE_WORDS[type(spec.default[0])]}" if isinstance(spec.default, list)
+                    else _TYPE_WORDS[type(spec.default)])
+        raise ParameterError(f"parameter '{spec.name}' must be {expected}, "
+                             f"got {given.type_.name.lower()} {given.value!r}") from None
+    if isinstance(spec.default, list):
+        return list(value) if value is not None else []  # '-p x:=[]' overrides with an untyped empty list
+    return value
+
+
+def _check(spec: Param, value: Any) -> Any:
+    if spec.choices and value not in spec.choices:
+        raise ParameterError(f"parameter '{spec.name}' is {value!r}, expected one of: {', '.join(spec.choices)}")
+    if spec.positive:
+        values = np.atleast_1d(np.asarray(value, dtype=float))
+        if not np.all(np.isfinite(values) & (values > 0)):
+            raise ParameterError(f"parameter '{spec.name}' must be a positive number, got {value!r}")
+    return value
+
+
+def share_path(*parts: str) -> Path:
+    """A file shipped with the package: the installed share/ (colcon) or the source tree (pip -e)."""
+    try:
+        candidate = Path(get_package_share_directory(PACKAGE), *parts)
+        if candidate.exists():
+            return candidate
+    except (PackageNotFoundError, OSError):  # OSError: no AMENT_PREFIX_PATH (pip-only venv)
+        pass
+    return Path(__file__).resolve().parents[2].joinpath(*parts)
+
+
+def model_path(value: str) -> Path:
+    """The ``model`` parameter: a file path, or empty for the packaged five-bar."""
+    path = Path(value).expanduser() if value else share_path("config", "five_bar.yaml")
+    if not path.is_file():
+        raise ParameterError(f"parameter 'model': no such file {str(path)!r}")
+    return path

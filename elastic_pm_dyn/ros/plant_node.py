@@ -1,0 +1,351 @@
+"""The plant node: an elastic parallel manipulator simulated in the loop (console script ``plant_node``).
+
+Sync modes (parameter ``sync_mode``):
+- ``realtime``: a steady-clock timer at ``publish_rate`` advances one control period per
+  tick (catching up a few periods after a late tick) and stamps with wall time.
+- ``fast``: as fast as possible; stamps are simulated time, published on ``/clock``.
+- ``lockstep``: each valid command advances exactly one period, then the state at the
+  end of that period is published (stamp = simulated time, also on ``/clock``). The
+  state at t = 0 is published at start-up (transient local, see :mod:`.qos`), so a
+  controller that answers every state with the next command drives the plant
+  deterministically: the same torques give the same states as offline ``simulate``.
+
+Callbacks only validate and store; the timers and the lockstep handler (a guard
+condition) advance the :class:`~elastic_pm_dyn.ros.plant.Plant`. A future observer mode
+replaces that session object and adds measurement subscriptions; the publishing stays.
+Torque held over a period: the last valid command, or zero when it is older than
+``command_timeout`` (wall time in realtime, simulated time in fast; lockstep waits).
+"""
+
+from __future__ import annotations
+
+import collections
+import sys
+import time
+from typing import Any
+
+import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from elastic_pm_dyn_msgs.msg import BranchForces
+from elastic_pm_dyn_msgs.srv import SetJointState
+from geometry_msgs.msg import PoseStamped
+from rclpy.clock import Clock, ClockType
+from rosgraph_msgs.msg import Clock as ClockMsg
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray, Header
+from std_srvs.srv import Trigger
+from visualization_msgs.msg import MarkerArray
+
+from elastic_pm_dyn.dynamics.direct import FORMULATIONS
+from elastic_pm_dyn.errors import InputError, SingularConfigurationError
+from elastic_pm_dyn.kinematics.mechanism import Mechanism
+from elastic_pm_dyn.model.loader import load_model
+from elastic_pm_dyn.ros.commands import CommandDecoder
+from elastic_pm_dyn.ros.markers import MechanismMarkers
+from elastic_pm_dyn.ros.messages import NS, PlantMessages, stamp
+from elastic_pm_dyn.ros.node_main import ManagedNode, run_node
+from elastic_pm_dyn.ros.params import (
+    COMMAND_JOINTS,
+    Param,
+    ParameterError,
+    command_joints_param,
+    model_path,
+    read_parameters,
+    reject_unknown,
+)
+from elastic_pm_dyn.ros.plant import Plant
+from elastic_pm_dyn.ros.qos import CLOCK_QOS, COMMAND_QOS, DIAGNOSTICS_QOS, STATE_QOS, VIEWER_QOS
+from elastic_pm_dyn.sim.simulator import INTEGRATORS, STABILISATIONS, SimulationOptions
+
+SYNC_MODES = ("realtime", "fast", "lockstep")
+COMMAND_TYPES = ("joint_state", "float64_multi_array")
+MAX_CATCH_UP = 5  # realtime: periods advanced in one late tick before the schedule slips
+FAST_SLICE = 0.005  # [s] fast mode: wall time per executor turn (amortises its ~0.2 ms, stays responsive)
+WARN_EVERY = 1.0  # [s] throttle of repeated warnings
+
+PARAMS = [
+    Param("model", "", "model YAML file; empty = the five-bar shipped with the package"),
+    Param("formulation", "scdd", "direct dynamics formulation", choices=FORMULATIONS),
+    Param("integrator", "rk4", "rk4 (fixed step dt) or dop853 (adaptive, offline accuracy)", choices=INTEGRATORS),
+    Param("dt", 1.0e-4, "internal RK4 step [s]; shortened so steps end on control periods", positive=True),
+    Param("stabilization", "projection", "closure drift stabilisation", choices=tuple(STABILISATIONS)),
+    Param("publish_rate", 1000.0, "control and publish rate [Hz]; a command is held for one period",
+          positive=True),
+    Param("sync_mode", "realtime", "realtime | fast | lockstep", choices=SYNC_MODES),
+    Param("command_timeout", 0.1, "[s] an older command means zero torque (wall time in realtime, "
+          "simulated time in fast; unused in lockstep)", positive=True),
+    Param("command_type", "joint_state", "torque_command message: sensor_msgs/JointState (name + effort) or "
+          "std_msgs/Float64MultiArray (command_joints order)", choices=COMMAND_TYPES),
+    Param("topics.command", "torque_command", "torque command topic"),
+    Param("topics.joint_states", "joint_states", "every tree joint: position, velocity, effort"),
+    Param("topics.branch_forces", "branch_forces", "elastic_pm_dyn_msgs/BranchForces"),
+    Param("topics.ee_pose", "ee_pose", "geometry_msgs/PoseStamped of the end-effector point"),
+    Param("topics.markers", "markers", "visualization_msgs/MarkerArray of the links"),
+    Param("frames.base", "world", "frame of ee_pose and markers (the model's base)"),
+    Param("marker_rate", 30.0, "[Hz] wall-clock rate of the RViz markers", positive=True),
+    Param("diagnostics_rate", 1.0, "[Hz] wall-clock rate of /diagnostics", positive=True),
+]
+
+
+class PlantNode(ManagedNode):
+    """Simulated elastic manipulator: torque commands in, states out (see module doc)."""
+
+    def __init__(self, **node_kwargs: Any):
+        super().__init__("plant", **node_kwargs)
+        reject_unknown(self, [s.name for s in PARAMS] + [COMMAND_JOINTS])
+        p = read_parameters(self, PARAMS)
+        self.sync_mode: str = p["sync_mode"]
+        period = 1.0 / p["publish_rate"]
+        mech = Mechanism(load_model(model_path(p["model"])))
+        p |= read_parameters(self, [command_joints_param(mech.active_names)])
+        options = SimulationOptions(formulation=p["formulation"], integrator=p["integrator"], dt=p["dt"],
+                                    stabilization=p["stabilization"], sample=period)
+        self.plant = Plant(mech, options, period)
+        try:
+            self.decoder = CommandDecoder(mech.active_names, p[COMMAND_JOINTS])
+        except InputError as err:
+            raise ParameterError(f"parameter '{COMMAND_JOINTS}': {err}") from None
+        self.period_ns = round(period * NS)
+        self.timeout = p["command_timeout"]
+        self.formulation = p["formulation"]
+        self.messages = PlantMessages(self.plant, p["frames.base"])
+        self.markers = MechanismMarkers(mech, p["frames.base"])
+        self.stamp_base = 0  # [ns] stamp = stamp_base + k * period_ns
+
+        self.pub_joint_states = self.create_publisher(JointState, p["topics.joint_states"], STATE_QOS)
+        self.pub_branch_forces = self.create_publisher(BranchForces, p["topics.branch_forces"], STATE_QOS)
+        self.pub_ee_pose = self.create_publisher(PoseStamped, p["topics.ee_pose"], STATE_QOS)
+        self.pub_markers = self.create_publisher(MarkerArray, p["topics.markers"], VIEWER_QOS)
+        self.pub_diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", DIAGNOSTICS_QOS)
+        self.pub_clock = (self.create_publisher(ClockMsg, "/clock", CLOCK_QOS)
+                          if self.sync_mode != "realtime" else None)
+        msg_type = JointState if p["command_type"] == "joint_state" else Float64MultiArray
+        self.create_subscription(msg_type, p["topics.command"], self._on_command, COMMAND_QOS)
+        self.create_service(Trigger, "~/reset", self._on_reset)
+        self.create_service(SetJointState, "~/set_state", self._on_set_state)
+
+        # Command state: the callbacks write these, the stepping reads them.
+        self.command: np.ndarray | None = None
+        self.command_time = 0.0  # when it arrived: monotonic [s] (realtime) or simulated [s] (fast)
+        self.queue: collections.deque[np.ndarray] = collections.deque()  # lockstep
+        self.stats = _Stats()
+
+        steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self.create_timer(1.0 / p["marker_rate"], self._publish_markers, clock=steady)
+        self.create_timer(1.0 / p["diagnostics_rate"], self._publish_diagnostics, clock=steady)
+        self.wall_start: float | None = None  # realtime schedule origin (monotonic)
+        self.k_start = 0  # plant period count at wall_start
+        self.step_timer = None
+        if self.sync_mode == "realtime":
+            self.step_timer = self.create_timer(period, self._on_realtime_tick, clock=steady)
+        elif self.sync_mode == "fast":
+            self.step_timer = self.create_timer(0.0, self._on_fast_tick, clock=steady)
+        else:
+            self.lockstep_trigger = self.create_guard_condition(self._on_lockstep)
+            self._publish_state()
+        self.get_logger().info(
+            f"{mech.model.name}: {self.formulation}, {p['integrator']} dt {p['dt']:g} s, "
+            f"{p['publish_rate']:g} Hz, {self.sync_mode}; commands ({p['command_type']}) on "
+            f"'{p['topics.command']}' for {', '.join(self.decoder.array_order)}")
+
+    # ------------------------------------------------------------------ inputs
+    def _on_command(self, msg: JointState | Float64MultiArray) -> None:
+        try:
+            tau = (self.decoder.from_joint_state(msg.name, msg.effort) if isinstance(msg, JointState)
+                   else self.decoder.from_array(msg.data))
+        except InputError as err:
+            self.stats.rejected += 1
+            self.get_logger().warning(f"command rejected: {err}", throttle_duration_sec=WARN_EVERY)
+            return
+        self.stats.accepted += 1
+        if self.sync_mode == "lockstep":
+            self.queue.append(tau)
+            self.lockstep_trigger.trigger()
+        else:
+            if self.command is None:
+                self.get_logger().info("first torque command received")
+            self.command = tau
+            self.command_time = self._command_clock()
+
+    def _command_clock(self) -> float:
+        return time.monotonic() if self.sync_mode == "realtime" else self.plant.t
+
+    def _held_torque(self) -> np.ndarray:
+        """The torque for the next period in realtime/fast: the command, or zero when stale."""
+        if self.command is not None:
+            age = self._command_clock() - self.command_time
+            if age <= self.timeout:
+                return self.command
+            self.get_logger().warning(f"last torque command is {age:.3g} s old (timeout {self.timeout:g} s): "
+                                      "applying zero torque", throttle_duration_sec=WARN_EVERY)
+        self.stats.stale += 1
+        return np.zeros(len(self.plant.tau))
+
+    def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        self.plant.reset()
+        self._restarted()
+        response.success = True
+        response.message = f"reset to the initial state at t = {self.plant.t:.6g} s"
+        self.get_logger().info(response.message)
+        return response
+
+    def _on_set_state(self, request: SetJointState.Request,
+                      response: SetJointState.Response) -> SetJointState.Response:
+        s = request.state
+        try:
+            response.message = self.plant.set_state(s.name, s.position, s.velocity)
+            response.success = True
+            self._restarted()
+            self.get_logger().info(response.message)
+        except InputError as err:
+            response.success = False
+            response.message = f"set_state rejected: {err}"
+            self.get_logger().warning(response.message)
+        return response
+
+    def _restarted(self) -> None:
+        """After reset/set_state: forget old commands, resume stepping, show the new state."""
+        self.command = None
+        self.queue.clear()
+        if self.step_timer is not None and self.step_timer.is_canceled():
+            self.step_timer.reset()
+        if self.sync_mode == "realtime":
+            self.wall_start = None  # a fresh schedule; its first tick publishes the new state
+        else:
+            self._publish_state()
+
+    # ---------------------------------------------------------------- stepping
+    def _step(self, tau: np.ndarray) -> bool:
+        """Advance one period and publish; False when integration stopped."""
+        t0 = time.perf_counter()
+        try:
+            self.plant.step(tau)
+        except SingularConfigurationError as err:
+            self.get_logger().error(f"integration stopped: {err}; call ~/reset or ~/set_state to recover")
+            if self.step_timer is not None:
+                self.step_timer.cancel()
+            return False
+        t1 = time.perf_counter()
+        self._publish_state()
+        self.stats.add(t1 - t0, time.perf_counter() - t0)
+        return True
+
+    def _on_realtime_tick(self) -> None:
+        now = time.monotonic()
+        if self.wall_start is None:
+            self.wall_start, self.k_start = now, self.plant.k
+            self.stamp_base = self.get_clock().now().nanoseconds - self.plant.k * self.period_ns
+            self._publish_state()
+            return
+        # Periods due by now; the half period tolerates ticks that come a little early.
+        due = int((now - self.wall_start) / self.plant.period + 0.5) - (self.plant.k - self.k_start)
+        if due > MAX_CATCH_UP:  # too far behind: let the schedule (and the stamps) slip
+            self.stats.overruns += 1
+            slip = due - MAX_CATCH_UP
+            self.wall_start += slip * self.plant.period
+            self.stamp_base += slip * self.period_ns
+            due = MAX_CATCH_UP
+        for _ in range(due):
+            if not self._step(self._held_torque()):
+                return
+
+    def _on_fast_tick(self) -> None:
+        end = time.perf_counter() + FAST_SLICE
+        while time.perf_counter() < end:
+            if not self._step(self._held_torque()):
+                return
+
+    def _on_lockstep(self) -> None:
+        while self.queue:
+            tau = self.queue.popleft()
+            if self.plant.fault is not None:
+                self.stats.rejected += 1
+                self.get_logger().warning(f"command ignored, integration stopped: {self.plant.fault}",
+                                          throttle_duration_sec=WARN_EVERY)
+            elif not self._step(tau):
+                self.queue.clear()
+
+    # ----------------------------------------------------------------- outputs
+    def _stamp_ns(self) -> int:
+        return self.stamp_base + self.plant.k * self.period_ns
+
+    def _publish_state(self) -> None:
+        m = self.messages
+        m.fill(self._stamp_ns())
+        self.pub_joint_states.publish(m.joint_state)
+        self.pub_branch_forces.publish(m.branch_forces)
+        self.pub_ee_pose.publish(m.ee_pose)
+        if self.pub_clock is not None:
+            self.pub_clock.publish(m.clock)
+
+    def _publish_markers(self) -> None:
+        if self.pub_markers.get_subscription_count():
+            self.pub_markers.publish(self.markers.build(self.plant.q, self._stamp_ns()))
+
+    def _publish_diagnostics(self) -> None:
+        s, plant = self.stats, self.plant
+        wall = time.monotonic()
+        rtf = (plant.t - s.window_sim) / (wall - s.window_wall) if wall > s.window_wall else 0.0
+        age = (f"{self._command_clock() - self.command_time:.6g}" if self.command is not None
+               and self.sync_mode != "lockstep" else "")
+        status = DiagnosticStatus(name=f"{self.get_name()}: plant", hardware_id=plant.mech.model.name)
+        if plant.fault is not None:
+            status.level, status.message = DiagnosticStatus.ERROR, f"integration stopped: {plant.fault}"
+        else:
+            issues = [text for changed, text in (
+                (s.window_rejected != s.rejected, "commands rejected"),
+                (s.window_stale != s.stale, "zero torque (no command or a stale one)"),
+                (s.window_overruns != s.overruns, "realtime overrun: the schedule slipped"))
+                if changed]
+            status.level = DiagnosticStatus.WARN if issues else DiagnosticStatus.OK
+            status.message = "; ".join(issues) or "running"
+        values = {
+            "sync_mode": self.sync_mode, "formulation": self.formulation, "sim_time_s": f"{plant.t:.6f}",
+            "periods": str(plant.k), "real_time_factor": f"{rtf:.4g}",
+            "step_time_mean_us": f"{s.mean(s.step) * 1e6:.1f}", "step_time_max_us": f"{s.max(s.step) * 1e6:.1f}",
+            "cycle_time_mean_us": f"{s.mean(s.cycle) * 1e6:.1f}",
+            "cycle_time_max_us": f"{s.max(s.cycle) * 1e6:.1f}",
+            "headroom": f"{s.mean(s.cycle) / plant.period:.4g}",  # cycle time / period: < 1 keeps up
+            "closure_gap_m": f"{plant.gap():.3g}", "command_age_s": age,
+            "commands_accepted": str(s.accepted), "commands_rejected": str(s.rejected),
+            "zero_torque_periods": str(s.stale), "overruns": str(s.overruns),
+        }
+        status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
+        self.pub_diagnostics.publish(DiagnosticArray(header=Header(stamp=stamp(self._stamp_ns())), status=[status]))
+        s.new_window(plant.t, wall)
+
+
+class _Stats:
+    """Counters for /diagnostics; timing over the window since the last report."""
+
+    def __init__(self) -> None:
+        self.accepted = self.rejected = self.stale = self.overruns = 0
+        self.step: list[float] = []
+        self.cycle: list[float] = []
+        self.new_window(0.0, time.monotonic())
+
+    def add(self, step: float, cycle: float) -> None:
+        self.step.append(step)
+        self.cycle.append(cycle)
+
+    def new_window(self, sim: float, wall: float) -> None:
+        self.window_sim, self.window_wall = sim, wall
+        self.window_rejected, self.window_stale, self.window_overruns = self.rejected, self.stale, self.overruns
+        self.step.clear()
+        self.cycle.clear()
+
+    @staticmethod
+    def mean(x: list[float]) -> float:
+        return float(np.mean(x)) if x else 0.0
+
+    @staticmethod
+    def max(x: list[float]) -> float:
+        return float(np.max(x)) if x else 0.0
+
+
+def main(args: list[str] | None = None) -> int:
+    return run_node("plant_node", PlantNode, args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

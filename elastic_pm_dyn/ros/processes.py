@@ -1,0 +1,124 @@
+"""Nodes as child processes on a private, loopback-only ROS domain (no ``ros2 launch`` needed).
+
+Each child runs ``python -m <module> --ros-args ...`` with its output in a log file and
+in a session of its own, so that the parent decides the shutdown order (SIGINT, then
+SIGTERM, then SIGKILL after deadlines).
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from elastic_pm_dyn.errors import ElasticPmDynError
+
+STOP_SIGNALS = ((signal.SIGINT, 10.0), (signal.SIGTERM, 3.0), (signal.SIGKILL, 3.0))  # (signal, wait [s])
+
+
+class NodeProcessError(ElasticPmDynError):
+    """A node process failed or did not finish in time (the message quotes its log)."""
+
+
+def private_domain_id() -> int:
+    """A ROS domain id for this run: 1-100 (inside the range Fast DDS ports allow), by process id."""
+    return 1 + os.getpid() % 100
+
+
+def ros_env(domain_id: int) -> dict[str, str]:
+    """The environment of the children: this domain, discovery on this machine only."""
+    env = dict(os.environ)
+    env["ROS_DOMAIN_ID"] = str(domain_id)
+    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    env["PYTHONUNBUFFERED"] = "1"  # logs in order, and complete when a child is killed
+    return env
+
+
+class NodeProcess:
+    """One node in a child process; its stdout and stderr go to ``<log_dir>/<name>.log``."""
+
+    def __init__(self, name: str, module: str, ros_args: list[str], env: dict[str, str], log_dir: Path):
+        self.name = name
+        self.log = log_dir / f"{name}.log"
+        log_dir.mkdir(parents=True, exist_ok=True)
+        with self.log.open("w") as fh:
+            self.proc = subprocess.Popen([sys.executable, "-m", module, "--ros-args", *ros_args], env=env,
+                                         stdout=fh, stderr=subprocess.STDOUT, start_new_session=True)
+
+    def check_running(self) -> None:
+        """Raise if the process has ended (a node that fails at start-up ends at once)."""
+        code = self.proc.poll()
+        if code is not None:
+            raise self.failure(code)
+
+    def failure(self, code: int) -> NodeProcessError:
+        return NodeProcessError(f"{self.name} exited with status {code}: {self.last_line()} (log: {self.log})")
+
+    def wait(self, timeout: float) -> int:
+        try:
+            return self.proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            raise NodeProcessError(f"{self.name} did not finish within {timeout:g} s: {self.last_line()} "
+                                   f"(log: {self.log})") from None
+
+    def stop(self) -> int:
+        """End the process: SIGINT (clean shutdown), then SIGTERM, then SIGKILL."""
+        for sig, wait in STOP_SIGNALS:
+            if self.proc.poll() is not None:
+                break
+            self.proc.send_signal(sig)
+            try:
+                self.proc.wait(wait)
+            except subprocess.TimeoutExpired:
+                continue
+        return self.proc.wait()
+
+    def last_line(self) -> str:
+        lines = [ln for ln in self.log.read_text(errors="replace").splitlines() if ln.strip()]
+        return lines[-1].strip() if lines else "(no output)"
+
+
+def wait_for_subscribers(topics: list[str], domain_id: int, timeout: float, watch: list[NodeProcess]) -> None:
+    """Block until the ROS graph shows a subscriber on every topic (e.g. the recorder is recording).
+
+    Discovery of a new process takes from 0 to a few seconds, so a start order alone
+    does not say who already listens. Raises if a watched process dies or time runs out.
+    """
+    import rclpy  # the graph view of this process; nothing else here needs ROS
+
+    old_range = os.environ.get("ROS_AUTOMATIC_DISCOVERY_RANGE")
+    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"  # read by rcl at init
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=domain_id)
+    try:
+        node = rclpy.create_node("elastic_pm_dyn_orchestrator", context=context)
+        deadline = time.monotonic() + timeout
+        while missing := [t for t in topics if not node.count_subscribers(t)]:
+            if time.monotonic() > deadline:
+                raise NodeProcessError(f"no subscriber on {', '.join(missing)} within {timeout:g} s")
+            for p in watch:
+                p.check_running()
+            time.sleep(0.05)
+        node.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=context)
+        if old_range is None:
+            os.environ.pop("ROS_AUTOMATIC_DISCOVERY_RANGE", None)
+        else:
+            os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = old_range
+
+
+def wait_for_exit(target: NodeProcess, others: list[NodeProcess], timeout: float) -> int:
+    """Wait until ``target`` ends; raise if it takes too long or one of ``others`` dies first."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        code = target.proc.poll()
+        if code is not None:
+            return code
+        for p in others:
+            p.check_running()
+        time.sleep(0.05)
+    return target.wait(0.0)
