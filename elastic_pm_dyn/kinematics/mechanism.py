@@ -46,6 +46,11 @@ class Mechanism:
         self.joint_names = model.joint_names
         self.active_names = [self.joint_names[i] for i in self.active]
         self.ee_components = np.array(model.ee_components)
+        joints = model.joints
+        self.stiffness = np.array([j.stiffness for j in joints])
+        self.damping = np.array([j.damping for j in joints])
+        self.rest = np.array([j.rest for j in joints])
+        self.branch_joints = np.array([self.joint_names.index(b.joint) for b in model.branches], dtype=np.int64)
 
     # ----------------------------------------------------------------- evaluation
     def terms(self, q: np.ndarray, qd: np.ndarray | None = None) -> TreeTerms:
@@ -131,11 +136,11 @@ class Mechanism:
         spring = 0.5 * float(np.sum(jf[:, JF_STIFFNESS] * (q - jf[:, JF_REST]) ** 2))
         return kinetic, gravity + spring
 
+    def spring_forces(self, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
+        """Per tree joint: K (q - q_rest) + D qd of its spring and damper (0 where none)."""
+        return self.stiffness * (np.asarray(q) - self.rest) + self.damping * np.asarray(qd)
+
     def branch_forces(self, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
         """F = K u + D du/dt for each named branch, tension positive [N]."""
-        out = np.empty(len(self.model.branches))
-        for k, b in enumerate(self.model.branches):
-            j = self.joint_names.index(b.joint)
-            joint = self.model.joints[j]
-            out[k] = joint.stiffness * (q[j] - joint.rest) + joint.damping * qd[j]
-        return out
+        j = self.branch_joints
+        return self.stiffness[j] * (np.asarray(q)[j] - self.rest[j]) + self.damping[j] * np.asarray(qd)[j]

@@ -49,14 +49,7 @@ class Plant:
         # Compile (or load) the integrator now, not inside the first control period; a
         # throwaway simulator keeps the real one's state as offline runs start it.
         Simulator(mech, options).advance(self.q0.copy(), np.zeros(mech.n), ConstantTorque(self.tau), 0.0, period)
-        model = mech.model
-        self._elastic = mech.elastic
-        self._stiffness = np.array([model.joints[j].stiffness for j in self._elastic])
-        self._damping = np.array([model.joints[j].damping for j in self._elastic])
-        self._rest = np.array([model.joints[j].rest for j in self._elastic])
-        self._branch_joint = np.array([mech.joint_names.index(b.joint) for b in model.branches], dtype=int)
-        self._branch_rest = np.array([model.joints[j].rest for j in self._branch_joint])
-        self._branch_names = [b.name for b in model.branches]
+        self._branch_names = [b.name for b in mech.model.branches]
 
     @property
     def t(self) -> float:
@@ -136,15 +129,14 @@ class Plant:
         """Per tree joint: applied motor torque (active), spring force c u + d du/dt (elastic), 0 (passive)."""
         out = np.zeros(self.mech.n)
         out[self.mech.active] = self.tau
-        out[self._elastic] = (self._stiffness * (self.q[self._elastic] - self._rest)
-                              + self._damping * self.qd[self._elastic])
+        out[self.mech.elastic] = self.mech.spring_forces(self.q, self.qd)[self.mech.elastic]
         return out
 
     def branches(self, efforts: np.ndarray | None = None) -> BranchState:
         """Branch force = its spring joint's force c u + d du/dt (pass :meth:`efforts` to reuse it)."""
-        j = self._branch_joint
+        j = self.mech.branch_joints
         force = (self.efforts() if efforts is None else efforts)[j]
-        return BranchState(self._branch_names, force, self.q[j] - self._branch_rest, self.qd[j].copy())
+        return BranchState(self._branch_names, force, self.q[j] - self.mech.rest[j], self.qd[j].copy())
 
     def end_effector(self) -> np.ndarray:
         return self.mech.end_effector(self.q)
