@@ -7,4 +7,8 @@ Equation numbers in docstrings refer to the seed paper, "Derivation and Calculat
 the Dynamics of Elastic Parallel Manipulators" (Stachera & Schumacher).
 """
 
+from elastic_pm_dyn._numba_cache import configure as _configure_numba_cache
+
 __version__ = "0.1.0"
+
+_configure_numba_cache()
