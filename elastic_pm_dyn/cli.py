@@ -207,7 +207,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--domain-id", type=int, help="ROS domain id (default: a private one from the process id)")
     p.set_defaults(func=cmd_ros_demo)
     from elastic_pm_dyn.analysis.cli import register_cli as register_analysis
+    from elastic_pm_dyn.observer.cli import register_cli as register_observer
     register_analysis(sub)
+    register_observer(sub)
     return parser
 
 

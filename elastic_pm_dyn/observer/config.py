@@ -1,0 +1,383 @@
+"""Observer configuration: sensors, noise levels, process noise, gating.
+
+One source of truth for the offline command and the plant node in ``mode: observer``:
+the parameters live under the ``observer.`` prefix of a standard ``ros__parameters``
+file (``config/observer.yaml``), so they can sit in the plant node's own parameter file.
+ROS flattens nested YAML maps into dotted names; :data:`DEFAULT_PARAMETERS` lists every
+flat name with its default (the node declares exactly these), and
+:meth:`ObserverConfig.from_parameters` builds the typed configuration from such a flat
+mapping, whichever way it was obtained (node parameters or a YAML file).
+
+Joint lists accept role keywords besides joint names: ``active``, ``elastic``, ``passive``,
+``all`` (ROS parameter files cannot hold an empty list, so "every motor" is ``[active]``).
+A noise list is either one value for every entry or one value per entry.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from elastic_pm_dyn.errors import InputError
+
+PREFIX = "observer."
+SENSOR_KINDS = ("encoders", "imu", "branch_forces")
+DISTURBANCE_MODELS = ("none", "random_walk", "gauss_markov", "integrated_random_walk", "band_limited",
+                      "bias_band_limited")
+BRANCH_SOURCES = ("branch_forces", "joint_state_effort")
+AXES = ("x", "y", "z")
+
+# Every parameter (without the "observer." prefix) and its default. Floats are floats,
+# so that a ROS node can declare them with the right type.
+DEFAULT_PARAMETERS: dict[str, Any] = {
+    "sensors": ["encoders", "imu"],
+    # --- sensors
+    "encoders.position_joints": ["active"],
+    "encoders.position_stddev": [2.0e-5],  # [rad or m]
+    "encoders.velocity_joints": ["none"],
+    "encoders.velocity_stddev": [1.0e-2],  # [rad/s or m/s]
+    "imu.chain": "",  # chain whose end carries the accelerometer; "" = the end effector
+    "imu.frame_id": "",  # expected header.frame_id of sensor_msgs/Imu; "" = accept any
+    "imu.rpy": [0.0, 0.0, 0.0],  # sensor axes in the world frame (roll, pitch, yaw) [rad]
+    "imu.axes": ["x", "y"],  # measured sensor axes
+    "imu.stddev": [0.02],  # [m/s^2]
+    "imu.specific_force": True,  # True: the sensor reads a - g (a real accelerometer)
+    "branch_forces.source": "branch_forces",  # branch_forces (BranchForces msg) | joint_state_effort
+    "branch_forces.branches": ["all"],
+    "branch_forces.stddev": [0.5],  # [N]
+    # --- process model
+    "process.dt": 1.0e-4,  # [s] RK4 substep of the SCDD model
+    "process.max_interval": 1.0e-3,  # [s] longest prediction piece
+    "process.relinearize_every": 4,  # prediction pieces per linearisation (Phi, Q and the accelerometer's H)
+    "process.disturbance": "bias_band_limited",  # see DISTURBANCE_MODELS
+    "process.disturbance_joints": ["active"],
+    "process.disturbance_intensity": 1.0e-3,  # random walk (bias): PSD of d' [(N m)^2/s]; integrated: of d''
+    #                                         [(N m)^2/s^3]
+    "process.disturbance_stddev": 0.02,  # gauss_markov, band_limited: stationary std [N m]
+    "process.disturbance_bandwidth": 50.0,  # band_limited: corner frequency [Hz]
+    "process.disturbance_time_constant": 0.02,  # gauss_markov: correlation time [s]
+    "process.torque_noise_psd": 1.0e-10,  # white torque on active joints [(N m)^2 s]
+    "process.elastic_force_psd": 1.0e-12,  # white force on elastic joints (model error) [N^2 s]
+    "process.vibration_noise": 3.0e-10,  # ... plus this times the vibration-force amplitude^2 [s]
+    # --- initial uncertainty (1 sigma)
+    "initial.source": "measurement",  # measurement (first joint state) | model (its initial_state)
+    "initial.active_position_stddev": 1.0e-4,  # [rad]
+    "initial.elastic_position_stddev": 1.0e-7,  # [m]
+    "initial.active_velocity_stddev": 1.0e-3,  # [rad/s]
+    "initial.elastic_velocity_stddev": 1.0e-4,  # [m/s]
+    "initial.disturbance_stddev": 0.02,  # [N m]
+    "initial.disturbance_rate_stddev": 1.0,  # [N m/s] (integrated random walk)
+    # --- robustness
+    "gating.probability": 0.9999,  # chi-square quantile of the NIS gate
+    "gating.max_consecutive_rejections": 50,  # then the filter reports divergence
+    "gating.nis_window": 200,  # samples in the windowed NIS consistency check
+    "gating.nis_warn_factor": 2.0,  # health WARN when the windowed mean NIS / dof leaves [1/f, f]
+    "timing.stamp_tolerance": 1.0e-6,  # [s] stamps this close count as simultaneous
+    "timing.command_timeout": 0.0,  # [s] older command -> zero torque; 0 = hold forever
+    # --- topics (live node; defaults of the offline command)
+    "topics.torque_command": "torque_command",
+    "topics.measured_joint_states": "measured_joint_states",
+    "topics.ee_imu": "ee_imu",
+    "topics.measured_branch_forces": "measured_branch_forces",
+    "observability.horizon": 0.05,  # [s] of the observability Gramian at start-up
+}
+
+
+@dataclass
+class EncoderConfig:
+    position_joints: list[str]
+    position_stddev: list[float]
+    velocity_joints: list[str]
+    velocity_stddev: list[float]
+
+
+@dataclass
+class ImuConfig:
+    chain: str
+    frame_id: str
+    rpy: list[float]
+    axes: list[str]
+    stddev: list[float]
+    specific_force: bool
+
+
+@dataclass
+class BranchForceConfig:
+    source: str
+    branches: list[str]
+    stddev: list[float]
+
+
+@dataclass
+class ProcessConfig:
+    dt: float
+    max_interval: float
+    relinearize_every: int
+    disturbance: str
+    disturbance_joints: list[str]
+    disturbance_intensity: float
+    disturbance_stddev: float
+    disturbance_bandwidth: float
+    disturbance_time_constant: float
+    torque_noise_psd: float
+    elastic_force_psd: float
+    vibration_noise: float
+
+
+@dataclass
+class InitialConfig:
+    source: str
+    active_position_stddev: float
+    elastic_position_stddev: float
+    active_velocity_stddev: float
+    elastic_velocity_stddev: float
+    disturbance_stddev: float
+    disturbance_rate_stddev: float
+
+
+@dataclass
+class GatingConfig:
+    probability: float
+    max_consecutive_rejections: int
+    nis_window: int
+    nis_warn_factor: float
+
+
+@dataclass
+class TimingConfig:
+    stamp_tolerance: float
+    command_timeout: float
+
+
+@dataclass
+class Topics:
+    torque_command: str
+    measured_joint_states: str
+    ee_imu: str
+    measured_branch_forces: str
+
+
+@dataclass
+class ObserverConfig:
+    """Typed observer settings; see :data:`DEFAULT_PARAMETERS` for names, units, defaults."""
+
+    sensors: list[str]
+    encoders: EncoderConfig
+    imu: ImuConfig
+    branch_forces: BranchForceConfig
+    process: ProcessConfig
+    initial: InitialConfig
+    gating: GatingConfig
+    timing: TimingConfig
+    topics: Topics
+    observability_horizon: float
+    source: str = "<defaults>"
+    parameters: dict[str, Any] = field(default_factory=dict)
+
+    # ------------------------------------------------------------------ building
+    @classmethod
+    def from_parameters(cls, params: Mapping[str, Any] | None = None, source: str = "<parameters>"
+                        ) -> ObserverConfig:
+        """From flat names (with or without the ``observer.`` prefix); missing ones take defaults.
+
+        Raises InputError naming the parameter for unknown names and wrong types/values.
+        """
+        given = {}
+        for name, value in (params or {}).items():
+            key = name[len(PREFIX):] if name.startswith(PREFIX) else name
+            if key not in DEFAULT_PARAMETERS:
+                raise InputError(f"{source}: unknown observer parameter {PREFIX}{key}")
+            given[key] = value
+        p = {k: _coerce(source, k, given.get(k, default), default) for k, default in DEFAULT_PARAMETERS.items()}
+        cfg = cls(
+            sensors=p["sensors"],
+            encoders=EncoderConfig(p["encoders.position_joints"], p["encoders.position_stddev"],
+                                   p["encoders.velocity_joints"], p["encoders.velocity_stddev"]),
+            imu=ImuConfig(p["imu.chain"], p["imu.frame_id"], p["imu.rpy"], p["imu.axes"], p["imu.stddev"],
+                          p["imu.specific_force"]),
+            branch_forces=BranchForceConfig(p["branch_forces.source"], p["branch_forces.branches"],
+                                            p["branch_forces.stddev"]),
+            process=ProcessConfig(p["process.dt"], p["process.max_interval"], p["process.relinearize_every"],
+                                  p["process.disturbance"],
+                                  p["process.disturbance_joints"], p["process.disturbance_intensity"],
+                                  p["process.disturbance_stddev"], p["process.disturbance_bandwidth"],
+                                  p["process.disturbance_time_constant"],
+                                  p["process.torque_noise_psd"], p["process.elastic_force_psd"],
+                                  p["process.vibration_noise"]),
+            initial=InitialConfig(p["initial.source"], p["initial.active_position_stddev"],
+                                  p["initial.elastic_position_stddev"], p["initial.active_velocity_stddev"],
+                                  p["initial.elastic_velocity_stddev"], p["initial.disturbance_stddev"],
+                                  p["initial.disturbance_rate_stddev"]),
+            gating=GatingConfig(p["gating.probability"], p["gating.max_consecutive_rejections"],
+                                p["gating.nis_window"], p["gating.nis_warn_factor"]),
+            timing=TimingConfig(p["timing.stamp_tolerance"], p["timing.command_timeout"]),
+            topics=Topics(p["topics.torque_command"], p["topics.measured_joint_states"], p["topics.ee_imu"],
+                          p["topics.measured_branch_forces"]),
+            observability_horizon=p["observability.horizon"],
+            source=source, parameters=p,
+        )
+        cfg.validate()
+        return cfg
+
+    def with_overrides(self, **flat: Any) -> ObserverConfig:
+        """A copy with some flat parameters replaced, e.g. ``with_overrides(sensors=["encoders", "imu"])``;
+        dots in names are written as double underscores (``process__dt=2e-4``)."""
+        params = dict(self.parameters)
+        params.update({k.replace("__", "."): v for k, v in flat.items()})
+        return ObserverConfig.from_parameters(params, self.source)
+
+    def validate(self) -> None:
+        src = self.source
+
+        def bad(key: str, msg: str) -> InputError:
+            return InputError(f"{src}: {PREFIX}{key}: {msg}")
+
+        for s in self.sensors:
+            if s not in SENSOR_KINDS:
+                raise bad("sensors", f"unknown sensor {s!r} (expected some of {', '.join(SENSOR_KINDS)})")
+        if len(set(self.sensors)) != len(self.sensors):
+            raise bad("sensors", "a sensor is listed twice")
+        positive = {"process.dt": self.process.dt, "process.max_interval": self.process.max_interval,
+                    "process.disturbance_time_constant": self.process.disturbance_time_constant,
+                    "process.disturbance_bandwidth": self.process.disturbance_bandwidth,
+                    "initial.active_position_stddev": self.initial.active_position_stddev,
+                    "initial.elastic_position_stddev": self.initial.elastic_position_stddev,
+                    "initial.active_velocity_stddev": self.initial.active_velocity_stddev,
+                    "initial.elastic_velocity_stddev": self.initial.elastic_velocity_stddev,
+                    "initial.disturbance_stddev": self.initial.disturbance_stddev,
+                    "initial.disturbance_rate_stddev": self.initial.disturbance_rate_stddev,
+                    "timing.stamp_tolerance": self.timing.stamp_tolerance,
+                    "observability.horizon": self.observability_horizon}
+        for key, value in positive.items():
+            if not value > 0:
+                raise bad(key, f"must be > 0, got {value!r}")
+        non_negative = {"process.disturbance_intensity": self.process.disturbance_intensity,
+                        "process.disturbance_stddev": self.process.disturbance_stddev,
+                        "process.torque_noise_psd": self.process.torque_noise_psd,
+                        "process.elastic_force_psd": self.process.elastic_force_psd,
+                        "process.vibration_noise": self.process.vibration_noise,
+                        "timing.command_timeout": self.timing.command_timeout}
+        for key, value in non_negative.items():
+            if not value >= 0:
+                raise bad(key, f"must be >= 0, got {value!r}")
+        if self.process.dt > self.process.max_interval:
+            raise bad("process.dt", f"the RK4 substep {self.process.dt:g} s exceeds process.max_interval "
+                                    f"{self.process.max_interval:g} s")
+        for key, values in (("encoders.position_stddev", self.encoders.position_stddev),
+                            ("encoders.velocity_stddev", self.encoders.velocity_stddev),
+                            ("imu.stddev", self.imu.stddev), ("branch_forces.stddev", self.branch_forces.stddev)):
+            if not values or not all(v > 0 for v in values):
+                raise bad(key, f"needs one or more values > 0, got {values!r}")
+        if self.process.disturbance not in DISTURBANCE_MODELS:
+            raise bad("process.disturbance", f"expected one of {', '.join(DISTURBANCE_MODELS)}, "
+                                             f"got {self.process.disturbance!r}")
+        if self.branch_forces.source not in BRANCH_SOURCES:
+            raise bad("branch_forces.source", f"expected one of {', '.join(BRANCH_SOURCES)}, "
+                                              f"got {self.branch_forces.source!r}")
+        if self.initial.source not in ("measurement", "model"):
+            raise bad("initial.source", f"expected measurement or model, got {self.initial.source!r}")
+        if not self.imu.axes or any(a not in AXES for a in self.imu.axes) or len(set(self.imu.axes)) != len(
+                self.imu.axes):
+            raise bad("imu.axes", f"expected distinct axes among x, y, z, got {self.imu.axes!r}")
+        if len(self.imu.rpy) != 3:
+            raise bad("imu.rpy", f"expected 3 angles, got {self.imu.rpy!r}")
+        if not 0.5 < self.gating.probability < 1.0:
+            raise bad("gating.probability", f"expected a probability in (0.5, 1), got {self.gating.probability!r}")
+        if self.process.relinearize_every < 1:
+            raise bad("process.relinearize_every", f"must be >= 1, got {self.process.relinearize_every}")
+        if not self.gating.nis_warn_factor > 1.0:
+            raise bad("gating.nis_warn_factor", f"must be > 1, got {self.gating.nis_warn_factor!r}")
+        if self.gating.max_consecutive_rejections < 1 or self.gating.nis_window < 1:
+            raise bad("gating", "max_consecutive_rejections and nis_window must be >= 1")
+
+
+def _coerce(source: str, key: str, value: Any, default: Any) -> Any:
+    """Check a value against its default's type (ints are accepted for floats)."""
+    where = f"{source}: {PREFIX}{key}"
+    if isinstance(default, bool):
+        if not isinstance(value, bool):
+            raise InputError(f"{where}: expected true or false, got {value!r}")
+        return value
+    if isinstance(default, float):
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise InputError(f"{where}: expected a number, got {value!r}")
+        return float(value)
+    if isinstance(default, int):
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise InputError(f"{where}: expected an integer, got {value!r}")
+        return value
+    if isinstance(default, str):
+        if not isinstance(value, str):
+            raise InputError(f"{where}: expected a string, got {value!r}")
+        return value
+    if isinstance(default, list):
+        if isinstance(value, str | int | float) and not isinstance(value, bool):
+            value = [value]  # one value for a list: broadcast
+        if not isinstance(value, list | tuple):
+            raise InputError(f"{where}: expected a list, got {value!r}")
+        kind = type(default[0])
+        out = []
+        for v in value:
+            if kind is float:
+                if isinstance(v, bool) or not isinstance(v, int | float):
+                    raise InputError(f"{where}: expected numbers, got {v!r}")
+                out.append(float(v))
+            else:
+                if not isinstance(v, str):
+                    raise InputError(f"{where}: expected names, got {v!r}")
+                out.append(v)
+        return out
+    raise AssertionError(key)
+
+
+def flatten(tree: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+    """Nested maps -> dotted names, as ROS reads a parameter file."""
+    out: dict[str, Any] = {}
+    for k, v in tree.items():
+        name = f"{prefix}{k}"
+        if isinstance(v, Mapping):
+            out.update(flatten(v, name + "."))
+        else:
+            out[name] = v
+    return out
+
+
+def load_config(path: str | Path | None = None, node: str | None = None) -> ObserverConfig:
+    """Read the observer parameters from a ``ros__parameters`` YAML file (defaults if None).
+
+    The file may hold several node sections (``/**``, ``plant``, ...): the ``observer``
+    parameters of ``node`` (or of the first section that has any) are used. A plain map
+    with a top-level ``observer`` key is accepted too.
+    """
+    if path is None:
+        return ObserverConfig.from_parameters({}, "<defaults>")
+    p = Path(path)
+    try:
+        data = yaml.safe_load(p.read_text())
+    except OSError as exc:
+        raise InputError(f"{p}: cannot read observer configuration: {exc.strerror}") from None
+    except yaml.YAMLError as exc:
+        raise InputError(f"{p}: not valid YAML: {exc}") from None
+    if not isinstance(data, dict):
+        raise InputError(f"{p}: expected a map of node names to ros__parameters")
+    sections = []
+    for name, body in data.items():
+        if isinstance(body, dict) and isinstance(body.get("ros__parameters"), dict):
+            sections.append((name, body["ros__parameters"]))
+    if not sections and "observer" in data:
+        sections = [("<plain>", data)]
+    chosen = None
+    for name, params in sections:
+        if (node is None or name.strip("/") == node.strip("/") or name == "/**") and "observer" in params:
+            chosen = params
+            break
+    if chosen is None:
+        raise InputError(f"{p}: no observer parameters (expected <node>: ros__parameters: observer: ...)")
+    if not isinstance(chosen["observer"], dict):
+        raise InputError(f"{p}: observer: expected a map of parameters")
+    flat = {k: v for k, v in flatten(chosen).items() if k.startswith(PREFIX)}
+    return ObserverConfig.from_parameters(flat, str(p))

@@ -1,0 +1,600 @@
+"""Extended Kalman filter over the exact SCDD model of an elastic parallel manipulator.
+
+State x = [q_ae, qd_ae, z]: motor and elastic coordinates, their rates, and (optionally)
+disturbance torques d = Lz z on chosen joints from a linear model: random walks,
+Gauss-Markov, integrated random walks, band-limited (second-order, stationary), or a
+random-walk bias plus a band-limited part (the default). Unknown torques (friction,
+payload, cable forces) move the machine as the commanded torques do not; with d in the
+state the sensors estimate them, and with them the quasi-static branch forces they cause:
+encoders the slow part (below ~5 Hz on the reference five-bar, where a few mN m move a
+motor by more than the encoder noise), an accelerometer or strain gauges also the fast
+part. The tree state (every joint) follows
+from x through the closure.
+
+Prediction: the commanded torques are held (zero-order hold, as the controller applies
+them); the mean goes through RK4 substeps of the nonlinear SCDD model, the covariance
+through Phi = expm(A T) of the model linearised at the interval's start, with Van Loan's
+discrete process noise (see :mod:`elastic_pm_dyn.observer.kernels`). Correction:
+sequential per message, Joseph form, chi-square gating of the normalised innovation
+squared (NIS). Samples stamped before the filter's time are late and dropped (the filter
+never rewinds); a stamp ahead of it is first predicted to. Missing samples just mean
+longer predictions.
+
+Time: float seconds of the message stamps. The command stamped t_k acts on
+[t_k, t_k+1); a sample stamped t_k (taken just before that command) is compared with the
+state at t_k, an accelerometer with the command of the interval that ended at t_k.
+Corrections at one stamp and the command at that stamp commute, so a live node and the
+offline pass give the same estimates whichever message arrives first.
+
+Typical use (live node or offline)::
+
+    obs = Observer(mech, load_config("config/observer.yaml"))
+    obs.command(t, tau)                          # torque_command
+    obs.update_joint_states(t, names, position)  # measured_joint_states
+    obs.update_imu(t, accel)                     # ee_imu
+    est = obs.estimate()                         # joint states, branch forces, std devs
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.stats import chi2
+
+from elastic_pm_dyn.errors import ElasticPmDynError, InputError
+from elastic_pm_dyn.kinematics.assembly import initial_state, solve_pose
+from elastic_pm_dyn.kinematics.mechanism import Mechanism
+from elastic_pm_dyn.model.description import ACTIVE, ELASTIC
+from elastic_pm_dyn.observer import kernels
+from elastic_pm_dyn.observer.config import ObserverConfig
+from elastic_pm_dyn.observer.sensors import Accelerometer, BranchForces, Encoders, Sample, resolve_joints
+
+OK, WARN, ERROR = 0, 1, 2  # diagnostic levels (as diagnostic_msgs/DiagnosticStatus)
+
+
+class ObserverFault(ElasticPmDynError):
+    """The filter cannot go on (model singular, state or covariance not finite): reset it."""
+
+
+@dataclass
+class UpdateResult:
+    """What became of one measurement."""
+
+    sensor: str
+    t: float
+    accepted: bool
+    nis: float = float("nan")
+    dof: int = 0
+    reason: str = ""  # "" (accepted) | gate | nan | late | frame | uninitialised | empty
+    dropped: list[str] = field(default_factory=list)
+
+
+@dataclass
+class SensorStats:
+    accepted: int = 0
+    rejected: int = 0  # gated out
+    late: int = 0
+    nan: int = 0  # NaN entries dropped
+    other: int = 0  # wrong frame, before initialisation
+    consecutive_rejections: int = 0
+    last_nis: float = float("nan")
+    last_reason: str = ""
+    window: deque = field(default_factory=deque)  # (nis, dof) of recent accepted samples
+
+
+@dataclass
+class Estimate:
+    """Estimates at time t with 1-sigma standard deviations (tree order / model branch order)."""
+
+    t: float
+    q: np.ndarray
+    qd: np.ndarray
+    q_std: np.ndarray
+    qd_std: np.ndarray
+    effort: np.ndarray  # active: command + disturbance estimate; elastic: spring force; passive: 0
+    branch_names: list[str]
+    branch_force: np.ndarray
+    branch_force_std: np.ndarray
+    deflection: np.ndarray
+    deflection_rate: np.ndarray
+    ee: np.ndarray
+    ee_std: np.ndarray
+    disturbance_joints: list[str]
+    disturbance: np.ndarray
+    disturbance_std: np.ndarray
+    x: np.ndarray
+    P: np.ndarray
+    initialised: bool = True
+
+
+class Observer:
+    """EKF of an elastic parallel manipulator; see the module docstring."""
+
+    def __init__(self, mech: Mechanism, config: ObserverConfig | None = None, t0: float = 0.0,
+                 q0: np.ndarray | None = None, qd0: np.ndarray | None = None):
+        cfg = config or ObserverConfig.from_parameters()
+        self.mech = mech
+        self.cfg = cfg
+        model = mech.model
+        self.ae = np.asarray(mech.ae, dtype=np.int64)
+        self.nae = nae = len(self.ae)
+        self.x_of_ae = {int(j): k for k, j in enumerate(self.ae)}
+        pc = cfg.process
+        dist = [] if pc.disturbance == "none" else resolve_joints(
+            mech, pc.disturbance_joints, "process.disturbance_joints", roles=(ACTIVE, ELASTIC))
+        self.dist_idx = np.array(dist, dtype=np.int64)
+        self.dist_col = np.array([self.x_of_ae[j] for j in dist], dtype=np.int64)
+        self.nd = nd = len(dist)
+        eye, zero = np.eye(nd), np.zeros((nd, nd))
+        names = [mech.joint_names[j] for j in dist]
+        w = 2 * np.pi * pc.disturbance_bandwidth
+        zeta = 1 / np.sqrt(2)
+        # A band-limited part: f'' = -2 zeta w f' - w^2 f + white, stationary with std sigma
+        # and bandwidth w (zeta = 1/sqrt 2): smooth like a real disturbance (no steps that
+        # would ring the springs), and bounded where the sensors cannot see it.
+        osc = np.block([[zero, eye], [-w * w * eye, -2 * zeta * w * eye]])
+        q_osc = 4 * zeta * w ** 3 * pc.disturbance_stddev ** 2
+        if pc.disturbance == "bias_band_limited":
+            # d = b + f: a slowly wandering bias b (random walk, what encoders can see) plus
+            # the band-limited part f (what an accelerometer or strain gauges see).
+            self.Lz = np.hstack([eye, eye, zero])
+            self.Fz = np.block([[zero, np.zeros((nd, 2 * nd))], [np.zeros((2 * nd, nd)), osc]])
+            self.psd_z = np.concatenate([np.full(nd, pc.disturbance_intensity), np.zeros(nd), np.full(nd, q_osc)])
+            z_names = [f"d_{n}_bias" for n in names] + [f"d_{n}_band" for n in names] + \
+                [f"d_{n}_band_rate" for n in names]
+        elif pc.disturbance == "band_limited":
+            self.Lz = np.hstack([eye, zero])
+            self.Fz = osc
+            self.psd_z = np.concatenate([np.zeros(nd), np.full(nd, q_osc)])
+            z_names = [f"d_{n}" for n in names] + [f"d_{n}_rate" for n in names]
+        elif pc.disturbance == "integrated_random_walk":
+            # z = [d, d']: d'' is white, so d is smooth.
+            self.Lz = np.hstack([eye, zero])
+            self.Fz = np.block([[zero, eye], [zero, zero]])
+            self.psd_z = np.concatenate([np.zeros(nd), np.full(nd, pc.disturbance_intensity)])
+            z_names = [f"d_{n}" for n in names] + [f"d_{n}_rate" for n in names]
+        elif pc.disturbance == "gauss_markov":
+            self.Lz = eye
+            self.Fz = -eye / pc.disturbance_time_constant
+            self.psd_z = np.full(nd, 2.0 * pc.disturbance_stddev ** 2 / pc.disturbance_time_constant)
+            z_names = [f"d_{n}" for n in names]
+        else:  # random_walk (or none: nd = 0)
+            self.Lz = eye
+            self.Fz = np.zeros((nd, nd))
+            self.psd_z = np.full(nd, pc.disturbance_intensity)
+            z_names = [f"d_{n}" for n in names]
+        self.nz = self.Fz.shape[0]
+        self.Lz = np.ascontiguousarray(self.Lz)
+        self._z_names = z_names
+        self.nx = 2 * nae + self.nz
+        roles = [model.joints[j].role for j in self.ae]
+        self.psd_ae = np.array([pc.torque_noise_psd if r == ACTIVE else pc.elastic_force_psd for r in roles])
+        self.rel_ae = np.array([0.0 if r == ACTIVE else pc.vibration_noise for r in roles])
+        # Difference steps: 1 urad for motors; for springs a step that changes the spring
+        # force by ~10 mN (1.8 nm on the reference springs), so its effect sits far above
+        # round-off and far below the nonlinearity.
+        eps_q = []
+        for j in self.ae:
+            joint = model.joints[j]
+            eps_q.append(1e-6 if joint.role == ACTIVE or joint.stiffness <= 0 else min(1e-6, 1e-2 / joint.stiffness))
+        self.eps_q = np.array(eps_q)
+        self.eps_v = 100.0 * self.eps_q
+        self.period = pc.max_interval
+        # Sensors
+        self.encoders = Encoders(mech, cfg, self.x_of_ae, nae) if "encoders" in cfg.sensors else None
+        self.imu = Accelerometer(mech, cfg) if "imu" in cfg.sensors else None
+        self.branch = BranchForces(mech, cfg, self.x_of_ae, nae) if "branch_forces" in cfg.sensors else None
+        self.point = self.imu.point if self.imu is not None else int(model.end_effector_chain)
+        self.with_point = self.imu is not None
+        self._gates: dict[int, float] = {}
+        self.branch_names = [b.name for b in model.branches]
+        self._branch_joint = np.array([mech.joint_names.index(b.joint) for b in model.branches], dtype=np.int64)
+        self._stiff = np.array([model.joints[j].stiffness for j in self._branch_joint])
+        self._damp = np.array([model.joints[j].damping for j in self._branch_joint])
+        self._rest = np.array([model.joints[j].rest for j in self._branch_joint])
+        self._HF = np.zeros((len(self._branch_joint), self.nx))
+        for i, j in enumerate(self._branch_joint):
+            self._HF[i, self.x_of_ae[int(j)]] = self._stiff[i]
+            self._HF[i, nae + self.x_of_ae[int(j)]] = self._damp[i]
+        self._ee = np.asarray(mech.ee_components, dtype=np.int64)
+        self._ee_point = int(model.end_effector_chain)
+        self.state_names = ([mech.joint_names[j] for j in self.ae] + [f"{mech.joint_names[j]}_vel" for j in self.ae]
+                            + self._z_names)
+        self.P0 = np.diag(self._initial_variances())
+        self.reset(t0, q0, qd0, initialised=q0 is not None or cfg.initial.source == "model")
+
+    # ------------------------------------------------------------------ set-up
+    def _initial_variances(self) -> np.ndarray:
+        i = self.cfg.initial
+        roles = [self.mech.model.joints[j].role for j in self.ae]
+        pos = [i.active_position_stddev if r == ACTIVE else i.elastic_position_stddev for r in roles]
+        vel = [i.active_velocity_stddev if r == ACTIVE else i.elastic_velocity_stddev for r in roles]
+        pc = self.cfg.process
+        sd = {"bias_band_limited": [i.disturbance_stddev] * self.nd + [pc.disturbance_stddev] * self.nd
+              + [pc.disturbance_stddev * 2 * np.pi * pc.disturbance_bandwidth] * self.nd,
+              "band_limited": [pc.disturbance_stddev] * self.nd
+              + [pc.disturbance_stddev * 2 * np.pi * pc.disturbance_bandwidth] * self.nd,
+              "integrated_random_walk": [i.disturbance_stddev] * self.nd + [i.disturbance_rate_stddev] * self.nd,
+              }.get(pc.disturbance, [i.disturbance_stddev] * self.nd)
+        return np.array(pos + vel + sd) ** 2
+
+    def reset(self, t: float | None = None, q: np.ndarray | None = None, qd: np.ndarray | None = None,
+              P0: np.ndarray | None = None, initialised: bool = True) -> None:
+        """Restart at time t (default: the current time) from tree state (q, qd).
+
+        q defaults to the model's initial state, qd to rest; the closure fixes q_p and qd_p
+        (q_p from q's values as the Newton guess). Statistics, disturbance estimates and
+        a fault are cleared. ``initialised=False`` makes the next joint state (with every
+        active joint's position) set the pose instead (``initial.source: measurement``).
+        """
+        mech = self.mech
+        self.t = float(getattr(self, "t", 0.0) if t is None else t)
+        q = initial_state(mech) if q is None else np.array(q, dtype=float)
+        qd = np.zeros(mech.n) if qd is None else np.array(qd, dtype=float)
+        if q.shape != (mech.n,) or qd.shape != (mech.n,):
+            raise InputError(f"observer reset: a state needs {mech.n} tree coordinates")
+        if not (np.all(np.isfinite(q)) and np.all(np.isfinite(qd))):
+            raise InputError("observer reset: NaN or Inf in the state")
+        gap, ratio = kernels.apply_correction(mech.arrays, q, qd, np.zeros(self.nz), np.zeros(self.nx))
+        if not (gap <= 1e-9 and ratio >= kernels.SINGULAR_TOL):
+            raise InputError(f"observer reset: the closure cannot be solved there (gap {gap:.3g} m)")
+        self.q, self.qd = q, qd
+        self.z = np.zeros(self.nz)
+        self.P = (self.P0 if P0 is None else np.array(P0, dtype=float)).copy()
+        if self.P.shape != (self.nx, self.nx):
+            raise InputError(f"observer reset: covariance must be {self.nx} x {self.nx}")
+        n_a = len(mech.active)
+        self.tau_hold = getattr(self, "tau_hold", np.zeros(n_a))
+        self.tau_last = self.tau_hold.copy()
+        self.t_command = getattr(self, "t_command", -np.inf)
+        self.fault: str | None = None
+        self.initialised = initialised
+        self.stats = {s: SensorStats() for s in ("encoders", "imu", "branch_forces", "command")}
+        self.Phi = np.eye(self.nx)
+        self.Qd = np.zeros((self.nx, self.nx))
+        self._lin_age, self._lin_T = 1 << 30, -1.0  # intervals since the last linearisation, its length
+        self.Hpt = np.zeros((3, self.nx))
+        self.info = np.zeros(2)
+        if self.with_point:
+            self._linearise_here()
+
+    def initialise_from_joint_state(self, t: float, names, position, velocity=None,
+                                    velocity_stddev: float | None = None) -> bool:
+        """Set the pose from measured positions of every active joint (elastic joints at rest
+        unless measured too, passive joints from the closure); False if some are missing.
+
+        Rates come from ``velocity`` where given (active/elastic joints), else zero; a reset
+        while the machine may be moving should pass ``velocity_stddev`` [rad/s] for the
+        motors' rate uncertainty (default: ``initial.active_velocity_stddev``, at rest).
+        """
+        mech = self.mech
+        lookup = {n: k for k, n in enumerate(names)}
+        q = initial_state(mech)
+        qd = np.zeros(mech.n)
+        vel = [] if velocity is None else velocity
+        for j in mech.active:
+            k = lookup.get(mech.joint_names[j])
+            if k is None or k >= len(position) or not np.isfinite(position[k]):
+                return False
+            q[j] = float(position[k])
+        for j in mech.ae:
+            k = lookup.get(mech.joint_names[j])
+            if k is not None and j in mech.elastic and k < len(position) and np.isfinite(position[k]):
+                q[j] = float(position[k])
+            if k is not None and k < len(vel) and np.isfinite(vel[k]):
+                qd[j] = float(vel[k])
+        try:
+            q = solve_pose(mech, q, mech.passive)
+        except ElasticPmDynError:
+            return False
+        P0 = self.P0.copy()
+        if velocity_stddev is not None:
+            for i, j in enumerate(self.ae):
+                if mech.model.joints[j].role == ACTIVE:
+                    P0[self.nae + i, self.nae + i] = velocity_stddev ** 2
+        tau_hold, t_cmd = self.tau_hold, self.t_command
+        self.reset(t, q, qd, P0)
+        self.tau_hold, self.tau_last, self.t_command = tau_hold, tau_hold.copy(), t_cmd
+        return True
+
+    def _tree_tau(self, tau_active: np.ndarray) -> np.ndarray:
+        tau = np.zeros(self.mech.n)
+        tau[self.mech.active] = tau_active
+        return tau
+
+    def _linearise_here(self) -> None:
+        """Accelerometer Jacobian at the current state (before the first prediction)."""
+        from elastic_pm_dyn.observer.observability import linear_model
+        _, _, self.Hpt = linear_model(self, self.q, self.qd, self.tau_last)
+
+    def gate(self, dof: int) -> float:
+        g = self._gates.get(dof)
+        if g is None:
+            g = self._gates[dof] = float(chi2.ppf(self.cfg.gating.probability, dof))
+        return g
+
+    # ------------------------------------------------------------------ time
+    def _torque_at(self, t: float) -> np.ndarray:
+        timeout = self.cfg.timing.command_timeout
+        if timeout > 0 and t - self.t_command >= timeout - 1e-12:
+            return np.zeros_like(self.tau_hold)
+        return self.tau_hold
+
+    def _advance(self, t_to: float) -> None:
+        """Predict from self.t to t_to with the held command (zero after a timeout)."""
+        if self.fault is not None:
+            raise ObserverFault(self.fault)
+        tol = self.cfg.timing.stamp_tolerance
+        pc = self.cfg.process
+        timeout = self.cfg.timing.command_timeout
+        while t_to - self.t > tol:
+            end = min(t_to, self.t + pc.max_interval)
+            if timeout > 0 and self.t < self.t_command + timeout < end - tol:
+                end = self.t_command + timeout  # the command expires inside: stop there
+            T = end - self.t
+            tau = self._torque_at(self.t)
+            n_sub = max(1, int(np.ceil(T / pc.dt - 1e-9)))
+            relin = self._lin_age >= pc.relinearize_every or abs(T - self._lin_T) > 1e-12
+            status = kernels.predict(self.mech.arrays, self.q, self.qd, self._tree_tau(tau), self.dist_idx,
+                                     self.z, self.dist_col, self.Lz, self.Fz, self.psd_ae, self.rel_ae, self.psd_z,
+                                     self.eps_q, self.eps_v, self.point, self.with_point, relin, T, n_sub, self.P,
+                                     self.Phi, self.Qd, self.Hpt, self.info)
+            if relin:
+                self._lin_age, self._lin_T = 0, T
+            self._lin_age += 1
+            if status != 0:
+                self._fail(f"prediction failed at t = {self.t:.6f} s: "
+                           + ("singular configuration" if status == 1 else "the state became NaN/Inf")
+                           + f" (conditioning {self.info[0]:.3g})")
+            self.t = t_to if end >= t_to else end
+            self.tau_last = tau.copy()
+            if not kernels.covariance_ok(self.P):
+                self._fail(f"covariance lost positive definiteness at t = {self.t:.6f} s")
+
+    def _fail(self, message: str) -> None:
+        self.fault = message
+        raise ObserverFault(message)
+
+    def _sync(self, t: float, sensor: str) -> UpdateResult | None:
+        """Bring the filter to stamp t; a result if the sample cannot be used."""
+        st = self.stats[sensor]
+        if not self.initialised:
+            st.other += 1
+            return UpdateResult(sensor, t, False, reason="uninitialised")
+        if t < self.t - self.cfg.timing.stamp_tolerance:
+            st.late += 1
+            st.last_reason = f"late by {self.t - t:.6f} s"
+            return UpdateResult(sensor, t, False, reason="late")
+        self._advance(t)
+        return None
+
+    # ------------------------------------------------------------------ inputs
+    def predict(self, tau: np.ndarray, t_to: float) -> None:
+        """Integrate from the filter's time to t_to with ``tau`` (active joint order) held;
+        ``tau`` stays the held command afterwards."""
+        self.tau_hold = self._check_tau(tau)
+        self.t_command = self.t
+        self._advance(float(t_to))
+
+    def command(self, t: float, tau: np.ndarray) -> bool:
+        """A torque command stamped t (active joint order): predict to t with the previous
+        command, then hold this one. A command older than the last one is ignored (False)."""
+        tau = self._check_tau(tau)
+        st = self.stats["command"]
+        if t < self.t_command - self.cfg.timing.stamp_tolerance:
+            st.late += 1
+            return False
+        if self.initialised:
+            if t < self.t - self.cfg.timing.stamp_tolerance:
+                st.late += 1  # late but newest: applies from now on
+            else:
+                self._advance(t)
+        self.tau_hold = tau
+        self.t_command = t
+        st.accepted += 1
+        return True
+
+    def _check_tau(self, tau) -> np.ndarray:
+        tau = np.asarray(tau, dtype=float).reshape(-1)
+        if tau.shape != (len(self.mech.active),):
+            raise InputError(f"torque command needs {len(self.mech.active)} values (active joints "
+                             f"{', '.join(self.mech.active_names)}), got {tau.size}")
+        if not np.all(np.isfinite(tau)):
+            self.stats["command"].nan += 1
+            raise InputError("torque command with NaN or Inf")
+        return tau.copy()
+
+    def update_joint_states(self, t: float, names, position=None, velocity=None, effort=None
+                            ) -> list[UpdateResult]:
+        """Encoder positions/rates (and elastic-joint efforts as branch forces, if so configured)."""
+        out = []
+        if not self.initialised:
+            if (self.cfg.initial.source == "measurement" and position is not None and len(position)
+                    and self.initialise_from_joint_state(t, names, position)):
+                out.append(UpdateResult("encoders", t, True, reason="initialised"))
+                return out
+            self.stats["encoders"].other += 1
+            return [UpdateResult("encoders", t, False, reason="uninitialised")]
+        if self.encoders is not None:
+            late = self._sync(t, "encoders")
+            if late is not None:
+                return [late]
+            W = self._passive_jacobian() if self.encoders.needs_w else None
+            s = self.encoders.sample(list(names), position, velocity, self.q, self.qd, W, self.nx)
+            if s is not None:
+                out.append(self._correct(s, t))
+        if (self.branch is not None and self.branch.source == "joint_state_effort" and effort is not None
+                and len(effort)):
+            if len(effort) != len(names):
+                raise InputError(f"joint state: {len(names)} names but {len(effort)} efforts")
+            pairs = [(self.branch.by_joint[n], e) for n, e in zip(names, effort, strict=True)
+                     if n in self.branch.by_joint]
+            if pairs:
+                out.append(self._branch_update(t, [p[0] for p in pairs], [p[1] for p in pairs]))
+        return out
+
+    def update_imu(self, t: float, linear_acceleration, frame_id: str = "") -> UpdateResult | None:
+        """Accelerometer sample (x, y, z of sensor_msgs/Imu linear_acceleration)."""
+        if self.imu is None:
+            return None
+        st = self.stats["imu"]
+        if self.imu.frame_id and frame_id and frame_id != self.imu.frame_id:
+            st.other += 1
+            st.last_reason = f"frame {frame_id!r}, expected {self.imu.frame_id!r}"
+            return UpdateResult("imu", t, False, reason="frame")
+        late = self._sync(t, "imu")
+        if late is not None:
+            return late
+        imu = self.imu
+        meas = np.asarray(linear_acceleration, dtype=float)[imu.axes]
+        if not np.all(np.isfinite(meas)):  # the slow path drops NaN axes and reports them
+            a = np.empty(3)
+            kernels.point_acceleration(self.mech.arrays, self.q, self.qd, self._tree_tau(self.tau_last),
+                                       self.dist_idx, self.disturbance(), self.point, a)
+            return self._correct(imu.sample(np.asarray(linear_acceleration, dtype=float), a, self.Hpt), t)
+        gate = self.gate(len(meas))
+        nis, status = kernels.imu_correct(self.mech.arrays, self.q, self.qd, self.z, self.P,
+                                          self._tree_tau(self.tau_last), self.dist_idx, self.Lz, self.point, imu.S,
+                                          imu.g, meas, imu.var, self.Hpt, gate)
+        return self._after("imu", t, nis, status, len(meas), gate, [])
+
+    def update_branch_forces(self, t: float, names, force) -> UpdateResult | None:
+        """Measured branch forces (strain gauges), by branch name."""
+        if self.branch is None:
+            return None
+        return self._branch_update(t, list(names), force)
+
+    def _branch_update(self, t, names, force) -> UpdateResult:
+        late = self._sync(t, "branch_forces")
+        if late is not None:
+            return late
+        x = self.x()
+        s = self.branch.sample(names, np.asarray(force, dtype=float), x, self.nx)
+        if s is None:
+            return UpdateResult("branch_forces", t, False, reason="empty")
+        return self._correct(s, t)
+
+    # ------------------------------------------------------------------ correction
+    def _correct(self, s: Sample, t: float) -> UpdateResult:
+        st = self.stats[s.sensor]
+        st.nan += len(s.dropped)
+        if s.r.size == 0:
+            st.last_reason = "NaN: " + ", ".join(s.dropped)
+            return UpdateResult(s.sensor, t, False, reason="nan", dropped=s.dropped)
+        gate = self.gate(s.r.size)
+        nis, status = kernels.correct(self.mech.arrays, self.q, self.qd, self.z, self.P, np.ascontiguousarray(s.H),
+                                      s.R, s.r, gate)
+        return self._after(s.sensor, t, nis, status, s.r.size, gate, s.dropped)
+
+    def _after(self, sensor: str, t: float, nis: float, status: int, dof: int, gate: float,
+               dropped: list[str]) -> UpdateResult:
+        st = self.stats[sensor]
+        st.last_nis = nis
+        if status == 1:
+            st.rejected += 1
+            st.consecutive_rejections += 1
+            st.last_reason = f"gated out at t = {t:.6f} s: NIS {nis:.3g} > {gate:.3g} ({dof} dof)"
+            return UpdateResult(sensor, t, False, nis, dof, "gate", dropped)
+        if status == 2:
+            self._fail(f"a {sensor} correction left the closure unsolvable at t = {t:.6f} s")
+        if status == 3:
+            self._fail(f"covariance lost positive definiteness in a {sensor} correction at t = {t:.6f} s")
+        if status == 4:
+            self._fail(f"singular configuration in the {sensor} model at t = {t:.6f} s")
+        st.accepted += 1
+        st.consecutive_rejections = 0
+        st.window.append((nis, dof))
+        if len(st.window) > self.cfg.gating.nis_window:
+            st.window.popleft()
+        return UpdateResult(sensor, t, True, nis, dof, "", dropped)
+
+    # ------------------------------------------------------------------ outputs
+    def x(self) -> np.ndarray:
+        return np.concatenate([self.q[self.ae], self.qd[self.ae], self.z])
+
+    def disturbance(self) -> np.ndarray:
+        """Estimated disturbance torques d = Lz z on ``dist_idx`` joints."""
+        return self.Lz @ self.z
+
+    def _passive_jacobian(self) -> np.ndarray:
+        W = np.empty((self.mech.n, self.nae))
+        kernels.passive_rows(self.mech.arrays, self.q, W)
+        return W
+
+    def estimate(self) -> Estimate:
+        """Current estimates (every tree joint, branch forces, end effector) with standard deviations."""
+        mech, nae, nb = self.mech, self.nae, len(self._branch_joint)
+        q_std, qd_std = np.empty(mech.n), np.empty(mech.n)
+        F, F_std = np.empty(nb), np.empty(nb)
+        ee, ee_std = np.empty(len(self._ee)), np.empty(len(self._ee))
+        kernels.outputs(mech.arrays, self.q, self.qd, self.P, self._ee_point, self._ee, self._branch_joint,
+                        self._stiff, self._damp, self._rest, q_std, qd_std, F, F_std, ee, ee_std)
+        j = self._branch_joint
+        effort = np.zeros(mech.n)
+        effort[mech.active] = self.tau_last
+        effort[self.dist_idx] += self.disturbance()
+        effort[j] = F
+        Pz = self.P[2 * nae:, 2 * nae:]
+        d_std = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", self.Lz, Pz, self.Lz), 0.0))
+        return Estimate(self.t, self.q.copy(), self.qd.copy(), q_std, qd_std, effort, self.branch_names, F, F_std,
+                        self.q[j] - self._rest, self.qd[j].copy(), ee, ee_std,
+                        [mech.joint_names[i] for i in self.dist_idx], self.disturbance(), d_std, self.x(),
+                        self.P.copy(), self.initialised)
+
+    # ------------------------------------------------------------------ diagnostics
+    def health(self) -> tuple[int, str]:
+        """(level OK/WARN/ERROR, one line) for /diagnostics."""
+        if self.fault is not None:
+            return ERROR, f"fault: {self.fault}; reset needed"
+        if not self.initialised:
+            return WARN, "waiting for a joint state with every motor position"
+        limit = self.cfg.gating.max_consecutive_rejections
+        for name, st in self.stats.items():
+            if st.consecutive_rejections >= limit:
+                return ERROR, (f"{name}: {st.consecutive_rejections} consecutive samples gated out "
+                               f"(last: {st.last_reason}); the estimate has diverged, reset needed")
+        warnings = []
+        f = self.cfg.gating.nis_warn_factor
+        for name, st in self.stats.items():
+            lo, hi, mean = self.nis_band(name)
+            dof = sum(d for _, d in st.window) / max(len(st.window), 1)
+            if mean == mean and not dof / f <= mean <= dof * f:
+                warnings.append(f"{name}: mean NIS {mean:.3g} for {dof:.0f} dof (95 % band [{lo:.3g}, {hi:.3g}]): "
+                                "noise levels or process noise mistuned")
+        if warnings:
+            return WARN, "; ".join(warnings)
+        return OK, "tracking"
+
+    def nis_band(self, sensor: str, p: float = 0.95) -> tuple[float, float, float]:
+        """Two-sided p band of the windowed mean NIS and its value (NaN if no samples)."""
+        w = self.stats[sensor].window
+        if len(w) < 10:
+            return float("nan"), float("nan"), float("nan")
+        total = sum(n for n, _ in w)
+        dof = sum(d for _, d in w)
+        lo, hi = chi2.ppf((1 - p) / 2, dof) / len(w), chi2.ppf((1 + p) / 2, dof) / len(w)
+        return float(lo), float(hi), float(total / len(w))
+
+    def diagnostics(self) -> dict[str, str]:
+        """Key/value pairs for diagnostic_msgs/KeyValue: counts and NIS statistics per sensor."""
+        out = {"time": f"{self.t:.6f}"}
+        for name, st in self.stats.items():
+            out[f"{name}.accepted"] = str(st.accepted)
+            out[f"{name}.rejected"] = str(st.rejected)
+            out[f"{name}.late"] = str(st.late)
+            out[f"{name}.nan_entries"] = str(st.nan)
+            if st.window:
+                lo, hi, mean = self.nis_band(name)
+                out[f"{name}.nis_last"] = f"{st.last_nis:.4g}"
+                out[f"{name}.nis_mean"] = f"{mean:.4g}"
+                out[f"{name}.nis_band95"] = f"[{lo:.4g}, {hi:.4g}]"
+            if st.last_reason:
+                out[f"{name}.last_rejection"] = st.last_reason
+        return out
+
+    def observability(self, horizon: float | None = None):
+        """Observability of the states at the current state; see :mod:`.observability`."""
+        from elastic_pm_dyn.observer.observability import analyse
+        return analyse(self, horizon)

@@ -1,0 +1,590 @@
+"""Compiled parts of the observer: linearisation, discretisation, propagation, update.
+
+State x = [q_ae (n_ae), qd_ae (n_ae), z (n_z)]: the non-redundant coordinates, their
+rates and the augmented disturbance states z of a linear model whose output d = Lz z
+are torques on chosen joints. The tree state
+(q_t, qd_t) is carried along and always consistent with x: q_p, qd_p follow from the
+closure (coordinate partitioning, ``sim.kernels.partition``).
+
+One prediction interval [t, t + T] (T <= 1 ms) costs, for the five-bar:
+- the continuous Jacobian A = df/dx at the interval's start by one-sided differences of
+  the compiled SCDD accelerations (1 + 3 n_ae evaluations: positions, rates, unit
+  generalised forces; the forces enter linearly, so their columns are exact);
+- Phi = expm(A T) and Q = int_0^T expm(A s) G Q_c G^T expm(A s)^T ds (Van Loan's integral)
+  from one scaled Taylor series and squaring, after diagonal balancing (the state mixes
+  radians and micrometres, and the 550 Hz spring mode makes |A| ~ 1e7 unbalanced);
+- the state itself by the exact nonlinear model: RK4 substeps of SCDD (``rk4_steps``,
+  no stabilisation inside the interval; the closure is restored by partitioning at the
+  end, which is exactly the q_ae -> q_t map of the state definition).
+The end-effector acceleration columns (for an accelerometer) come with the same
+perturbed evaluations.
+"""
+
+import numpy as np
+from numba import njit
+
+from elastic_pm_dyn.dynamics.evaluate import SCDD, accelerations
+from elastic_pm_dyn.dynamics.kernels import passive_map
+from elastic_pm_dyn.model.layout import JF_STIFFNESS
+from elastic_pm_dyn.sim.kernels import OK, _closure, partition, rk4_steps
+
+SINGULAR_TOL = 1e-8  # conditioning below which an evaluation counts as singular
+CLOSURE_TOL = 1e-14  # [m] partitioning target after a prediction or a correction
+PERTURBED_TOL = 1e-10  # [m] accepted gap of a first-order perturbed pose (see linearize)
+
+
+@njit(cache=True)
+def _work(ma, n):
+    npt = ma.points.shape[0]
+    m = ma.p_index.shape[0]
+    return (np.empty((n, n)), np.empty(n), np.empty((npt, 3, n)), np.empty((npt, 3)), np.empty((npt, 3)),
+            np.empty((m, n)), np.empty(m), np.empty(m))
+
+
+@njit(cache=True)
+def evaluate(ma, q, qd, tau, point, with_point, qdd, lam, qdd_prev, a_pt_out):
+    """SCDD accelerations at (q, qd, tau) and, if with_point, the world acceleration of
+    attachment point ``point`` (J qdd + Jdot qd). Returns the conditioning."""
+    cond, _ = accelerations(SCDD, ma, q, qd, tau, 0.0, 0.0, qdd_prev, qdd, lam)
+    if with_point:
+        n = q.shape[0]
+        M, h, J, a_pt, p_pt, A, gamma, res = _work(ma, n)
+        _closure(ma, q, qd, M, h, J, a_pt, p_pt, A, gamma, res)
+        for r in range(3):
+            s = a_pt[point, r]
+            for j in range(n):
+                s += J[point, r, j] * qdd[j]
+            a_pt_out[r] = s
+    return cond
+
+
+@njit(cache=True)
+def passive_rows(ma, q, W):
+    """W = dq_t/dq_ae (n_t x n_ae) at q; returns the pivot ratio of dh/dq_p."""
+    n = q.shape[0]
+    nae = ma.ae_index.shape[0]
+    m = ma.p_index.shape[0]
+    W[:, :] = 0.0
+    for j in range(nae):
+        W[ma.ae_index[j], j] = 1.0
+    if m == 0:
+        return 1.0
+    M, h, J, a_pt, p_pt, A, gamma, res = _work(ma, n)
+    _closure(ma, q, np.zeros(n), M, h, J, a_pt, p_pt, A, gamma, res)
+    Wp = np.empty((m, nae))
+    cp = np.empty(m)
+    ratio = passive_map(A, gamma, ma.ae_index, ma.p_index, Wp, cp)
+    for i in range(m):
+        for j in range(nae):
+            W[ma.p_index[i], j] = Wp[i, j]
+    return ratio
+
+
+@njit(cache=True)
+def pose_outputs(ma, q, point, W, Jp, p):
+    """W = dq_t/dq_ae, the point's Jacobian Jp (3 x n_t) and position p (3) at q."""
+    ratio = passive_rows(ma, q, W)
+    n = q.shape[0]
+    M, h, J, a_pt, p_pt, A, gamma, res = _work(ma, n)
+    _closure(ma, q, np.zeros(n), M, h, J, a_pt, p_pt, A, gamma, res)
+    for r in range(3):
+        p[r] = p_pt[point, r]
+        for j in range(n):
+            Jp[r, j] = J[point, r, j]
+    return ratio
+
+
+@njit(cache=True)
+def outputs(ma, q, qd, P, point, ee_comp, branch_joint, stiff, damp, rest, q_std, qd_std, F, F_std, ee, ee_std):
+    """Estimated outputs with standard deviations from (q, qd, P): every tree joint (through
+    W), branch forces F = c (u - rest) + d du/dt, and the end-effector point's components."""
+    n = q.shape[0]
+    nae = ma.ae_index.shape[0]
+    W = np.empty((n, nae))
+    Jp, p = np.empty((3, n)), np.empty(3)
+    pose_outputs(ma, q, point, W, Jp, p)
+    for i in range(n):
+        sq = 0.0
+        sv = 0.0
+        for a in range(nae):
+            for b in range(nae):
+                sq += W[i, a] * P[a, b] * W[i, b]
+                sv += W[i, a] * P[nae + a, nae + b] * W[i, b]
+        q_std[i] = np.sqrt(max(sq, 0.0))
+        qd_std[i] = np.sqrt(max(sv, 0.0))
+    for k in range(branch_joint.shape[0]):
+        j = branch_joint[k]
+        a = 0
+        for i in range(nae):
+            if ma.ae_index[i] == j:
+                a = i
+        F[k] = stiff[k] * (q[j] - rest[k]) + damp[k] * qd[j]
+        v = (stiff[k] ** 2 * P[a, a] + 2 * stiff[k] * damp[k] * P[a, nae + a]
+             + damp[k] ** 2 * P[nae + a, nae + a])
+        F_std[k] = np.sqrt(max(v, 0.0))
+    for r in range(ee_comp.shape[0]):
+        c = ee_comp[r]
+        ee[r] = p[c]
+        row = np.zeros(nae)
+        for a in range(nae):
+            for j in range(n):
+                row[a] += Jp[c, j] * W[j, a]
+        v = 0.0
+        for a in range(nae):
+            for b in range(nae):
+                v += row[a] * P[a, b] * row[b]
+        ee_std[r] = np.sqrt(max(v, 0.0))
+
+
+@njit(cache=True)
+def linearize(ma, q, qd, tau, point, with_point, eps_q, eps_v, Aq, Av, Bf, Eq, Ev, Ef, qdd0, a0):
+    """Jacobians of the q_ae accelerations (and of the point acceleration) at a consistent state.
+
+    Aq = d qdd_ae / d q_ae, Av = d qdd_ae / d qd_ae, Bf = d qdd_ae / d f_ae (unit
+    generalised forces on the q_ae joints); Eq, Ev, Ef the same for the point's world
+    acceleration (3 rows). Position columns move q_p to first order along W (the passive
+    Jacobian), which is as accurate as the one-sided difference itself, and take qd_p from
+    the closure at the perturbed pose (partitioning with a loose tolerance: one closure
+    evaluation); rate columns move qd_p along W. Returns the worst conditioning.
+    """
+    n = q.shape[0]
+    ae = ma.ae_index
+    nae = ae.shape[0]
+    m = ma.p_index.shape[0]
+    lam = np.empty(m)
+    prev = np.zeros(n)
+    qdd1 = np.empty(n)
+    a1 = np.empty(3)
+    W = np.empty((n, nae))
+    worst = passive_rows(ma, q, W)
+    cond = evaluate(ma, q, qd, tau, point, with_point, qdd0, lam, prev, a0)
+    worst = min(worst, cond)
+    qp = np.empty(n)
+    vp = np.empty(n)
+    for j in range(nae):
+        e = eps_q[j]
+        for i in range(n):
+            qp[i] = q[i] + W[i, j] * e
+            vp[i] = qd[i]
+        partition(ma, qp, vp, PERTURBED_TOL, 2)
+        cond = evaluate(ma, qp, vp, tau, point, with_point, qdd1, lam, prev, a1)
+        worst = min(worst, cond)
+        for i in range(nae):
+            Aq[i, j] = (qdd1[ae[i]] - qdd0[ae[i]]) / e
+        for r in range(3):
+            Eq[r, j] = (a1[r] - a0[r]) / e
+    for j in range(nae):
+        e = eps_v[j]
+        for i in range(n):
+            vp[i] = qd[i] + W[i, j] * e
+        cond = evaluate(ma, q, vp, tau, point, with_point, qdd1, lam, prev, a1)
+        worst = min(worst, cond)
+        for i in range(nae):
+            Av[i, j] = (qdd1[ae[i]] - qdd0[ae[i]]) / e
+        for r in range(3):
+            Ev[r, j] = (a1[r] - a0[r]) / e
+    tp = tau.copy()
+    for j in range(nae):
+        # Linear in the force: a unit step is exact. The point acceleration changes by J dqdd
+        # only (same q, qd), taken here as the difference of full evaluations for simplicity.
+        tp[ae[j]] += 1.0
+        cond = evaluate(ma, q, qd, tp, point, with_point, qdd1, lam, prev, a1)
+        tp[ae[j]] -= 1.0
+        worst = min(worst, cond)
+        for i in range(nae):
+            Bf[i, j] = qdd1[ae[i]] - qdd0[ae[i]]
+        for r in range(3):
+            Ef[r, j] = a1[r] - a0[r]
+    return worst
+
+
+@njit(cache=True)
+def continuous_model(Aq, Av, Bf, dist_col, Lz, Fz, psd_ae, psd_z, Ac, Qc):
+    """A = df/dx and the white-noise intensity G Q_c G^T of x = [q_ae, qd_ae, z].
+
+    The disturbance states z (n_z) follow z' = Fz z + w (intensities psd_z); the torques
+    are d = Lz z (n_d), d_k acting on q_ae column dist_col[k] (e.g. Fz = 0, Lz = I: random
+    walks; a bias plus a band-limited part: z = [b, f, f'], Lz = [I, I, 0]). psd_ae are
+    white generalised-force intensities on the q_ae joints (model error).
+    """
+    nae = Aq.shape[0]
+    nd = dist_col.shape[0]
+    nz = Fz.shape[0]
+    Ac[:, :] = 0.0
+    Qc[:, :] = 0.0
+    for i in range(nae):
+        Ac[i, nae + i] = 1.0
+        for j in range(nae):
+            Ac[nae + i, j] = Aq[i, j]
+            Ac[nae + i, nae + j] = Av[i, j]
+        for m in range(nz):
+            s = 0.0
+            for k in range(nd):
+                s += Bf[i, dist_col[k]] * Lz[k, m]
+            Ac[nae + i, 2 * nae + m] = s
+    for k in range(nz):
+        for m in range(nz):
+            Ac[2 * nae + k, 2 * nae + m] = Fz[k, m]
+        Qc[2 * nae + k, 2 * nae + k] = psd_z[k]
+    for i in range(nae):
+        for j in range(nae):
+            s = 0.0
+            for k in range(nae):
+                s += Bf[i, k] * psd_ae[k] * Bf[j, k]
+            Qc[nae + i, nae + j] = s
+
+
+@njit(cache=True)
+def _balance(A, d):
+    """Diagonal scaling d (powers of 2) so that D^-1 A D has balanced row/column norms (Osborne)."""
+    n = A.shape[0]
+    B = A.copy()
+    d[:] = 1.0
+    for _ in range(30):
+        done = True
+        for i in range(n):
+            c = 0.0
+            r = 0.0
+            for j in range(n):
+                if j != i:
+                    c += abs(B[j, i])
+                    r += abs(B[i, j])
+            if c == 0.0 or r == 0.0:
+                continue
+            f = 1.0
+            s = c + r
+            while c < r / 2.0:
+                c *= 2.0
+                r /= 2.0
+                f *= 2.0
+            while c >= r * 2.0:
+                c /= 2.0
+                r *= 2.0
+                f /= 2.0
+            if (c + r) < 0.95 * s:
+                done = False
+                d[i] *= f
+                for j in range(n):
+                    B[i, j] /= f
+                    B[j, i] *= f
+        if done:
+            break
+    return B
+
+
+@njit(cache=True)
+def discretize(Ac, Qc, T, Phi, Qd):
+    """Phi = expm(A T), Qd = int_0^T expm(A s) Qc expm(A s)^T ds (Van Loan), by Taylor + squaring.
+
+    In balanced coordinates B = D^-1 A D: with h = T / 2^s and |B h|_1 <= 1/4, twelve Taylor
+    terms give Phi(h) and the series Q(h) = sum_k G_k, G_0 = Qc h,
+    G_{k+1} = (B h G_k + G_k (B h)^T) / (k + 2) (the integral's exact expansion) to round-off;
+    then s doublings Phi(2h) = Phi(h)^2, Q(2h) = Phi(h) Q(h) Phi(h)^T + Q(h).
+    """
+    n = Ac.shape[0]
+    d = np.empty(n)
+    B = _balance(Ac, d)
+    Qb = np.empty((n, n))
+    for i in range(n):
+        for j in range(n):
+            Qb[i, j] = Qc[i, j] / (d[i] * d[j])
+    norm = 0.0
+    for j in range(n):
+        c = 0.0
+        for i in range(n):
+            c += abs(B[i, j])
+        norm = max(norm, c)
+    s = 0
+    while norm * T / 2.0**s > 0.25:
+        s += 1
+    h = T / 2.0**s
+    Bh = B * h
+    P = np.eye(n)
+    term = np.eye(n)
+    G = Qb * h
+    Q = G.copy()
+    for k in range(1, 13):
+        term = term @ Bh / k
+        P += term
+        G = (Bh @ G + G @ Bh.T) / (k + 1)
+        Q += G
+    for _ in range(s):
+        Q = P @ Q @ P.T + Q
+        P = P @ P
+    for i in range(n):
+        for j in range(n):
+            Phi[i, j] = P[i, j] * d[i] / d[j]
+            v = 0.5 * (Q[i, j] + Q[j, i])
+            Qd[i, j] = v * d[i] * d[j]
+
+
+@njit(cache=True)
+def predict(ma, q, qd, tau, dist_idx, z, dist_col, Lz, Fz, psd_ae, rel_ae, psd_z, eps_q, eps_v,
+            point, with_point, relinearize, T, n_sub, P, Phi, Qd, Hpt, info):
+    """Propagate state and covariance over [t, t + T] with tree forces ``tau`` held.
+
+    tau (n_t): commanded generalised forces; the disturbance torques d = Lz z (on tree
+    joints dist_idx) are added. With ``relinearize`` the model is linearised at the
+    interval's start and Phi, Qd (transition and discrete process noise over T) and Hpt
+    (3 x n_x: the Jacobian of the point's world acceleration w.r.t. x, the accelerometer
+    model's H) are recomputed in place; otherwise the given ones are used (the caller
+    reuses a linearisation for a few intervals of the same length). The white
+    generalised-force intensity on q_ae joint i is psd_ae[i] + rel_ae[i] F_v^2, F_v the
+    vibration-force amplitude of an elastic joint: model error (stiffness, damping, the
+    integrator's phase error) grows with the vibration.
+    In place: q, qd (consistent tree state), z (mean propagated by expm(Fz T) = Phi's z
+    block), P. info: [worst conditioning, closure gap after partitioning]. Returns
+    ``sim.kernels`` status codes.
+    """
+    n = q.shape[0]
+    nae = ma.ae_index.shape[0]
+    nd = dist_idx.shape[0]
+    nz = z.shape[0]
+    nx = 2 * nae + nz
+    tt = tau.copy()
+    for k in range(nd):
+        for m in range(nz):
+            tt[dist_idx[k]] += Lz[k, m] * z[m]
+    cond = 1.0
+    if relinearize:
+        Aq, Av, Bf = np.empty((nae, nae)), np.empty((nae, nae)), np.empty((nae, nae))
+        Eq, Ev, Ef = np.empty((3, nae)), np.empty((3, nae)), np.empty((3, nae))
+        qdd0, a0 = np.empty(n), np.empty(3)
+        cond = linearize(ma, q, qd, tt, point, with_point, eps_q, eps_v, Aq, Av, Bf, Eq, Ev, Ef, qdd0, a0)
+        info[0] = cond
+        if not cond >= SINGULAR_TOL:
+            return 1
+        psd = psd_ae.copy()
+        for i in range(nae):
+            w2 = -Aq[i, i]
+            if rel_ae[i] > 0.0 and w2 > 0.0:
+                # Vibration-force amplitude of elastic joint j: F_v^2 = (m a)^2 + (c v / w)^2 with
+                # m = c / w^2 (w^2 = -dqdd_j/dq_j); the quasi-static motion has a, v ~ 0.
+                j = ma.ae_index[i]
+                c = ma.jf[j, JF_STIFFNESS]
+                psd[i] += rel_ae[i] * ((c / w2 * qdd0[j]) ** 2 + c * c / w2 * qd[j] ** 2)
+        Ac, Qc = np.empty((nx, nx)), np.empty((nx, nx))
+        continuous_model(Aq, Av, Bf, dist_col, Lz, Fz, psd, psd_z, Ac, Qc)
+        discretize(Ac, Qc, T, Phi, Qd)
+        for r in range(3):
+            for j in range(nae):
+                Hpt[r, j] = Eq[r, j]
+                Hpt[r, nae + j] = Ev[r, j]
+            for m in range(nz):
+                s = 0.0
+                for k in range(nd):
+                    s += Ef[r, dist_col[k]] * Lz[k, m]
+                Hpt[r, 2 * nae + m] = s
+    Pn = Phi @ P @ Phi.T + Qd
+    for i in range(nx):
+        for j in range(nx):
+            P[i, j] = 0.5 * (Pn[i, j] + Pn[j, i])
+    # The disturbance's mean moves inside the interval (z' = Fz z): its second-order Taylor
+    # polynomial, d(s) = Lz (z + s Fz z + s^2/2 Fz^2 z), drives the substeps, as the
+    # covariance model assumes (a held d would lag a band-limited one by half a period).
+    coef = np.zeros((3, n))
+    coef[0, :] = tt
+    Fzz = Fz @ z
+    Fzzz = Fz @ Fzz
+    for k in range(nd):
+        for m in range(nz):
+            coef[1, dist_idx[k]] += Lz[k, m] * Fzz[m]
+            coef[2, dist_idx[k]] += 0.5 * Lz[k, m] * Fzzz[m]
+    qdd_prev = np.zeros(n)
+    lam = np.empty(ma.p_index.shape[0])
+    rk_info = np.zeros(3)
+    status = rk4_steps(SCDD, ma, q, qd, coef, T / n_sub, n_sub, 0, 0.0, 0.0, CLOSURE_TOL, SINGULAR_TOL,
+                       qdd_prev, lam, rk_info)
+    info[0] = min(cond, rk_info[1])
+    if status != OK:
+        return status
+    gap, ratio = partition(ma, q, qd, CLOSURE_TOL, 4)
+    info[1] = gap
+    if not ratio >= SINGULAR_TOL or not gap <= 1e-9:
+        return 1
+    zn = np.zeros(nz)
+    for k in range(nz):
+        for m in range(nz):
+            zn[k] += Phi[2 * nae + k, 2 * nae + m] * z[m]
+    z[:] = zn
+    return OK
+
+
+@njit(cache=True)
+def point_acceleration(ma, q, qd, tau, dist_idx, d, point, out):
+    """World acceleration of attachment point ``point`` at (q, qd) under tau + disturbance torques d."""
+    n = q.shape[0]
+    tt = tau.copy()
+    for k in range(dist_idx.shape[0]):
+        tt[dist_idx[k]] += d[k]
+    qdd = np.empty(n)
+    lam = np.empty(ma.p_index.shape[0])
+    return evaluate(ma, q, qd, tt, point, True, qdd, lam, np.zeros(n), out)
+
+
+@njit(cache=True)
+def kalman_update(P, H, R, r, gate, dx):
+    """EKF correction with innovation r = z - h(x), H = dh/dx, diagonal noise variances R.
+
+    Returns the NIS r^T S^-1 r. Only if it is <= gate are dx = K r written and P replaced
+    by the Joseph form (I - K H) P (I - K H)^T + K R K^T (symmetrised); otherwise (or if S is
+    not positive definite, NIS = inf) nothing changes.
+    """
+    nx = P.shape[0]
+    nz = H.shape[0]
+    PHt = P @ H.T
+    S = H @ PHt
+    for i in range(nz):
+        S[i, i] += R[i]
+    # Cholesky of S (small), scaled to unit diagonal for robustness.
+    sc = np.empty(nz)
+    for i in range(nz):
+        if not S[i, i] > 0.0:
+            return np.inf
+        sc[i] = 1.0 / np.sqrt(S[i, i])
+    L = np.empty((nz, nz))
+    for i in range(nz):
+        for j in range(nz):
+            L[i, j] = S[i, j] * sc[i] * sc[j]
+    for j in range(nz):
+        s = L[j, j]
+        for k in range(j):
+            s -= L[j, k] * L[j, k]
+        if not s > 0.0:
+            return np.inf
+        L[j, j] = np.sqrt(s)
+        for i in range(j + 1, nz):
+            s = L[i, j]
+            for k in range(j):
+                s -= L[i, k] * L[j, k]
+            L[i, j] = s / L[j, j]
+    # y = L^-1 (sc * r): NIS = |y|^2
+    y = np.empty(nz)
+    for i in range(nz):
+        s = r[i] * sc[i]
+        for k in range(i):
+            s -= L[i, k] * y[k]
+        y[i] = s / L[i, i]
+    nis = 0.0
+    for i in range(nz):
+        nis += y[i] * y[i]
+    if not nis <= gate:
+        return nis
+    # K = P H^T S^-1: solve S K^T = (P H^T)^T column by column, via the scaled factor.
+    K = np.empty((nx, nz))
+    z = np.empty(nz)
+    for c in range(nx):
+        for i in range(nz):
+            s = PHt[c, i] * sc[i]
+            for k in range(i):
+                s -= L[i, k] * z[k]
+            z[i] = s / L[i, i]
+        for i in range(nz - 1, -1, -1):
+            s = z[i]
+            for k in range(i + 1, nz):
+                s -= L[k, i] * z[k]
+            z[i] = s / L[i, i]
+        for i in range(nz):
+            K[c, i] = z[i] * sc[i]
+    for c in range(nx):
+        s = 0.0
+        for i in range(nz):
+            s += K[c, i] * r[i]
+        dx[c] = s
+    IKH = np.eye(nx) - K @ H
+    KR = K.copy()
+    for i in range(nz):
+        KR[:, i] *= R[i]
+    Pn = IKH @ P @ IKH.T + KR @ K.T
+    for i in range(nx):
+        for j in range(nx):
+            P[i, j] = 0.5 * (Pn[i, j] + Pn[j, i])
+    return nis
+
+
+@njit(cache=True)
+def apply_correction(ma, q, qd, z, dx):
+    """x <- x + dx on the tree state (q_ae, qd_ae) and the disturbance states z; q_p, qd_p
+    re-solved from the closure.
+
+    Returns (gap, pivot ratio) of the partitioning.
+    """
+    ae = ma.ae_index
+    nae = ae.shape[0]
+    for i in range(nae):
+        q[ae[i]] += dx[i]
+        qd[ae[i]] += dx[nae + i]
+    for k in range(z.shape[0]):
+        z[k] += dx[2 * nae + k]
+    return partition(ma, q, qd, CLOSURE_TOL, 6)
+
+
+@njit(cache=True)
+def correct(ma, q, qd, z, P, H, R, r, gate):
+    """One correction: :func:`kalman_update`, then x <- x + dx on the tree state (closure
+    re-solved) and a covariance check. Returns (NIS, status): 0 applied, 1 gated out,
+    2 the closure could not be re-solved, 3 P no longer positive definite."""
+    dx = np.zeros(P.shape[0])
+    nis = kalman_update(P, H, R, r, gate, dx)
+    if not nis <= gate:
+        return nis, 1
+    gap, ratio = apply_correction(ma, q, qd, z, dx)
+    if not (gap <= 1e-9 and ratio >= SINGULAR_TOL):
+        return nis, 2
+    if not covariance_ok(P):
+        return nis, 3
+    return nis, 0
+
+
+@njit(cache=True)
+def imu_correct(ma, q, qd, z, P, tau, dist_idx, Lz, point, S, g, meas, R, Hpt, gate):
+    """Accelerometer correction: y = S (J qdd + Jdot qd - g) at the state under tau + Lz z;
+    H = S Hpt. Returns (NIS, status) as :func:`correct`, status 4 if the model is singular."""
+    nd = dist_idx.shape[0]
+    d = np.zeros(nd)
+    for k in range(nd):
+        for m in range(z.shape[0]):
+            d[k] += Lz[k, m] * z[m]
+    a = np.empty(3)
+    if not point_acceleration(ma, q, qd, tau, dist_idx, d, point, a) >= SINGULAR_TOL:
+        return np.inf, 4
+    nz = S.shape[0]
+    r = np.empty(nz)
+    for i in range(nz):
+        h = 0.0
+        for c in range(3):
+            h += S[i, c] * (a[c] - g[c])
+        r[i] = meas[i] - h
+    H = S @ Hpt
+    return correct(ma, q, qd, z, P, H, R, r, gate)
+
+
+@njit(cache=True)
+def covariance_ok(P):
+    """True if P is finite, symmetric and positive definite (Cholesky of its correlation matrix)."""
+    n = P.shape[0]
+    d = np.empty(n)
+    for i in range(n):
+        if not (np.isfinite(P[i, i]) and P[i, i] > 0.0):
+            return False
+        d[i] = 1.0 / np.sqrt(P[i, i])
+    L = np.empty((n, n))
+    for i in range(n):
+        for j in range(n):
+            v = P[i, j]
+            if not np.isfinite(v):
+                return False
+            L[i, j] = v * d[i] * d[j]
+    for j in range(n):
+        s = L[j, j]
+        for k in range(j):
+            s -= L[j, k] * L[j, k]
+        if not s > 1e-14:
+            return False
+        L[j, j] = np.sqrt(s)
+        for i in range(j + 1, n):
+            s = L[i, j]
+            for k in range(j):
+                s -= L[i, k] * L[j, k]
+            L[i, j] = s / L[j, j]
+    return True

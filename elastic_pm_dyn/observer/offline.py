@@ -1,0 +1,364 @@
+"""``elastic-pm-dyn observe``: the observer over a recorded bag, as fast as possible.
+
+Reads the torque commands (``sensor_msgs/JointState`` effort, or
+``std_msgs/Float64MultiArray`` in the model's active-joint order), the measured joint
+states, optionally an ``sensor_msgs/Imu`` and measured ``elastic_pm_dyn_msgs/BranchForces``
+with ``rosbags`` (mcap or sqlite3), feeds them through the same
+:class:`~elastic_pm_dyn.observer.stream.ObserverStream` as the live node, and writes
+
+- ``estimates.csv``: ``t``, every tree joint, ``<joint>_vel``, ``F_<branch>``, the standard
+  deviation of each (``<column>_std``), ``ee_x``, ``ee_y`` (+ std), the disturbance
+  estimates ``d_<joint>`` (+ std) and the NIS of each sensor at that stamp;
+- ``estimates/`` (a bag, mcap by default) with ``/joint_states`` (position, velocity,
+  effort of every tree joint), ``/branch_forces`` (with ``force_stddev``) and ``/ee_pose``
+  for ``elastic-pm-dyn analyze``, plus ``/observer/joint_states_stddev`` (JointState whose
+  position/velocity fields hold the standard deviations);
+- ``summary.json``: counts, rejections, mean NIS, speed, the observability report.
+
+Message order: by header stamp, ties in bag order (``order="stamp"``, the best offline
+estimate), or the bag's own order (``order="arrival"``: what a live node saw, late samples
+dropped alike). One estimate row per distinct stamp once the filter runs.
+"""
+
+from __future__ import annotations
+
+import json
+import struct
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from elastic_pm_dyn.errors import InputError
+from elastic_pm_dyn.kinematics.mechanism import Mechanism
+from elastic_pm_dyn.observer import cdr
+from elastic_pm_dyn.observer.config import ObserverConfig
+from elastic_pm_dyn.observer.ekf import Estimate, Observer, ObserverFault
+from elastic_pm_dyn.observer.stream import ObserverStream
+
+JOINT_STATE = "sensor_msgs/msg/JointState"
+FLOAT64_ARRAY = "std_msgs/msg/Float64MultiArray"
+IMU = "sensor_msgs/msg/Imu"
+POSE_STAMPED = "geometry_msgs/msg/PoseStamped"
+
+RANK = {"joint_state": 0, "branch_forces": 1, "imu": 2, "command": 3}
+
+
+@dataclass
+class Topics:
+    torque_command: str = "/torque_command"
+    measured_joint_states: str = "/measured_joint_states"
+    ee_imu: str = "/ee_imu"
+    measured_branch_forces: str = "/measured_branch_forces"
+
+    @classmethod
+    def from_config(cls, cfg: ObserverConfig) -> Topics:
+        def slash(name: str) -> str:
+            return name if name.startswith("/") else "/" + name
+        t = cfg.topics
+        return cls(slash(t.torque_command), slash(t.measured_joint_states), slash(t.ee_imu),
+                   slash(t.measured_branch_forces))
+
+
+@dataclass
+class Event:
+    stamp_ns: int
+    kind: str
+    data: tuple
+    index: int = 0
+
+
+def _fast_decode(msgtype: str, kind: str, t_recv: int, raw: bytes) -> tuple[int, tuple]:
+    if msgtype == FLOAT64_ARRAY:  # no header: the bag's receive time
+        return int(t_recv), ((), cdr.decode_float64_array(raw))
+    if kind == "command":
+        ns, names, _, _, effort = cdr.decode_joint_state(raw)
+        return ns, (names, effort)
+    if kind == "joint_state":
+        ns, names, pos, vel, eff = cdr.decode_joint_state(raw)
+        return ns, (names, pos, vel, eff)
+    if kind == "imu":
+        ns, frame, acc = cdr.decode_imu(raw)
+        return ns, (acc, frame)
+    ns, names, force = cdr.decode_branch_forces(raw)
+    return ns, (names, force)
+
+
+def _slow_decode(reader, conn, t_recv: int, raw: bytes, kind: str) -> tuple[int, tuple]:
+    msg = reader.deserialize(raw, conn.msgtype)
+    stamp = _stamp(msg, t_recv)
+    if kind == "command":
+        if conn.msgtype == FLOAT64_ARRAY:
+            return stamp, ((), np.asarray(msg.data, dtype=float))
+        return stamp, (list(msg.name), np.asarray(msg.effort, dtype=float))
+    if kind == "joint_state":
+        return stamp, (list(msg.name), np.asarray(msg.position, dtype=float), np.asarray(msg.velocity, dtype=float),
+                       np.asarray(msg.effort, dtype=float))
+    if kind == "imu":
+        a = msg.linear_acceleration
+        return stamp, (np.array([a.x, a.y, a.z]), msg.header.frame_id)
+    return stamp, (list(msg.name), np.asarray(msg.force, dtype=float))
+
+
+def _stamp(msg, t_recv: int) -> int:
+    header = getattr(msg, "header", None)
+    if header is None:
+        return int(t_recv)
+    return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
+
+
+def read_events(bag: Path, topics: Topics, cfg: ObserverConfig) -> tuple[list[Event], dict]:
+    """Decode the observer's input topics of a bag into events (bag order)."""
+    from rosbags.highlevel import AnyReader
+
+    from elastic_pm_dyn.ros.msg_types import BRANCH_FORCES_MSGTYPE, make_typestore
+    if not Path(bag).exists():
+        raise InputError(f"{bag}: no such bag")
+    wanted = {topics.torque_command: "command", topics.measured_joint_states: "joint_state"}
+    if "imu" in cfg.sensors:
+        wanted[topics.ee_imu] = "imu"
+    if "branch_forces" in cfg.sensors and cfg.branch_forces.source == "branch_forces":
+        wanted[topics.measured_branch_forces] = "branch_forces"
+    events: list[Event] = []
+    counts = {k: 0 for k in wanted.values()}
+    try:
+        reader = AnyReader([Path(bag)], default_typestore=make_typestore())
+        reader.open()
+    except Exception as exc:  # rosbags raises several types for unreadable bags
+        raise InputError(f"{bag}: cannot read the bag: {exc}") from None
+    try:
+        conns = [c for c in reader.connections if c.topic in wanted]
+        found = {c.topic for c in conns}
+        for topic in (topics.torque_command, topics.measured_joint_states):
+            if topic not in found:
+                have = ", ".join(sorted({c.topic for c in reader.connections})) or "none"
+                raise InputError(f"{bag}: no topic {topic} (topics: {have}); see --torque-topic/--joint-topic")
+        expected = {"command": (JOINT_STATE, FLOAT64_ARRAY), "joint_state": (JOINT_STATE,), "imu": (IMU,),
+                    "branch_forces": (BRANCH_FORCES_MSGTYPE,)}
+        for c in conns:
+            if c.msgtype not in expected[wanted[c.topic]]:
+                raise InputError(f"{bag}: {c.topic} has type {c.msgtype}, expected "
+                                 f"{' or '.join(expected[wanted[c.topic]])}")
+        for i, (conn, t_recv, raw) in enumerate(reader.messages(connections=conns)):
+            kind = wanted[conn.topic]
+            try:  # straight from the CDR bytes; rosbags for anything unexpected
+                stamp, data = _fast_decode(conn.msgtype, kind, t_recv, raw)
+            except (ValueError, UnicodeDecodeError, struct.error, IndexError):
+                stamp, data = _slow_decode(reader, conn, t_recv, raw, kind)
+            events.append(Event(stamp, kind, data, i))
+            counts[kind] += 1
+    finally:
+        reader.close()
+    return events, counts
+
+
+@dataclass
+class Rows:
+    t: list = field(default_factory=list)
+    est: list = field(default_factory=list)
+    nis: list = field(default_factory=list)
+
+
+def run_events(obs: Observer, events: list[Event], order: str = "stamp") -> tuple[Rows, ObserverStream, str]:
+    """Feed events through a stream; one estimate per distinct stamp. Returns (rows, stream, fault)."""
+    if order == "stamp":
+        events = sorted(events, key=lambda e: (e.stamp_ns, e.index))
+    elif order != "arrival":
+        raise InputError(f"unknown message order {order!r} (expected stamp or arrival)")
+    stream = ObserverStream(obs)
+    rows = Rows()
+    sensors = ("encoders", "imu", "branch_forces")
+    nis = dict.fromkeys(sensors, np.nan)
+    fault = ""
+    last_row_ns = None
+
+    def record(ns: int) -> None:
+        rows.t.append(ns)
+        rows.est.append(obs.estimate())
+        rows.nis.append([nis[s] for s in sensors])
+
+    for i, ev in enumerate(events):
+        try:
+            if ev.kind == "command":
+                stream.on_torque_command(ev.stamp_ns, *ev.data)
+            elif ev.kind == "joint_state":
+                results = stream.on_joint_state(ev.stamp_ns, *ev.data)
+            elif ev.kind == "imu":
+                results = stream.on_imu(ev.stamp_ns, ev.data[0], ev.data[1])
+            else:
+                results = stream.on_branch_forces(ev.stamp_ns, *ev.data)
+        except ObserverFault as err:
+            fault = str(err)
+            break
+        if ev.kind != "command":
+            for r in results:
+                if r.accepted and r.dof:
+                    nis[r.sensor] = r.nis
+        nxt = events[i + 1].stamp_ns if i + 1 < len(events) else None
+        if nxt != ev.stamp_ns and obs.initialised and ev.stamp_ns != last_row_ns \
+                and abs(obs.t - ev.stamp_ns * 1e-9) <= obs.cfg.timing.stamp_tolerance:
+            record(ev.stamp_ns)
+            last_row_ns = ev.stamp_ns
+            nis = dict.fromkeys(sensors, np.nan)
+    return rows, stream, fault
+
+
+def csv_header(obs: Observer) -> list[str]:
+    mech = obs.mech
+    names = mech.joint_names
+    vel = [f"{n}_vel" for n in names]
+    F = [f"F_{b}" for b in obs.branch_names]
+    ee = ["ee_x", "ee_y", "ee_z"][:len(mech.ee_components)]
+    d = [f"d_{mech.joint_names[j]}" for j in obs.dist_idx]
+    cols = ["t", *names, *vel, *F]
+    cols += [f"{c}_std" for c in (*names, *vel, *F)]
+    cols += [*ee, *[f"{c}_std" for c in ee], *d, *[f"{c}_std" for c in d]]
+    return [*cols, "nis_encoders", "nis_imu", "nis_branch_forces"]
+
+
+def csv_table(rows: Rows) -> np.ndarray:
+    out = []
+    for ns, e, nis in zip(rows.t, rows.est, rows.nis, strict=True):
+        out.append(np.concatenate([[ns * 1e-9], e.q, e.qd, e.branch_force, e.q_std, e.qd_std, e.branch_force_std,
+                                   e.ee, e.ee_std, e.disturbance, e.disturbance_std, nis]))
+    return np.array(out)
+
+
+def write_bag(path: Path, obs: Observer, rows: Rows, storage: str = "mcap") -> None:
+    """Estimates as a rosbag2: /joint_states, /branch_forces, /ee_pose, /observer/joint_states_stddev."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+
+    from elastic_pm_dyn.ros.msg_types import BRANCH_FORCES_MSGTYPE, make_typestore
+    ts = make_typestore()
+    plugin = {"mcap": StoragePlugin.MCAP, "sqlite3": StoragePlugin.SQLITE3}[storage]
+    names = list(obs.mech.joint_names)
+    comps = [int(c) for c in obs.mech.ee_components]
+    empty = np.zeros(0)
+    with Writer(path, version=Writer.VERSION_LATEST, storage_plugin=plugin) as w:
+        c_js = w.add_connection("/joint_states", JOINT_STATE, typestore=ts)
+        c_bf = w.add_connection("/branch_forces", BRANCH_FORCES_MSGTYPE, typestore=ts)
+        c_ee = w.add_connection("/ee_pose", POSE_STAMPED, typestore=ts)
+        c_sd = w.add_connection("/observer/joint_states_stddev", JOINT_STATE, typestore=ts)
+        xyz = np.zeros(3)
+        for ns, e in zip(rows.t, rows.est, strict=True):
+            w.write(c_js, ns, cdr.encode_joint_state(ns, names, e.q, e.qd, e.effort))
+            w.write(c_bf, ns, cdr.encode_branch_forces(ns, e.branch_names, e.branch_force, e.deflection,
+                                                       e.deflection_rate, e.branch_force_std))
+            xyz[comps] = e.ee
+            w.write(c_ee, ns, cdr.encode_pose_stamped(ns, xyz, "world"))
+            w.write(c_sd, ns, cdr.encode_joint_state(ns, names, e.q_std, e.qd_std, empty))
+
+
+@dataclass
+class OfflineResult:
+    rows: Rows
+    summary: dict
+    observer: Observer
+
+
+def observe_bag(mech: Mechanism, cfg: ObserverConfig, bag: str | Path, out: str | Path | None = None,
+                topics: Topics | None = None, order: str = "stamp", storage: str = "mcap",
+                write_estimates_bag: bool = True, log=print) -> OfflineResult:
+    """Run the observer over ``bag``; write CSV, bag and summary into ``out`` (if given)."""
+    topics = topics or Topics.from_config(cfg)
+    wall0 = time.perf_counter()
+    events, counts = read_events(Path(bag), topics, cfg)
+    if not events:
+        raise InputError(f"{bag}: no messages on the observer's topics")
+    wall_read = time.perf_counter() - wall0
+    obs = Observer(mech, cfg, t0=min(e.stamp_ns for e in events) * 1e-9)
+    report = obs.observability()
+    log(report.text())
+    wall1 = time.perf_counter()
+    rows, stream, fault = run_events(obs, events, order)
+    wall_filter = time.perf_counter() - wall1
+    stamps = [e.stamp_ns for e in events]
+    duration = (max(stamps) - min(stamps)) * 1e-9
+    summary = {
+        "bag": str(bag), "topics": topics.__dict__, "messages": counts, "order": order,
+        "rows": len(rows.t), "fault": fault, "health": list(obs.health()),
+        "bad_commands": stream.bad_commands,
+        "sensors": {s: {"accepted": st.accepted, "rejected": st.rejected, "late": st.late, "nan_entries": st.nan,
+                        "mean_nis": obs.nis_band(s)[2], "last_rejection": st.last_reason}
+                    for s, st in obs.stats.items()},
+        "duration_s": duration,
+        "wall_read_s": wall_read, "wall_filter_s": wall_filter,
+        "observability": report.text(),
+    }
+    if out is not None:
+        out = Path(out)
+        out.mkdir(parents=True, exist_ok=True)
+        wall2 = time.perf_counter()
+        if rows.t:
+            np.savetxt(out / "estimates.csv", csv_table(rows), delimiter=",", header=",".join(csv_header(obs)),
+                       comments="", fmt="%.12g")
+            if write_estimates_bag:
+                bag_out = out / "estimates"
+                if bag_out.exists():
+                    raise InputError(f"{bag_out} exists already (rosbag2 will not overwrite it)")
+                write_bag(bag_out, obs, rows, storage)
+        summary["wall_write_s"] = time.perf_counter() - wall2
+    summary["wall_total_s"] = time.perf_counter() - wall0
+    summary["speed_factor"] = duration / summary["wall_total_s"] if summary["wall_total_s"] > 0 else float("inf")
+    if out is not None:
+        (Path(out) / "summary.json").write_text(json.dumps(summary, indent=2, default=float))
+    return OfflineResult(rows, summary, obs)
+
+
+def recording_to_bag(rec, path: str | Path, use: tuple[str, ...] = ("encoders", "imu", "branch_forces"),
+                     storage: str = "mcap", topics: Topics | None = None, imu_frame: str = "ee_imu") -> None:
+    """Write a simulated :class:`~elastic_pm_dyn.observer.scenarios.Recording` as the bag a
+    robot would give: per sample the measurements stamped t_k, then the command of t_k."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+
+    from elastic_pm_dyn.ros.msg_types import BRANCH_FORCES_MSGTYPE, make_typestore
+    topics = topics or Topics()
+    ts = make_typestore()
+    T = ts.types["builtin_interfaces/msg/Time"]
+    H = ts.types["std_msgs/msg/Header"]
+    JS = ts.types[JOINT_STATE]
+    BF = ts.types[BRANCH_FORCES_MSGTYPE]
+    Imu = ts.types[IMU]
+    V3 = ts.types["geometry_msgs/msg/Vector3"]
+    Q = ts.types["geometry_msgs/msg/Quaternion"]
+    plugin = {"mcap": StoragePlugin.MCAP, "sqlite3": StoragePlugin.SQLITE3}[storage]
+    names = list(rec.active_names)
+    zero9 = np.zeros(9)
+    unknown = np.full(9, -1.0)  # covariance[0] = -1: not provided (sensor_msgs/Imu convention)
+    with Writer(Path(path), version=Writer.VERSION_LATEST, storage_plugin=plugin) as w:
+        c_cmd = w.add_connection(topics.torque_command, JOINT_STATE, typestore=ts)
+        c_js = w.add_connection(topics.measured_joint_states, JOINT_STATE, typestore=ts)
+        c_imu = w.add_connection(topics.ee_imu, IMU, typestore=ts) if "imu" in use else None
+        c_bf = w.add_connection(topics.measured_branch_forces, BRANCH_FORCES_MSGTYPE, typestore=ts) \
+            if "branch_forces" in use else None
+        for k, ns in enumerate(rec.stamp_ns):
+            ns = int(ns)
+            sec, nsec = divmod(ns, 1_000_000_000)
+            hdr = H(stamp=T(sec=sec, nanosec=nsec), frame_id="")
+            w.write(c_js, ns, ts.serialize_cdr(JS(header=hdr, name=names, position=rec.encoder[k],
+                                                  velocity=np.zeros(0), effort=np.zeros(0)), JOINT_STATE))
+            if c_imu is not None:
+                a = rec.accel[k]
+                msg = Imu(header=H(stamp=T(sec=sec, nanosec=nsec), frame_id=imu_frame),
+                          orientation=Q(x=0.0, y=0.0, z=0.0, w=1.0), orientation_covariance=unknown,
+                          angular_velocity=V3(x=0.0, y=0.0, z=0.0), angular_velocity_covariance=unknown,
+                          linear_acceleration=V3(x=float(a[0]), y=float(a[1]), z=float(a[2])),
+                          linear_acceleration_covariance=zero9)
+                w.write(c_imu, ns, ts.serialize_cdr(msg, IMU))
+            if c_bf is not None:
+                w.write(c_bf, ns, ts.serialize_cdr(BF(header=hdr, name=list(rec.branch_names), force=rec.branch[k],
+                                                      deflection=np.zeros(0), deflection_rate=np.zeros(0),
+                                                      force_stddev=np.zeros(0)), BRANCH_FORCES_MSGTYPE))
+            w.write(c_cmd, ns, ts.serialize_cdr(JS(header=hdr, name=names, position=np.zeros(0),
+                                                   velocity=np.zeros(0), effort=rec.tau_cmd[k]), JOINT_STATE))
+
+
+def estimates_equal(a: list[Estimate], b: list[Estimate]) -> float:
+    """Largest difference of states and covariances between two estimate sequences (inf if lengths differ)."""
+    if len(a) != len(b):
+        return float("inf")
+    worst = 0.0
+    for x, y in zip(a, b, strict=True):
+        worst = max(worst, float(np.max(np.abs(x.x - y.x))), float(np.max(np.abs(x.P - y.P))), abs(x.t - y.t))
+    return worst

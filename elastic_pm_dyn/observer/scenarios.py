@@ -1,0 +1,188 @@
+"""Simulated recordings for testing and benchmarking the observer (truth + noisy sensors).
+
+The core simulator integrates the elastic model at fine steps (default 50 us, half the
+observer's substep, so the filter's model is not the truth's discretisation) under the
+commanded torques, held over each 1 ms period as a digital controller applies them, plus
+an unknown smooth disturbance torque the observer is not given. At each sample time t_k
+the recording holds the true tree state, the noisy encoder angles, the noisy specific
+force of the end effector (computed with the torque of the period that just ended: the
+sample is taken before the command of t_k acts) and noisy branch forces; then the
+command of t_k is computed (it may use the noisy samples: a PD loop) and applied on
+[t_k, t_k+1).
+
+Two manoeuvres (the acceptance cases of the observer):
+- :func:`manoeuvre_recording`: the reference quintic line's rigid feedforward torques;
+- :func:`chirp_recording`: a chirp of a few N m through the spring resonance on top of a
+  PD loop that holds the start pose (an open-loop chirp would push the machine away).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from elastic_pm_dyn.dynamics.direct import Dynamics
+from elastic_pm_dyn.kinematics.assembly import initial_state
+from elastic_pm_dyn.kinematics.mechanism import Mechanism
+from elastic_pm_dyn.sim.simulator import SimulationOptions, Simulator
+from elastic_pm_dyn.sim.torque import TorqueSource
+
+PERIOD = 1e-3
+NS = 1_000_000_000
+
+
+class Multisine:
+    """Sum of sines with log-spaced frequencies in [f_lo, f_hi] (equal amplitudes: equal power
+    per octave), random phases, given RMS per channel; faded in over ``fade`` seconds (a
+    disturbance switched on as a step would ring the springs, which no real one does)."""
+
+    def __init__(self, rng: np.random.Generator, channels: int, rms: float, f_lo: float = 2.0, f_hi: float = 200.0,
+                 n_freq: int = 24, fade: float = 0.02):
+        self.f = np.geomspace(f_lo, f_hi, n_freq)
+        self.phase = rng.uniform(0, 2 * np.pi, (channels, n_freq))
+        self.amp = np.full((channels, n_freq), rms * np.sqrt(2.0 / n_freq))  # RMS of the sum = rms
+        self.fade = fade
+
+    def __call__(self, t: float) -> np.ndarray:
+        w = 1.0 if t >= self.fade else 0.5 - 0.5 * np.cos(np.pi * max(t, 0.0) / self.fade)
+        return w * np.sum(self.amp * np.sin(2 * np.pi * self.f * t + self.phase), axis=1)
+
+
+class _HeldPlusSmooth(TorqueSource):
+    """A held command on one period plus a smooth function (refitted per RK4 step)."""
+
+    smooth = True
+
+    def __init__(self, held: np.ndarray, func: Callable[[float], np.ndarray] | None):
+        self.held = held
+        self.func = func
+
+    def value(self, t: float) -> np.ndarray:
+        return self.held + (self.func(t) if self.func is not None else 0.0)
+
+    def coefficients(self, t: float, h: float) -> np.ndarray:
+        f0, f1, f2 = self.value(t), self.value(t + 0.5 * h), self.value(t + h)
+        return np.vstack([f0, (4 * f1 - 3 * f0 - f2) / h, 2 * (f0 - 2 * f1 + f2) / h ** 2])
+
+
+@dataclass
+class Noise:
+    encoder: float = 2e-5  # [rad]
+    accelerometer: float = 0.02  # [m/s^2]
+    branch_force: float = 0.5  # [N]
+
+
+@dataclass
+class Recording:
+    """Samples k = 0..N-1 at t_k = k * period; the command tau_cmd[k] acts on [t_k, t_k+1)."""
+
+    mech: Mechanism
+    t: np.ndarray
+    stamp_ns: np.ndarray
+    tau_cmd: np.ndarray  # (N, n_a) commanded torques
+    disturbance: np.ndarray  # (N, n_a) the unknown torque at t_k
+    q: np.ndarray  # (N, n_t) truth
+    qd: np.ndarray
+    accel_true: np.ndarray  # (N, 3) specific force at the end effector (world axes)
+    F: np.ndarray  # (N, n_b) true branch forces
+    encoder: np.ndarray  # (N, n_a) noisy motor angles
+    accel: np.ndarray  # (N, 3) noisy accelerometer
+    branch: np.ndarray  # (N, n_b) noisy branch forces
+    noise: Noise
+    label: str = ""
+    info: dict = field(default_factory=dict)
+
+    @property
+    def active_names(self) -> list[str]:
+        return self.mech.active_names
+
+    @property
+    def branch_names(self) -> list[str]:
+        return [b.name for b in self.mech.model.branches]
+
+    def true_torque(self, k: int) -> np.ndarray:
+        """Torque acting just before t_k (command of the previous period + disturbance at t_k)."""
+        prev = self.tau_cmd[k - 1] if k > 0 else np.zeros(self.tau_cmd.shape[1])
+        return prev + self.disturbance[k]
+
+
+def simulate(mech: Mechanism, command: Callable[[int, float, np.ndarray], np.ndarray], duration: float,
+             disturbance: Callable[[float], np.ndarray] | None, noise: Noise, rng: np.random.Generator,
+             truth_dt: float = 5e-5, period: float = PERIOD, q0: np.ndarray | None = None, label: str = ""
+             ) -> Recording:
+    """Closed-loop recording: command(k, t_k, noisy encoder angles) -> torque held on [t_k, t_k+1)."""
+    n_a = len(mech.active)
+    n_steps = round(duration / period)
+    sim = Simulator(mech, SimulationOptions(formulation="scdd", dt=truth_dt, stabilization="projection"))
+    dyn = Dynamics(mech, "scdd")
+    q = initial_state(mech) if q0 is None else np.array(q0, dtype=float)
+    qd = np.zeros(mech.n)
+    chain = int(mech.model.end_effector_chain)
+    g = np.asarray(mech.model.gravity, dtype=float)
+    rows: dict[str, list] = {k: [] for k in ("t", "tau", "dist", "q", "qd", "acc", "F", "enc", "accn", "br")}
+    prev = np.zeros(n_a)
+    for k in range(n_steps + 1):
+        t = k * period
+        d = disturbance(t) if disturbance is not None else np.zeros(n_a)
+        qdd = dyn.accelerations(q, qd, prev + d)
+        terms = mech.terms(q, qd)
+        acc = terms.J[chain] @ qdd + terms.a_tip[chain] - g
+        F = mech.branch_forces(q, qd)
+        enc = q[mech.active] + noise.encoder * rng.standard_normal(n_a)
+        tau = np.asarray(command(k, t, enc), dtype=float)
+        for key, v in (("t", t), ("tau", tau), ("dist", d), ("q", q.copy()), ("qd", qd.copy()), ("acc", acc),
+                       ("F", F), ("enc", enc), ("accn", acc + noise.accelerometer * rng.standard_normal(3)),
+                       ("br", F + noise.branch_force * rng.standard_normal(len(F)))):
+            rows[key].append(v)
+        if k < n_steps:
+            sim.advance(q, qd, _HeldPlusSmooth(tau, disturbance), t, t + period)
+        prev = tau
+    t = np.array(rows["t"])
+    return Recording(mech, t, np.round(t * NS).astype(np.int64), np.array(rows["tau"]), np.array(rows["dist"]),
+                     np.array(rows["q"]), np.array(rows["qd"]), np.array(rows["acc"]), np.array(rows["F"]),
+                     np.array(rows["enc"]), np.array(rows["accn"]), np.array(rows["br"]), noise, label)
+
+
+def manoeuvre_recording(mech: Mechanism, seed: int = 1, disturbance_rms: float = 0.02, noise: Noise | None = None,
+                        duration: float | None = None, truth_dt: float = 5e-5) -> Recording:
+    """The reference manoeuvre (rigid feedforward of the quintic line, 1 kHz, ZOH) + a 2-200 Hz multisine."""
+    from elastic_pm_dyn.demo import REFERENCE_LINE
+    from elastic_pm_dyn.feedforward import line_torques
+    _, torques, _ = line_torques(mech.model, REFERENCE_LINE, 1.0 / PERIOD)
+    rng = np.random.default_rng(seed)
+    dist = Multisine(rng, len(mech.active), disturbance_rms) if disturbance_rms > 0 else None
+    duration = REFERENCE_LINE.duration if duration is None else duration
+
+    def command(k: int, t: float, enc: np.ndarray) -> np.ndarray:
+        return torques[min(k, len(torques) - 1)]
+
+    rec = simulate(mech, command, duration, dist, noise or Noise(), rng, truth_dt, label="manoeuvre")
+    rec.info = {"disturbance_rms": disturbance_rms, "seed": seed}
+    return rec
+
+
+def chirp_recording(mech: Mechanism, seed: int = 2, amplitude: float = 3.0, f0: float = 20.0, f1: float = 800.0,
+                    duration: float = 0.5, disturbance_rms: float = 0.02, noise: Noise | None = None,
+                    kp: float = 40.0, kd: float = 1.0, truth_dt: float = 5e-5) -> Recording:
+    """A linear chirp f0 -> f1 of ``amplitude`` N m (the motors in opposite phase), on a PD
+    loop (kp [N m/rad], kd [N m s/rad] on differenced encoder angles) that holds the start pose."""
+    rng = np.random.default_rng(seed)
+    dist = Multisine(rng, len(mech.active), disturbance_rms) if disturbance_rms > 0 else None
+    q0 = initial_state(mech)
+    ref = q0[mech.active]
+    last = {"enc": ref.copy()}
+    sign = np.array([1.0, -1.0] + [1.0] * (len(mech.active) - 2))
+    ramp = 0.02  # [s] amplitude ramp at both ends
+
+    def command(k: int, t: float, enc: np.ndarray) -> np.ndarray:
+        phase = 2 * np.pi * (f0 * t + 0.5 * (f1 - f0) / duration * t * t)
+        env = min(1.0, t / ramp, max(0.0, (duration - t) / ramp))
+        vel = (enc - last["enc"]) / PERIOD if k > 0 else np.zeros_like(enc)
+        last["enc"] = enc
+        return amplitude * env * np.sin(phase) * sign + kp * (ref - enc) - kd * vel
+
+    rec = simulate(mech, command, duration, dist, noise or Noise(), rng, truth_dt, q0=q0, label="chirp")
+    rec.info = {"amplitude": amplitude, "f0": f0, "f1": f1, "disturbance_rms": disturbance_rms, "seed": seed}
+    return rec
