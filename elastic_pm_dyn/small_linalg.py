@@ -73,6 +73,50 @@ def cholesky_solve_columns(L, B):
 
 
 @njit(cache=True)
+def cholesky_recip(L, n, dinv):
+    """In-place Cholesky of L[:n, :n] that also keeps dinv = 1 / diag(L): one division per
+    row, and :func:`cholesky_solve_rows` multiplies. False if not positive definite."""
+    for j in range(n):
+        d = L[j, j]
+        for k in range(j):
+            d -= L[j, k] * L[j, k]
+        if not d > 0.0:
+            return False
+        d = np.sqrt(d)
+        L[j, j] = d
+        r = 1.0 / d
+        dinv[j] = r
+        for i in range(j + 1, n):
+            s = L[i, j]
+            for k in range(j):
+                s -= L[i, k] * L[j, k]
+            L[i, j] = s * r
+    return True
+
+
+@njit(cache=True)
+def cholesky_solve_rows(L, dinv, n, B, off, nc):
+    """(L L^T) X = B[off:off+n, :nc] in place with the factors of :func:`cholesky_recip`,
+    all nc columns in one row-oriented sweep (works inside a larger array, no copies)."""
+    for i in range(n):
+        for k in range(i):
+            lik = L[i, k]
+            for t in range(nc):
+                B[off + i, t] -= lik * B[off + k, t]
+        r = dinv[i]
+        for t in range(nc):
+            B[off + i, t] *= r
+    for i in range(n - 1, -1, -1):
+        for k in range(i + 1, n):
+            lki = L[k, i]
+            for t in range(nc):
+                B[off + i, t] -= lki * B[off + k, t]
+        r = dinv[i]
+        for t in range(nc):
+            B[off + i, t] *= r
+
+
+@njit(cache=True)
 def lu_factor(A, piv):
     """In-place LU with partial pivoting. Returns min|pivot| / max|pivot| (0 = singular).
 

@@ -26,8 +26,10 @@ from numba import njit
 
 from elastic_pm_dyn.small_linalg import (
     cholesky,
+    cholesky_recip,
     cholesky_solve,
     cholesky_solve_columns,
+    cholesky_solve_rows,
     lu_factor,
     lu_solve,
     lu_solve_columns,
@@ -247,98 +249,132 @@ def scdd_platform(M, h, A, gamma, tau, chain_start, point_chain, closure_pairs, 
     """SCDD reduced onto a moving platform's coordinates (DESIGN.md §3).
 
     Every closure pair k joins the end of one leg chain i to a point of the platform
-    (hub) chain H: A_i qdd_i - B_i xdd = gamma_k. Each leg alone (in parallel, eq 34):
-    x_i = M_i^-1 (tau_i - h_i), Y_i = M_i^-1 A_i^T and its end-point inertia
-    Lambda_i = (A_i Y_i)^-1, so that its cut force is lambda_i = Lambda_i (gamma_k + B_i xdd
-    - A_i x_i). The platform then obeys
+    (hub) chain H: A_i qdd_i - B_i xdd = gamma_k with B_i = -A[rows k, H]. Each leg alone
+    (in parallel, eq 34): [x_i, Y_i] = M_i^-1 [tau_i - h_i, A_i^T] in one sweep, its
+    end-point inertia Lambda_i = (A_i Y_i)^-1, so that its cut force is
+    lambda_i = Lambda_i (gamma_k + B_i xdd - A_i x_i). The platform then obeys
     (M_H + sum B_i^T Lambda_i B_i) xdd = tau_H - h_H - sum B_i^T Lambda_i (gamma_k - A_i x_i),
     one n_H x n_H solve (6 for a hexapod) instead of the stacked 3 n_legs cut forces.
+    Scratch is allocated once and factors keep 1 / diag(L), so the solves multiply.
     Returns a conditioning indicator (0 if a leg or the platform system is singular).
     """
-    n = M.shape[0]
     c = n_comp
+    n = M.shape[0]
+    n_ch = chain_start.shape[0] - 1
     n_pairs = closure_pairs.shape[0]
     hs = chain_start[hub]
     he = chain_start[hub + 1]
     nh = he - hs
-    N = M[hs:he, hs:he].copy()
-    r = tau[hs:he] - h[hs:he]
+    nmax = 0
+    for ch in range(n_ch):
+        nmax = max(nmax, chain_start[ch + 1] - chain_start[ch])
+    L = np.empty((nmax, nmax))
+    N = np.empty((nh, nh))
+    R = np.empty((nh, 1))
+    XY = np.empty((n, 1 + c))
     Lam = np.empty((n_pairs, c, c))
-    B = np.empty((n_pairs, c, nh))
     g = np.empty((n_pairs, c))
-    Y = np.zeros((n, c))
-    cond = 1.0
-    in_pair = np.zeros(chain_start.shape[0] - 1, dtype=np.bool_)
+    Li = np.empty((c, c))
+    LB = np.empty((c, nh))
+    Lg = np.empty(c)
+    lk = np.empty(c)
+    dinv = np.empty(max(nmax, nh))
+    dinv_c = np.empty(c)
+    in_pair = np.zeros(n_ch, dtype=np.bool_)
     in_pair[hub] = True
+    for i in range(nh):
+        R[i, 0] = tau[hs + i] - h[hs + i]
+        for j in range(nh):
+            N[i, j] = M[hs + i, hs + j]
+    cond = 1.0
     for k in range(n_pairs):
         leg = point_chain[closure_pairs[k, 0]]
         in_pair[leg] = True
         s = chain_start[leg]
-        e = chain_start[leg + 1]
-        L = M[s:e, s:e].copy()
-        if not cholesky(L):
+        ne = chain_start[leg + 1] - s
+        r0 = k * c
+        for i in range(ne):
+            for j in range(ne):
+                L[i, j] = M[s + i, s + j]
+            XY[s + i, 0] = tau[s + i] - h[s + i]
+            for t in range(c):
+                XY[s + i, 1 + t] = A[r0 + t, s + i]
+        if not cholesky_recip(L, ne, dinv):
             return 0.0
-        Ai = A[k * c:(k + 1) * c, s:e]
-        XY = np.empty((e - s, 1 + c))  # [tau_i - h_i, A_i^T]: one sweep solves both
-        for i in range(e - s):
-            XY[i, 0] = tau[s + i] - h[s + i]
+        cholesky_solve_rows(L, dinv, ne, XY, s, 1 + c)
+        for i in range(c):  # Lambda_i^-1 = A_i Y_i, g_i = gamma_i - A_i x_i
+            acc = gamma[r0 + i]
+            for t in range(ne):
+                acc -= A[r0 + i, s + t] * XY[s + t, 0]
+            g[k, i] = acc
             for j in range(c):
-                XY[i, 1 + j] = Ai[j, i]
-        cholesky_solve_columns(L, XY)
-        xs = XY[:, 0].copy()
-        Ys = XY[:, 1:]
-        qdd[s:e] = xs
-        Y[s:e, :] = Ys
-        Li = matmul(Ai, Ys, np.empty((c, c)))  # Lambda_i^-1, symmetric positive definite
-        if not cholesky(Li):
+                acc = 0.0
+                for t in range(ne):
+                    acc += A[r0 + i, s + t] * XY[s + t, 1 + j]
+                Li[i, j] = acc
+        if not cholesky_recip(Li, c, dinv_c):
             return 0.0
         cond = min(cond, _chol_conditioning(Li))
-        eye = np.eye(c)
-        cholesky_solve_columns(Li, eye)
-        Lam[k] = eye
+        Lk = Lam[k]
         for i in range(c):
+            for j in range(c):
+                Lk[i, j] = 1.0 if i == j else 0.0
+        cholesky_solve_rows(Li, dinv_c, c, Lk, 0, c)
+        for i in range(c):  # LB = Lambda B with B = -A[rows, platform], Lg = Lambda g
             for j in range(nh):
-                B[k, i, j] = -A[k * c + i, hs + j]
-            acc = gamma[k * c + i]
-            for j in range(e - s):
-                acc -= Ai[i, j] * xs[j]
-            g[k, i] = acc
-        LB = matmul(Lam[k], B[k], np.empty((c, nh)))
-        Lg = matvec(Lam[k], g[k], np.empty(c))
-        for i in range(nh):
-            for j in range(nh):
-                acc = 0.0
-                for t in range(c):
-                    acc += B[k, t, i] * LB[t, j]
-                N[i, j] += acc
+                LB[i, j] = 0.0
             acc = 0.0
             for t in range(c):
-                acc += B[k, t, i] * Lg[t]
-            r[i] -= acc
-    if not cholesky(N):
+                lit = Lk[i, t]
+                for j in range(nh):
+                    LB[i, j] -= lit * A[r0 + t, hs + j]
+                acc += lit * g[k, t]
+            Lg[i] = acc
+        for t in range(c):  # N += B^T LB, r -= B^T Lg
+            for i in range(nh):
+                ati = A[r0 + t, hs + i]
+                for j in range(nh):
+                    N[i, j] -= ati * LB[t, j]
+                R[i, 0] += ati * Lg[t]
+    if not cholesky_recip(N, nh, dinv):
         return 0.0
     cond = min(cond, _chol_conditioning(N))
-    cholesky_solve(N, r)
-    qdd[hs:he] = r
+    cholesky_solve_rows(N, dinv, nh, R, 0, 1)
+    for i in range(nh):
+        qdd[hs + i] = R[i, 0]
     for k in range(n_pairs):
         leg = point_chain[closure_pairs[k, 0]]
         s = chain_start[leg]
         e = chain_start[leg + 1]
-        rhs = g[k] + matvec(B[k], r, np.empty(c))
-        lk = matvec(Lam[k], rhs, np.empty(c))
-        lam[k * c:(k + 1) * c] = lk
+        r0 = k * c
+        for t in range(c):  # lambda_i = Lambda_i (g_i + B_i xdd)
+            acc = g[k, t]
+            for j in range(nh):
+                acc -= A[r0 + t, hs + j] * R[j, 0]
+            Lg[t] = acc
+        for i in range(c):
+            acc = 0.0
+            for t in range(c):
+                acc += Lam[k, i, t] * Lg[t]
+            lk[i] = acc
+            lam[r0 + i] = acc
         for i in range(s, e):
+            acc = XY[i, 0]
             for j in range(c):
-                qdd[i] += Y[i, j] * lk[j]
-    for ch in range(chain_start.shape[0] - 1):  # chains outside the closure move freely
+                acc += XY[i, 1 + j] * lk[j]
+            qdd[i] = acc
+    for ch in range(n_ch):  # chains outside the closure move freely
         if in_pair[ch]:
             continue
         s = chain_start[ch]
-        e = chain_start[ch + 1]
-        L = M[s:e, s:e].copy()
-        if not cholesky(L):
+        ne = chain_start[ch + 1] - s
+        for i in range(ne):
+            for j in range(ne):
+                L[i, j] = M[s + i, s + j]
+            XY[s + i, 0] = tau[s + i] - h[s + i]
+        if not cholesky_recip(L, ne, dinv):
             return 0.0
-        xs = tau[s:e] - h[s:e]
-        cholesky_solve(L, xs)
-        qdd[s:e] = xs
+        cholesky_solve_rows(L, dinv, ne, XY, s, 1)
+        for i in range(s, chain_start[ch + 1]):
+            qdd[i] = XY[i, 0]
     return cond
