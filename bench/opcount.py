@@ -403,7 +403,7 @@ SECTION_WRAPS = {  # (module, function name) -> section label
     ("elastic_pm_dyn.dynamics.evaluate", "multipliers"): "solve",
     ("elastic_pm_dyn.dynamics.evaluate", "scdd_one_pass"): "solve",
     ("elastic_pm_dyn.dynamics.kernels", "cholesky_solve"): "factor_solve",
-    ("elastic_pm_dyn.dynamics.kernels", "cholesky_solve_columns"): "factor_solve",
+    ("elastic_pm_dyn.dynamics.kernels", "cholesky_solve_rows"): "factor_solve",
     ("elastic_pm_dyn.dynamics.kernels", "lu_solve"): "factor_solve",
     ("elastic_pm_dyn.dynamics.kernels", "lu_solve_columns"): "factor_solve",
     ("elastic_pm_dyn.dynamics.kernels", "lu_solve_transposed"): "factor_solve",
@@ -413,6 +413,8 @@ SECTION_WRAPS = {  # (module, function name) -> section label
     ("elastic_pm_dyn.dynamics.kernels", "matvec_t"): "products",
 }
 FACTOR_WRAPS = {("elastic_pm_dyn.dynamics.kernels", "cholesky"): "cholesky",
+                # cholesky_recip(L, n, dinv) factors L[:n, :n] of a larger scratch array
+                ("elastic_pm_dyn.dynamics.kernels", "cholesky_recip"): "cholesky",
                 ("elastic_pm_dyn.dynamics.kernels", "lu_factor"): "lu"}
 
 
@@ -431,7 +433,8 @@ def _wrap_factor(f, kind):
         with c.section("factor"):
             r = f(A, *args)
         after = c.raw.get("factor", {})
-        c.calls.append((kind, int(A.shape[0]), {k: after.get(k, 0) - before.get(k, 0) for k in after}))
+        size = int(args[0]) if f.__name__ == "cholesky_recip" else int(A.shape[0])
+        c.calls.append((kind, size, {k: after.get(k, 0) - before.get(k, 0) for k in after}))
         return r
     wrapped.__wrapped__ = f
     return wrapped

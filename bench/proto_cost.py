@@ -4,6 +4,11 @@ Not part of the package: the same mathematics as the core kernels, written to av
 what the cost analysis (bench/README_cost.md) found to dominate. Each must reproduce the
 core's accelerations to round-off (checked by the bench before timing).
 
+Two of them proved out and are now the core's own (imported here under their prototype
+names so the bench's columns stay comparable): ``closure_rows_noalloc`` is
+``kinematics.kernels.closure_rows`` and ``scdd_platform_fast`` is
+``dynamics.kernels.scdd_platform``.
+
 - :func:`closure_rows_noalloc`: the closure rows without a temporary array per row
   (``A[r, :] = J[a] - J[b]`` allocates in numba).
 - :func:`scdd_platform_ws`: platform-reduced SCDD with one workspace per call instead of
@@ -26,27 +31,13 @@ import numpy as np
 from numba import njit
 
 from elastic_pm_dyn.dynamics.kernels import _chol_conditioning, passive_map
+from elastic_pm_dyn.dynamics.kernels import scdd_platform as scdd_platform_fast
+from elastic_pm_dyn.kinematics.kernels import closure_rows as closure_rows_noalloc
 from elastic_pm_dyn.kinematics.kernels import tree_terms
 from elastic_pm_dyn.small_linalg import cholesky, cholesky_solve
+from elastic_pm_dyn.small_linalg import cholesky_recip as _chol_recip
 
 SCDD, LDA, SCDD_RECIP, SCDD_FAST = 0, 1, 2, 3
-
-
-@njit(cache=True)
-def closure_rows_noalloc(closure_pairs, closure_components, J, a_pt, p_pt, A, gamma, res):
-    """kinematics.kernels.closure_rows, element by element (no temporary rows)."""
-    nc = closure_components.shape[0]
-    n = A.shape[1]
-    for k in range(closure_pairs.shape[0]):
-        pa = closure_pairs[k, 0]
-        pb = closure_pairs[k, 1]
-        for i in range(nc):
-            comp = closure_components[i]
-            r = k * nc + i
-            for j in range(n):
-                A[r, j] = J[pa, comp, j] - J[pb, comp, j]
-            res[r] = p_pt[pa, comp] - p_pt[pb, comp]
-            gamma[r] = -(a_pt[pa, comp] - a_pt[pb, comp])
 
 
 @njit(cache=True)
@@ -80,27 +71,6 @@ def _chol_inplace(L, ne):
             for k in range(j):
                 s -= L[i, k] * L[j, k]
             L[i, j] = s / d
-    return True
-
-
-@njit(cache=True)
-def _chol_recip(L, ne, dinv):
-    """_chol_inplace that also stores dinv = 1 / diag(L): one division per row instead of one per entry."""
-    for j in range(ne):
-        d = L[j, j]
-        for k in range(j):
-            d -= L[j, k] * L[j, k]
-        if not d > 0.0:
-            return False
-        d = np.sqrt(d)
-        L[j, j] = d
-        r = 1.0 / d
-        dinv[j] = r
-        for i in range(j + 1, ne):
-            s = L[i, j]
-            for k in range(j):
-                s -= L[i, k] * L[j, k]
-            L[i, j] = s * r
     return True
 
 
@@ -268,153 +238,6 @@ def scdd_platform_ws(M, h, A, gamma, tau, chain_start, point_chain, closure_pair
         _solve(L, dinv, ne, X, s, 0, recip)
         for i in range(s, chain_start[ch + 1]):
             qdd[i] = X[i, 0]
-    return cond
-
-
-@njit(cache=True)
-def _chol_solve_rows(L, dinv, ne, B, off, nc):
-    """(L L^T) X = B[off:off+ne, :nc] in place, all nc columns in one sweep (axpy form:
-    the columns are independent, so their updates overlap instead of waiting on each other)."""
-    for i in range(ne):
-        for k in range(i):
-            lik = L[i, k]
-            for t in range(nc):
-                B[off + i, t] -= lik * B[off + k, t]
-        r = dinv[i]
-        for t in range(nc):
-            B[off + i, t] *= r
-    for i in range(ne - 1, -1, -1):
-        for k in range(i + 1, ne):
-            lki = L[k, i]
-            for t in range(nc):
-                B[off + i, t] -= lki * B[off + k, t]
-        r = dinv[i]
-        for t in range(nc):
-            B[off + i, t] *= r
-
-
-@njit(cache=True)
-def scdd_platform_fast(M, h, A, gamma, tau, chain_start, point_chain, closure_pairs, c, hub, qdd, lam):
-    """scdd_platform_ws(recip=True) with multi-column solves: per leg [x_i, Y_i] = M_i^-1 [tau_i - h_i, A_i^T]
-    in one sweep, Lambda_i = (A_i Y_i)^-1 likewise (column 0 of XY is x, columns 1..c are Y)."""
-    n = M.shape[0]
-    n_ch = chain_start.shape[0] - 1
-    n_pairs = closure_pairs.shape[0]
-    hs = chain_start[hub]
-    he = chain_start[hub + 1]
-    nh = he - hs
-    nmax = 0
-    for ch in range(n_ch):
-        nmax = max(nmax, chain_start[ch + 1] - chain_start[ch])
-    L = np.empty((nmax, nmax))
-    N = np.empty((nh, nh))
-    R = np.empty((nh, 1))
-    XY = np.empty((n, 1 + c))
-    Lam = np.empty((n_pairs, c, c))
-    g = np.empty((n_pairs, c))
-    Li = np.empty((c, c))
-    LB = np.empty((c, nh))
-    Lg = np.empty(c)
-    lk = np.empty(c)
-    dinv = np.empty(max(nmax, nh))
-    dinv_c = np.empty(c)
-    in_pair = np.zeros(n_ch, dtype=np.bool_)
-    in_pair[hub] = True
-    for i in range(nh):
-        R[i, 0] = tau[hs + i] - h[hs + i]
-        for j in range(nh):
-            N[i, j] = M[hs + i, hs + j]
-    cond = 1.0
-    for k in range(n_pairs):
-        leg = point_chain[closure_pairs[k, 0]]
-        in_pair[leg] = True
-        s = chain_start[leg]
-        ne = chain_start[leg + 1] - s
-        r0 = k * c
-        for i in range(ne):
-            for j in range(ne):
-                L[i, j] = M[s + i, s + j]
-            XY[s + i, 0] = tau[s + i] - h[s + i]
-            for t in range(c):
-                XY[s + i, 1 + t] = A[r0 + t, s + i]
-        if not _chol_recip(L, ne, dinv):
-            return 0.0
-        _chol_solve_rows(L, dinv, ne, XY, s, 1 + c)
-        for i in range(c):  # Lambda_i^-1 = A_i Y_i, g_i = gamma_i - A_i x_i
-            acc = gamma[r0 + i]
-            for t in range(ne):
-                acc -= A[r0 + i, s + t] * XY[s + t, 0]
-            g[k, i] = acc
-            for j in range(c):
-                acc = 0.0
-                for t in range(ne):
-                    acc += A[r0 + i, s + t] * XY[s + t, 1 + j]
-                Li[i, j] = acc
-        if not _chol_recip(Li, c, dinv_c):
-            return 0.0
-        cond = min(cond, _chol_conditioning(Li))
-        Lk = Lam[k]
-        for i in range(c):
-            for j in range(c):
-                Lk[i, j] = 1.0 if i == j else 0.0
-        _chol_solve_rows(Li, dinv_c, c, Lk, 0, c)
-        for i in range(c):  # LB = Lambda B with B = -A[rows, platform], Lg = Lambda g
-            for j in range(nh):
-                LB[i, j] = 0.0
-            acc = 0.0
-            for t in range(c):
-                lit = Lk[i, t]
-                for j in range(nh):
-                    LB[i, j] -= lit * A[r0 + t, hs + j]
-                acc += lit * g[k, t]
-            Lg[i] = acc
-        for t in range(c):  # N += B^T LB, r -= B^T Lg
-            for i in range(nh):
-                ati = A[r0 + t, hs + i]
-                for j in range(nh):
-                    N[i, j] -= ati * LB[t, j]
-                R[i, 0] += ati * Lg[t]
-    if not _chol_recip(N, nh, dinv):
-        return 0.0
-    cond = min(cond, _chol_conditioning(N))
-    _chol_solve_rows(N, dinv, nh, R, 0, 1)
-    for i in range(nh):
-        qdd[hs + i] = R[i, 0]
-    for k in range(n_pairs):
-        leg = point_chain[closure_pairs[k, 0]]
-        s = chain_start[leg]
-        e = chain_start[leg + 1]
-        r0 = k * c
-        for t in range(c):  # lambda_i = Lambda_i (g_i + B_i xdd)
-            acc = g[k, t]
-            for j in range(nh):
-                acc -= A[r0 + t, hs + j] * R[j, 0]
-            Lg[t] = acc
-        for i in range(c):
-            acc = 0.0
-            for t in range(c):
-                acc += Lam[k, i, t] * Lg[t]
-            lk[i] = acc
-            lam[r0 + i] = acc
-        for i in range(s, e):
-            acc = XY[i, 0]
-            for j in range(c):
-                acc += XY[i, 1 + j] * lk[j]
-            qdd[i] = acc
-    for ch in range(n_ch):  # chains outside the closure move freely
-        if in_pair[ch]:
-            continue
-        s = chain_start[ch]
-        ne = chain_start[ch + 1] - s
-        for i in range(ne):
-            for j in range(ne):
-                L[i, j] = M[s + i, s + j]
-            XY[s + i, 0] = tau[s + i] - h[s + i]
-        if not _chol_recip(L, ne, dinv):
-            return 0.0
-        _chol_solve_rows(L, dinv, ne, XY, s, 1)
-        for i in range(s, chain_start[ch + 1]):
-            qdd[i] = XY[i, 0]
     return cond
 
 

@@ -44,35 +44,6 @@ def cholesky_solve(L, b):
 
 
 @njit(cache=True)
-def cholesky_solve_columns(L, B):
-    """Solve (L L^T) X = B in place for all columns of B in one sweep.
-
-    Row-oriented (axpy) updates let the independent columns overlap instead of waiting on
-    each other, and each row pays one division. (Not written as recursion into
-    :func:`cholesky_solve`: numba's on-disk cache crashes on recursive functions
-    specialised for several argument types.)
-    """
-    n = L.shape[0]
-    nc = B.shape[1]
-    for i in range(n):
-        for k in range(i):
-            lik = L[i, k]
-            for t in range(nc):
-                B[i, t] -= lik * B[k, t]
-        r = 1.0 / L[i, i]
-        for t in range(nc):
-            B[i, t] *= r
-    for i in range(n - 1, -1, -1):
-        for k in range(i + 1, n):
-            lki = L[k, i]
-            for t in range(nc):
-                B[i, t] -= lki * B[k, t]
-        r = 1.0 / L[i, i]
-        for t in range(nc):
-            B[i, t] *= r
-
-
-@njit(cache=True)
 def cholesky_recip(L, n, dinv):
     """In-place Cholesky of L[:n, :n] that also keeps dinv = 1 / diag(L): one division per
     row, and :func:`cholesky_solve_rows` multiplies. False if not positive definite."""
@@ -96,8 +67,13 @@ def cholesky_recip(L, n, dinv):
 
 @njit(cache=True)
 def cholesky_solve_rows(L, dinv, n, B, off, nc):
-    """(L L^T) X = B[off:off+n, :nc] in place with the factors of :func:`cholesky_recip`,
-    all nc columns in one row-oriented sweep (works inside a larger array, no copies)."""
+    """(L L^T) X = B[off:off+n, :nc] in place with the factors of :func:`cholesky_recip`.
+
+    All nc columns in one row-oriented (axpy) sweep: independent columns overlap instead of
+    waiting on each other, and rows multiply by 1/L_ii. Works inside a larger array. (One
+    function for all column counts: numba's on-disk cache crashes on recursive functions
+    specialised for several argument types.)
+    """
     for i in range(n):
         for k in range(i):
             lik = L[i, k]

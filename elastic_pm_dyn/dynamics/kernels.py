@@ -28,7 +28,6 @@ from elastic_pm_dyn.small_linalg import (
     cholesky,
     cholesky_recip,
     cholesky_solve,
-    cholesky_solve_columns,
     cholesky_solve_rows,
     lu_factor,
     lu_solve,
@@ -54,7 +53,8 @@ def chain_responses(M, A, chain_start, tau_minus_h, x, Y):
         s = chain_start[c]
         e = chain_start[c + 1]
         L = M[s:e, s:e].copy()
-        if not cholesky(L):
+        dinv = np.empty(e - s)
+        if not cholesky_recip(L, e - s, dinv):
             S[:, :] = np.nan
             return S
         XY = np.empty((e - s, 1 + m))  # [tau_i - h_i, A_i^T]: one sweep solves both
@@ -62,7 +62,7 @@ def chain_responses(M, A, chain_start, tau_minus_h, x, Y):
             XY[i, 0] = tau_minus_h[s + i]
             for j in range(m):
                 XY[i, 1 + j] = A[j, s + i]
-        cholesky_solve_columns(L, XY)
+        cholesky_solve_rows(L, dinv, e - s, XY, 0, 1 + m)
         for i in range(e - s):
             x[s + i] = XY[i, 0]
             for j in range(m):
