@@ -2,7 +2,8 @@
 
 numba checks a cached function against its own file only: after an edit to a kernel in
 another file, a cached caller would keep the old machine code inlined. Keying the whole
-cache on every source file's content means any change compiles afresh (once).
+cache on the content of every file with compiled code means any change to one of them
+compiles afresh (once); edits elsewhere (nodes, analysis) keep the cache.
 A user's own NUMBA_CACHE_DIR is respected.
 """
 
@@ -18,8 +19,10 @@ def source_hash() -> str:
     root = Path(__file__).resolve().parent
     h = hashlib.sha256()
     for path in sorted(root.rglob("*.py")):
-        h.update(str(path.relative_to(root)).encode())
-        h.update(path.read_bytes())
+        text = path.read_bytes()
+        if b"njit" in text:  # only compiled code ends up in the cache
+            h.update(str(path.relative_to(root)).encode())
+            h.update(text)
     return h.hexdigest()[:16]
 
 
