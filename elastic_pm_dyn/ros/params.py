@@ -9,6 +9,7 @@ parameter and says what is expected (the node then refuses to start with that li
 
 from __future__ import annotations
 
+import difflib
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -51,6 +52,10 @@ def reject_unknown(node: Node, known: Iterable[str]) -> None:
     unknown = sorted(n for n in node._parameter_overrides
                      if n not in known and n not in _BUILTIN_PARAMETERS and not n.startswith("qos_overrides."))
     if unknown:
+        close = [difflib.get_close_matches(n, known, n=1) for n in unknown]
+        if all(close):  # typos: name the intended parameter rather than list them all
+            raise ParameterError("unknown parameter(s) " + ", ".join(
+                f"{n} (did you mean {c[0]}?)" for n, c in zip(unknown, close, strict=True)))
         raise ParameterError(f"unknown parameter(s) {', '.join(unknown)} "
                              f"(known: {', '.join(sorted(known))})")
 

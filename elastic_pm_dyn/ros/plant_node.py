@@ -11,8 +11,10 @@ Sync modes (parameter ``sync_mode``):
   deterministically: the same torques give the same states as offline ``simulate``.
 
 Callbacks only validate and store; the timers and the lockstep handler (a guard
-condition) advance the :class:`~elastic_pm_dyn.ros.plant.Plant`. A future observer mode
-replaces that session object and adds measurement subscriptions; the publishing stays.
+condition) advance the :class:`~elastic_pm_dyn.ros.plant.Plant`. With ``mode: observer``
+the node does not simulate: :class:`~elastic_pm_dyn.ros.observer_mode.ObserverMode`
+subscribes to commands and measurements and publishes the state observer's estimates on
+the same output topics (the sync parameters then do not apply).
 Torque held over a period: the last valid command, or zero when it is older than
 ``command_timeout`` (wall time in realtime, simulated time in fast; lockstep waits).
 """
@@ -57,6 +59,7 @@ from elastic_pm_dyn.ros.plant import Plant
 from elastic_pm_dyn.ros.qos import CLOCK_QOS, COMMAND_QOS, DIAGNOSTICS_QOS, STATE_QOS, VIEWER_QOS
 from elastic_pm_dyn.sim.simulator import INTEGRATORS, STABILISATIONS, SimulationOptions
 
+MODES = ("plant", "observer")
 SYNC_MODES = ("realtime", "fast", "lockstep")
 COMMAND_TYPES = ("joint_state", "float64_multi_array")
 MAX_CATCH_UP = 5  # realtime: periods advanced in one late tick before the schedule slips
@@ -64,6 +67,8 @@ FAST_SLICE = 0.005  # [s] fast mode: wall time per executor turn (amortises its 
 WARN_EVERY = 1.0  # [s] throttle of repeated warnings
 
 PARAMS = [
+    Param("mode", "plant", "plant: simulate the machine; observer: estimate its state from commands and measurements",
+          choices=MODES),
     Param("model", "", "model YAML file; empty = the five-bar shipped with the package"),
     Param("formulation", "scdd", "direct dynamics formulation", choices=FORMULATIONS),
     Param("integrator", "rk4", "rk4 (fixed step dt) or dop853 (adaptive, offline accuracy)", choices=INTEGRATORS),
@@ -81,30 +86,59 @@ PARAMS = [
     Param("topics.branch_forces", "branch_forces", "elastic_pm_dyn_msgs/BranchForces"),
     Param("topics.ee_pose", "ee_pose", "geometry_msgs/PoseStamped of the end-effector point"),
     Param("topics.markers", "markers", "visualization_msgs/MarkerArray of the links"),
+    Param("topics.joint_states_stddev", "~/joint_states_stddev", "observer mode: JointState of the standard "
+          "deviations (position, velocity) of every tree joint"),
     Param("frames.base", "world", "frame of ee_pose and markers (the model's base)"),
     Param("marker_rate", 30.0, "[Hz] wall-clock rate of the RViz markers", positive=True),
     Param("diagnostics_rate", 1.0, "[Hz] wall-clock rate of /diagnostics", positive=True),
 ]
+# Parameters that only one mode uses (a warning lists the ones given to the other mode); and observer.*
+ONLY = {"plant": ("formulation", "integrator", "dt", "stabilization", "publish_rate", "sync_mode", "command_timeout",
+                  "topics.command"),
+        "observer": ("topics.joint_states_stddev",)}
+OBSERVER_PREFIX = "observer."
 
 
 class PlantNode(ManagedNode):
-    """Simulated elastic manipulator: torque commands in, states out (see module doc)."""
+    """Simulated elastic manipulator: torque commands in, states out; or, with ``mode: observer``,
+    commands and measurements in, estimated states out (see module doc)."""
 
     def __init__(self, **node_kwargs: Any):
         super().__init__("plant", **node_kwargs)
-        reject_unknown(self, [s.name for s in PARAMS] + [COMMAND_JOINTS])
+        known = [s.name for s in PARAMS] + [COMMAND_JOINTS]
+        if any(n.startswith(OBSERVER_PREFIX) for n in self._parameter_overrides):
+            from elastic_pm_dyn.observer.config import DEFAULT_PARAMETERS  # imports the observer (scipy.stats)
+            known += [OBSERVER_PREFIX + n for n in DEFAULT_PARAMETERS]
+        reject_unknown(self, known)
         p = read_parameters(self, PARAMS)
-        self.sync_mode: str = p["sync_mode"]
-        period = 1.0 / p["publish_rate"]
+        self.mode: str = p["mode"]
         mech = Mechanism(load_model(model_path(p["model"])))
         p |= read_parameters(self, [command_joints_param(mech.active_names)])
-        options = SimulationOptions(formulation=p["formulation"], integrator=p["integrator"], dt=p["dt"],
-                                    stabilization=p["stabilization"], sample=period)
-        self.plant = Plant(mech, options, period)
         try:
             self.decoder = CommandDecoder(mech.active_names, p[COMMAND_JOINTS])
         except InputError as err:
             raise ParameterError(f"parameter '{COMMAND_JOINTS}': {err}") from None
+        self._warn_unused()
+        if self.mode == "observer":
+            from elastic_pm_dyn.ros.observer_mode import ObserverMode
+            self.observer = ObserverMode(self, mech, p)
+        else:
+            self._start_plant(mech, p)
+
+    def _warn_unused(self) -> None:
+        other = "observer" if self.mode == "plant" else "plant"
+        unused = sorted(n for n in self._parameter_overrides if n in ONLY[other])
+        if other == "observer" and any(n.startswith(OBSERVER_PREFIX) for n in self._parameter_overrides):
+            unused.append(OBSERVER_PREFIX + "*")
+        if unused:
+            self.get_logger().warning(f"mode {self.mode} does not use: {', '.join(unused)}")
+
+    def _start_plant(self, mech: Mechanism, p: dict[str, Any]) -> None:
+        self.sync_mode: str = p["sync_mode"]
+        period = 1.0 / p["publish_rate"]
+        options = SimulationOptions(formulation=p["formulation"], integrator=p["integrator"], dt=p["dt"],
+                                    stabilization=p["stabilization"], sample=period)
+        self.plant = Plant(mech, options, period)
         self.period_ns = round(period * NS)
         self.timeout = p["command_timeout"]
         self.formulation = p["formulation"]

@@ -12,6 +12,15 @@
 - ``/clock``: reliable, keep last 10, volatile; rclpy's time source subscribes best effort
   depth 1, which a reliable publisher serves.
 - Markers and diagnostics: reliable, keep last 1-10, volatile (viewers only need the latest).
+- Observer inputs (plant node in ``mode: observer``: ``torque_command``,
+  ``measured_joint_states``, ``ee_imu``, ``measured_branch_forces``): reliable, keep last
+  100, volatile. Reliable and deep (0.1 s at 1 kHz of reader history) because every lost
+  sample changes the estimates, and then the live node no longer equals the offline pass
+  over a recording of the same messages; volatile because an observer that starts late
+  must start from fresh samples, not from a publisher's history. A driver that publishes
+  best effort (sensor-data QoS, common for IMUs) does not match a reliable reader: these
+  subscriptions accept ``qos_overrides.<topic>.subscription.reliability|history|depth``
+  parameters (a lost sample then just lengthens one prediction).
 """
 
 from __future__ import annotations
@@ -28,3 +37,5 @@ VIEWER_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=Re
                         durability=DurabilityPolicy.VOLATILE)
 DIAGNOSTICS_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE,
                              durability=DurabilityPolicy.VOLATILE)
+OBSERVER_INPUT_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.RELIABLE,
+                                durability=DurabilityPolicy.VOLATILE)

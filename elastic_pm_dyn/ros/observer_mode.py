@@ -1,0 +1,188 @@
+"""The plant node in ``mode: observer``: it does not simulate, it estimates.
+
+Inputs (topics ``observer.topics.*``, QoS :data:`~elastic_pm_dyn.ros.qos.OBSERVER_INPUT_QOS`,
+overridable per topic with ``qos_overrides.<topic>.subscription.*``):
+``torque_command`` (sensor_msgs/JointState effort, or std_msgs/Float64MultiArray in
+``command_joints`` order, stamped on arrival with the node's clock as it has no header),
+``measured_joint_states`` (sensor_msgs/JointState), ``ee_imu`` (sensor_msgs/Imu, if
+``imu`` is among ``observer.sensors``), ``measured_branch_forces``
+(elastic_pm_dyn_msgs/BranchForces, if ``branch_forces`` is and its source is that topic).
+Time is the messages' header stamps, never their arrival.
+
+Outputs on the plant's own topics, so RViz and the analysis work unchanged:
+``joint_states`` (every tree joint; effort = command + estimated disturbance on the motors,
+spring force on the elastic joints), ``branch_forces`` (with ``force_stddev``), ``ee_pose``,
+``markers``; plus ``topics.joint_states_stddev`` (default ``~/joint_states_stddev``:
+JointState whose position/velocity hold the standard deviations) and ``/diagnostics``
+(health, NIS statistics, gated samples, update times). ``~/reset`` restarts the filter from
+the latest measured joint state, ``~/set_state`` from a given one.
+
+The callbacks convert messages and call :class:`~elastic_pm_dyn.ros.observer_session.ObserverSession`
+(no physics here). They never overlap: the node runs in a single-threaded executor.
+"""
+
+from __future__ import annotations
+
+import copy
+import time
+from typing import Any
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from elastic_pm_dyn_msgs.msg import BranchForces
+from elastic_pm_dyn_msgs.srv import SetJointState
+from geometry_msgs.msg import PoseStamped
+from rclpy.clock import Clock, ClockType
+from rclpy.node import Node
+from rclpy.qos_overriding_options import QoSOverridingOptions
+from sensor_msgs.msg import Imu, JointState
+from std_msgs.msg import Float64MultiArray, Header
+from std_srvs.srv import Trigger
+from visualization_msgs.msg import MarkerArray
+
+from elastic_pm_dyn.errors import InputError
+from elastic_pm_dyn.kinematics.mechanism import Mechanism
+from elastic_pm_dyn.observer.config import DEFAULT_PARAMETERS, PREFIX
+from elastic_pm_dyn.ros.markers import MechanismMarkers
+from elastic_pm_dyn.ros.messages import EstimateMessages, stamp, stamp_ns
+from elastic_pm_dyn.ros.observer_session import ObserverSession, Outcome, observer_config, parameter_message
+from elastic_pm_dyn.ros.params import COMMAND_JOINTS, Param, ParameterError, read_parameters
+from elastic_pm_dyn.ros.qos import DIAGNOSTICS_QOS, OBSERVER_INPUT_QOS, STATE_QOS, VIEWER_QOS
+
+WARN_EVERY = 1.0  # [s] throttle of repeated warnings
+LEVELS = {0: DiagnosticStatus.OK, 1: DiagnosticStatus.WARN, 2: DiagnosticStatus.ERROR}
+
+# Every observer parameter, typed by its default (floats are floats), as config/observer.yaml.
+OBSERVER_PARAMS = [Param(PREFIX + name, default, "state observer (mode: observer); see config/observer.yaml")
+                   for name, default in DEFAULT_PARAMETERS.items()]
+
+
+class ObserverMode:
+    """Subscriptions, publishers, services and timers of ``mode: observer`` on ``node``."""
+
+    def __init__(self, node: Node, mech: Mechanism, p: dict[str, Any]):
+        self.node = node
+        flat = read_parameters(node, OBSERVER_PARAMS)
+        try:
+            cfg = observer_config(flat)
+        except InputError as err:
+            raise ParameterError(str(err)) from None
+        try:
+            self.session = ObserverSession(mech, cfg, p[COMMAND_JOINTS])
+        except InputError as err:  # e.g. an unknown joint or branch name
+            raise ParameterError(parameter_message(err)) from None
+        self.cfg = cfg
+        self.model_name = mech.model.name
+        self.messages = EstimateMessages(mech, p["frames.base"])
+        self.markers = MechanismMarkers(mech, p["frames.base"])
+        self.last_stamp = 0  # [ns] of the latest published estimate
+
+        self.pub_joint_states = node.create_publisher(JointState, p["topics.joint_states"], STATE_QOS)
+        self.pub_branch_forces = node.create_publisher(BranchForces, p["topics.branch_forces"], STATE_QOS)
+        self.pub_ee_pose = node.create_publisher(PoseStamped, p["topics.ee_pose"], STATE_QOS)
+        self.pub_stddev = node.create_publisher(JointState, p["topics.joint_states_stddev"], STATE_QOS)
+        self.pub_markers = node.create_publisher(MarkerArray, p["topics.markers"], VIEWER_QOS)
+        self.pub_diagnostics = node.create_publisher(DiagnosticArray, "/diagnostics", DIAGNOSTICS_QOS)
+
+        topics = cfg.topics
+        inputs = [(JointState if p["command_type"] == "joint_state" else Float64MultiArray,
+                   topics.torque_command, self._on_command),
+                  (JointState, topics.measured_joint_states, self._on_joint_state)]
+        if "imu" in cfg.sensors:
+            inputs.append((Imu, topics.ee_imu, self._on_imu))
+        if "branch_forces" in cfg.sensors and cfg.branch_forces.source == "branch_forces":
+            inputs.append((BranchForces, topics.measured_branch_forces, self._on_branch_forces))
+        for msg_type, topic, callback in inputs:  # a copy each: rclpy writes the overrides into the profile
+            node.create_subscription(msg_type, topic, callback, copy.copy(OBSERVER_INPUT_QOS),
+                                     qos_overriding_options=QoSOverridingOptions.with_default_policies())
+        node.create_service(Trigger, "~/reset", self._on_reset)
+        node.create_service(SetJointState, "~/set_state", self._on_set_state)
+        steady = Clock(clock_type=ClockType.STEADY_TIME)
+        node.create_timer(1.0 / p["marker_rate"], self._publish_markers, clock=steady)
+        node.create_timer(1.0 / p["diagnostics_rate"], self._publish_diagnostics, clock=steady)
+
+        log = node.get_logger()
+        log.info(self.session.observability.text())
+        primary = {"joint_state": topics.measured_joint_states, "imu": topics.ee_imu,
+                   "branch_forces": topics.measured_branch_forces}[self.session.primary]
+        log.info(f"{self.model_name}: state observer ({', '.join(cfg.sensors)}) on "
+                 + ", ".join(f"'{topic}'" for _, topic, _ in inputs) + f"; one estimate per '{primary}' message")
+
+    # ------------------------------------------------------------------ inputs
+    def _on_command(self, msg: JointState | Float64MultiArray) -> None:
+        t0 = time.perf_counter()
+        if isinstance(msg, JointState):
+            ns = stamp_ns(msg.header.stamp)
+            out = self.session.torque_command(ns, msg.name, msg.effort)
+        else:  # no header: the arrival time on the node's clock
+            ns = self.node.get_clock().now().nanoseconds
+            out = self.session.torque_command(ns, (), msg.data)
+        self._after(out, ns, t0)
+
+    def _on_joint_state(self, msg: JointState) -> None:
+        t0 = time.perf_counter()
+        ns = stamp_ns(msg.header.stamp)
+        self._after(self.session.joint_state(ns, msg.name, msg.position, msg.velocity, msg.effort), ns, t0)
+
+    def _on_imu(self, msg: Imu) -> None:
+        t0 = time.perf_counter()
+        ns = stamp_ns(msg.header.stamp)
+        a = msg.linear_acceleration
+        self._after(self.session.imu(ns, (a.x, a.y, a.z), msg.header.frame_id), ns, t0)
+
+    def _on_branch_forces(self, msg: BranchForces) -> None:
+        t0 = time.perf_counter()
+        ns = stamp_ns(msg.header.stamp)
+        self._after(self.session.branch_forces(ns, msg.name, msg.force), ns, t0)
+
+    def _after(self, out: Outcome, ns: int, t0: float) -> None:
+        log = self.node.get_logger()
+        if out.stopped:
+            log.error(out.stopped)
+        if out.problems:
+            log.warning("; ".join(out.problems), throttle_duration_sec=WARN_EVERY)
+        if out.publish:
+            self._publish(ns)
+        self.session.cycle_times.append(time.perf_counter() - t0)
+
+    # ----------------------------------------------------------------- outputs
+    def _publish(self, ns: int) -> None:
+        m = self.messages
+        m.fill(ns, self.session.estimate())
+        self.pub_joint_states.publish(m.joint_state)
+        self.pub_branch_forces.publish(m.branch_forces)
+        self.pub_ee_pose.publish(m.ee_pose)
+        self.pub_stddev.publish(m.stddev)
+        self.session.published += 1
+        self.last_stamp = ns
+
+    def _publish_markers(self) -> None:
+        if self.pub_markers.get_subscription_count() and self.session.published:
+            self.pub_markers.publish(self.markers.build(self.session.obs.q, self.last_stamp))
+
+    def _publish_diagnostics(self) -> None:
+        level, message, values = self.session.report()
+        status = DiagnosticStatus(name=f"{self.node.get_name()}: observer", hardware_id=self.model_name,
+                                  level=LEVELS[level], message=message,
+                                  values=[KeyValue(key=k, value=v) for k, v in values.items()])
+        header = Header(stamp=stamp(self.node.get_clock().now().nanoseconds))
+        self.pub_diagnostics.publish(DiagnosticArray(header=header, status=[status]))
+
+    # ---------------------------------------------------------------- services
+    def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        response.message = self.session.reset()
+        response.success = True
+        self.node.get_logger().info(response.message)
+        return response
+
+    def _on_set_state(self, request: SetJointState.Request,
+                      response: SetJointState.Response) -> SetJointState.Response:
+        s = request.state
+        try:
+            response.message = self.session.set_state(s.name, s.position, s.velocity)
+            response.success = True
+            self.node.get_logger().info(response.message)
+        except InputError as err:
+            response.success = False
+            response.message = f"set_state rejected: {err}"
+            self.node.get_logger().warning(response.message)
+        return response

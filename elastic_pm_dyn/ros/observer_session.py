@@ -1,0 +1,327 @@
+"""The plant node's ``mode: observer`` without rclpy: the state observer behind the callbacks.
+
+The node converts each message to plain arguments (header stamp as integer ns, names,
+float arrays) and calls one method here, which calls the same
+:class:`~elastic_pm_dyn.observer.stream.ObserverStream` as ``elastic-pm-dyn observe``: the
+live node and the offline pass give the same estimates for the same message sequence.
+The observer does all the work; this keeps what the node reports and needs:
+
+- an :class:`Outcome` per message: publish an estimate now? which samples or commands
+  were not used, and why (one line each, for a throttled warning);
+- per-input counts, rejections since the last diagnostics report, faults, update times;
+- the latest measured joint states and torque command, for ``~/reset``.
+
+An estimate is published after each message of the *primary* input, at its stamp:
+``measured_joint_states`` when encoders are among the sensors (else ``ee_imu``, else
+``measured_branch_forces``). It holds every sample that arrived before, so a driver that
+wants the accelerometer of t_k in the estimate of t_k sends it before the joint state
+(as the offline pass, which records one row per stamp after all of its messages).
+
+Faults (:class:`~elastic_pm_dyn.observer.ekf.ObserverFault`: singular model, state or
+covariance not finite) stop the filter: messages are refused (counted), nothing is
+published, diagnostics say ERROR until :meth:`ObserverSession.reset`.
+"""
+
+from __future__ import annotations
+
+import re
+import time
+from collections import Counter, deque
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from elastic_pm_dyn.errors import ElasticPmDynError, InputError
+from elastic_pm_dyn.kinematics.mechanism import Mechanism
+from elastic_pm_dyn.observer import Observer, ObserverConfig, ObserverFault
+from elastic_pm_dyn.observer.ekf import OK, WARN, Estimate, UpdateResult
+from elastic_pm_dyn.observer.stream import ObserverStream, seconds
+
+KINDS = ("torque_command", "joint_state", "imu", "branch_forces")
+SOURCE = "plant node"  # the config's error prefix, replaced by "parameter '...'"
+MAX_DIFFERENCE_INTERVAL = 0.1  # [s] reset: difference motor rates over at most this
+DIFFERENCE_MARGIN = 3.0  # reset: std of differenced rates = this x the encoder-noise part
+MAX_GAP = 1.0  # [s] a message stamped further ahead of the filter stops it (no prediction over such a gap)
+
+
+def observer_config(flat: Mapping[str, Any]) -> ObserverConfig:
+    """The configuration from the node's ``observer.*`` parameters; InputError in the nodes' style."""
+    try:
+        return ObserverConfig.from_parameters(flat, SOURCE)
+    except InputError as err:
+        raise InputError(parameter_message(err)) from None
+
+
+def parameter_message(err: Exception) -> str:
+    """``plant node: observer.x.y: reason`` (or ``observer.x.y: reason``) -> ``parameter 'observer.x.y': reason``."""
+    text = str(err).removeprefix(f"{SOURCE}: ")
+    m = re.fullmatch(r"(observer\.[\w.]+): (.*)", text, re.S)
+    return f"parameter '{m[1]}': {m[2]}" if m else f"observer parameters: {text}"
+
+
+def warm_up(mech: Mechanism, cfg: ObserverConfig) -> None:
+    """Compile (or load from numba's cache) the kernels of a live update on a throwaway
+    observer: otherwise the first samples take 0.2-0.5 s. The real observer stays untouched."""
+    obs = Observer(mech, cfg, 0.0)
+    names = list(mech.joint_names)
+    zeros = np.zeros(mech.n)
+    try:
+        obs.command(0.0, np.zeros(len(mech.active)))
+        for t in (0.0, 1e-3):
+            obs.update_imu(t, np.zeros(3))
+            obs.update_branch_forces(t, obs.branch_names, np.zeros(len(obs.branch_names)))
+            obs.update_joint_states(t, names, obs.q, zeros, zeros)
+        obs.estimate()
+    except ElasticPmDynError:
+        pass  # whatever failed here fails again, with its reason, on the first real sample
+
+
+@dataclass
+class Outcome:
+    """What became of one message: publish an estimate now? what to warn about?"""
+
+    publish: bool = False
+    problems: list[str] = field(default_factory=list)  # samples or commands not used, one line each
+    stopped: str = ""  # the filter stopped on this message: why
+
+
+@dataclass
+class _JointState:
+    ns: int
+    names: list[str]
+    position: np.ndarray
+    velocity: np.ndarray | None
+
+
+class ObserverSession:
+    """An :class:`Observer` and its :class:`ObserverStream`, with the node's bookkeeping."""
+
+    def __init__(self, mech: Mechanism, cfg: ObserverConfig, command_joints: Sequence[str] | None = None):
+        warm_up(mech, cfg)
+        self.mech, self.cfg = mech, cfg
+        self.obs = Observer(mech, cfg, 0.0)
+        self.stream = ObserverStream(self.obs, command_joints)
+        self.observability = self.obs.observability()
+        sensors = cfg.sensors
+        self.primary = "joint_state" if "encoders" in sensors else "imu" if "imu" in sensors else "branch_forces"
+        # initial.source model: the filter starts from the model at the first message's stamp
+        self._started = cfg.initial.source != "model"
+        self.received = dict.fromkeys(KINDS, 0)
+        self.published = 0
+        self.faults = 0  # times the filter stopped
+        self.refused = 0  # messages refused while stopped
+        self.update_times: list[float] = []  # [s] observer time per message, since the last report
+        self.cycle_times: list[float] = []  # [s] whole callback (the node adds them), since the last report
+        self._window: Counter[str] = Counter()  # unused samples/messages since the last report
+        self._joint_states: deque[_JointState] = deque(maxlen=2)  # latest with every motor position
+        self._command: tuple[int, list[str], np.ndarray] | None = None  # latest valid torque command
+
+    # ------------------------------------------------------------------ inputs
+    def torque_command(self, ns: int, names: Sequence[str], effort: Sequence[float]) -> Outcome:
+        """``names`` empty: ``effort`` in the command-joint order (Float64MultiArray)."""
+        bad = self.stream.bad_commands
+        done, out = self._run("torque_command", ns, lambda: self.stream.on_torque_command(ns, names, effort))
+        if self.stream.bad_commands != bad:
+            self._window["torque commands rejected"] += 1
+            out.problems.append(f"torque command rejected: {self.stream.last_error}")
+        elif done or self.obs.fault is not None:
+            self._command = (int(ns), list(names), np.array(effort, dtype=float))
+        elif done is False:
+            self._window["torque commands late"] += 1
+            out.problems.append(f"torque command stamped {seconds(ns):.6f} s, before the previous one: ignored")
+        return out
+
+    def joint_state(self, ns: int, names: Sequence[str], position: Sequence[float], velocity: Sequence[float] = (),
+                    effort: Sequence[float] = ()) -> Outcome:
+        self._remember(ns, names, position, velocity)
+        results, out = self._run("joint_state", ns,
+                                 lambda: self.stream.on_joint_state(ns, names, position, velocity, effort))
+        return self._finish("joint_state", ns, results, out)
+
+    def imu(self, ns: int, linear_acceleration: Sequence[float], frame_id: str = "") -> Outcome:
+        results, out = self._run("imu", ns, lambda: self.stream.on_imu(ns, linear_acceleration, frame_id))
+        return self._finish("imu", ns, results, out)
+
+    def branch_forces(self, ns: int, names: Sequence[str], force: Sequence[float]) -> Outcome:
+        results, out = self._run("branch_forces", ns, lambda: self.stream.on_branch_forces(ns, names, force))
+        return self._finish("branch_forces", ns, results, out)
+
+    def _run(self, kind: str, ns: int, call: Callable[[], Any]) -> tuple[Any, Outcome]:
+        self.received[kind] += 1
+        out = Outcome()
+        obs = self.obs
+        if not self._started:
+            obs.reset(seconds(ns))
+            self._started = True
+        if obs.initialised and obs.fault is None and seconds(ns) - obs.t > MAX_GAP:
+            obs.fault = (f"a {kind} message stamped {seconds(ns) - obs.t:.3g} s after the filter's time "
+                         f"{obs.t:.6f} s (more than {MAX_GAP:g} s without samples, or a clock change)")
+            self.faults += 1
+            out.stopped = f"observer stopped: {obs.fault}; call ~/reset"
+            return None, out
+        stopped = obs.fault is not None
+        t0 = time.perf_counter()
+        try:
+            return call(), out
+        except ObserverFault as err:
+            if stopped:
+                self.refused += 1
+                out.problems.append(f"{kind} message refused: the observer stopped ({err}); call ~/reset")
+            else:
+                self.faults += 1
+                out.stopped = f"observer stopped: {err}; call ~/reset"
+        except InputError as err:
+            self._window[f"{kind} messages rejected"] += 1
+            out.problems.append(f"{kind} message rejected: {err}")
+        except Exception as err:  # never die on a message: stop the filter and say why
+            obs.fault = f"internal error on a {kind} message: {type(err).__name__}: {err}"
+            self.faults += 1
+            out.stopped = f"observer stopped: {obs.fault}; call ~/reset"
+        finally:
+            self.update_times.append(time.perf_counter() - t0)
+        return None, out
+
+    def _finish(self, kind: str, ns: int, results: list[UpdateResult] | None, out: Outcome) -> Outcome:
+        for r in results or ():
+            if r.dropped:
+                self._window[f"{r.sensor} NaN entries"] += len(r.dropped)
+            if r.accepted:
+                if r.dropped:
+                    out.problems.append(f"{r.sensor} at t = {r.t:.6f} s: NaN entries dropped "
+                                        f"({', '.join(r.dropped)})")
+                continue
+            if r.reason == "uninitialised":  # expected until the first joint state; health says so
+                continue
+            if r.reason != "nan":
+                self._window[f"{r.sensor} samples {_REASONS.get(r.reason, r.reason)}"] += 1
+            why = self.obs.stats[r.sensor].last_reason if r.reason != "empty" else "no configured branch in it"
+            out.problems.append(f"{r.sensor} sample at t = {r.t:.6f} s not used ({r.reason}): {why}")
+        obs = self.obs
+        out.publish = (kind == self.primary and obs.initialised and obs.fault is None
+                       and abs(obs.t - seconds(ns)) <= self.cfg.timing.stamp_tolerance)
+        return out
+
+    def _remember(self, ns: int, names: Sequence[str], position: Sequence[float], velocity: Sequence[float]) -> None:
+        """Keep the latest two joint states that give every motor position (for :meth:`reset`)."""
+        if len(position) != len(names) or (self._joint_states and ns <= self._joint_states[-1].ns):
+            return
+        lookup = dict(zip(names, position, strict=True))
+        if all(n in lookup and np.isfinite(lookup[n]) for n in self.mech.active_names):
+            vel = np.array(velocity, dtype=float) if len(velocity) == len(names) else None
+            self._joint_states.append(_JointState(int(ns), list(names), np.array(position, dtype=float), vel))
+
+    # ------------------------------------------------------------------ outputs
+    def estimate(self) -> Estimate:
+        return self.obs.estimate()
+
+    def report(self) -> tuple[int, str, dict[str, str]]:
+        """(level, message, key/values) for /diagnostics; starts a new reporting window."""
+        obs, stream = self.obs, self.stream
+        level, message = obs.health()
+        parts = [message] if level != OK or not self._window else []
+        if self._window:
+            level = max(level, WARN)
+            parts.append("not used since the last report: "
+                         + ", ".join(f"{what} {n}" for what, n in sorted(self._window.items())))
+        values = {"mode": "observer", "sensors": ", ".join(self.cfg.sensors),
+                  "initialised": str(obs.initialised).lower()}
+        values |= obs.diagnostics()
+        values |= {f"messages.{k}": str(n) for k, n in self.received.items()}
+        values |= {
+            "estimates_published": str(self.published), "commands_rejected": str(stream.bad_commands),
+            "last_command_error": stream.last_error, "faults": str(self.faults),
+            "refused_while_stopped": str(self.refused),
+            "update_time_mean_us": f"{_mean(self.update_times) * 1e6:.1f}",
+            "update_time_max_us": f"{_max(self.update_times) * 1e6:.1f}",
+            "cycle_time_mean_us": f"{_mean(self.cycle_times) * 1e6:.1f}",
+            "cycle_time_max_us": f"{_max(self.cycle_times) * 1e6:.1f}",
+        }
+        self._window.clear()
+        self.update_times.clear()
+        self.cycle_times.clear()
+        return level, "; ".join(parts), values
+
+    # ------------------------------------------------------------------ services
+    def reset(self) -> str:
+        """Restart the filter from the latest measured joint state (motor rates from its
+        velocities or by differencing the one before), keeping the latest torque command;
+        without one, from the model (``initial.source: model``) or the next joint state."""
+        obs = self.obs
+        if self._joint_states:
+            js = self._joint_states[-1]
+            rates, std, how = self._rates()
+            try:
+                ok = obs.initialise_from_joint_state(seconds(js.ns), js.names, js.position, rates, std)
+            except InputError:
+                ok = False
+            if ok:
+                self._started = True
+                text = f"re-initialised from the measured joint state at t = {seconds(js.ns):.6f} s ({how})"
+                if self._command is not None:  # the controller's latest command holds on
+                    try:
+                        self.stream.on_torque_command(*self._command)
+                    except ObserverFault as err:
+                        return f"{text}; the latest torque command stopped it again: {err}"
+                return text
+        if self.cfg.initial.source == "model" and self._started:
+            obs.reset(obs.t)
+            return f"reset to the model's initial state at rest at t = {obs.t:.6f} s"
+        obs.reset(obs.t, initialised=False)  # before any message the filter has no time yet
+        return ("reset: starting from the model at the next message" if self.cfg.initial.source == "model"
+                else "reset: waiting for a measured joint state with every motor position")
+
+    def _rates(self) -> tuple[np.ndarray, float, str]:
+        """Motor rates for a reset and their std: measured, else differenced, else at rest."""
+        cfg = self.cfg
+        js = self._joint_states[-1]
+        active = set(self.mech.active_names)
+        rates = np.full(len(js.names), np.nan)
+        std = cfg.initial.active_velocity_stddev
+        how = "motors at rest"
+        if js.velocity is not None:
+            rates = js.velocity.copy()
+            if any(np.isfinite(v) for n, v in zip(js.names, rates, strict=True) if n in active):
+                std = max(std, max(cfg.encoders.velocity_stddev))
+                how = "measured motor rates"
+        if len(self._joint_states) == 2:
+            prev = self._joint_states[0]
+            dt = seconds(js.ns - prev.ns)
+            before = dict(zip(prev.names, prev.position, strict=True))
+            missing = [i for i, n in enumerate(js.names) if n in active and not np.isfinite(rates[i])]
+            if missing and 0 < dt <= MAX_DIFFERENCE_INTERVAL:
+                for i in missing:
+                    rates[i] = (js.position[i] - before.get(js.names[i], np.nan)) / dt
+                std = max(std, DIFFERENCE_MARGIN * np.sqrt(2.0) * max(cfg.encoders.position_stddev) / dt)
+                how = f"motor rates differenced over {dt * 1e3:.3g} ms, std {std:.3g}"
+        return rates, std, how
+
+    def set_state(self, names: Sequence[str], position: Sequence[float], velocity: Sequence[float] = ()) -> str:
+        """Restart the filter at its current time from the given joint positions (every motor)
+        and rates (optional); InputError with the reason if that is not possible."""
+        unknown = [n for n in names if n not in self.mech.joint_names]
+        if unknown:
+            raise InputError(f"unknown joint(s) {', '.join(unknown)}")
+        if len(position) != len(names) or (len(velocity) and len(velocity) != len(names)):
+            raise InputError(f"{len(names)} names but {len(position)} positions and {len(velocity)} velocities")
+        obs = self.obs
+        if not obs.initialised:
+            raise InputError("the filter is not running yet (its time is unknown until a first sample)")
+        if not obs.initialise_from_joint_state(obs.t, list(names), np.asarray(position, dtype=float),
+                                               np.asarray(velocity, dtype=float) if len(velocity) else None):
+            raise InputError(f"needs a finite position of every motor ({', '.join(self.mech.active_names)}) "
+                             "at a pose where the closure can be solved")
+        self._started = True
+        return f"estimate set at t = {obs.t:.6f} s"
+
+
+_REASONS = {"gate": "gated out", "late": "late", "frame": "in a wrong frame", "empty": "without a configured branch"}
+
+
+def _mean(x: list[float]) -> float:
+    return float(np.mean(x)) if x else 0.0
+
+
+def _max(x: list[float]) -> float:
+    return float(np.max(x)) if x else 0.0
