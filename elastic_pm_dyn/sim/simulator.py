@@ -69,6 +69,10 @@ class Simulator:
         self.stab = STABILISATIONS[self.options.stabilization]
         self.qdd_prev = np.zeros(mech.n)
         self.lam = np.zeros(mech.m)
+        # Reused by every advance(): a plant node calls it once per control period.
+        self._coef = np.zeros((3, mech.n))
+        self._info = np.zeros(3)
+        self._args = (*mech.arrays,)
 
     # ------------------------------------------------------------------ stepping
     def advance(self, q: np.ndarray, qd: np.ndarray, torque: TorqueSource, t0: float, t1: float) -> None:
@@ -82,14 +86,13 @@ class Simulator:
         if o.integrator == "dop853":
             self._advance_adaptive(q, qd, torque, t0, t1)
             return
-        info = np.zeros(3)
+        info, coef = self._info, self._coef
         # A table's piece is one polynomial over the whole call; a function is refitted
         # through the stage times of every step.
         calls = [(t0 + k * h, 1) for k in range(n_steps)] if torque.smooth else [(t0, n_steps)]
-        coef = np.zeros((3, self.mech.n))
         for start, steps in calls:
             coef[:, self.mech.active] = torque.coefficients(start, steps * h)
-            status = kernels.rk4_steps_flat(self.code, *self.mech.arrays, q, qd, coef, h, steps, self.stab,
+            status = kernels.rk4_steps_flat(self.code, *self._args, q, qd, coef, h, steps, self.stab,
                                        o.baumgarte_alpha, o.baumgarte_beta, o.closure_tol, o.singular_tol,
                                        self.qdd_prev, self.lam, info)
             if status != kernels.OK:
