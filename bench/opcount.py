@@ -485,18 +485,10 @@ def load_mechanism(spec: str):
 
 
 def random_state(mech, rng, spread):
-    """test/conftest.py's random_state (a consistent q, qd near the start pose, motor torques)."""
-    from elastic_pm_dyn.kinematics.assembly import initial_state, solve_pose
+    """A consistent q, qd near the start pose and motor torques (the tests' states)."""
+    from elastic_pm_dyn.kinematics.assembly import random_consistent_state
 
-    q = initial_state(mech)
-    n_a = len(mech.active)
-    q[mech.active] += rng.uniform(-spread, spread, n_a)
-    q[mech.elastic] += rng.uniform(-1e-4, 1e-4, len(mech.elastic))
-    q = solve_pose(mech, q, mech.passive)
-    qd_ae = np.concatenate([rng.uniform(-2, 2, n_a), rng.uniform(-0.05, 0.05, len(mech.elastic))])
-    qd = mech.tree_velocity(q, qd_ae)
-    tau = rng.uniform(-2, 2, n_a)
-    return q, qd, tau
+    return random_consistent_state(mech, rng, spread)
 
 
 def _sum(d: dict | None) -> int:

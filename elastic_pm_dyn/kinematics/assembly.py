@@ -131,3 +131,21 @@ def check_assembly_mode(mech: Mechanism, q: np.ndarray) -> None:
         if np.sign(np.sin(value)) != sign:
             raise AssemblyError(f"start pose is in the wrong assembly mode: {name} = {value:.4f} rad, "
                                 f"expected {'positive' if sign > 0 else 'negative'} (sin)")
+
+
+def random_consistent_state(mech: Mechanism, rng: np.random.Generator, spread: float = 0.2
+                            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A random consistent (q, qd) near the start pose and random motor torques.
+
+    Motors within +-spread (rad or m), elastic joints within +-0.1 mm (or mrad), rates up
+    to 2 rad/s and 5 cm/s, torques up to 2 (N m or N): for cross-checks and benchmarks.
+    """
+    q = initial_state(mech)
+    n_a = len(mech.active)
+    q[mech.active] += rng.uniform(-spread, spread, n_a)
+    q[mech.elastic] += rng.uniform(-1e-4, 1e-4, len(mech.elastic))
+    q = solve_pose(mech, q, mech.passive)
+    qd_ae = np.concatenate([rng.uniform(-2, 2, n_a), rng.uniform(-0.05, 0.05, len(mech.elastic))])
+    qd = mech.tree_velocity(q, qd_ae)
+    tau = rng.uniform(-2, 2, n_a)
+    return q, qd, tau
