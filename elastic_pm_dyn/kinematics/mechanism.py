@@ -10,6 +10,7 @@ from elastic_pm_dyn.errors import SingularConfigurationError
 from elastic_pm_dyn.kinematics.kernels import chain_points, closure_rows, tree_terms
 from elastic_pm_dyn.model.arrays import ModelArrays, pack
 from elastic_pm_dyn.model.description import ACTIVE, ELASTIC, PASSIVE, Model
+from elastic_pm_dyn.model.layout import JF_MASS
 
 
 @dataclass
@@ -46,6 +47,7 @@ class Mechanism:
         self.joint_names = model.joint_names
         self.active_names = [self.joint_names[i] for i in self.active]
         self.ee_components = np.array(model.ee_components)
+        self.closure_components = list(model.closure.components) if model.closure is not None else []
         joints = model.joints
         self.stiffness = np.array([j.stiffness for j in joints])
         self.damping = np.array([j.damping for j in joints])
@@ -87,8 +89,14 @@ class Mechanism:
         return terms.J[chain][self.ee_components], terms.a_tip[chain][self.ee_components]
 
     def gap(self, q: np.ndarray) -> float:
-        """Closure gap |h(q_t)| [m] (the paper's Fig. 4)."""
-        return float(np.linalg.norm(self.terms(q).residual))
+        """Closure gap |h(q_t)| [m] (the paper's Fig. 4), from forward kinematics alone."""
+        closure = self.model.closure
+        if closure is None:
+            return 0.0
+        _, _, p = self.points(q)
+        pairs = np.asarray(closure.pairs)
+        d = p[pairs[:, 0]][:, self.closure_components] - p[pairs[:, 1]][:, self.closure_components]
+        return float(np.linalg.norm(d))
 
     # -------------------------------------------------------------- coordinates
     def passive_map(self, terms: TreeTerms) -> tuple[np.ndarray, np.ndarray]:
@@ -130,10 +138,8 @@ class Mechanism:
         t = self.terms(q)
         kinetic = 0.5 * float(qd @ t.M @ qd)
         _, coms, _ = self.points(q)
-        jf = self.arrays.jf
-        from elastic_pm_dyn.model.layout import JF_MASS, JF_REST, JF_STIFFNESS
-        gravity = -float(np.sum(jf[:, JF_MASS] * (coms @ self.arrays.gravity)))
-        spring = 0.5 * float(np.sum(jf[:, JF_STIFFNESS] * (q - jf[:, JF_REST]) ** 2))
+        gravity = -float(np.sum(self.arrays.jf[:, JF_MASS] * (coms @ self.arrays.gravity)))
+        spring = 0.5 * float(np.sum(self.stiffness * (np.asarray(q) - self.rest) ** 2))
         return kinetic, gravity + spring
 
     def spring_forces(self, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
