@@ -203,3 +203,65 @@ def encode_pose_stamped(ns: int, xyz, frame_id: str = "world") -> bytes:
     w.string(frame_id)
     w.doubles(np.array([xyz[0], xyz[1], xyz[2], 0.0, 0.0, 0.0, 1.0]), with_count=False)
     return w.bytes()
+
+
+def _batch_layout(frame_id: str, names, lengths, counted: bool) -> tuple[np.ndarray, list[int]]:
+    """Template message (zeros where the values go) and the byte offset of each double array."""
+    if names is None:
+        w = _Writer()
+        w.pos = 8
+        w.parts = []
+        w.string(frame_id)
+        prefix, pos = b"".join(w.parts), w.pos
+    else:
+        prefix, pos = _prefix(frame_id, names)
+    parts = [ENCAPSULATION, b"\x00" * 8, prefix]
+    offsets = []
+    for n in lengths:
+        if counted:
+            k = (-pos) % 4
+            parts.append(b"\x00" * k + _U32.pack(n))
+            pos += k + 4
+        if n or not counted:
+            k = (-pos) % 8
+            parts.append(b"\x00" * k)
+            pos += k
+            offsets.append(4 + pos)
+            parts.append(b"\x00" * (8 * n))
+            pos += 8 * n
+        else:
+            offsets.append(4 + pos)
+    return np.frombuffer(b"".join(parts), dtype=np.uint8), offsets
+
+
+def _batch(ns, frame_id: str, names, arrays, counted: bool = True) -> np.ndarray:
+    """Messages of one layout for every row at once (rows x bytes): stamps ``ns`` (int64),
+    arrays (rows x length each) as float64."""
+    ns = np.asarray(ns, dtype=np.int64)
+    arrays = [np.asarray(a, dtype="<f8").reshape(len(ns), -1) for a in arrays]
+    template, offsets = _batch_layout(frame_id, names, [a.shape[1] for a in arrays], counted)
+    out = np.tile(template, (len(ns), 1))
+    sec, nsec = np.divmod(ns, 1_000_000_000)
+    out[:, 4:8] = sec.astype("<i4").view(np.uint8).reshape(-1, 4)
+    out[:, 8:12] = nsec.astype("<u4").view(np.uint8).reshape(-1, 4)
+    for a, off in zip(arrays, offsets, strict=True):
+        if a.shape[1]:
+            out[:, off:off + 8 * a.shape[1]] = np.ascontiguousarray(a).view(np.uint8)
+    return out
+
+
+def encode_joint_state_batch(ns, names, position, velocity, effort, frame_id: str = "") -> np.ndarray:
+    """:func:`encode_joint_state` of many rows (rows x bytes, each row one message)."""
+    return _batch(ns, frame_id, names, (position, velocity, effort))
+
+
+def encode_branch_forces_batch(ns, names, force, deflection, rate, stddev, frame_id: str = "") -> np.ndarray:
+    return _batch(ns, frame_id, names, (force, deflection, rate, stddev))
+
+
+def encode_pose_stamped_batch(ns, xyz, frame_id: str = "world") -> np.ndarray:
+    xyz = np.asarray(xyz, dtype=float).reshape(-1, 3)
+    pose = np.zeros((len(xyz), 7))
+    pose[:, :3] = xyz
+    pose[:, 6] = 1.0
+    return _batch(ns, frame_id, None, (pose,), counted=False)

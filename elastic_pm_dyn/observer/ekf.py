@@ -525,23 +525,44 @@ class Observer:
 
     def estimate(self) -> Estimate:
         """Current estimates (every tree joint, branch forces, end effector) with standard deviations."""
-        mech, nae, nb = self.mech, self.nae, len(self._branch_joint)
-        q_std, qd_std = np.empty(mech.n), np.empty(mech.n)
-        F, F_std = np.empty(nb), np.empty(nb)
-        ee, ee_std = np.empty(len(self._ee)), np.empty(len(self._ee))
-        kernels.outputs(mech.arrays, self.q, self.qd, self.P, self._ee_point, self._ee, self._branch_joint,
-                        self._stiff, self._damp, self._rest, q_std, qd_std, F, F_std, ee, ee_std)
-        j = self._branch_joint
-        effort = np.zeros(mech.n)
-        effort[mech.active] = self.tau_last
-        effort[self.dist_idx] += self.disturbance()
-        effort[j] = F
-        Pz = self.P[2 * nae:, 2 * nae:]
-        d_std = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", self.Lz, Pz, self.Lz), 0.0))
-        return Estimate(self.t, self.q.copy(), self.qd.copy(), q_std, qd_std, effort, self.branch_names, F, F_std,
-                        self.q[j] - self._rest, self.qd[j].copy(), ee, ee_std,
-                        [mech.joint_names[i] for i in self.dist_idx], self.disturbance(), d_std, self.x(),
-                        self.P.copy(), self.initialised)
+        return self.unpack_estimate(self.estimate_flat())
+
+    def flat_layout(self) -> dict[str, slice]:
+        """Where each :class:`Estimate` field sits in :meth:`estimate_flat`'s array (and its width)."""
+        layout = getattr(self, "_flat_layout", None)
+        if layout is None:
+            n, nb, ne, nd, nx = self.mech.n, len(self._branch_joint), len(self._ee), len(self.dist_idx), self.nx
+            layout, o = {}, 0
+            for key, width in (("t", 1), ("q", n), ("qd", n), ("q_std", n), ("qd_std", n), ("effort", n),
+                               ("branch_force", nb), ("branch_force_std", nb), ("deflection", nb),
+                               ("deflection_rate", nb), ("ee", ne), ("ee_std", ne), ("disturbance", nd),
+                               ("disturbance_std", nd), ("x", nx), ("P", nx * nx)):
+                layout[key] = slice(o, o + width)
+                o += width
+            self._flat_layout = layout
+            self._flat_width = o
+            self._active_idx = np.asarray(self.mech.active, dtype=np.int64)
+            self._dist_names = [self.mech.joint_names[i] for i in self.dist_idx]
+        return layout
+
+    def estimate_flat(self) -> np.ndarray:
+        """:meth:`estimate` as one float array (layout: :meth:`flat_layout`), in one compiled call."""
+        self.flat_layout()
+        out = np.empty(self._flat_width)
+        kernels.estimate_flat(self.mech.arrays, self.q, self.qd, self.z, self.P, self.tau_last, self._active_idx,
+                              self.dist_idx, self.Lz, self._ee_point, self._ee, self._branch_joint, self._stiff,
+                              self._damp, self._rest, self.t, out)
+        return out
+
+    def unpack_estimate(self, flat: np.ndarray, initialised: bool | None = None) -> Estimate:
+        """The :class:`Estimate` of an :meth:`estimate_flat` array (fields are views into it)."""
+        lay = self.flat_layout()
+        nx = self.nx
+        return Estimate(float(flat[0]), *(flat[lay[k]] for k in ("q", "qd", "q_std", "qd_std", "effort")),
+                        self.branch_names, *(flat[lay[k]] for k in ("branch_force", "branch_force_std",
+                                                                    "deflection", "deflection_rate", "ee", "ee_std")),
+                        self._dist_names, flat[lay["disturbance"]], flat[lay["disturbance_std"]], flat[lay["x"]],
+                        flat[lay["P"]].reshape(nx, nx), self.initialised if initialised is None else initialised)
 
     # ------------------------------------------------------------------ diagnostics
     def health(self) -> tuple[int, str]:

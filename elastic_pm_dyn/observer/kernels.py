@@ -308,6 +308,65 @@ def outputs(ma, q, qd, P, point, ee_comp, branch_joint, stiff, damp, rest, q_std
 
 
 @njit(cache=True)
+def estimate_flat(ma, q, qd, z, P, tau_last, active_idx, dist_idx, Lz, point, ee_comp, branch_joint, stiff, damp,
+                  rest, t, out):
+    """Every output of ``Observer.estimate`` into one flat array ``out``:
+    [t, q, qd, q_std, qd_std, effort (n_t each), F, F_std, deflection, deflection rate (n_b each),
+    ee, ee_std, d, d_std, x, P (row-major)]."""
+    n = q.shape[0]
+    nb = branch_joint.shape[0]
+    ne = ee_comp.shape[0]
+    nd = dist_idx.shape[0]
+    nz = z.shape[0]
+    nae = ma.ae_index.shape[0]
+    nx = P.shape[0]
+    out[0] = t
+    o = 1
+    oq, oqd, oqs, oqds, oeff = o, o + n, o + 2 * n, o + 3 * n, o + 4 * n
+    o += 5 * n
+    oF, oFs, odf, odr = o, o + nb, o + 2 * nb, o + 3 * nb
+    o += 4 * nb
+    oee, oees = o, o + ne
+    o += 2 * ne
+    od, ods = o, o + nd
+    o += 2 * nd
+    ox = o
+    oP = o + nx
+    outputs(ma, q, qd, P, point, ee_comp, branch_joint, stiff, damp, rest, out[oqs:oqs + n], out[oqds:oqds + n],
+            out[oF:oF + nb], out[oFs:oFs + nb], out[oee:oee + ne], out[oees:oees + ne])
+    for i in range(n):
+        out[oq + i] = q[i]
+        out[oqd + i] = qd[i]
+        out[oeff + i] = 0.0
+    for i in range(active_idx.shape[0]):
+        out[oeff + active_idx[i]] = tau_last[i]
+    for k in range(nd):
+        s = 0.0
+        for m in range(nz):
+            s += Lz[k, m] * z[m]
+        out[od + k] = s
+        out[oeff + dist_idx[k]] += s
+        v = 0.0
+        for j in range(nz):
+            for m in range(nz):
+                v += Lz[k, j] * P[2 * nae + j, 2 * nae + m] * Lz[k, m]
+        out[ods + k] = np.sqrt(max(v, 0.0))
+    for k in range(nb):
+        j = branch_joint[k]
+        out[oeff + j] = out[oF + k]
+        out[odf + k] = q[j] - rest[k]
+        out[odr + k] = qd[j]
+    for i in range(nae):
+        out[ox + i] = q[ma.ae_index[i]]
+        out[ox + nae + i] = qd[ma.ae_index[i]]
+    for k in range(nz):
+        out[ox + 2 * nae + k] = z[k]
+    for i in range(nx):
+        for j in range(nx):
+            out[oP + i * nx + j] = P[i, j]
+
+
+@njit(cache=True)
 def linearize(ma, q, qd, tau, point, with_point, eps_q, eps_v, Aq, Av, Bf, Eq, Ev, Ef, qdd0, a0):
     """Jacobians of the q_ae accelerations (and of the point acceleration) at a consistent state.
 
