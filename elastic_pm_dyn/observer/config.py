@@ -55,10 +55,10 @@ DEFAULT_PARAMETERS: dict[str, Any] = {
     "process.relinearize_every": 4,  # prediction pieces per linearisation (Phi, Q and the accelerometer's H)
     "process.disturbance": "bias_band_limited",  # see DISTURBANCE_MODELS
     "process.disturbance_joints": ["active"],
-    "process.disturbance_intensity": 1.0e-3,  # random walk (bias): PSD of d' [(N m)^2/s]; integrated: of d''
+    "process.disturbance_intensity": 3.0e-4,  # random walk (bias): PSD of d' [(N m)^2/s]; integrated: of d''
     #                                         [(N m)^2/s^3]
     "process.disturbance_stddev": 0.02,  # gauss_markov, band_limited: stationary std [N m]
-    "process.disturbance_bandwidth": 50.0,  # band_limited: corner frequency [Hz]
+    "process.disturbance_bandwidth": [5.0, 50.0],  # band_limited: corner frequencies [Hz] (a sum, equal variance each)
     "process.disturbance_time_constant": 0.02,  # gauss_markov: correlation time [s]
     "process.torque_noise_psd": 1.0e-10,  # white torque on active joints [(N m)^2 s]
     "process.elastic_force_psd": 1.0e-12,  # white force on elastic joints (model error) [N^2 s]
@@ -68,7 +68,7 @@ DEFAULT_PARAMETERS: dict[str, Any] = {
     "initial.active_position_stddev": 1.0e-4,  # [rad]
     "initial.elastic_position_stddev": 1.0e-7,  # [m]
     "initial.active_velocity_stddev": 1.0e-3,  # [rad/s]
-    "initial.elastic_velocity_stddev": 1.0e-4,  # [m/s]
+    "initial.elastic_velocity_stddev": 1.0e-6,  # [m/s] at rest
     "initial.disturbance_stddev": 0.02,  # [N m]
     "initial.disturbance_rate_stddev": 1.0,  # [N m/s] (integrated random walk)
     # --- robustness
@@ -121,7 +121,7 @@ class ProcessConfig:
     disturbance_joints: list[str]
     disturbance_intensity: float
     disturbance_stddev: float
-    disturbance_bandwidth: float
+    disturbance_bandwidth: list[float]
     disturbance_time_constant: float
     torque_noise_psd: float
     elastic_force_psd: float
@@ -243,7 +243,6 @@ class ObserverConfig:
             raise bad("sensors", "a sensor is listed twice")
         positive = {"process.dt": self.process.dt, "process.max_interval": self.process.max_interval,
                     "process.disturbance_time_constant": self.process.disturbance_time_constant,
-                    "process.disturbance_bandwidth": self.process.disturbance_bandwidth,
                     "initial.active_position_stddev": self.initial.active_position_stddev,
                     "initial.elastic_position_stddev": self.initial.elastic_position_stddev,
                     "initial.active_velocity_stddev": self.initial.active_velocity_stddev,
@@ -272,6 +271,9 @@ class ObserverConfig:
                             ("imu.stddev", self.imu.stddev), ("branch_forces.stddev", self.branch_forces.stddev)):
             if not values or not all(v > 0 for v in values):
                 raise bad(key, f"needs one or more values > 0, got {values!r}")
+        bands = self.process.disturbance_bandwidth
+        if not bands or not all(b > 0 for b in bands) or len(set(bands)) != len(bands):
+            raise bad("process.disturbance_bandwidth", f"needs distinct corner frequencies > 0, got {bands!r}")
         if self.process.disturbance not in DISTURBANCE_MODELS:
             raise bad("process.disturbance", f"expected one of {', '.join(DISTURBANCE_MODELS)}, "
                                              f"got {self.process.disturbance!r}")

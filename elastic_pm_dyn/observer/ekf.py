@@ -47,7 +47,7 @@ from elastic_pm_dyn.errors import ElasticPmDynError, InputError
 from elastic_pm_dyn.kinematics.assembly import initial_state, solve_pose
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.model.description import ACTIVE, ELASTIC
-from elastic_pm_dyn.observer import kernels
+from elastic_pm_dyn.observer import disturbance, kernels
 from elastic_pm_dyn.observer.config import ObserverConfig
 from elastic_pm_dyn.observer.sensors import Accelerometer, BranchForces, Encoders, Sample, resolve_joints
 
@@ -126,48 +126,11 @@ class Observer:
             mech, pc.disturbance_joints, "process.disturbance_joints", roles=(ACTIVE, ELASTIC))
         self.dist_idx = np.array(dist, dtype=np.int64)
         self.dist_col = np.array([self.x_of_ae[j] for j in dist], dtype=np.int64)
-        self.nd = nd = len(dist)
-        eye, zero = np.eye(nd), np.zeros((nd, nd))
-        names = [mech.joint_names[j] for j in dist]
-        w = 2 * np.pi * pc.disturbance_bandwidth
-        zeta = 1 / np.sqrt(2)
-        # A band-limited part: f'' = -2 zeta w f' - w^2 f + white, stationary with std sigma
-        # and bandwidth w (zeta = 1/sqrt 2): smooth like a real disturbance (no steps that
-        # would ring the springs), and bounded where the sensors cannot see it.
-        osc = np.block([[zero, eye], [-w * w * eye, -2 * zeta * w * eye]])
-        q_osc = 4 * zeta * w ** 3 * pc.disturbance_stddev ** 2
-        if pc.disturbance == "bias_band_limited":
-            # d = b + f: a slowly wandering bias b (random walk, what encoders can see) plus
-            # the band-limited part f (what an accelerometer or strain gauges see).
-            self.Lz = np.hstack([eye, eye, zero])
-            self.Fz = np.block([[zero, np.zeros((nd, 2 * nd))], [np.zeros((2 * nd, nd)), osc]])
-            self.psd_z = np.concatenate([np.full(nd, pc.disturbance_intensity), np.zeros(nd), np.full(nd, q_osc)])
-            z_names = [f"d_{n}_bias" for n in names] + [f"d_{n}_band" for n in names] + \
-                [f"d_{n}_band_rate" for n in names]
-        elif pc.disturbance == "band_limited":
-            self.Lz = np.hstack([eye, zero])
-            self.Fz = osc
-            self.psd_z = np.concatenate([np.zeros(nd), np.full(nd, q_osc)])
-            z_names = [f"d_{n}" for n in names] + [f"d_{n}_rate" for n in names]
-        elif pc.disturbance == "integrated_random_walk":
-            # z = [d, d']: d'' is white, so d is smooth.
-            self.Lz = np.hstack([eye, zero])
-            self.Fz = np.block([[zero, eye], [zero, zero]])
-            self.psd_z = np.concatenate([np.zeros(nd), np.full(nd, pc.disturbance_intensity)])
-            z_names = [f"d_{n}" for n in names] + [f"d_{n}_rate" for n in names]
-        elif pc.disturbance == "gauss_markov":
-            self.Lz = eye
-            self.Fz = -eye / pc.disturbance_time_constant
-            self.psd_z = np.full(nd, 2.0 * pc.disturbance_stddev ** 2 / pc.disturbance_time_constant)
-            z_names = [f"d_{n}" for n in names]
-        else:  # random_walk (or none: nd = 0)
-            self.Lz = eye
-            self.Fz = np.zeros((nd, nd))
-            self.psd_z = np.full(nd, pc.disturbance_intensity)
-            z_names = [f"d_{n}" for n in names]
-        self.nz = self.Fz.shape[0]
-        self.Lz = np.ascontiguousarray(self.Lz)
-        self._z_names = z_names
+        self.nd = len(dist)
+        self.disturbance_model = dm = disturbance.build(pc, cfg.initial, [mech.joint_names[j] for j in dist])
+        self.Lz, self.Fz, self.psd_z = dm.Lz, dm.Fz, dm.psd
+        self.nz = dm.nz
+        self._z_names = dm.names
         self.nx = 2 * nae + self.nz
         roles = [model.joints[j].role for j in self.ae]
         self.psd_ae = np.array([pc.torque_noise_psd if r == ACTIVE else pc.elastic_force_psd for r in roles])
@@ -211,14 +174,7 @@ class Observer:
         roles = [self.mech.model.joints[j].role for j in self.ae]
         pos = [i.active_position_stddev if r == ACTIVE else i.elastic_position_stddev for r in roles]
         vel = [i.active_velocity_stddev if r == ACTIVE else i.elastic_velocity_stddev for r in roles]
-        pc = self.cfg.process
-        sd = {"bias_band_limited": [i.disturbance_stddev] * self.nd + [pc.disturbance_stddev] * self.nd
-              + [pc.disturbance_stddev * 2 * np.pi * pc.disturbance_bandwidth] * self.nd,
-              "band_limited": [pc.disturbance_stddev] * self.nd
-              + [pc.disturbance_stddev * 2 * np.pi * pc.disturbance_bandwidth] * self.nd,
-              "integrated_random_walk": [i.disturbance_stddev] * self.nd + [i.disturbance_rate_stddev] * self.nd,
-              }.get(pc.disturbance, [i.disturbance_stddev] * self.nd)
-        return np.array(pos + vel + sd) ** 2
+        return np.concatenate([pos, vel, self.disturbance_model.initial_stddev]) ** 2
 
     def reset(self, t: float | None = None, q: np.ndarray | None = None, qd: np.ndarray | None = None,
               P0: np.ndarray | None = None, initialised: bool = True) -> None:
@@ -337,20 +293,20 @@ class Observer:
             tau = self._torque_at(self.t)
             n_sub = max(1, int(np.ceil(T / pc.dt - 1e-9)))
             relin = self._lin_age >= pc.relinearize_every or abs(T - self._lin_T) > 1e-12
-            status = kernels.predict(self.mech.arrays, self.q, self.qd, self._tree_tau(tau), self.dist_idx,
-                                     self.z, self.dist_col, self.Lz, self.Fz, self.psd_ae, self.rel_ae, self.psd_z,
-                                     self.eps_q, self.eps_v, self.point, self.with_point, relin, T, n_sub, self.P,
-                                     self.Phi, self.Qd, self.Hpt, self.info)
+            status = kernels.predict_checked(self.mech.arrays, self.q, self.qd, self._tree_tau(tau), self.dist_idx,
+                                             self.z, self.dist_col, self.Lz, self.Fz, self.psd_ae, self.rel_ae,
+                                             self.psd_z, self.eps_q, self.eps_v, self.point, self.with_point, relin, T,
+                                             n_sub, self.P, self.Phi, self.Qd, self.Hpt, self.info)
             if relin:
                 self._lin_age, self._lin_T = 0, T
             self._lin_age += 1
-            if status != 0:
+            if status != 0 and status != kernels.COVARIANCE_LOST:
                 self._fail(f"prediction failed at t = {self.t:.6f} s: "
                            + ("singular configuration" if status == 1 else "the state became NaN/Inf")
                            + f" (conditioning {self.info[0]:.3g})")
             self.t = t_to if end >= t_to else end
             self.tau_last = tau.copy()
-            if not kernels.covariance_ok(self.P):
+            if status == kernels.COVARIANCE_LOST:
                 self._fail(f"covariance lost positive definiteness at t = {self.t:.6f} s")
 
     def _fail(self, message: str) -> None:
@@ -421,10 +377,22 @@ class Observer:
             late = self._sync(t, "encoders")
             if late is not None:
                 return [late]
-            W = self._passive_jacobian() if self.encoders.needs_w else None
-            s = self.encoders.sample(list(names), position, velocity, self.q, self.qd, W, self.nx)
-            if s is not None:
-                out.append(self._correct(s, t))
+            fast = self.encoders.fast_plan(names, self.nx) if position is not None and len(position) == len(names) \
+                else None
+            if fast is not None and (not fast[5] or velocity is None or len(velocity) == 0):
+                # positions of state joints only: one compiled call (the same numbers as below)
+                idx, H, var, js, wrap, _ = fast
+                gate = self.gate(len(idx))
+                nis, status = kernels.encoder_correct(self.mech.arrays, self.q, self.qd, self.z, self.P, H, var, js,
+                                                      wrap, np.asarray(position, dtype=float)[idx], gate)
+                if status >= 0:
+                    out.append(self._after("encoders", t, nis, status, len(idx), gate, []))
+                    fast = True
+            if fast is not True:
+                W = self._passive_jacobian() if self.encoders.needs_w else None
+                s = self.encoders.sample(list(names), position, velocity, self.q, self.qd, W, self.nx)
+                if s is not None:
+                    out.append(self._correct(s, t))
         if (self.branch is not None and self.branch.source == "joint_state_effort" and effort is not None
                 and len(effort)):
             if len(effort) != len(names):

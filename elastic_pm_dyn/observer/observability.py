@@ -168,16 +168,13 @@ def analyse(obs, horizon: float | None = None, q: np.ndarray | None = None, qd: 
         except (np.linalg.LinAlgError, ValueError) as exc:
             note = f"no steady-state filter: the pair (Phi, C) is not detectable ({exc})"
     units = []
-    for name in obs.state_names:
-        base = name.removeprefix("d_").removesuffix("_vel").removesuffix("_rate").removesuffix("_bias") \
-            .removesuffix("_band")
-        joint = mech.model.joints[mech.joint_names.index(base)]
+    for k in range(2 * obs.nae):  # [q_ae, qd_ae]
+        joint = mech.model.joints[int(obs.ae[k % obs.nae])]
         u = "rad" if joint.type == "revolute" else "m"
-        if name.startswith("d_"):
-            units.append(("N m" if joint.type == "revolute" else "N") + ("/s" if name.endswith("_rate") else ""))
-        elif name.endswith("_vel"):
-            units.append(u + "/s")
-        else:
-            units.append(u)
+        units.append(u if k < obs.nae else u + "/s")
+    dm = obs.disturbance_model
+    for j, rate in zip(dm.joint_of_state, dm.is_rate, strict=True):
+        joint = mech.model.joints[int(obs.dist_idx[j])]
+        units.append(("N m" if joint.type == "revolute" else "N") + ("/s" if rate else ""))
     return ObservabilityReport(list(obs.cfg.sensors), labels, list(obs.state_names), units, horizon, s,
                                s * ratio, ratio, classes, sv, steady, steady_F, list(obs.branch_names), note)

@@ -1,0 +1,102 @@
+"""Linear models of the unknown torques d on chosen joints (the observer's disturbance states).
+
+d = Lz z with z' = Fz z + w, w white with intensity diag(psd). Unknown torques (friction,
+payload, cable forces, cogging) move the machine as the commanded torques do not; with d in
+the state the sensors estimate them, and with them the branch forces they cause.
+
+Models (``process.disturbance``):
+- ``random_walk``: d' white (a wandering bias).
+- ``gauss_markov``: first-order, stationary std and correlation time.
+- ``integrated_random_walk``: d'' white (smooth, unbounded).
+- ``band_limited``: a sum of stationary second-order processes, one per corner frequency
+  B_i in ``disturbance_bandwidth`` (f'' = -2 zeta w f' - w^2 f + white, w = 2 pi B_i,
+  zeta = 1/sqrt 2: flat below B_i, falling as f^-4 above). Smooth like a real disturbance
+  (no steps that would ring the springs) and bounded where the sensors cannot see it. The
+  total variance ``disturbance_stddev``^2 is split equally between the corners: corners
+  spaced by a constant ratio then give about equal power per octave between the lowest
+  and the highest (a 1/f spectrum, as of a multisine with log-spaced tones), one corner a
+  flat band.
+- ``bias_band_limited`` (default): a random-walk bias (what encoders can follow) plus the
+  band-limited sum (what an accelerometer or strain gauges also see).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from elastic_pm_dyn.observer.config import InitialConfig, ProcessConfig
+
+ZETA = 1.0 / np.sqrt(2.0)
+
+
+@dataclass
+class DisturbanceModel:
+    Lz: np.ndarray  # (nd, nz): d = Lz z
+    Fz: np.ndarray  # (nz, nz)
+    psd: np.ndarray  # (nz,) white-noise intensities
+    initial_stddev: np.ndarray  # (nz,) of z at a (re)start
+    names: list[str]  # (nz,) state names
+
+    @property
+    def nz(self) -> int:
+        return self.Fz.shape[0]
+
+    @property
+    def joint_of_state(self) -> np.ndarray:
+        """(nz,) the disturbance joint (index into the model's joint list given to build) of each state."""
+        nd = self.Lz.shape[0]
+        return np.tile(np.arange(nd), self.nz // nd) if nd else np.zeros(0, dtype=int)
+
+    @property
+    def is_rate(self) -> np.ndarray:
+        """(nz,) True for states that are a disturbance's rate of change."""
+        return np.array([n.endswith("_rate") for n in self.names], dtype=bool)
+
+
+def _bands(pc: ProcessConfig, nd: int, names: list[str]) -> tuple[list, list, list, list]:
+    """The band-limited sum, per corner: Lz and Fz blocks, intensities, initial stds, state names."""
+    eye, zero = np.eye(nd), np.zeros((nd, nd))
+    corners = list(pc.disturbance_bandwidth)
+    sigma = pc.disturbance_stddev / np.sqrt(len(corners))
+    L, F, psd, sd, zn = [], [], [], [], []
+    for i, b in enumerate(corners):
+        w = 2 * np.pi * b
+        L += [eye, zero]
+        F.append(np.block([[zero, eye], [-w * w * eye, -2 * ZETA * w * eye]]))
+        psd += [0.0] * nd + [4 * ZETA * w ** 3 * sigma ** 2] * nd  # stationary variance sigma^2
+        sd += [sigma] * nd + [sigma * w] * nd
+        tag = "band" if len(corners) == 1 else f"band{i}"
+        zn += [f"d_{n}_{tag}" for n in names] + [f"d_{n}_{tag}_rate" for n in names]
+    return L, F, psd, sd, zn
+
+
+def build(pc: ProcessConfig, initial: InitialConfig, names: list[str]) -> DisturbanceModel:
+    """The disturbance model of ``pc.disturbance`` on the joints ``names`` (nd = len(names))."""
+    nd = len(names)
+    eye = np.eye(nd)
+    kind = pc.disturbance
+    if kind in ("band_limited", "bias_band_limited"):
+        L, F, psd, sd, zn = _bands(pc, nd, names)
+        if kind == "bias_band_limited":
+            L = [eye] + L
+            F = [np.zeros((nd, nd))] + F
+            psd = [pc.disturbance_intensity] * nd + psd
+            sd = [initial.disturbance_stddev] * nd + sd
+            zn = [f"d_{n}_bias" for n in names] + zn
+        from scipy.linalg import block_diag
+        return DisturbanceModel(np.ascontiguousarray(np.hstack(L)), block_diag(*F), np.array(psd), np.array(sd), zn)
+    if kind == "integrated_random_walk":  # z = [d, d']
+        zero = np.zeros((nd, nd))
+        return DisturbanceModel(np.ascontiguousarray(np.hstack([eye, zero])), np.block([[zero, eye], [zero, zero]]),
+                                np.array([0.0] * nd + [pc.disturbance_intensity] * nd),
+                                np.array([initial.disturbance_stddev] * nd + [initial.disturbance_rate_stddev] * nd),
+                                [f"d_{n}" for n in names] + [f"d_{n}_rate" for n in names])
+    if kind == "gauss_markov":
+        tc = pc.disturbance_time_constant
+        return DisturbanceModel(eye.copy(), -eye / tc, np.full(nd, 2.0 * pc.disturbance_stddev ** 2 / tc),
+                                np.full(nd, initial.disturbance_stddev), [f"d_{n}" for n in names])
+    # random_walk (or none: nd = 0)
+    return DisturbanceModel(eye.copy(), np.zeros((nd, nd)), np.full(nd, pc.disturbance_intensity),
+                            np.full(nd, initial.disturbance_stddev), [f"d_{n}" for n in names])
