@@ -11,13 +11,17 @@ each branch force): branch-force error RMS relative to the RMS of the elastic pa
 F - F_qs, against an open-loop elastic simulation driven by the same commands; motor
 error against the encoder noise; NEES of [q_ae, qd_ae] in its 95 % band.
 
-What the physics allows (measured; see the observer's report): an accelerometer makes
-the vibration and the disturbance observable, and the combination meets every target.
-Encoders see the disturbance only below ~5 Hz (a 0.006 N m component moves a motor by
-less than the encoder noise above that), i.e. about a third of this multisine's power,
-so with encoders alone the branch-force error stays near the open-loop one (the
-quasi-static force follows the unknown torque); 0.5 N strain gauges cannot resolve the
-manoeuvre's 0.015 N elastic part, only the chirp's 5 N one.
+What the physics allows (bench/observer_bound.py): an accelerometer makes the vibration
+and the disturbance observable, and the combination meets every target. With encoders
+alone the target "half the open loop's error" is out of reach for any live filter: the
+quasi-static branch force follows the unknown torque at once, but the torque moves a motor
+only through a double integration (0.02 N m on the ~0.075 kg m^2 a motor sees must act
+~12 ms to move it by one encoder-noise step), and the multisine's 50-200 Hz tones change
+faster than that. Even a genie that knows the model, the start state and the 48 tone
+frequencies per motor, and only has to find their amplitudes, gets to 0.63 of the open
+loop's error causally (0.49 with the whole record, non-causally); 0.5 N strain gauges add
+nothing to that (they resolve the chirp's 5 N elastic part, not the manoeuvre's 0.015 N).
+Where the torque is slow enough for the encoders (0.5-5 Hz), they do halve the error.
 """
 
 from __future__ import annotations
@@ -67,9 +71,7 @@ def test_encoders_and_accelerometer_meet_the_targets(scores, label) -> None:
     assert s["F_ratio"] <= 0.25, s
     assert s["F_ratio"] <= 0.5 * s["F_ratio_open_loop"], s
     assert s["motor_rmse_rad"] < 2e-5, s
-    # Target 0.9; 0.86-0.94 over seeds (bench/bench_observer.py): the model's disturbance
-    # spectrum (second order, 50 Hz) is not the multisine's flat 2-200 Hz band.
-    assert s["nees_in_band"] >= 0.85, s
+    assert s["nees_in_band"] >= 0.9, s
 
 
 @pytest.mark.parametrize("label", ["manoeuvre", "chirp"])
@@ -77,7 +79,8 @@ def test_encoders_and_accelerometer_meet_the_targets(scores, label) -> None:
 def test_every_sensor_set_tracks_motors_consistently(scores, label, name) -> None:
     s = scores[label, name]
     assert s["motor_rmse_rad"] < 2e-5, s  # below the encoder noise
-    assert s["nees_in_band"] >= 0.8, s
+    # Target 0.9: 35 of 36 bench runs (6 seeds) reach it, the lowest 0.896.
+    assert s["nees_in_band"] >= 0.88, s
     # Never worse than running the model open loop (the disturbance is unknown to both).
     assert s["F_ratio"] <= 1.05 * s["F_ratio_open_loop"], s
     assert sum(s["rejected"].values()) <= 0.02 * 500 * len(SETS[name]), s
@@ -91,3 +94,13 @@ def test_encoders_see_the_slow_disturbance(scores) -> None:
 def test_gauges_resolve_strong_vibration(scores) -> None:
     s = scores["chirp", "encoders+gauges"]
     assert s["F_ratio"] <= 0.5 * s["F_ratio_open_loop"], s
+
+
+def test_encoders_halve_the_error_of_a_slow_disturbance(five_bar) -> None:
+    # A 0.5-5 Hz unknown torque (friction, payload) moves the motors long before it changes:
+    # the encoders pin down the quasi-static branch force it causes (issue section 1).
+    rec = manoeuvre_recording(five_bar, seed=1, disturbance_band=(0.5, 5.0))
+    cfg = ObserverConfig.from_parameters({"sensors": ["encoders"], "process.disturbance_bandwidth": [1.0, 5.0]})
+    s = score(rec, feed(Observer(five_bar, cfg), rec, ("encoders",)), open_loop(rec), settle=0.05)
+    assert s["F_ratio"] <= 0.5 * s["F_ratio_open_loop"], s
+    assert s["motor_rmse_rad"] < 2e-5, s

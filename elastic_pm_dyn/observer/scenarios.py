@@ -146,20 +146,22 @@ def simulate(mech: Mechanism, command: Callable[[int, float, np.ndarray], np.nda
 
 
 def manoeuvre_recording(mech: Mechanism, seed: int = 1, disturbance_rms: float = 0.02, noise: Noise | None = None,
-                        duration: float | None = None, truth_dt: float = 5e-5) -> Recording:
-    """The reference manoeuvre (rigid feedforward of the quintic line, 1 kHz, ZOH) + a 2-200 Hz multisine."""
+                        duration: float | None = None, truth_dt: float = 5e-5,
+                        disturbance_band: tuple[float, float] = (2.0, 200.0)) -> Recording:
+    """The reference manoeuvre (rigid feedforward of the quintic line, 1 kHz, ZOH) + a multisine
+    in ``disturbance_band`` [Hz] (2-200 Hz: the issue's case)."""
     from elastic_pm_dyn.demo import REFERENCE_LINE
     from elastic_pm_dyn.feedforward import line_torques
     _, torques, _ = line_torques(mech.model, REFERENCE_LINE, 1.0 / PERIOD)
     rng = np.random.default_rng(seed)
-    dist = Multisine(rng, len(mech.active), disturbance_rms) if disturbance_rms > 0 else None
+    dist = Multisine(rng, len(mech.active), disturbance_rms, *disturbance_band) if disturbance_rms > 0 else None
     duration = REFERENCE_LINE.duration if duration is None else duration
 
     def command(k: int, t: float, enc: np.ndarray) -> np.ndarray:
         return torques[min(k, len(torques) - 1)]
 
     rec = simulate(mech, command, duration, dist, noise or Noise(), rng, truth_dt, label="manoeuvre")
-    rec.info = {"disturbance_rms": disturbance_rms, "seed": seed}
+    rec.info = {"disturbance_rms": disturbance_rms, "disturbance_band": disturbance_band, "seed": seed}
     return rec
 
 
