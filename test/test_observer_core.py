@@ -166,3 +166,33 @@ def test_observability_report_per_sensor_set(five_bar) -> None:
     acc = analyse(make(five_bar, sensors=["imu"]))
     assert acc.steady_std is None and "not detectable" in acc.note
     assert acc.classes[acc.state_names.index("left_motor")] == "not observable"
+
+
+# ---------------------------------------------------------------------------- start at static equilibrium
+def _potential_with_motors_clamped(mech, q, elastic_offsets) -> float:
+    from elastic_pm_dyn.kinematics.assembly import solve_pose
+    qq = q.copy()
+    qq[mech.elastic] += elastic_offsets
+    qq = solve_pose(mech, qq, mech.passive)
+    return mech.energy(qq, np.zeros(mech.n))[1]
+
+
+def test_start_from_encoders_puts_the_springs_in_static_equilibrium(five_bar_vertical) -> None:
+    # Under gravity the springs of a machine at rest carry its weight: the observer starts there
+    # (with the motors where the encoders say), not at the unloaded springs' rest length.
+    mech = five_bar_vertical
+    q0 = initial_state(mech)
+    obs = Observer(mech, ObserverConfig.from_parameters({"sensors": ["encoders"]}))
+    assert obs.update_joint_states(0.0, mech.active_names, q0[mech.active])[0].reason == "initialised"
+    q = obs.q
+    assert np.allclose(q[mech.active], q0[mech.active], atol=0.0)
+    # Equilibrium = stationary potential (gravity + springs) along the elastic coordinates, the
+    # motors clamped: its slope there is round-off against the slope at the unloaded springs.
+    h = 1e-9
+    def slopes(at):
+        return [(_potential_with_motors_clamped(mech, at, h * e) - _potential_with_motors_clamped(mech, at, -h * e))
+                / (2 * h) for e in np.eye(len(mech.elastic))]
+    slope, slope_rest = slopes(q), slopes(q0)
+    assert np.max(np.abs(slope)) < 1e-3 * np.max(np.abs(slope_rest)), (slope, slope_rest)
+    F = obs.estimate().branch_force
+    assert np.abs(F).max() > 0.4  # the weight's share, not zero

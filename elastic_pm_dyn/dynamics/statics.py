@@ -26,7 +26,7 @@ def elastic_residual(mech: Mechanism, q: np.ndarray, ee_force: np.ndarray | None
 
 def static_deflection(mech: Mechanism, q0: np.ndarray, ee_force: np.ndarray, tol: float = 1e-12,
                       max_iter: int = 30) -> np.ndarray:
-    """Equilibrium with the motors clamped at q0's positions under an end-effector force.
+    """Equilibrium with the motors clamped at q0's positions under an end-effector force (and gravity).
 
     Newton on the elastic coordinates (passive ones from the closure) until the elastic
     generalised forces vanish relative to the load. Returns the tree coordinates.
@@ -34,7 +34,9 @@ def static_deflection(mech: Mechanism, q0: np.ndarray, ee_force: np.ndarray, tol
     q = solve_pose(mech, np.array(q0, dtype=float), mech.passive)
     n_a = len(mech.active)
     e = np.arange(n_a, len(mech.ae))  # elastic rows of q_ae
-    scale = max(float(np.linalg.norm(ee_force)), 1e-12)
+    # Converged relative to the load: the end-effector force or the start's imbalance (gravity).
+    scale = max(float(np.linalg.norm(ee_force)), float(np.linalg.norm(elastic_residual(mech, q, ee_force)[e])),
+                1e-12)
 
     def residual(q_e: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         qq = q.copy()

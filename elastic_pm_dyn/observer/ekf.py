@@ -43,6 +43,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.stats import chi2
 
+from elastic_pm_dyn.dynamics.statics import static_deflection
 from elastic_pm_dyn.errors import ElasticPmDynError, InputError
 from elastic_pm_dyn.kinematics.assembly import initial_state, solve_pose
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
@@ -218,8 +219,9 @@ class Observer:
 
     def initialise_from_joint_state(self, t: float, names, position, velocity=None,
                                     velocity_stddev: float | None = None) -> bool:
-        """Set the pose from measured positions of every active joint (elastic joints at rest
-        unless measured too, passive joints from the closure); False if some are missing.
+        """Set the pose from measured positions of every active joint (elastic joints in static
+        equilibrium with the motors there, unless measured too; passive joints from the
+        closure); False if some are missing or there is no equilibrium.
 
         Rates come from ``velocity`` where given (active/elastic joints), else zero; a reset
         while the machine may be moving should pass ``velocity_stddev`` [rad/s] for the
@@ -235,14 +237,18 @@ class Observer:
             if k is None or k >= len(position) or not np.isfinite(position[k]):
                 return False
             q[j] = float(position[k])
+        measured_elastic = False
         for j in mech.ae:
             k = lookup.get(mech.joint_names[j])
             if k is not None and j in mech.elastic and k < len(position) and np.isfinite(position[k]):
                 q[j] = float(position[k])
+                measured_elastic = True
             if k is not None and k < len(vel) and np.isfinite(vel[k]):
                 qd[j] = float(vel[k])
         try:
             q = solve_pose(mech, q, mech.passive)
+            if not measured_elastic:  # at rest the springs carry the static load (gravity)
+                q = static_deflection(mech, q, np.zeros(len(mech.ee_components)))
         except ElasticPmDynError:
             return False
         P0 = self.P0.copy()

@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from elastic_pm_dyn.dynamics.direct import Dynamics
+from elastic_pm_dyn.dynamics.statics import static_deflection
 from elastic_pm_dyn.kinematics.assembly import initial_state
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.sim.simulator import SimulationOptions, Simulator
@@ -65,6 +66,11 @@ class _HeldPlusSmooth(TorqueSource):
     def coefficients(self, t: float, h: float) -> np.ndarray:
         f0, f1, f2 = self.value(t), self.value(t + 0.5 * h), self.value(t + h)
         return np.vstack([f0, (4 * f1 - 3 * f0 - f2) / h, 2 * (f0 - 2 * f1 + f2) / h ** 2])
+
+
+def rest_state(mech: Mechanism) -> np.ndarray:
+    """The model's initial pose at rest: springs in static equilibrium (gravity) with the motors there."""
+    return static_deflection(mech, initial_state(mech), np.zeros(len(mech.ee_components)))
 
 
 @dataclass
@@ -117,7 +123,7 @@ def simulate(mech: Mechanism, command: Callable[[int, float, np.ndarray], np.nda
     n_steps = round(duration / period)
     sim = Simulator(mech, SimulationOptions(formulation="scdd", dt=truth_dt, stabilization="projection"))
     dyn = Dynamics(mech, "scdd")
-    q = initial_state(mech) if q0 is None else np.array(q0, dtype=float)
+    q = rest_state(mech) if q0 is None else np.array(q0, dtype=float)
     qd = np.zeros(mech.n)
     chain = int(mech.model.end_effector_chain)
     g = np.asarray(mech.model.gravity, dtype=float)
@@ -172,7 +178,7 @@ def chirp_recording(mech: Mechanism, seed: int = 2, amplitude: float = 3.0, f0: 
     loop (kp [N m/rad], kd [N m s/rad] on differenced encoder angles) that holds the start pose."""
     rng = np.random.default_rng(seed)
     dist = Multisine(rng, len(mech.active), disturbance_rms) if disturbance_rms > 0 else None
-    q0 = initial_state(mech)
+    q0 = rest_state(mech)
     ref = q0[mech.active]
     last = {"enc": ref.copy()}
     sign = np.array([1.0, -1.0] + [1.0] * (len(mech.active) - 2))
