@@ -33,6 +33,7 @@ from elastic_pm_dyn.small_linalg import cholesky_recip, cholesky_solve_rows, lu_
 SINGULAR_TOL = 1e-8  # conditioning below which an evaluation counts as singular
 CLOSURE_TOL = 1e-14  # [m] partitioning target after a prediction or a correction
 PERTURBED_TOL = 1e-10  # [m] accepted gap of a first-order perturbed pose (see linearize)
+COVARIANCE_LOST = 10  # predict_checked: the prediction went through but P is no longer positive definite
 
 
 @njit(cache=True)
@@ -639,6 +640,17 @@ def predict(ma, q, qd, tau, dist_idx, z, dist_col, Lz, Fz, psd_ae, rel_ae, psd_z
 
 
 @njit(cache=True)
+def predict_checked(ma, q, qd, tau, dist_idx, z, dist_col, Lz, Fz, psd_ae, rel_ae, psd_z, eps_q, eps_v,
+                    point, with_point, relinearize, T, n_sub, P, Phi, Qd, Hpt, info):
+    """:func:`predict`, then :func:`covariance_ok` (status COVARIANCE_LOST if not): one call per interval."""
+    status = predict(ma, q, qd, tau, dist_idx, z, dist_col, Lz, Fz, psd_ae, rel_ae, psd_z, eps_q, eps_v,
+                     point, with_point, relinearize, T, n_sub, P, Phi, Qd, Hpt, info)
+    if status != OK:
+        return status
+    return OK if covariance_ok(P) else COVARIANCE_LOST
+
+
+@njit(cache=True)
 def point_acceleration(ma, q, qd, tau, dist_idx, d, point, out):
     """World acceleration of attachment point ``point`` at (q, qd) under tau + disturbance torques d."""
     n = q.shape[0]
@@ -762,6 +774,22 @@ def correct(ma, q, qd, z, P, H, R, r, gate):
     if not covariance_ok(P):
         return nis, 3
     return nis, 0
+
+
+@njit(cache=True)
+def encoder_correct(ma, q, qd, z, P, H, R, js, wrap, meas, gate):
+    """Encoder positions of state joints ``js`` (H: their constant rows): innovation
+    meas - q[js], wrapped to (-pi, pi] where ``wrap`` (revolute), then :func:`correct`.
+    Returns (NIS, status) as :func:`correct`, or (nan, -1) untouched if a value is not finite."""
+    k = js.shape[0]
+    r = np.empty(k)
+    for i in range(k):
+        if not np.isfinite(meas[i]):
+            return np.nan, -1
+        r[i] = meas[i] - q[js[i]]
+        if wrap[i]:
+            r[i] = (r[i] + np.pi) % (2 * np.pi) - np.pi
+    return correct(ma, q, qd, z, P, H, R, r, gate)
 
 
 @njit(cache=True)

@@ -95,6 +95,7 @@ class Encoders:
         self.needs_w = any(j not in x_of_ae for j in self.pos + self.vel)
         self._index = {n: i for i, n in enumerate(mech.joint_names)}
         self._plans: dict[tuple, list] = {}
+        self._fast: dict[tuple, tuple | None] = {}
         self._nx = 2 * nae
 
     def rows(self, joints: list[int], W: np.ndarray | None, nx: int, offset: int) -> np.ndarray:
@@ -128,6 +129,23 @@ class Encoders:
                 self._plans.clear()
             self._plans[names] = plan
         return plan
+
+    def fast_plan(self, names, nx: int) -> tuple | None:
+        """(message indices, H, variances, joints, wrap) when a message with these names gives
+        positions of state joints only (no passive row, no rates): what ``kernels.encoder_correct``
+        needs; else None (use :meth:`sample`)."""
+        key = tuple(names)
+        hit = self._fast.get(key, False)
+        if hit is False:
+            self._nx = nx
+            (_, idx, js, var, H, passive, _, _), vel = self._plan(key)
+            hit = None
+            if len(js) and not passive and H.shape[1] == nx:
+                hit = (idx, np.ascontiguousarray(H), var, js, self.revolute[js].copy(), len(vel[2]) > 0)
+            if len(self._fast) > 64:
+                self._fast.clear()
+            self._fast[key] = hit
+        return hit
 
     def sample(self, names, position, velocity, q: np.ndarray, qd: np.ndarray, W: np.ndarray | None,
                nx: int) -> Sample | None:
