@@ -118,12 +118,30 @@ class _Writer:
         return b"".join(self.parts)
 
 
+_RECENT: list[tuple[bytes, list[str], int]] = []  # (frame_id + names bytes, names, end) of recent messages
+
+
+def _frame_and_names(r: _Reader) -> list[str]:
+    """Skip frame_id and read the names after a header stamp; the bytes of a recently seen
+    frame_id + names section are compared instead of decoded again (a stream repeats them)."""
+    buf = r.buf
+    for prefix, names, end in _RECENT:
+        if buf[8:end] == prefix:
+            r.pos = end
+            return list(names)
+    r.pos = 8
+    r.string()
+    names = r.strings()
+    _RECENT.insert(0, (bytes(buf[8:r.pos]), names, r.pos))
+    del _RECENT[8:]
+    return list(names)
+
+
 def decode_joint_state(raw: bytes) -> tuple[int, list[str], np.ndarray, np.ndarray, np.ndarray]:
     """(stamp ns, names, position, velocity, effort)."""
     r = _Reader(raw)
     ns = r.stamp_ns()
-    r.string()  # frame_id
-    return ns, r.strings(), r.doubles(), r.doubles(), r.doubles()
+    return ns, _frame_and_names(r), r.doubles(), r.doubles(), r.doubles()
 
 
 def decode_imu(raw: bytes) -> tuple[int, str, np.ndarray]:
@@ -131,7 +149,8 @@ def decode_imu(raw: bytes) -> tuple[int, str, np.ndarray]:
     r = _Reader(raw)
     ns = r.stamp_ns()
     frame = r.string()
-    r.doubles(4 + 9 + 3 + 9)  # orientation, its covariance, angular velocity, its covariance
+    r.align(8)
+    r.pos += 8 * (4 + 9 + 3 + 9)  # orientation, its covariance, angular velocity, its covariance
     return ns, frame, r.doubles(3)
 
 
@@ -149,8 +168,7 @@ def decode_branch_forces(raw: bytes) -> tuple[int, list[str], np.ndarray]:
     """(stamp ns, names, force)."""
     r = _Reader(raw)
     ns = r.stamp_ns()
-    r.string()
-    return ns, r.strings(), r.doubles()
+    return ns, _frame_and_names(r), r.doubles()
 
 
 _PREFIX: dict[tuple, tuple[bytes, int]] = {}
