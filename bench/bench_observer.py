@@ -71,7 +71,7 @@ def accuracy(mech, seeds: list[int]) -> list[dict]:
 def update_times(mech, rec, rounds: int) -> dict:
     """Wall time of one live period (samples of t_k + the command of t_k), in us."""
     out = {}
-    for every in (1, 4):
+    for every in (1, 8):
         for name in ("encoders", "encoders+imu"):
             sensors = SETS[name]
             times = []

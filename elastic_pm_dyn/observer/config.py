@@ -52,7 +52,7 @@ DEFAULT_PARAMETERS: dict[str, Any] = {
     # --- process model
     "process.dt": 1.0e-4,  # [s] RK4 substep of the SCDD model
     "process.max_interval": 1.0e-3,  # [s] longest prediction piece
-    "process.relinearize_every": 4,  # prediction pieces per linearisation (Phi, Q and the accelerometer's H)
+    "process.relinearize_every": 8,  # prediction pieces per linearisation (Phi, Q and the accelerometer's H)
     "process.disturbance": "bias_band_limited",  # see DISTURBANCE_MODELS
     "process.disturbance_joints": ["active"],
     "process.disturbance_intensity": 3.0e-4,  # random walk (bias): PSD of d' [(N m)^2/s]; integrated: of d''
