@@ -6,8 +6,8 @@ per motor (not given to the observer); encoder noise 2e-5 rad, accelerometer noi
 0.02 m/s^2, strain-gauge noise 0.5 N. Two manoeuvres: the reference line's rigid
 feedforward, and a 3 N m chirp 20 -> 800 Hz (through the spring modes) on a PD loop.
 
-Scores after 50 ms of settling (the filter starts with a conservative prior of 0.55 N on
-each branch force): branch-force error RMS relative to the RMS of the elastic part
+Scores after 50 ms of settling (the filter starts at rest in static equilibrium with a
+prior of 0.05 N on each branch force): branch-force error RMS relative to the RMS of the elastic part
 F - F_qs, against an open-loop elastic simulation driven by the same commands; motor
 error against the encoder noise; NEES of [q_ae, qd_ae] in its 95 % band.
 

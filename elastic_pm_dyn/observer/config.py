@@ -66,9 +66,9 @@ DEFAULT_PARAMETERS: dict[str, Any] = {
     # --- initial uncertainty (1 sigma)
     "initial.source": "measurement",  # measurement (first joint state) | model (its initial_state)
     "initial.active_position_stddev": 1.0e-4,  # [rad]
-    "initial.elastic_position_stddev": 1.0e-7,  # [m]
+    "initial.elastic_position_stddev": 1.0e-8,  # [m] at rest, in static equilibrium
     "initial.active_velocity_stddev": 1.0e-3,  # [rad/s]
-    "initial.elastic_velocity_stddev": 1.0e-6,  # [m/s] at rest
+    "initial.elastic_velocity_stddev": 3.0e-5,  # [m/s] (the same force as a vibration: c v / w)
     "initial.disturbance_stddev": 0.02,  # [N m]
     "initial.disturbance_rate_stddev": 1.0,  # [N m/s] (integrated random walk)
     # --- robustness

@@ -5,7 +5,9 @@ torque), discretised at the sample period (``process.max_interval``), and two qu
 are answered per state:
 
 1. Information over a horizon (deterministic observability): with the prior covariance
-   P0 = diag(s^2) (the configured initial standard deviations), the information
+   P0 = diag(s^2) (the configured initial standard deviations, but for an elastic joint at
+   least the deflection and rate of a 1 N vibration, so that the verdict does not hang on
+   how tight the start-up prior is), the information
    I_N = sum_k (C Phi^k)^T R^-1 (C Phi^k) of N noisy samples gives the posterior
    std sqrt(diag((P0^-1 + I_N)^-1)). Its ratio to the prior std says how much the sensors
    alone, without process noise, pin a state down within the horizon: < 0.1 observable,
@@ -54,6 +56,20 @@ def linear_model(obs, q: np.ndarray, qd: np.ndarray, tau_active: np.ndarray
     H[:, :nae], H[:, nae:2 * nae] = Eq, Ev
     H[:, 2 * nae:] = Ef[:, obs.dist_col] @ obs.Lz
     return Ac, Qc, H
+
+
+def reference_scale(obs, Ac: np.ndarray) -> np.ndarray:
+    """Prior std per state for the horizon analysis: the initial std, for elastic joints at
+    least 1 N / stiffness (position) and w / stiffness (rate, w from the linearised model)."""
+    s = np.sqrt(np.diag(obs.P0)).copy()
+    nae = obs.nae
+    for i, j in enumerate(obs.ae):
+        c = obs.mech.model.joints[int(j)].stiffness
+        if c > 0:
+            w = np.sqrt(max(-Ac[nae + i, i], 0.0))
+            s[i] = max(s[i], 1.0 / c)
+            s[nae + i] = max(s[nae + i], w / c)
+    return s
 
 
 def measurement_matrix(obs, q: np.ndarray, H_point: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[str]]:
@@ -142,7 +158,7 @@ def analyse(obs, horizon: float | None = None, q: np.ndarray | None = None, qd: 
     Phi, Qd = np.empty_like(Ac), np.empty_like(Ac)
     kernels.discretize(Ac, Qc, T, Phi, Qd)
     C, R, labels = measurement_matrix(obs, q, Hpt)
-    s = np.sqrt(np.diag(obs.P0))
+    s = reference_scale(obs, Ac)
     n_steps = max(1, round(horizon / T))
     info = np.zeros((obs.nx, obs.nx))
     Ck = C * s  # scaled: x = S xi
