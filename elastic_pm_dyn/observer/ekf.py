@@ -484,6 +484,20 @@ class Observer:
             st.window.popleft()
         return UpdateResult(sensor, t, True, nis, dof, "", dropped)
 
+    def _accepted_many(self, sensor: str, nis: list[float], dof: int) -> None:
+        """The statistics of :meth:`_after` for consecutive accepted samples (the offline fast path)."""
+        if not nis:
+            return
+        st = self.stats[sensor]
+        st.last_nis = nis[-1]
+        st.accepted += len(nis)
+        st.consecutive_rejections = 0
+        keep = self.cfg.gating.nis_window
+        w = st.window
+        w.extend((v, dof) for v in nis[-keep - 1:])
+        while len(w) > keep:
+            w.popleft()
+
     # ------------------------------------------------------------------ outputs
     def x(self) -> np.ndarray:
         return np.concatenate([self.q[self.ae], self.qd[self.ae], self.z])

@@ -844,3 +844,106 @@ def covariance_ok(P):
                 s -= L[i, k] * L[j, k]
             L[i, j] = s / L[j, j]
     return True
+
+
+@njit(cache=True)
+def run_periods(ma, q, qd, z, P, Phi, Qd, Hpt, info, dist_idx, dist_col, Lz, Fz, psd_ae, rel_ae, psd_z, eps_q, eps_v,
+                point, with_point, active_idx, tau_hold, tau_last, ctl, timing, enc_H, enc_R, enc_js, enc_wrap,
+                enc_gate, enc_meas, has_imu, S, g, imu_R, imu_gate, imu_meas, ts, taus, ee_point, ee_comp,
+                branch_joint, stiff, damp, rest, start, stop, out, nis_out):
+    """Ordinary periods ``start``..``stop``-1 (offline fast path), each what the per-message API
+    does for a joint state (state-joint positions), an optional accelerometer sample and the
+    torque command at one stamp ``ts[k]``, in that order: ``Observer._advance`` (one
+    :func:`predict_checked` piece with the held command), :func:`encoder_correct`,
+    :func:`imu_correct`, the command (``taus[k]`` held from then on) and :func:`estimate_flat`
+    into ``out[k]`` -- the same kernels on the same numbers in the same order.
+
+    ctl = [t, intervals since the linearisation, its length, t_command] (in place);
+    timing = [max_interval, dt, stamp tolerance, relinearize_every, command_timeout];
+    tau_hold, tau_last (active order) in place; nis_out[k] = (encoder, imu) NIS.
+    A period stops the run, the filter state restored as it was before it, when it is not
+    ordinary: not exactly one prediction piece ahead (late, simultaneous, a gap), a command
+    timeout involved, a late command, a non-finite input, a gated sample, a failure. Returns
+    the number of periods done; the caller runs the next one through the per-message API.
+    (ctl[0] ends up min(ts[k], t + max_interval): a stamp a rounding error more than one
+    piece ahead leaves the filter that close to it, as ``Observer._advance`` does.)
+    """
+    n = q.shape[0]
+    na = active_idx.shape[0]
+    max_interval, dt, tol, every, timeout = timing[0], timing[1], timing[2], timing[3], timing[4]
+    q0, qd0, z0 = np.empty_like(q), np.empty_like(qd), np.empty_like(z)
+    P0, Phi0, Qd0, Hpt0, info0 = np.empty_like(P), np.empty_like(Phi), np.empty_like(Qd), np.empty_like(Hpt), \
+        np.empty_like(info)
+    tree = np.empty(n)
+    tau_used = np.empty(na)
+    enc_m = np.empty(enc_meas.shape[1])
+    imu_m = np.empty(imu_meas.shape[1])
+    for k in range(start, stop):
+        t, lin_age, lin_T, t_command = ctl[0], ctl[1], ctl[2], ctl[3]
+        t_to = ts[k]
+        # Observer._advance's single piece: to min(t_to, t + max_interval), t_to within the tolerance
+        end = min(t_to, t + max_interval)
+        t_end = t_to if end >= t_to else end
+        if not t_to - t > tol or t_to - t_end > tol or t_to < t_command - tol:
+            return k - start
+        if timeout > 0 and (t - t_command >= timeout - 1e-12 or (t < t_command + timeout < end - tol)):
+            return k - start
+        ok = True
+        for i in range(na):
+            ok = ok and np.isfinite(taus[k, i])
+        for i in range(enc_meas.shape[1]):
+            ok = ok and np.isfinite(enc_meas[k, i])
+            enc_m[i] = enc_meas[k, i]
+        if has_imu:
+            for i in range(imu_meas.shape[1]):
+                ok = ok and np.isfinite(imu_meas[k, i])
+                imu_m[i] = imu_meas[k, i]
+        if not ok:
+            return k - start
+        q0[:] = q
+        qd0[:] = qd
+        z0[:] = z
+        P0[:] = P
+        Phi0[:] = Phi
+        Qd0[:] = Qd
+        Hpt0[:] = Hpt
+        info0[:] = info
+        T = end - t
+        n_sub = max(1, int(np.ceil(T / dt - 1e-9)))
+        relin = lin_age >= every or abs(T - lin_T) > 1e-12
+        tree[:] = 0.0
+        for i in range(na):
+            tree[active_idx[i]] = tau_hold[i]
+            tau_used[i] = tau_hold[i]
+        status = predict_checked(ma, q, qd, tree, dist_idx, z, dist_col, Lz, Fz, psd_ae, rel_ae, psd_z, eps_q, eps_v,
+                                 point, with_point, relin, T, n_sub, P, Phi, Qd, Hpt, info)
+        nis_e, st_e = np.nan, 0
+        nis_i, st_i = np.nan, 0
+        if status == OK:
+            nis_e, st_e = encoder_correct(ma, q, qd, z, P, enc_H, enc_R, enc_js, enc_wrap, enc_m, enc_gate)
+        if status == OK and st_e == 0 and has_imu:
+            tree[:] = 0.0
+            for i in range(na):
+                tree[active_idx[i]] = tau_used[i]
+            nis_i, st_i = imu_correct(ma, q, qd, z, P, tree, dist_idx, Lz, point, S, g, imu_m, imu_R, Hpt, imu_gate)
+        if status != OK or st_e != 0 or st_i != 0:
+            q[:] = q0
+            qd[:] = qd0
+            z[:] = z0
+            P[:] = P0
+            Phi[:] = Phi0
+            Qd[:] = Qd0
+            Hpt[:] = Hpt0
+            info[:] = info0
+            return k - start
+        if relin:
+            lin_age, lin_T = 0.0, T
+        ctl[0], ctl[1], ctl[2], ctl[3] = t_end, lin_age + 1.0, lin_T, t_to
+        for i in range(na):
+            tau_last[i] = tau_used[i]
+            tau_hold[i] = taus[k, i]
+        estimate_flat(ma, q, qd, z, P, tau_last, active_idx, dist_idx, Lz, ee_point, ee_comp, branch_joint, stiff,
+                      damp, rest, t_end, out[k])
+        nis_out[k, 0] = nis_e
+        nis_out[k, 1] = nis_i
+    return stop - start

@@ -43,29 +43,31 @@ class ObserverStream:
         self.results: list[UpdateResult] = []  # of the last call
         self._name_orders: dict[tuple, np.ndarray] = {}  # command names -> active joint order
 
-    def on_torque_command(self, stamp_ns: int, names: Sequence[str], effort: Sequence[float]) -> bool:
+    def command_tau(self, names: Sequence[str], effort) -> np.ndarray:
+        """The efforts of a torque command in active-joint order (InputError if it lacks some)."""
         effort = np.asarray(effort, dtype=float)
+        if len(names):
+            key = tuple(names)
+            order = self._name_orders.get(key)
+            if order is None:
+                lookup = {n: k for k, n in enumerate(names)}
+                missing = [n for n in self.obs.mech.active_names if n not in lookup]
+                if missing:
+                    raise InputError(f"torque command without effort for {', '.join(missing)}")
+                if len(self._name_orders) > 64:
+                    self._name_orders.clear()
+                order = self._name_orders[key] = np.array([lookup[n] for n in self.obs.mech.active_names],
+                                                          dtype=np.int64)
+            if len(effort) != len(names):
+                raise InputError("torque command without effort for every name")
+            return effort[order]
+        if len(effort) != len(self.command_joints):
+            raise InputError(f"torque command with {len(effort)} values, expected {len(self.command_joints)}")
+        return effort[self._order]
+
+    def on_torque_command(self, stamp_ns: int, names: Sequence[str], effort: Sequence[float]) -> bool:
         try:
-            if len(names):
-                key = tuple(names)
-                order = self._name_orders.get(key)
-                if order is None:
-                    lookup = {n: k for k, n in enumerate(names)}
-                    missing = [n for n in self.obs.mech.active_names if n not in lookup]
-                    if missing:
-                        raise InputError(f"torque command without effort for {', '.join(missing)}")
-                    if len(self._name_orders) > 64:
-                        self._name_orders.clear()
-                    order = self._name_orders[key] = np.array([lookup[n] for n in self.obs.mech.active_names],
-                                                              dtype=np.int64)
-                if len(effort) != len(names):
-                    raise InputError("torque command without effort for every name")
-                tau = effort[order]
-            else:
-                if len(effort) != len(self.command_joints):
-                    raise InputError(f"torque command with {len(effort)} values, expected {len(self.command_joints)}")
-                tau = effort[self._order]
-            return self.obs.command(seconds(stamp_ns), tau)
+            return self.obs.command(seconds(stamp_ns), self.command_tau(names, effort))
         except InputError as err:
             self.bad_commands += 1
             self.last_error = str(err)

@@ -1,0 +1,136 @@
+"""The offline fast path (``kernels.run_periods``) equals the per-message API bit for bit."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from elastic_pm_dyn.observer import Observer, ObserverConfig, kernels
+from elastic_pm_dyn.observer.offline import Event, run_events
+from elastic_pm_dyn.observer.scenarios import manoeuvre_recording
+
+
+@pytest.fixture(scope="module")
+def rec(five_bar):
+    return manoeuvre_recording(five_bar, duration=0.2, seed=5)
+
+
+def _events(rec, imu=True, branch_at=(), corrupt=None, skip=(), late=(), reorder=(), frame="", bad_cmd=(),
+            effort_at=(), skip_cmd=(), huge_cmd=()):
+    """Lockstep events (joint state, imu, command per stamp) with glitches where asked."""
+    corrupt = corrupt or {}
+    names = list(rec.active_names)
+    out = []
+
+    def add(ns, kind, data):
+        out.append(Event(int(ns), kind, data, len(out)))
+
+    for k, ns in enumerate(rec.stamp_ns):
+        c = corrupt.get(k, {})
+        group = []
+        if k not in skip:
+            enc = np.asarray(c.get("encoder", rec.encoder[k]), dtype=float)
+            eff = np.array([1.0, 2.0]) if k in effort_at else np.zeros(0)
+            group.append(("joint_state", (names, enc, np.zeros(0), eff)))
+            if imu:
+                group.append(("imu", (np.asarray(c.get("accel", rec.accel[k]), dtype=float), frame)))
+            if k in branch_at:
+                group.append(("branch_forces", (list(rec.branch_names), rec.branch[k])))
+        tau = np.array([np.nan, 0.0]) if k in bad_cmd else rec.tau_cmd[k]
+        tau = np.array([1e15, -1e15]) if k in huge_cmd else tau
+        if k not in skip_cmd:
+            group.append(("command", (names, tau)))
+        if k in reorder:
+            group = group[::-1]
+        for kind, data in group:
+            add(ns, kind, data)
+        for j in late:
+            if j[0] == k:  # an old joint state arrives now (arrival order)
+                add(rec.stamp_ns[j[1]], "joint_state", (names, rec.encoder[j[1]], np.zeros(0), np.zeros(0)))
+    return out
+
+
+def _same_float(a, b) -> bool:
+    return (a == b) or (isinstance(a, float) and isinstance(b, float) and math.isnan(a) and math.isnan(b))
+
+
+def _compare(mech, params, events, order="stamp", min_fast=1):
+    cfg = ObserverConfig.from_parameters(params)
+    runs = []
+    for fast in (False, True):
+        obs = Observer(mech, cfg, t0=events[0].stamp_ns * 1e-9)
+        rows, stream, fault = run_events(obs, events, order, fast=fast)
+        runs.append((obs, rows, stream, fault))
+    (o1, r1, s1, f1), (o2, r2, s2, f2) = runs
+    assert f1 == f2
+    assert r1.t == r2.t
+    assert len(r1.t) > 0
+    assert np.array_equal(r1.table(), r2.table(), equal_nan=True)
+    assert np.array_equal(np.array(r1.nis), np.array(r2.nis), equal_nan=True)
+    for name in o1.stats:
+        a, b = o1.stats[name], o2.stats[name]
+        for key in ("accepted", "rejected", "late", "nan", "other", "consecutive_rejections", "last_reason"):
+            assert getattr(a, key) == getattr(b, key), (name, key)
+        assert _same_float(a.last_nis, b.last_nis), name
+        assert list(a.window) == list(b.window), name
+    assert s1.bad_commands == s2.bad_commands
+    # (Hpt only means something with an accelerometer: without one it is scratch)
+    for key in ("q", "qd", "z", "P", "Phi", "Qd", "tau_hold", "tau_last") + (("Hpt",) if o1.with_point else ()):
+        assert np.array_equal(getattr(o1, key), getattr(o2, key), equal_nan=True), key
+    assert (o1.t, o1.t_command, o1._lin_age, o1._lin_T) == (o2.t, o2.t_command, o2._lin_age, o2._lin_T)
+    assert o1.diagnostics() == o2.diagnostics()
+    return o2, r2
+
+
+@pytest.fixture
+def count_fast(monkeypatch):
+    calls = []
+    inner = kernels.run_periods
+
+    def wrapped(*args):
+        done = inner(*args)
+        calls.append(done)
+        return done
+
+    monkeypatch.setattr(kernels, "run_periods", wrapped)
+    return calls
+
+
+def test_fast_path_equals_per_message_api_with_glitches(five_bar, rec, count_fast) -> None:
+    n = len(rec.stamp_ns)
+    bad = {30: {"encoder": rec.encoder[30] + [0.5, 0.0]},  # gated
+           40: {"encoder": [np.nan, rec.encoder[40][1]]},  # NaN entry: the other one is used
+           50: {"accel": rec.accel[50] + [50.0, 0.0, 0.0]},  # gated
+           60: {"accel": [np.nan, 0.0, 0.0]}}
+    events = _events(rec, corrupt=bad, skip=(70, 71, 72), bad_cmd=(80,), branch_at=(90,), reorder=(100,),
+                     effort_at=(110,))
+    params = {"sensors": ["encoders", "imu", "branch_forces"]}
+    obs, _ = _compare(five_bar, params, events)
+    assert obs.stats["encoders"].rejected >= 1 and obs.stats["imu"].rejected >= 1
+    assert obs.stats["encoders"].nan == 1 and obs.stats["imu"].nan == 1
+    # Most periods went the fast way.
+    assert sum(count_fast) > 0.8 * n
+
+
+def test_fast_path_encoders_only_and_measurement_start(five_bar, rec, count_fast) -> None:
+    events = _events(rec, imu=False, corrupt={20: {"encoder": [np.nan, np.nan]}})
+    _compare(five_bar, {"sensors": ["encoders"], "initial.source": "measurement"}, events)
+    assert sum(count_fast) > 0.8 * len(rec.stamp_ns)
+
+
+def test_fast_path_arrival_order_late_samples_and_timeout(five_bar, rec, count_fast) -> None:
+    events = _events(rec, late=((50, 47), (51, 20)), frame="ee_imu")
+    _compare(five_bar, {"sensors": ["encoders", "imu"]}, events, order="arrival")
+    _compare(five_bar, {"sensors": ["encoders", "imu"]}, events, order="stamp")
+    # A command timeout shorter than some gaps: the held torque drops to zero there.
+    gappy = _events(rec, skip=tuple(range(60, 66)), skip_cmd=tuple(range(60, 66)))
+    _compare(five_bar, {"sensors": ["encoders", "imu"], "timing.command_timeout": 0.0025}, gappy)
+    assert sum(count_fast) > 0
+
+
+def test_fast_path_stops_at_a_fault(five_bar, rec) -> None:
+    """A torque that blows the model up: the same fault, state, statistics and rows either way."""
+    obs, rows = _compare(five_bar, {"sensors": ["encoders", "imu"]}, _events(rec, huge_cmd=(50,)))
+    assert obs.fault and len(rows.t) < len(rec.stamp_ns)
