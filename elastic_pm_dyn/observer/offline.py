@@ -215,6 +215,7 @@ def _fast_runs(obs: Observer, stream: ObserverStream, events: list[Event], group
     branch_effort = obs.branch is not None and obs.branch.source == "joint_state_effort"
     axes = imu.axes if imu is not None else None
     cur: _Run | None = None
+    last_names, last_plan = None, None
     for gi, (i0, i1) in enumerate(groups):
         spec = None
         size = i1 - i0
@@ -223,7 +224,9 @@ def _fast_runs(obs: Observer, stream: ObserverStream, events: list[Event], group
             ei = events[i0 + 1] if size == 3 else None
             if ej.kind == "joint_state" and ec.kind == "command" and (ei is None or ei.kind == "imu"):
                 names, pos, vel, eff = ej.data
-                plan = enc.fast_plan(names, obs.nx) if len(pos) == len(names) else None
+                if names is not last_names and names != last_names:  # decoded messages repeat them
+                    last_names, last_plan = names, enc.fast_plan(names, obs.nx)
+                plan = last_plan if len(pos) == len(names) else None
                 if plan is not None and not (plan[5] and len(vel)) and not (branch_effort and len(eff)):
                     spec = plan
                 if spec is not None and ei is not None:
