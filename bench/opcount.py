@@ -395,9 +395,9 @@ class NumpyShim(types.ModuleType):
 # ------------------------------------------------------------------------- patching
 _PATCHED = False
 SECTION_WRAPS = {  # (module, function name) -> section label
-    ("elastic_pm_dyn.dynamics.evaluate", "tree_terms"): "tree_terms",
+    ("elastic_pm_dyn.dynamics.evaluate", "tree_terms_into"): "tree_terms",
     ("elastic_pm_dyn.dynamics.evaluate", "closure_rows"): "closure_rows",
-    ("elastic_pm_dyn.dynamics.evaluate", "scdd"): "solve",
+    ("elastic_pm_dyn.dynamics.evaluate", "scdd_into"): "solve",
     ("elastic_pm_dyn.dynamics.evaluate", "scdd_platform"): "solve",
     ("elastic_pm_dyn.dynamics.evaluate", "lagrange_dalembert"): "solve",
     ("elastic_pm_dyn.dynamics.evaluate", "multipliers"): "solve",

@@ -6,8 +6,15 @@ The formulation is an integer so that integrators can be compiled once for all o
 import numpy as np
 from numba import njit
 
-from elastic_pm_dyn.dynamics.kernels import lagrange_dalembert, multipliers, scdd, scdd_one_pass, scdd_platform
-from elastic_pm_dyn.kinematics.kernels import closure_rows, tree_terms
+from elastic_pm_dyn.dynamics.kernels import (
+    chain_size_max,
+    lagrange_dalembert,
+    multipliers,
+    scdd_into,
+    scdd_one_pass,
+    scdd_platform,
+)
+from elastic_pm_dyn.kinematics.kernels import closure_rows, tree_terms_into
 from elastic_pm_dyn.model.arrays import ModelArrays
 from elastic_pm_dyn.small_linalg import matvec
 
@@ -18,6 +25,20 @@ SCDD_ONE_PASS = 3
 SCDD_STACKED = 4  # SCDD without the platform reduction (all cut forces stacked), for comparison
 FORMULATION_CODES = {"scdd": SCDD, "lda": LDA, "multipliers": MULTIPLIERS, "scdd_one_pass": SCDD_ONE_PASS,
                      "scdd_stacked": SCDD_STACKED}
+
+
+@njit(cache=True)
+def workspace(ma):
+    """Work arrays of :func:`accelerations_into` for the model ``ma`` (allocate once, reuse)."""
+    n = ma.jf.shape[0]
+    npt = ma.points.shape[0]
+    m = ma.p_index.shape[0]
+    nmax = chain_size_max(ma.chain_start)
+    return (np.empty((n, n)), np.empty(n), np.empty((npt, 3, n)), np.empty((npt, 3)), np.empty((npt, 3)),
+            np.empty((m, n)), np.empty(m), np.empty(m),
+            np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)),
+            np.empty(n), np.empty((n, m)), np.empty((m, m)), np.empty((nmax, nmax)), np.empty(nmax),
+            np.empty((nmax, 1 + m)), np.empty(m, dtype=np.int64), np.empty(m), np.empty(n), np.empty(m))
 
 
 @njit(cache=True)
@@ -34,29 +55,31 @@ def accelerations(form, ma, q, qd, tau, baumgarte_alpha, baumgarte_beta, qdd_pre
     rigid machine's parallel singularities, which only the formulations inverting dh/dq_p
     cannot.
     """
-    n = q.shape[0]
-    npt = ma.points.shape[0]
+    return accelerations_into(form, ma, q, qd, tau, baumgarte_alpha, baumgarte_beta, qdd_prev, qdd, lam,
+                              workspace(ma))
+
+
+@njit(cache=True)
+def accelerations_into(form, ma, q, qd, tau, baumgarte_alpha, baumgarte_beta, qdd_prev, qdd, lam, ws):
+    """:func:`accelerations` on the work arrays ``ws`` of :func:`workspace`: SCDD on a
+    serial-chain closure allocates nothing (allocation was a third of an evaluation on the
+    five-bar). The tree terms (M, h, J, a_pt, p_pt = ws[:5]) and the closure rows
+    (A, gamma, res = ws[5:8]) of (q, qd) stay in ``ws`` for the caller."""
+    M, h, J, a_pt, p_pt, A, gamma, res, wz, wo, jv, jw, x, Y, S, L, dinv, XY, piv, r, tmh, bm = ws
     m = ma.p_index.shape[0]
-    M = np.empty((n, n))
-    h = np.empty(n)
-    J = np.empty((npt, 3, n))
-    a_pt = np.empty((npt, 3))
-    p_pt = np.empty((npt, 3))
-    tree_terms(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_chain, ma.gravity, q, qd, M, h, J, a_pt, p_pt)
-    A = np.empty((m, n))
-    gamma = np.empty(m)
-    res = np.empty(m)
+    tree_terms_into(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_chain, ma.gravity, q, qd, M, h, J, a_pt,
+                    p_pt, wz, wo, jv, jw)
     gap = 0.0
     if m > 0:
         closure_rows(ma.closure_pairs, ma.closure_components, J, a_pt, p_pt, A, gamma, res)
         gap = np.sqrt(np.sum(res * res))
         if baumgarte_alpha > 0.0 or baumgarte_beta > 0.0:
-            gamma -= 2.0 * baumgarte_alpha * matvec(A, qd, np.empty(m)) + baumgarte_beta * baumgarte_beta * res
+            gamma -= 2.0 * baumgarte_alpha * matvec(A, qd, bm) + baumgarte_beta * baumgarte_beta * res
     if form == SCDD and ma.hub >= 0:
         cond = scdd_platform(M, h, A, gamma, tau, ma.chain_start, ma.point_chain, ma.closure_pairs,
                              ma.closure_components.shape[0], ma.hub, qdd, lam)
     elif form in (SCDD, SCDD_STACKED):
-        cond = scdd(M, h, A, gamma, tau, ma.chain_start, qdd, lam)
+        cond = scdd_into(M, h, A, gamma, tau, ma.chain_start, qdd, lam, x, Y, S, L, dinv, XY, piv, r, tmh)
     elif form == LDA:
         cond = lagrange_dalembert(M, h, A, gamma, tau, ma.ae_index, ma.p_index, qdd)
         lam[:] = 0.0
@@ -64,7 +87,7 @@ def accelerations(form, ma, q, qd, tau, baumgarte_alpha, baumgarte_beta, qdd_pre
         cond = multipliers(M, h, A, gamma, tau, qdd, lam)
     else:
         cond = scdd_one_pass(M, h, A, gamma, tau, ma.ae_index, ma.p_index, ma.chain_start,
-                          qdd_prev, qdd, lam)
+                             qdd_prev, qdd, lam)
     return cond, gap
 
 

@@ -48,32 +48,54 @@ def chain_responses(M, A, chain_start, tau_minus_h, x, Y):
     S[0,0] = nan if a chain mass matrix is not positive definite.
     """
     m = A.shape[0]
-    S = np.zeros((m, m))
+    nmax = chain_size_max(chain_start)
+    S = np.empty((m, m))
+    if not chain_responses_into(M, A, chain_start, tau_minus_h, x, Y, S, np.empty((nmax, nmax)), np.empty(nmax),
+                                np.empty((nmax, 1 + m))):
+        S[:, :] = np.nan
+    return S
+
+
+@njit(cache=True)
+def chain_size_max(chain_start):
+    nmax = 1
+    for c in range(chain_start.shape[0] - 1):
+        nmax = max(nmax, chain_start[c + 1] - chain_start[c])
+    return nmax
+
+
+@njit(cache=True)
+def chain_responses_into(M, A, chain_start, tau_minus_h, x, Y, S, L, dinv, XY):
+    """:func:`chain_responses` into S with work arrays L (nmax x nmax), dinv (nmax) and
+    XY (nmax x (1 + m)), nmax the largest chain. False if a chain mass matrix is not
+    positive definite."""
+    m = A.shape[0]
+    S[:, :] = 0.0
     for c in range(chain_start.shape[0] - 1):
         s = chain_start[c]
         e = chain_start[c + 1]
-        L = M[s:e, s:e].copy()
-        dinv = np.empty(e - s)
-        if not cholesky_recip(L, e - s, dinv):
-            S[:, :] = np.nan
-            return S
-        XY = np.empty((e - s, 1 + m))  # [tau_i - h_i, A_i^T]: one sweep solves both
-        for i in range(e - s):
+        ne = e - s
+        for i in range(ne):
+            for j in range(ne):
+                L[i, j] = M[s + i, s + j]
+        if not cholesky_recip(L, ne, dinv):
+            return False
+        for i in range(ne):  # [tau_i - h_i, A_i^T]: one sweep solves both
             XY[i, 0] = tau_minus_h[s + i]
             for j in range(m):
                 XY[i, 1 + j] = A[j, s + i]
-        cholesky_solve_rows(L, dinv, e - s, XY, 0, 1 + m)
-        for i in range(e - s):
+        cholesky_solve_rows(L, dinv, ne, XY, 0, 1 + m)
+        for i in range(ne):
             x[s + i] = XY[i, 0]
             for j in range(m):
                 Y[s + i, j] = XY[i, 1 + j]
         for i in range(m):
             for j in range(m):
                 acc = 0.0
-                for k in range(e - s):
+                for k in range(ne):
                     acc += A[i, s + k] * XY[k, 1 + j]
                 S[i, j] += acc
-    return S
+    return True
 
 
 @njit(cache=True)
@@ -81,16 +103,29 @@ def scdd(M, h, A, gamma, tau, chain_start, qdd, lam):
     """Exact SCDD (eqs 33-41, loop solved via the Schur complement). Returns pivot ratio."""
     n = M.shape[0]
     m = A.shape[0]
-    x = np.empty(n)
-    Y = np.empty((n, m))
-    S = chain_responses(M, A, chain_start, tau - h, x, Y)
+    nmax = chain_size_max(chain_start)
+    return scdd_into(M, h, A, gamma, tau, chain_start, qdd, lam, np.empty(n), np.empty((n, m)), np.empty((m, m)),
+                     np.empty((nmax, nmax)), np.empty(nmax), np.empty((nmax, 1 + m)), np.empty(m, dtype=np.int64),
+                     np.empty(m), np.empty(n))
+
+
+@njit(cache=True)
+def scdd_into(M, h, A, gamma, tau, chain_start, qdd, lam, x, Y, S, L, dinv, XY, piv, r, tmh):
+    """:func:`scdd` on work arrays: x, tmh (n), Y (n x m), S (m x m), piv, r (m) and the
+    per-chain L, dinv, XY of :func:`chain_responses_into` (no allocation)."""
+    n = M.shape[0]
+    m = A.shape[0]
+    for i in range(n):
+        tmh[i] = tau[i] - h[i]
+    ok = chain_responses_into(M, A, chain_start, tmh, x, Y, S, L, dinv, XY)
     if m == 0:
         qdd[:] = x
         return 1.0
-    if np.isnan(S[0, 0]):
+    if not ok:
         return 0.0
-    r = gamma - matvec(A, x, np.empty(m))
-    piv = np.empty(m, dtype=np.int64)
+    matvec(A, x, r)
+    for i in range(m):
+        r[i] = gamma[i] - r[i]
     ratio = lu_factor(S, piv)
     if ratio == 0.0:
         return 0.0

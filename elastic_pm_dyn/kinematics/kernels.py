@@ -141,13 +141,16 @@ def tree_terms(jf, ji, chain_start, points, point_chain, grav, q, qd, M, h, J, a
     Jdot qd and positions. Points 0..n_chains-1 are the chain ends.
     """
     n = q.shape[0]
+    tree_terms_into(jf, ji, chain_start, points, point_chain, grav, q, qd, M, h, J, a_pt, p_pt,
+                    np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)))
+
+
+@njit(cache=True)
+def tree_terms_into(jf, ji, chain_start, points, point_chain, grav, q, qd, M, h, J, a_pt, p_pt, wz, wo, jv, jw):
+    """:func:`tree_terms` with its four (n_t x 3) work arrays given (no allocation)."""
     M[:, :] = 0.0
     h[:] = 0.0
     J[:, :, :] = 0.0
-    wz = np.empty((n, 3))
-    wo = np.empty((n, 3))
-    jv = np.empty((n, 3))
-    jw = np.empty((n, 3))
     for c in range(chain_start.shape[0] - 1):
         chain_terms(jf, ji, c, chain_start[c], chain_start[c + 1], points, point_chain, grav, q, qd,
                     M, h, J, a_pt, p_pt, wz, wo, jv, jw)

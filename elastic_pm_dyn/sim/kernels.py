@@ -17,7 +17,7 @@ quadratic through the three RK4 stage times for an arbitrary function.
 import numpy as np
 from numba import njit
 
-from elastic_pm_dyn.dynamics.evaluate import LDA, accelerations
+from elastic_pm_dyn.dynamics.evaluate import LDA, accelerations_into, workspace
 from elastic_pm_dyn.dynamics.kernels import chain_responses
 from elastic_pm_dyn.kinematics.kernels import closure_rows, tree_terms
 from elastic_pm_dyn.model.arrays import ModelArrays
@@ -141,6 +141,7 @@ def rk4_steps(form, ma, q, qd, tau_coef, dt, n_steps, stab, alpha, beta, tol, si
     q2, q3, q4 = np.empty(n), np.empty(n), np.empty(n)
     v2, v3, v4 = np.empty(n), np.empty(n), np.empty(n)
     tau = np.empty(n)
+    ws = workspace(ma)
     worst = 1.0
     gap = 0.0
     info[0] = 0.0
@@ -173,7 +174,7 @@ def rk4_steps(form, ma, q, qd, tau_coef, dt, n_steps, stab, alpha, beta, tol, si
                     info[1] = cond
                     info[2] = g
                     return SINGULAR
-            cond, g = accelerations(form, ma, qs, vs, tau, a, b, qdd_prev, acc, lam)
+            cond, g = accelerations_into(form, ma, qs, vs, tau, a, b, qdd_prev, acc, lam, ws)
             qdd_prev[:] = acc
             if stage == 0:
                 gap = g
