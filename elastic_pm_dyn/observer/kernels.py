@@ -23,12 +23,10 @@ perturbed evaluations.
 import numpy as np
 from numba import njit
 
-from elastic_pm_dyn.dynamics.evaluate import SCDD, accelerations
-from elastic_pm_dyn.dynamics.kernels import passive_map, scdd_platform
-from elastic_pm_dyn.kinematics.kernels import chain_terms, closure_rows
+from elastic_pm_dyn.dynamics.evaluate import SCDD, accelerations, accelerations_into, workspace
+from elastic_pm_dyn.dynamics.kernels import passive_map
 from elastic_pm_dyn.model.layout import JF_STIFFNESS
-from elastic_pm_dyn.sim.kernels import NOT_FINITE, OK, SINGULAR, _closure, partition
-from elastic_pm_dyn.small_linalg import cholesky_recip, cholesky_solve_rows, lu_factor, lu_solve
+from elastic_pm_dyn.sim.kernels import OK, _closure, partition, rk4_steps
 
 SINGULAR_TOL = 1e-8  # conditioning below which an evaluation counts as singular
 CLOSURE_TOL = 1e-14  # [m] partitioning target after a prediction or a correction
@@ -62,97 +60,9 @@ def evaluate(ma, q, qd, tau, point, with_point, qdd, lam, qdd_prev, a_pt_out):
 
 
 @njit(cache=True)
-def scratch(ma, n):
-    """Work arrays of :func:`fast_accelerations`, allocated once per kernel call."""
-    npt = ma.points.shape[0]
-    m = ma.p_index.shape[0]
-    nmax = 1
-    for c in range(ma.chain_start.shape[0] - 1):
-        nmax = max(nmax, ma.chain_start[c + 1] - ma.chain_start[c])
-    return (np.empty((n, n)), np.empty(n), np.empty((npt, 3, n)), np.empty((npt, 3)), np.empty((npt, 3)),
-            np.empty((m, n)), np.empty(m), np.empty(m), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)),
-            np.empty((n, 3)), np.empty(n), np.empty((n, m)), np.empty((m, m)), np.empty((nmax, nmax)),
-            np.empty(nmax), np.empty((nmax, 1 + m)), np.empty(m, dtype=np.int64), np.empty(m), np.empty(n))
-
-
-@njit(cache=True)
-def fast_accelerations(ma, q, qd, tau, ws, qdd, lam):
-    """``accelerations(SCDD, ...)`` (no stabilisation) on the work arrays ``ws`` of
-    :func:`scratch`: the same operations in the same order, so bit-identical results, but no
-    allocation per evaluation (about a third of an evaluation's time on the five-bar). The
-    tree terms (J, a_pt of every point) stay in ``ws`` for :func:`point_from_scratch`.
-    Returns (conditioning, gap)."""
-    M, h, J, a_pt, p_pt, A, gamma, res, wz, wo, jv, jw, x, Y, S, L, dinv, XY, piv, r, tmh = ws
-    n = q.shape[0]
-    m = A.shape[0]
-    if m == 0:
-        return accelerations(SCDD, ma, q, qd, tau, 0.0, 0.0, qdd, qdd, lam)
-    M[:, :] = 0.0
-    h[:] = 0.0
-    J[:, :, :] = 0.0
-    cs = ma.chain_start
-    nch = cs.shape[0] - 1
-    for c in range(nch):
-        chain_terms(ma.jf, ma.ji, c, cs[c], cs[c + 1], ma.points, ma.point_chain, ma.gravity, q, qd,
-                    M, h, J, a_pt, p_pt, wz, wo, jv, jw)
-    closure_rows(ma.closure_pairs, ma.closure_components, J, a_pt, p_pt, A, gamma, res)
-    gap = 0.0
-    for i in range(m):
-        gap += res[i] * res[i]
-    gap = np.sqrt(gap)
-    if ma.hub >= 0:
-        cond = scdd_platform(M, h, A, gamma, tau, cs, ma.point_chain, ma.closure_pairs,
-                             ma.closure_components.shape[0], ma.hub, qdd, lam)
-        return cond, gap
-    # dynamics.kernels.scdd / chain_responses, in place
-    for i in range(n):
-        tmh[i] = tau[i] - h[i]
-    S[:, :] = 0.0
-    for c in range(nch):
-        s = cs[c]
-        e = cs[c + 1]
-        ne = e - s
-        for i in range(ne):
-            for j in range(ne):
-                L[i, j] = M[s + i, s + j]
-        if not cholesky_recip(L, ne, dinv):
-            return 0.0, gap
-        for i in range(ne):
-            XY[i, 0] = tmh[s + i]
-            for j in range(m):
-                XY[i, 1 + j] = A[j, s + i]
-        cholesky_solve_rows(L, dinv, ne, XY, 0, 1 + m)
-        for i in range(ne):
-            x[s + i] = XY[i, 0]
-            for j in range(m):
-                Y[s + i, j] = XY[i, 1 + j]
-        for i in range(m):
-            for j in range(m):
-                acc = 0.0
-                for k in range(ne):
-                    acc += A[i, s + k] * XY[k, 1 + j]
-                S[i, j] += acc
-    for i in range(m):
-        acc = 0.0
-        for k in range(n):
-            acc += A[i, k] * x[k]
-        r[i] = gamma[i] - acc
-    ratio = lu_factor(S, piv)
-    if ratio == 0.0:
-        return 0.0, gap
-    lu_solve(S, piv, r)
-    lam[:] = r
-    for i in range(n):
-        acc = x[i]
-        for j in range(m):
-            acc += Y[i, j] * r[j]
-        qdd[i] = acc
-    return ratio, gap
-
-
-@njit(cache=True)
 def point_from_scratch(ws, point, qdd, out):
-    """World acceleration J qdd + Jdot qd of ``point`` from the last :func:`fast_accelerations`."""
+    """World acceleration J qdd + Jdot qd of ``point`` from the tree terms that the last
+    ``accelerations_into`` left in its workspace ``ws``."""
     J = ws[2]
     a_pt = ws[3]
     n = qdd.shape[0]
@@ -166,68 +76,10 @@ def point_from_scratch(ws, point, qdd, out):
 @njit(cache=True)
 def fast_evaluate(ma, q, qd, tau, point, with_point, ws, qdd, lam, a_pt_out):
     """:func:`evaluate` on work arrays (bit-identical). Returns the conditioning."""
-    cond, _ = fast_accelerations(ma, q, qd, tau, ws, qdd, lam)
+    cond, _ = accelerations_into(SCDD, ma, q, qd, tau, 0.0, 0.0, qdd, qdd, lam, ws)
     if with_point:
-        if ws[5].shape[0] == 0:  # the m = 0 fallback leaves no tree terms behind
-            return evaluate(ma, q, qd, tau, point, with_point, qdd, lam, np.zeros(q.shape[0]), a_pt_out)
         point_from_scratch(ws, point, qdd, a_pt_out)
     return cond
-
-
-@njit(cache=True)
-def rk4_scdd(ma, q, qd, tau_coef, dt, n_steps, singular_tol, ws, lam, info):
-    """``sim.kernels.rk4_steps`` for SCDD without stabilisation (bit-identical) on work arrays."""
-    n = q.shape[0]
-    a1, a2, a3, a4 = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
-    q2, q3, q4 = np.empty(n), np.empty(n), np.empty(n)
-    v2, v3, v4 = np.empty(n), np.empty(n), np.empty(n)
-    tau = np.empty(n)
-    worst = 1.0
-    gap = 0.0
-    info[0] = 0.0
-    for step in range(n_steps):
-        s0 = step * dt
-        for stage in range(4):
-            s = s0 + (0.0 if stage == 0 else (dt if stage == 3 else 0.5 * dt))
-            for i in range(n):
-                tau[i] = tau_coef[0, i] + s * (tau_coef[1, i] + s * tau_coef[2, i])
-            if stage == 0:
-                qs, vs, acc = q, qd, a1
-            elif stage == 1:
-                for i in range(n):
-                    q2[i] = q[i] + 0.5 * dt * qd[i]
-                    v2[i] = qd[i] + 0.5 * dt * a1[i]
-                qs, vs, acc = q2, v2, a2
-            elif stage == 2:
-                for i in range(n):
-                    q3[i] = q[i] + 0.5 * dt * v2[i]
-                    v3[i] = qd[i] + 0.5 * dt * a2[i]
-                qs, vs, acc = q3, v3, a3
-            else:
-                for i in range(n):
-                    q4[i] = q[i] + dt * v3[i]
-                    v4[i] = qd[i] + dt * a3[i]
-                qs, vs, acc = q4, v4, a4
-            cond, g = fast_accelerations(ma, qs, vs, tau, ws, acc, lam)
-            if stage == 0:
-                gap = g
-            worst = min(worst, cond)
-            if cond < singular_tol:
-                info[1] = cond
-                info[2] = g
-                return SINGULAR
-        for i in range(n):
-            q[i] += dt / 6.0 * (qd[i] + 2.0 * v2[i] + 2.0 * v3[i] + v4[i])
-            qd[i] += dt / 6.0 * (a1[i] + 2.0 * a2[i] + 2.0 * a3[i] + a4[i])
-        for i in range(n):
-            if not (np.isfinite(q[i]) and np.isfinite(qd[i])):
-                info[1] = worst
-                info[2] = gap
-                return NOT_FINITE
-        info[0] = step + 1
-    info[1] = worst
-    info[2] = gap
-    return OK
 
 
 @njit(cache=True)
@@ -383,7 +235,7 @@ def linearize(ma, q, qd, tau, point, with_point, eps_q, eps_v, Aq, Av, Bf, Eq, E
     nae = ae.shape[0]
     m = ma.p_index.shape[0]
     lam = np.empty(m)
-    ws = scratch(ma, n)
+    ws = workspace(ma)
     qdd1 = np.empty(n)
     a1 = np.empty(3)
     W = np.empty((n, nae))
@@ -623,7 +475,8 @@ def predict(ma, q, qd, tau, dist_idx, z, dist_col, Lz, Fz, psd_ae, rel_ae, psd_z
             coef[2, dist_idx[k]] += 0.5 * Lz[k, m] * Fzzz[m]
     lam = np.empty(ma.p_index.shape[0])
     rk_info = np.zeros(3)
-    status = rk4_scdd(ma, q, qd, coef, T / n_sub, n_sub, SINGULAR_TOL, scratch(ma, n), lam, rk_info)
+    status = rk4_steps(SCDD, ma, q, qd, coef, T / n_sub, n_sub, 0, 0.0, 0.0, CLOSURE_TOL, SINGULAR_TOL,
+                       np.zeros(n), lam, rk_info)
     info[0] = min(cond, rk_info[1])
     if status != OK:
         return status
