@@ -1,15 +1,16 @@
 """Extended Kalman filter over the exact SCDD model of an elastic parallel manipulator.
 
 State x = [q_ae, qd_ae, z]: motor and elastic coordinates, their rates, and (optionally)
-disturbance torques d = Lz z on chosen joints from a linear model: random walks,
-Gauss-Markov, integrated random walks, band-limited (second-order, stationary), or a
-random-walk bias plus a band-limited part (the default). Unknown torques (friction,
-payload, cable forces) move the machine as the commanded torques do not; with d in the
-state the sensors estimate them, and with them the quasi-static branch forces they cause:
-encoders the slow part (below ~5 Hz on the reference five-bar, where a few mN m move a
-motor by more than the encoder noise), an accelerometer or strain gauges also the fast
-part. The tree state (every joint) follows
-from x through the closure.
+disturbance torques d = Lz z on chosen joints from a linear model
+(:mod:`elastic_pm_dyn.observer.disturbance`; default: a random-walk bias plus band-limited
+parts). Unknown torques (friction, payload, cable forces) move the machine as the commanded
+torques do not; with d in the state the sensors estimate them, and with them the
+quasi-static branch forces they cause: encoders the slow part (d moves a motor only through
+a double integration, so it must act for a while, ~10 ms for 0.02 N m on the reference
+five-bar, before the encoders see it), an accelerometer or strain gauges also the fast
+part (see bench/observer_bound.py for what is possible at all). The tree state (every
+joint) follows from x through the closure; a start from encoders puts the springs in
+static equilibrium.
 
 Prediction: the commanded torques are held (zero-order hold, as the controller applies
 them); the mean goes through RK4 substeps of the nonlinear SCDD model, the covariance
