@@ -699,7 +699,7 @@ def covariance_ok(P):
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def run_periods(ma, q, qd, z, P, Phi, Qd, Hpt, info, dist_idx, dist_col, Lz, Fz, psd_ae, rel_ae, psd_z, eps_q, eps_v,
                 point, with_point, active_idx, tau_hold, tau_last, ctl, timing, enc_H, enc_R, enc_js, enc_wrap,
                 enc_gate, enc_meas, has_imu, S, g, imu_R, imu_gate, imu_meas, ts, taus, ee_point, ee_comp,
