@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from elastic_pm_dyn.errors import InputError
-from elastic_pm_dyn.observer import ObserverConfig, offline
+from elastic_pm_dyn.observer import ObserverConfig, bag_input, offline
+from elastic_pm_dyn.observer import pipeline as observe_pipeline
 from elastic_pm_dyn.observer.offline import observe_bag
 from elastic_pm_dyn.observer.scenarios import manoeuvre_recording
 
@@ -113,8 +114,8 @@ def test_pipeline_equals_sequential(five_bar, rec, tmp_path, monkeypatch, chunk,
     joint states within the lag, branch forces), the same rows, files and summary."""
     bag = tmp_path / "in"
     _write(rec, bag, nan_at=(40, 41, 120), gated_at=(77,), late=((52, 50), (130, 129)), branch_at=(90, 91))
-    monkeypatch.setattr(offline, "CHUNK_EVENTS", chunk)
-    monkeypatch.setattr(offline, "STAMP_LAG_NS", lag_ns)
+    monkeypatch.setattr(observe_pipeline, "CHUNK_EVENTS", chunk)
+    monkeypatch.setattr(observe_pipeline, "STAMP_LAG_NS", lag_ns)
     feeds, starts = [], []
     feed, inner = offline._Filter.feed, offline.run_events
     monkeypatch.setattr(offline._Filter, "feed", lambda self, ev: feeds.append(len(ev)) or feed(self, ev))
@@ -123,7 +124,7 @@ def test_pipeline_equals_sequential(five_bar, rec, tmp_path, monkeypatch, chunk,
     feeds.clear()
     pipe = _run(five_bar, bag, tmp_path / "pipe", True, order)
     _same(seq, pipe, tmp_path / "seq", tmp_path / "pipe")
-    assert not (tmp_path / "pipe" / offline._STAGE).exists()
+    assert not (tmp_path / "pipe" / observe_pipeline._STAGE).exists()
     assert len(starts) == 1  # the sequential run's: no start-over
     assert sum(feeds) == sum(seq.summary["messages"].values())
     assert len(feeds) > (5 if chunk < 2000 else 0)
@@ -135,8 +136,8 @@ def test_pipeline_starts_over_on_an_out_of_order_bag(five_bar, rec, tmp_path, mo
     starts over (arrival order takes it as a late sample), the same results either way."""
     bag = tmp_path / "in"
     _write(rec, bag, late=((200, 30),), nan_at=(100,))
-    monkeypatch.setattr(offline, "CHUNK_EVENTS", 60)
-    monkeypatch.setattr(offline, "STAMP_LAG_NS", 5_000_000)
+    monkeypatch.setattr(observe_pipeline, "CHUNK_EVENTS", 60)
+    monkeypatch.setattr(observe_pipeline, "STAMP_LAG_NS", 5_000_000)
     starts = []
     inner = offline.run_events
     monkeypatch.setattr(offline, "run_events", lambda *a, **k: starts.append(1) or inner(*a, **k))
@@ -150,7 +151,7 @@ def test_pipeline_arrival_order_starts_over_before_the_start(five_bar, rec, tmp_
     """Arrival order: a message stamped before the stamps the observer started from (its t0)."""
     bag = tmp_path / "in"
     _write(rec, bag, late=((150, 0),), skip=(0,))
-    monkeypatch.setattr(offline, "CHUNK_EVENTS", 60)
+    monkeypatch.setattr(observe_pipeline, "CHUNK_EVENTS", 60)
     starts = []
     inner = offline.run_events
     monkeypatch.setattr(offline, "run_events", lambda *a, **k: starts.append(1) or inner(*a, **k))
@@ -163,8 +164,8 @@ def test_pipeline_arrival_order_starts_over_before_the_start(five_bar, rec, tmp_
 def test_pipeline_sqlite3_and_no_bag_out(five_bar, rec, tmp_path, monkeypatch) -> None:
     bag = tmp_path / "in"
     _write(rec, bag, nan_at=(60,), storage="sqlite3")
-    monkeypatch.setattr(offline, "CHUNK_EVENTS", 64)
-    monkeypatch.setattr(offline, "STAMP_LAG_NS", 3_000_000)
+    monkeypatch.setattr(observe_pipeline, "CHUNK_EVENTS", 64)
+    monkeypatch.setattr(observe_pipeline, "STAMP_LAG_NS", 3_000_000)
     seq = _run(five_bar, bag, tmp_path / "seq", False, storage="sqlite3")
     pipe = _run(five_bar, bag, tmp_path / "pipe", True, storage="sqlite3")
     _same(seq, pipe, tmp_path / "seq", tmp_path / "pipe")
@@ -180,8 +181,8 @@ def test_pipeline_truncated_bag_same_error_and_no_output(five_bar, rec, tmp_path
     mcap = next(bag.glob("*.mcap"))
     data = mcap.read_bytes()
     mcap.write_bytes(data[:len(data) // 2])
-    monkeypatch.setattr(offline, "CHUNK_EVENTS", 50)
-    monkeypatch.setattr(offline, "STAMP_LAG_NS", 2_000_000)
+    monkeypatch.setattr(observe_pipeline, "CHUNK_EVENTS", 50)
+    monkeypatch.setattr(observe_pipeline, "STAMP_LAG_NS", 2_000_000)
     errors = []
     for pipeline in (False, True):
         out = tmp_path / f"out{pipeline}" / "deeper"
@@ -199,9 +200,9 @@ def test_pipeline_error_while_filtering_same_error_and_no_output(five_bar, rec, 
     """An error in the reading thread after the filter and the writer have started."""
     bag = tmp_path / "in"
     _write(rec, bag)
-    monkeypatch.setattr(offline, "CHUNK_EVENTS", 50)
-    monkeypatch.setattr(offline, "STAMP_LAG_NS", 2_000_000)
-    inner = offline._fast_decode
+    monkeypatch.setattr(observe_pipeline, "CHUNK_EVENTS", 50)
+    monkeypatch.setattr(observe_pipeline, "STAMP_LAG_NS", 2_000_000)
+    inner = bag_input._fast_decode
     for pipeline in (False, True):
         calls = []
 
@@ -211,7 +212,7 @@ def test_pipeline_error_while_filtering_same_error_and_no_output(five_bar, rec, 
                 raise RuntimeError("message 700: broken")
             return inner(*args)
 
-        monkeypatch.setattr(offline, "_fast_decode", decode)
+        monkeypatch.setattr(bag_input, "_fast_decode", decode)
         out = tmp_path / f"out{pipeline}"
         with pytest.raises(RuntimeError, match=r"^message 700: broken$"):
             _run(five_bar, bag, out, pipeline)
