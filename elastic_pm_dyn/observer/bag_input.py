@@ -27,7 +27,6 @@ JOINT_STATE = "sensor_msgs/msg/JointState"
 FLOAT64_ARRAY = "std_msgs/msg/Float64MultiArray"
 IMU = "sensor_msgs/msg/Imu"
 
-RANK = {"joint_state": 0, "branch_forces": 1, "imu": 2, "command": 3}
 
 
 @dataclass

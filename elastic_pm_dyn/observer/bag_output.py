@@ -2,7 +2,7 @@
 
 - ``estimates.csv`` (:func:`csv_header`, :func:`csv_table`): ``t``, every tree joint,
   ``<joint>_vel``, ``F_<branch>``, the standard deviation of each (``<column>_std``),
-  ``ee_x``, ``ee_y`` (+ std), the disturbance estimates ``d_<joint>`` (+ std) and the NIS of
+  ``ee_x``, ``ee_y`` (``ee_z`` if spatial; + std), the disturbance estimates ``d_<joint>`` (+ std) and the NIS of
   each sensor at that stamp;
 - ``estimates/`` (:func:`write_bag`, a bag, mcap by default) with ``/joint_states``
   (position, velocity, effort of every tree joint), ``/branch_forces`` (with
@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from elastic_pm_dyn.errors import InputError
 from elastic_pm_dyn.observer import cdr
 from elastic_pm_dyn.observer.bag_input import JOINT_STATE
 from elastic_pm_dyn.observer.ekf import Observer
@@ -50,6 +51,19 @@ def csv_table(rows: Rows) -> np.ndarray:
                  lay["ee"], lay["ee_std"], lay["disturbance"], lay["disturbance_std"]]
     t = np.array(rows.t, dtype=np.int64) * 1e-9
     return np.column_stack([t, rows.table()[:, cols], np.array(rows.nis, dtype=float).reshape(len(rows.t), 3)])
+
+
+def write_outputs(out: Path, obs: Observer, rows: Rows, write_estimates_bag: bool, storage: str) -> None:
+    """``estimates.csv`` and (optionally) the ``estimates/`` bag of all rows into ``out`` (nothing if no rows)."""
+    if not rows.t:
+        return
+    np.savetxt(out / "estimates.csv", csv_table(rows), delimiter=",", header=",".join(csv_header(obs)),
+               comments="", fmt="%.12g")
+    if write_estimates_bag:
+        bag_out = out / "estimates"
+        if bag_out.exists():
+            raise InputError(f"{bag_out} exists already (rosbag2 will not overwrite it)")
+        write_bag(bag_out, obs, rows, storage)
 
 
 def write_bag(path: Path, obs: Observer, rows: Rows, storage: str = "mcap") -> None:

@@ -38,7 +38,7 @@ from elastic_pm_dyn.observer.bag_input import (  # noqa: F401 - IMU, JOINT_STATE
     read_events,
     recording_to_bag,
 )
-from elastic_pm_dyn.observer.bag_output import csv_header, csv_table, write_bag
+from elastic_pm_dyn.observer.bag_output import write_outputs
 from elastic_pm_dyn.observer.config import ObserverConfig
 from elastic_pm_dyn.observer.ekf import Estimate, Observer, ObserverFault, UpdateResult
 from elastic_pm_dyn.observer.stream import ObserverStream
@@ -345,14 +345,7 @@ def observe_bag(mech: Mechanism, cfg: ObserverConfig, bag: str | Path, out: str 
         out = Path(out)
         out.mkdir(parents=True, exist_ok=True)
         wall2 = time.perf_counter()
-        if rows.t:
-            np.savetxt(out / "estimates.csv", csv_table(rows), delimiter=",", header=",".join(csv_header(obs)),
-                       comments="", fmt="%.12g")
-            if write_estimates_bag:
-                bag_out = out / "estimates"
-                if bag_out.exists():
-                    raise InputError(f"{bag_out} exists already (rosbag2 will not overwrite it)")
-                write_bag(bag_out, obs, rows, storage)
+        write_outputs(out, obs, rows, write_estimates_bag, storage)
         summary["wall_write_s"] = time.perf_counter() - wall2
     return _finish(summary, out, wall0, rows, obs)
 

@@ -35,7 +35,7 @@ from elastic_pm_dyn.errors import InputError
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.observer import offline
 from elastic_pm_dyn.observer.bag_input import Event, Topics, iter_events
-from elastic_pm_dyn.observer.bag_output import _BagOut, csv_header, csv_table, write_bag
+from elastic_pm_dyn.observer.bag_output import _BagOut, csv_header, csv_table, write_outputs
 from elastic_pm_dyn.observer.config import ObserverConfig
 from elastic_pm_dyn.observer.ekf import Observer
 
@@ -301,14 +301,7 @@ def _observe_pipelined(mech: Mechanism, cfg: ObserverConfig, bag: Path, out, top
                 summary["wall_write_s"] = writer.busy + time.perf_counter() - wall2
             else:
                 out.mkdir(parents=True, exist_ok=True)
-                if rows.t:
-                    np.savetxt(out / "estimates.csv", csv_table(rows), delimiter=",",
-                               header=",".join(csv_header(obs)), comments="", fmt="%.12g")
-                    if write_estimates_bag:
-                        bag_out = out / "estimates"
-                        if bag_out.exists():
-                            raise InputError(f"{bag_out} exists already (rosbag2 will not overwrite it)")
-                        write_bag(bag_out, obs, rows, storage)
+                write_outputs(out, obs, rows, write_estimates_bag, storage)
                 summary["wall_write_s"] = time.perf_counter() - wall2
     except BaseException:
         writer = state["writer"]
