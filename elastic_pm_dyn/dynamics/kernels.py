@@ -98,7 +98,7 @@ def chain_responses_into(M, A, chain_start, tau_minus_h, x, Y, S, L, dinv, XY):
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def scdd(M, h, A, gamma, tau, chain_start, qdd, lam):
     """Exact SCDD (eqs 33-41, loop solved via the Schur complement). Returns pivot ratio."""
     n = M.shape[0]
@@ -109,7 +109,7 @@ def scdd(M, h, A, gamma, tau, chain_start, qdd, lam):
                      np.empty(m), np.empty(n))
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def scdd_into(M, h, A, gamma, tau, chain_start, qdd, lam, x, Y, S, L, dinv, XY, piv, r, tmh):
     """:func:`scdd` on work arrays: x, tmh (n), Y (n x m), S (m x m), piv, r (m) and the
     per-chain L, dinv, XY of :func:`chain_responses_into` (no allocation)."""
