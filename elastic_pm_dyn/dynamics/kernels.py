@@ -109,7 +109,7 @@ def scdd(M, h, A, gamma, tau, chain_start, qdd, lam):
                      np.empty(m), np.empty(n))
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def scdd_into(M, h, A, gamma, tau, chain_start, qdd, lam, x, Y, S, L, dinv, XY, piv, r, tmh):
     """:func:`scdd` on work arrays: x, tmh (n), Y (n x m), S (m x m), piv, r (m) and the
     per-chain L, dinv, XY of :func:`chain_responses_into` (no allocation)."""
