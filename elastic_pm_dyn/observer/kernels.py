@@ -27,6 +27,7 @@ from elastic_pm_dyn.dynamics.evaluate import SCDD, accelerations, accelerations_
 from elastic_pm_dyn.dynamics.kernels import passive_map
 from elastic_pm_dyn.model.layout import JF_STIFFNESS
 from elastic_pm_dyn.sim.kernels import OK, _closure, partition, rk4_steps
+from elastic_pm_dyn.small_linalg import cholesky, cholesky_solve
 
 SINGULAR_TOL = 1e-8  # conditioning below which an evaluation counts as singular
 CLOSURE_TOL = 1e-14  # [m] partitioning target after a prediction or a correction
@@ -539,18 +540,8 @@ def kalman_update(P, H, R, r, gate, dx):
     for i in range(nz):
         for j in range(nz):
             L[i, j] = S[i, j] * sc[i] * sc[j]
-    for j in range(nz):
-        s = L[j, j]
-        for k in range(j):
-            s -= L[j, k] * L[j, k]
-        if not s > 0.0:
-            return np.inf
-        L[j, j] = np.sqrt(s)
-        for i in range(j + 1, nz):
-            s = L[i, j]
-            for k in range(j):
-                s -= L[i, k] * L[j, k]
-            L[i, j] = s / L[j, j]
+    if not cholesky(L):
+        return np.inf
     # y = L^-1 (sc * r): NIS = |y|^2
     y = np.empty(nz)
     for i in range(nz):
@@ -568,15 +559,8 @@ def kalman_update(P, H, R, r, gate, dx):
     z = np.empty(nz)
     for c in range(nx):
         for i in range(nz):
-            s = PHt[c, i] * sc[i]
-            for k in range(i):
-                s -= L[i, k] * z[k]
-            z[i] = s / L[i, i]
-        for i in range(nz - 1, -1, -1):
-            s = z[i]
-            for k in range(i + 1, nz):
-                s -= L[k, i] * z[k]
-            z[i] = s / L[i, i]
+            z[i] = PHt[c, i] * sc[i]
+        cholesky_solve(L, z)
         for i in range(nz):
             K[c, i] = z[i] * sc[i]
     for c in range(nx):
