@@ -1,7 +1,7 @@
 """Peer models of the reference five-bar: Pinocchio and MuJoCo (optional dependencies).
 
 The peers are built from :func:`five_bar_spec`, which restates the numbers of
-``shared/reference/five_bar.md`` here, independently of our YAML loader, so that the
+``docs/five_bar.md`` here, independently of our YAML loader, so that the
 cross-check (test/test_peer_crosscheck.py) also checks what the loader made of
 ``config/five_bar.yaml``. Conventions, chosen so that no re-ordering or sign change is
 needed anywhere:
@@ -30,9 +30,9 @@ from __future__ import annotations
 
 import numpy as np
 
-MU = 1e-9  # proximal regularisation of constraintDynamics (peers.md)
+MU = 1e-9  # proximal regularisation of constraintDynamics (docs/peers.md)
 
-# shared/reference/five_bar.md
+# docs/five_bar.md
 L1, L2 = 0.25, 0.35
 M1, ME, M2, MEE = 0.6, 0.3, 0.4, 0.2
 JM = 1.0e-4

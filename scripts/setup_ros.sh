@@ -6,7 +6,7 @@
 #
 # Idempotent: a stamp file in the venv records a hash of msg_defs/ and of this
 # script; when it matches, nothing is done. Facts behind each step:
-# shared/notes/ros2-pip.md.
+# docs/ros2_from_pip.md.
 set -euo pipefail
 
 die() {

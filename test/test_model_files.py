@@ -13,7 +13,7 @@ CONFIG = Path(__file__).resolve().parent.parent / "config"
 
 
 def test_five_bar_yaml_is_the_reference_machine() -> None:
-    """Every number of shared/reference/five_bar.md."""
+    """Every number of docs/five_bar.md."""
     m = load_model(CONFIG / "five_bar.yaml")
     assert m.joint_names == ["left_motor", "left_spring", "left_elbow", "right_motor", "right_spring", "right_elbow"]
     assert [b.name for b in m.branches] == ["left", "right"]

@@ -1,7 +1,7 @@
 """Physics cross-check against Pinocchio's constraintDynamics (skipped without ``pin``).
 
 The Pinocchio five-bar (bench/peers_five_bar.py) is built from the numbers of
-shared/reference/five_bar.md, not from our YAML loader, so this also checks what the
+docs/five_bar.md, not from our YAML loader, so this also checks what the
 loader made of config/five_bar.yaml (end-effector mass split, rotor inertia, spring).
 Its joint order and signs are our tree order and signs. The closure is a 3D contact
 between the chain ends, solved by Pinocchio's proximal algorithm with mu = 1e-9: exact
