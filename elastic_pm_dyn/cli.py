@@ -57,10 +57,10 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def cmd_feedforward(args: argparse.Namespace) -> int:
-    from elastic_pm_dyn.feedforward import line_torques
     from elastic_pm_dyn.model.loader import load_model
+    from elastic_pm_dyn.motion.feedforward import line_torques
+    from elastic_pm_dyn.motion.trajectory import QuinticLine
     from elastic_pm_dyn.sim.torque import write_torque_csv
-    from elastic_pm_dyn.trajectory import QuinticLine
     model = load_model(args.model)
     a, b = np.array(args.line[:len(args.line) // 2]), np.array(args.line[len(args.line) // 2:])
     line = QuinticLine(a, b, args.move, args.hold)

@@ -13,14 +13,14 @@ from pathlib import Path
 import numpy as np
 
 from elastic_pm_dyn.analysis import metrics, plots
-from elastic_pm_dyn.feedforward import line_torques
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.model.description import Model
 from elastic_pm_dyn.model.loader import load_model
+from elastic_pm_dyn.motion.feedforward import line_torques
+from elastic_pm_dyn.motion.trajectory import QuinticLine
 from elastic_pm_dyn.sim.result import SimulationResult
 from elastic_pm_dyn.sim.simulator import SimulationOptions, Simulator
 from elastic_pm_dyn.sim.torque import TorqueTable, write_torque_csv
-from elastic_pm_dyn.trajectory import QuinticLine
 
 REFERENCE_LINE = QuinticLine(np.array([-0.05, 0.35]), np.array([0.05, 0.45]), move=0.2, hold=0.3)
 CONTROL_RATE = 1000.0  # [Hz] torque samples, zero-order hold

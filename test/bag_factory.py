@@ -23,12 +23,12 @@ import numpy as np
 from rosbags.rosbag2 import StoragePlugin, Writer
 
 from elastic_pm_dyn.dynamics.inverse import tree_inverse_dynamics
-from elastic_pm_dyn.feedforward import rigid_feedforward
 from elastic_pm_dyn.kinematics.assembly import initial_state, solve_pose
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.model.loader import load_model
+from elastic_pm_dyn.motion.feedforward import rigid_feedforward
+from elastic_pm_dyn.motion.trajectory import QuinticLine
 from elastic_pm_dyn.ros.msg_types import BRANCH_FORCES_MSGTYPE, make_typestore
-from elastic_pm_dyn.trajectory import QuinticLine
 
 CONFIG = Path(__file__).resolve().parent.parent / "config"
 MODEL = CONFIG / "five_bar.yaml"

@@ -323,7 +323,7 @@ def test_paper_figures(tmp_path):
     """Figs. 2-4 on a short manoeuvre: SCDD equals L-D'A, the one-pass loop drifts."""
     from elastic_pm_dyn.analysis.paper import paper_figures
     from elastic_pm_dyn.demo import REFERENCE_LINE, RUNS
-    from elastic_pm_dyn.trajectory import QuinticLine
+    from elastic_pm_dyn.motion.trajectory import QuinticLine
 
     line = QuinticLine(REFERENCE_LINE.start, REFERENCE_LINE.end, move=0.05, hold=0.03)
     runs = {k: v for k, v in RUNS.items() if k != "SCDD (no stabilisation)"}

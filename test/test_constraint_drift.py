@@ -8,11 +8,11 @@ import pytest
 
 from elastic_pm_dyn.dynamics.direct import one_pass_convergence_factor
 from elastic_pm_dyn.dynamics.evaluate import FORMULATION_CODES, accelerations
-from elastic_pm_dyn.feedforward import line_torques
 from elastic_pm_dyn.kinematics.assembly import initial_state, solve_pose
+from elastic_pm_dyn.motion.feedforward import line_torques
+from elastic_pm_dyn.motion.trajectory import QuinticLine
 from elastic_pm_dyn.sim.simulator import SimulationOptions, Simulator
 from elastic_pm_dyn.sim.torque import TorqueTable
-from elastic_pm_dyn.trajectory import QuinticLine
 
 DURATION = 10.0
 

@@ -3,11 +3,11 @@
 import numpy as np
 import pytest
 
-from elastic_pm_dyn.feedforward import line_torques, rigid_feedforward
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
+from elastic_pm_dyn.motion.feedforward import line_torques, rigid_feedforward
+from elastic_pm_dyn.motion.trajectory import QuinticLine
 from elastic_pm_dyn.sim.simulator import SimulationOptions, Simulator
 from elastic_pm_dyn.sim.torque import FunctionTorque, TorqueTable
-from elastic_pm_dyn.trajectory import QuinticLine
 
 LINE = QuinticLine(np.array([-0.05, 0.35]), np.array([0.05, 0.45]), 0.2, 0.1)
 

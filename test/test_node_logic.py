@@ -6,15 +6,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from elastic_pm_dyn.ros.plant import Plant
 
 from elastic_pm_dyn.demo import REFERENCE_LINE
 from elastic_pm_dyn.errors import InputError, SingularConfigurationError
-from elastic_pm_dyn.feedforward import line_torques, rigid_feedforward
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.model.loader import load_model
+from elastic_pm_dyn.motion.feedforward import line_torques, rigid_feedforward
+from elastic_pm_dyn.motion.references import JointReference, LineReference
 from elastic_pm_dyn.ros.commands import CommandDecoder
-from elastic_pm_dyn.ros.plant import Plant
-from elastic_pm_dyn.ros.references import JointReference, LineReference
 from elastic_pm_dyn.sim.simulator import SimulationOptions, Simulator
 from elastic_pm_dyn.sim.torque import ConstantTorque
 

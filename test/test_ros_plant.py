@@ -15,9 +15,9 @@ import pytest
 from ros_harness import RosHarness, domain_id, require
 
 from elastic_pm_dyn.demo import REFERENCE_LINE
-from elastic_pm_dyn.feedforward import line_torques
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.model.loader import load_model
+from elastic_pm_dyn.motion.feedforward import line_torques
 from elastic_pm_dyn.sim.simulator import SimulationOptions, Simulator
 from elastic_pm_dyn.sim.torque import TorqueTable
 

@@ -18,7 +18,7 @@ import numpy as np
 from elastic_pm_dyn.analysis.report import PLOT_NAMES, clean, write_report
 from elastic_pm_dyn.analysis.run_data import ModelInfo, RunData, run_from_simulation
 from elastic_pm_dyn.demo import REFERENCE_LINE, RUNS, SAMPLE, simulate_reference
-from elastic_pm_dyn.trajectory import QuinticLine
+from elastic_pm_dyn.motion.trajectory import QuinticLine
 
 PAPER_NAMES = {**PLOT_NAMES, "path": "fig2_path.png", "branch_forces": "fig3_branch_forces.png",
                "gap": "fig4_gap.png"}

@@ -157,7 +157,7 @@ def manoeuvre_recording(mech: Mechanism, seed: int = 1, disturbance_rms: float =
     """The reference manoeuvre (rigid feedforward of the quintic line, 1 kHz, ZOH) + a multisine
     in ``disturbance_band`` [Hz] (2-200 Hz: the issue's case)."""
     from elastic_pm_dyn.demo import REFERENCE_LINE
-    from elastic_pm_dyn.feedforward import line_torques
+    from elastic_pm_dyn.motion.feedforward import line_torques
     _, torques, _ = line_torques(mech.model, REFERENCE_LINE, 1.0 / PERIOD)
     rng = np.random.default_rng(seed)
     dist = Multisine(rng, len(mech.active), disturbance_rms, *disturbance_band) if disturbance_rms > 0 else None

@@ -20,9 +20,10 @@ import numpy as np
 from elastic_pm_dyn.analysis import metrics, plots
 from elastic_pm_dyn.demo import CONTROL_RATE, REFERENCE_LINE
 from elastic_pm_dyn.errors import InputError
-from elastic_pm_dyn.feedforward import line_torques
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.model.loader import load_model
+from elastic_pm_dyn.motion.feedforward import line_torques
+from elastic_pm_dyn.motion.trajectory import QuinticLine
 from elastic_pm_dyn.ros.bag import read_bag
 from elastic_pm_dyn.ros.params import share_path
 from elastic_pm_dyn.ros.processes import (
@@ -34,7 +35,6 @@ from elastic_pm_dyn.ros.processes import (
 )
 from elastic_pm_dyn.sim.simulator import SimulationOptions, Simulator
 from elastic_pm_dyn.sim.torque import TorqueTable
-from elastic_pm_dyn.trajectory import QuinticLine
 
 SYNC_MODES = ("lockstep", "realtime")
 PLANT_TOPICS = ["/joint_states", "/branch_forces", "/ee_pose"]

@@ -28,8 +28,10 @@ from std_srvs.srv import Trigger
 from trajectory_msgs.msg import JointTrajectory
 
 from elastic_pm_dyn.errors import ElasticPmDynError, InputError
-from elastic_pm_dyn.feedforward import rigid_feedforward
 from elastic_pm_dyn.model.loader import load_model
+from elastic_pm_dyn.motion.feedforward import rigid_feedforward
+from elastic_pm_dyn.motion.references import JointReference, LineReference
+from elastic_pm_dyn.motion.trajectory import QuinticLine
 from elastic_pm_dyn.ros.commands import CommandDecoder
 from elastic_pm_dyn.ros.messages import NS, joint_state, stamp_ns, torque_command
 from elastic_pm_dyn.ros.node_main import ManagedNode, run_node
@@ -43,8 +45,6 @@ from elastic_pm_dyn.ros.params import (
     reject_unknown,
 )
 from elastic_pm_dyn.ros.qos import COMMAND_QOS, STATE_QOS
-from elastic_pm_dyn.ros.references import JointReference, LineReference
-from elastic_pm_dyn.trajectory import QuinticLine
 
 READY_POLL = 0.05  # [s] wall-clock check for subscribers while waiting to start
 # Our errors (unreachable, singular), and numpy's should a solver inside it fail outright.

@@ -1,4 +1,4 @@
-"""Rigid inverse-dynamics feedforward of the reference manoeuvre (model -> torque table)."""
+"""Rigid inverse-dynamics feedforward of a quintic line (model -> torque table at a control rate)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ from elastic_pm_dyn.dynamics.inverse import RigidFeedforward
 from elastic_pm_dyn.kinematics.assembly import initial_state
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.model.description import Model
-from elastic_pm_dyn.trajectory import QuinticLine
+from elastic_pm_dyn.motion.trajectory import QuinticLine
 
 
 def rigid_feedforward(model: Model) -> RigidFeedforward:

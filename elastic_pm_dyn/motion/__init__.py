@@ -1,0 +1,8 @@
+"""Desired motions and their rigid inverse dynamics (no simulation, no ROS).
+
+``trajectory``: the motions themselves, time -> position, velocity, acceleration: the
+quintic straight line of the end effector and smooth joint motions through waypoints.
+``feedforward``: the rigid model's torques of a line, as a table at a control rate.
+``references``: the same feedforward sampled one control instant at a time (what the
+feedforward node publishes).
+"""
