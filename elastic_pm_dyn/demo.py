@@ -13,42 +13,14 @@ from pathlib import Path
 import numpy as np
 
 from elastic_pm_dyn.analysis import metrics, plots
-from elastic_pm_dyn.kinematics.mechanism import Mechanism
-from elastic_pm_dyn.model.description import Model
+from elastic_pm_dyn.analysis.paper import RUNS, simulate_reference
 from elastic_pm_dyn.model.loader import load_model
-from elastic_pm_dyn.motion.feedforward import line_torques
+from elastic_pm_dyn.motion.manoeuvre import REFERENCE_MANOEUVRE
 from elastic_pm_dyn.motion.trajectory import QuinticLine
-from elastic_pm_dyn.sim.result import SimulationResult
-from elastic_pm_dyn.sim.simulator import SimulationOptions, Simulator
-from elastic_pm_dyn.sim.torque import TorqueTable, write_torque_csv
-
-REFERENCE_LINE = QuinticLine(np.array([-0.05, 0.35]), np.array([0.05, 0.45]), move=0.2, hold=0.3)
-CONTROL_RATE = 1000.0  # [Hz] torque samples, zero-order hold
-SAMPLE = 1e-4  # [s] output: 10 kHz resolves the ~550 Hz spring mode
-
-RUNS = {  # label: (formulation, stabilisation)
-    "L-D'A": ("lda", "none"),
-    "SCDD": ("scdd", "projection"),
-    "SCDD (no stabilisation)": ("scdd", "none"),
-    "SCDD one-pass (paper)": ("scdd_one_pass", "none"),
-}
+from elastic_pm_dyn.sim.torque import write_torque_csv
 
 
-def simulate_reference(model: Model, line: QuinticLine = REFERENCE_LINE, runs: dict = RUNS,
-                       sample: float = SAMPLE) -> tuple[np.ndarray, np.ndarray, list[str], dict[str, SimulationResult]]:
-    """The rigid feedforward torques of ``line`` (held, ZOH) driving the elastic model once per entry of
-    ``runs`` (label: (formulation, stabilisation)). Returns (times, torques, motor names, results)."""
-    mech = Mechanism(model)
-    times, torques, names = line_torques(model, line, CONTROL_RATE)
-    table = TorqueTable(times, torques, "zoh")
-    results = {}
-    for label, (formulation, stab) in runs.items():
-        sim = Simulator(mech, SimulationOptions(formulation=formulation, stabilization=stab, sample=sample))
-        results[label] = sim.run(table, line.duration)
-    return times, torques, names, results
-
-
-def run_offline_demo(out: Path, model_path: Path, line: QuinticLine = REFERENCE_LINE) -> dict:
+def run_offline_demo(out: Path, model_path: Path, line: QuinticLine = REFERENCE_MANOEUVRE.line) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     model = load_model(model_path)
     times, torques, names, results = simulate_reference(model, line)
@@ -72,7 +44,7 @@ def run_offline_demo(out: Path, model_path: Path, line: QuinticLine = REFERENCE_
     summary = {
         "model": str(model_path),
         "line": {"start": line.start.tolist(), "end": line.end.tolist(), "move_s": line.move, "hold_s": line.hold},
-        "control_rate_hz": CONTROL_RATE,
+        "control_rate_hz": REFERENCE_MANOEUVRE.control_rate,
         "runs": {},
         "scdd_vs_lda": {
             "max_joint_difference": float(np.abs(scdd.q - lda.q).max()),

@@ -321,11 +321,11 @@ def test_command_line(run, bag_dir, tmp_path, capsys):
 
 def test_paper_figures(tmp_path):
     """Figs. 2-4 on a short manoeuvre: SCDD equals L-D'A, the one-pass loop drifts."""
-    from elastic_pm_dyn.analysis.paper import paper_figures
-    from elastic_pm_dyn.demo import REFERENCE_LINE, RUNS
+    from elastic_pm_dyn.analysis.paper import RUNS, paper_figures
+    from elastic_pm_dyn.motion.manoeuvre import REFERENCE_MANOEUVRE
     from elastic_pm_dyn.motion.trajectory import QuinticLine
 
-    line = QuinticLine(REFERENCE_LINE.start, REFERENCE_LINE.end, move=0.05, hold=0.03)
+    line = QuinticLine(REFERENCE_MANOEUVRE.line.start, REFERENCE_MANOEUVRE.line.end, move=0.05, hold=0.03)
     runs = {k: v for k, v in RUNS.items() if k != "SCDD (no stabilisation)"}
     figs = paper_figures(tmp_path, MODEL, line, runs)
     for name in ("fig2_path.png", "fig3_branch_forces.png", "fig4_gap.png", "fig2_path.csv", "summary.md"):

@@ -6,20 +6,21 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from elastic_pm_dyn.ros.plant import Plant
 
-from elastic_pm_dyn.demo import REFERENCE_LINE
 from elastic_pm_dyn.errors import InputError, SingularConfigurationError
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.model.loader import load_model
 from elastic_pm_dyn.motion.feedforward import line_torques, rigid_feedforward
+from elastic_pm_dyn.motion.manoeuvre import REFERENCE_MANOEUVRE
 from elastic_pm_dyn.motion.references import JointReference, LineReference
 from elastic_pm_dyn.ros.commands import CommandDecoder
+from elastic_pm_dyn.ros.plant import Plant
 from elastic_pm_dyn.sim.simulator import SimulationOptions, Simulator
 from elastic_pm_dyn.sim.torque import ConstantTorque
 
 FIVE_BAR = Path(__file__).resolve().parents[1] / "config" / "five_bar.yaml"
 ACTIVE = ["left_motor", "right_motor"]
+REFERENCE_LINE = REFERENCE_MANOEUVRE.line
 
 
 @pytest.fixture(scope="module")

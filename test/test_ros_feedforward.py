@@ -14,15 +14,16 @@ import numpy as np
 import pytest
 from ros_harness import RosHarness, domain_id, require
 
-from elastic_pm_dyn.demo import REFERENCE_LINE
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.model.loader import load_model
 from elastic_pm_dyn.motion.feedforward import line_torques, rigid_feedforward
+from elastic_pm_dyn.motion.manoeuvre import REFERENCE_MANOEUVRE
 from elastic_pm_dyn.sim.simulator import SimulationOptions, Simulator
 from elastic_pm_dyn.sim.torque import TorqueTable
 
 FIVE_BAR = Path(__file__).resolve().parents[1] / "config" / "five_bar.yaml"
 ACTIVE = ["left_motor", "right_motor"]
+REFERENCE_LINE = REFERENCE_MANOEUVRE.line
 
 
 @pytest.fixture
@@ -178,3 +179,14 @@ def test_fast_plant_clock_drives_feedforward_with_use_sim_time(ros: RosHarness) 
     stamps = np.array([_ns(c) for c in listener.commands]) * 1e-9
     assert np.all(np.diff(stamps) > 0)
     assert stamps[-1] <= plant.plant.t + 1e-9  # simulated time, not the wall clock (~1.8e9 s)
+
+
+def test_line_parameters_default_to_the_reference_manoeuvre() -> None:
+    require("rclpy")
+    from elastic_pm_dyn.ros.feedforward_node import PARAMS
+
+    defaults = {p.name: p.default for p in PARAMS}
+    m = REFERENCE_MANOEUVRE
+    assert defaults["rate"] == m.control_rate
+    assert (defaults["line.start"], defaults["line.end"]) == (list(m.start), list(m.end))
+    assert (defaults["line.move"], defaults["line.hold"]) == (m.move, m.hold)

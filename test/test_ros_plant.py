@@ -14,15 +14,16 @@ import numpy as np
 import pytest
 from ros_harness import RosHarness, domain_id, require
 
-from elastic_pm_dyn.demo import REFERENCE_LINE
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.model.loader import load_model
 from elastic_pm_dyn.motion.feedforward import line_torques
+from elastic_pm_dyn.motion.manoeuvre import REFERENCE_MANOEUVRE
 from elastic_pm_dyn.sim.simulator import SimulationOptions, Simulator
 from elastic_pm_dyn.sim.torque import TorqueTable
 
 FIVE_BAR = Path(__file__).resolve().parents[1] / "config" / "five_bar.yaml"
 RATE = 1000.0
+REFERENCE_LINE = REFERENCE_MANOEUVRE.line
 OPTIONS = dict(formulation="scdd", integrator="rk4", dt=1e-4, stabilization="projection")
 TAU = np.array([0.01, -0.02])  # a small valid command (active order: left_motor, right_motor)
 

@@ -2,7 +2,7 @@
 
 The rigid model's feedforward torques of the reference manoeuvre (1 kHz, zero-order
 hold) drive the elastic model computed by L-D'A and by SCDD (exact, with and without
-projection; the paper's one-pass variant): :func:`elastic_pm_dyn.demo.simulate_reference`.
+projection; the paper's one-pass variant): :func:`simulate_reference`, the entries of :data:`RUNS`.
 The runs go through the same metrics and plots as a bag (:mod:`report`), the figures
 named after the paper; ``paper_figures.json`` holds the numbers behind each figure and
 ``fig*.csv`` the plotted series.
@@ -17,15 +17,42 @@ import numpy as np
 
 from elastic_pm_dyn.analysis.report import PLOT_NAMES, clean, write_report
 from elastic_pm_dyn.analysis.run_data import ModelInfo, RunData, run_from_simulation
-from elastic_pm_dyn.demo import REFERENCE_LINE, RUNS, SAMPLE, simulate_reference
+from elastic_pm_dyn.kinematics.mechanism import Mechanism
+from elastic_pm_dyn.model.description import Model
+from elastic_pm_dyn.motion.feedforward import line_torques
+from elastic_pm_dyn.motion.manoeuvre import REFERENCE_MANOEUVRE
 from elastic_pm_dyn.motion.trajectory import QuinticLine
+from elastic_pm_dyn.sim.result import SimulationResult
+from elastic_pm_dyn.sim.simulator import SimulationOptions, Simulator
+from elastic_pm_dyn.sim.torque import TorqueTable
 
+RUNS = {  # label: (formulation, stabilisation)
+    "L-D'A": ("lda", "none"),
+    "SCDD": ("scdd", "projection"),
+    "SCDD (no stabilisation)": ("scdd", "none"),
+    "SCDD one-pass (paper)": ("scdd_one_pass", "none"),
+}
 PAPER_NAMES = {**PLOT_NAMES, "path": "fig2_path.png", "branch_forces": "fig3_branch_forces.png",
                "gap": "fig4_gap.png"}
 
 
-def paper_figures(out: Path, model_path: Path, line: QuinticLine = REFERENCE_LINE, runs: dict = RUNS,
-                  sample: float = SAMPLE) -> dict:
+def simulate_reference(model: Model, line: QuinticLine = REFERENCE_MANOEUVRE.line, runs: dict = RUNS,
+                       sample: float = REFERENCE_MANOEUVRE.sample
+                       ) -> tuple[np.ndarray, np.ndarray, list[str], dict[str, SimulationResult]]:
+    """The rigid feedforward torques of ``line`` (held, ZOH) driving the elastic model once per entry of
+    ``runs`` (label: (formulation, stabilisation)). Returns (times, torques, motor names, results)."""
+    mech = Mechanism(model)
+    times, torques, names = line_torques(model, line, REFERENCE_MANOEUVRE.control_rate)
+    table = TorqueTable(times, torques, "zoh")
+    results = {}
+    for label, (formulation, stab) in runs.items():
+        sim = Simulator(mech, SimulationOptions(formulation=formulation, stabilization=stab, sample=sample))
+        results[label] = sim.run(table, line.duration)
+    return times, torques, names, results
+
+
+def paper_figures(out: Path, model_path: Path, line: QuinticLine = REFERENCE_MANOEUVRE.line, runs: dict = RUNS,
+                  sample: float = REFERENCE_MANOEUVRE.sample) -> dict:
     """Simulate, then write the figures, ``summary.json``/``.md``, ``paper_figures.json`` and CSVs."""
     out.mkdir(parents=True, exist_ok=True)
     info = ModelInfo.load(model_path)

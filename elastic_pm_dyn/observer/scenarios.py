@@ -10,7 +10,7 @@ sample is taken before the command of t_k acts) and noisy branch forces; then th
 command of t_k is computed (it may use the noisy samples: a PD loop) and applied on
 [t_k, t_k+1).
 
-Two manoeuvres (the acceptance cases of the observer):
+Two manoeuvres (the observer's test cases):
 - :func:`manoeuvre_recording`: the reference quintic line's rigid feedforward torques;
 - :func:`chirp_recording`: a chirp of a few N m through the spring resonance on top of a
   PD loop that holds the start pose (an open-loop chirp would push the machine away).
@@ -27,10 +27,12 @@ from elastic_pm_dyn.dynamics.direct import Dynamics
 from elastic_pm_dyn.dynamics.statics import static_deflection
 from elastic_pm_dyn.kinematics.assembly import initial_state
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
+from elastic_pm_dyn.motion.feedforward import line_torques
+from elastic_pm_dyn.motion.manoeuvre import REFERENCE_MANOEUVRE
 from elastic_pm_dyn.sim.simulator import SimulationOptions, Simulator
 from elastic_pm_dyn.sim.torque import TorqueSource
 
-PERIOD = 1e-3
+PERIOD = 1.0 / REFERENCE_MANOEUVRE.control_rate  # [s] the reference manoeuvre's torques are held this long
 NS = 1_000_000_000
 
 
@@ -155,13 +157,12 @@ def manoeuvre_recording(mech: Mechanism, seed: int = 1, disturbance_rms: float =
                         duration: float | None = None, truth_dt: float = 5e-5,
                         disturbance_band: tuple[float, float] = (2.0, 200.0)) -> Recording:
     """The reference manoeuvre (rigid feedforward of the quintic line, 1 kHz, ZOH) + a multisine
-    in ``disturbance_band`` [Hz] (2-200 Hz: the issue's case)."""
-    from elastic_pm_dyn.demo import REFERENCE_LINE
-    from elastic_pm_dyn.motion.feedforward import line_torques
-    _, torques, _ = line_torques(mech.model, REFERENCE_LINE, 1.0 / PERIOD)
+    in ``disturbance_band`` [Hz] (2-200 Hz: the observer's test case)."""
+    line = REFERENCE_MANOEUVRE.line
+    _, torques, _ = line_torques(mech.model, line, 1.0 / PERIOD)
     rng = np.random.default_rng(seed)
     dist = Multisine(rng, len(mech.active), disturbance_rms, *disturbance_band) if disturbance_rms > 0 else None
-    duration = REFERENCE_LINE.duration if duration is None else duration
+    duration = line.duration if duration is None else duration
 
     def command(k: int, t: float, enc: np.ndarray) -> np.ndarray:
         return torques[min(k, len(torques) - 1)]

@@ -18,11 +18,11 @@ from pathlib import Path
 import numpy as np
 
 from elastic_pm_dyn.analysis import metrics, plots
-from elastic_pm_dyn.demo import CONTROL_RATE, REFERENCE_LINE
 from elastic_pm_dyn.errors import InputError
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.model.loader import load_model
 from elastic_pm_dyn.motion.feedforward import line_torques
+from elastic_pm_dyn.motion.manoeuvre import REFERENCE_MANOEUVRE
 from elastic_pm_dyn.motion.trajectory import QuinticLine
 from elastic_pm_dyn.ros.bag import read_bag
 from elastic_pm_dyn.ros.params import share_path
@@ -38,6 +38,7 @@ from elastic_pm_dyn.sim.torque import TorqueTable
 
 SYNC_MODES = ("lockstep", "realtime")
 PLANT_TOPICS = ["/joint_states", "/branch_forces", "/ee_pose"]
+CONTROL_RATE = REFERENCE_MANOEUVRE.control_rate  # [Hz] of plant and feedforward
 DRAIN = 1.0  # [s] after the feedforward ends, for the last states to reach the recorder
 # The plant's numerics, passed explicitly so the offline comparison uses the same ones.
 OPTIONS = SimulationOptions(formulation="scdd", integrator="rk4", dt=1e-4, stabilization="projection",
@@ -46,7 +47,7 @@ OPTIONS = SimulationOptions(formulation="scdd", integrator="rk4", dt=1e-4, stabi
 
 def run_ros_demo(out: Path, model_path: Path, sync: str = "lockstep", storage: str = "mcap",
                  timeout: float = 120.0, domain_id: int | None = None,
-                 line: QuinticLine = REFERENCE_LINE) -> dict:
+                 line: QuinticLine = REFERENCE_MANOEUVRE.line) -> dict:
     """Run the three nodes, record, analyse; returns the summary (also in out/summary.json)."""
     if sync not in SYNC_MODES:
         raise InputError(f"sync mode must be one of {', '.join(SYNC_MODES)}, got {sync!r}")

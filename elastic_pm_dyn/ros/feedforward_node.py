@@ -30,6 +30,7 @@ from trajectory_msgs.msg import JointTrajectory
 from elastic_pm_dyn.errors import ElasticPmDynError, InputError
 from elastic_pm_dyn.model.loader import load_model
 from elastic_pm_dyn.motion.feedforward import rigid_feedforward
+from elastic_pm_dyn.motion.manoeuvre import REFERENCE_MANOEUVRE
 from elastic_pm_dyn.motion.references import JointReference, LineReference
 from elastic_pm_dyn.motion.trajectory import QuinticLine
 from elastic_pm_dyn.ros.commands import CommandDecoder
@@ -50,15 +51,17 @@ READY_POLL = 0.05  # [s] wall-clock check for subscribers while waiting to start
 # Our errors (unreachable, singular), and numpy's should a solver inside it fail outright.
 SOLVE_ERRORS = (ElasticPmDynError, np.linalg.LinAlgError)
 
+# Rate and line default to the reference manoeuvre (config/feedforward.yaml repeats them; a test holds them equal).
 PARAMS = [
     Param("model", "", "model YAML file; empty = the five-bar shipped with the package"),
-    Param("rate", 1000.0, "control rate [Hz]: timer period and the time grid of the commands", positive=True),
+    Param("rate", REFERENCE_MANOEUVRE.control_rate, "control rate [Hz]: timer period and the time grid of the commands",
+          positive=True),
     Param("source", "line", "line (parameters line.*) or trajectory (JointTrajectory topic)",
           choices=("line", "trajectory")),
-    Param("line.start", [-0.05, 0.35], "start point p_A [m] (2 numbers planar, 3 spatial)"),
-    Param("line.end", [0.05, 0.45], "end point p_E [m]"),
-    Param("line.move", 0.2, "move time [s]", positive=True),
-    Param("line.hold", 0.3, "time at the end point that belongs to the manoeuvre [s]"),
+    Param("line.start", list(REFERENCE_MANOEUVRE.start), "start point p_A [m] (2 numbers planar, 3 spatial)"),
+    Param("line.end", list(REFERENCE_MANOEUVRE.end), "end point p_E [m]"),
+    Param("line.move", REFERENCE_MANOEUVRE.move, "move time [s]", positive=True),
+    Param("line.hold", REFERENCE_MANOEUVRE.hold, "time at the end point that belongs to the manoeuvre [s]"),
     Param("autostart", True, "line: start at start-up (else call ~/start)"),
     Param("trigger", "timer", "timer (at rate, node clock) or state (one command per plant state)",
           choices=("timer", "state")),
