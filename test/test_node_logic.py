@@ -14,7 +14,7 @@ from elastic_pm_dyn.motion.feedforward import line_torques, rigid_feedforward
 from elastic_pm_dyn.motion.manoeuvre import REFERENCE_MANOEUVRE
 from elastic_pm_dyn.motion.references import JointReference, LineReference
 from elastic_pm_dyn.ros.commands import CommandDecoder
-from elastic_pm_dyn.ros.plant import Plant
+from elastic_pm_dyn.sim.plant import Plant
 from elastic_pm_dyn.sim.simulator import SimulationOptions, Simulator
 from elastic_pm_dyn.sim.torque import ConstantTorque
 

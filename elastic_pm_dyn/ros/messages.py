@@ -21,7 +21,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
-from elastic_pm_dyn.ros.plant import Plant
+from elastic_pm_dyn.sim.plant import Plant
 
 if TYPE_CHECKING:
     from elastic_pm_dyn.observer.ekf import Estimate

@@ -11,7 +11,7 @@ Sync modes (parameter ``sync_mode``):
   deterministically: the same torques give the same states as offline ``simulate``.
 
 Callbacks only validate and store; the timers and the lockstep handler (a guard
-condition) advance the :class:`~elastic_pm_dyn.ros.plant.Plant`. With ``mode: observer``
+condition) advance the :class:`~elastic_pm_dyn.sim.plant.Plant`. With ``mode: observer``
 the node does not simulate: :class:`~elastic_pm_dyn.ros.observer_mode.ObserverMode`
 subscribes to commands and measurements and publishes the state observer's estimates on
 the same output topics (the sync parameters then do not apply).
@@ -55,8 +55,8 @@ from elastic_pm_dyn.ros.params import (
     read_parameters,
     reject_unknown,
 )
-from elastic_pm_dyn.ros.plant import Plant
 from elastic_pm_dyn.ros.qos import CLOCK_QOS, COMMAND_QOS, DIAGNOSTICS_QOS, STATE_QOS, VIEWER_QOS
+from elastic_pm_dyn.sim.plant import Plant
 from elastic_pm_dyn.sim.simulator import INTEGRATORS, STABILISATIONS, SimulationOptions
 
 MODES = ("plant", "observer")

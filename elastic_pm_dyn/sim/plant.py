@@ -1,8 +1,8 @@
-"""The simulated machine behind the plant node, stepped one control period at a time.
+"""The plant stepper: the simulated machine behind the plant node, one control period at a time.
 
-No rclpy here: the node validates messages and calls these methods, so the stepping, the
-reset and the set-state logic run (and are tested) without ROS. Time is an integer count
-of control periods, t = k * period, so it never drifts and equals offline sample times.
+The node validates messages and calls these methods, so the stepping, the reset and the
+set-state logic run (and are tested) without ROS. Time is an integer count of control
+periods, t = k * period, so it never drifts and equals offline sample times.
 """
 
 from __future__ import annotations
