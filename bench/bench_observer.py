@@ -38,8 +38,9 @@ sys.path.insert(0, str(ROOT))
 from elastic_pm_dyn.kinematics.mechanism import Mechanism  # noqa: E402
 from elastic_pm_dyn.model.loader import load_model  # noqa: E402
 from elastic_pm_dyn.observer import Observer, ObserverConfig  # noqa: E402
+from elastic_pm_dyn.observer.bag_input import recording_to_bag  # noqa: E402
 from elastic_pm_dyn.observer.evaluation import feed, open_loop, quasi_static_series, score  # noqa: E402
-from elastic_pm_dyn.observer.offline import observe_bag, recording_to_bag  # noqa: E402
+from elastic_pm_dyn.observer.offline import observe_bag  # noqa: E402
 from elastic_pm_dyn.observer.scenarios import chirp_recording, manoeuvre_recording  # noqa: E402
 from elastic_pm_dyn.observer.stream import ObserverStream  # noqa: E402
 

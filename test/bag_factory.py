@@ -22,13 +22,24 @@ from pathlib import Path
 import numpy as np
 from rosbags.rosbag2 import StoragePlugin, Writer
 
+from elastic_pm_dyn.bags.msgtypes import (
+    BRANCH_FORCES,
+    DIAGNOSTIC_ARRAY,
+    FLOAT64_ARRAY,
+    HEADER,
+    JOINT_STATE,
+    KEY_VALUE,
+    POSE_STAMPED,
+    QUATERNION,
+    TIME,
+)
+from elastic_pm_dyn.bags.typestore import make_typestore
 from elastic_pm_dyn.dynamics.inverse import tree_inverse_dynamics
 from elastic_pm_dyn.kinematics.assembly import initial_state, solve_pose
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.model.loader import load_model
 from elastic_pm_dyn.motion.feedforward import rigid_feedforward
 from elastic_pm_dyn.motion.trajectory import QuinticLine
-from elastic_pm_dyn.ros.msg_types import BRANCH_FORCES_MSGTYPE, make_typestore
 
 CONFIG = Path(__file__).resolve().parent.parent / "config"
 MODEL = CONFIG / "five_bar.yaml"
@@ -118,37 +129,37 @@ class Messages:
 
     def header(self, t: float):
         ns = round((T0 + t) * 1e9)
-        stamp = self.T["builtin_interfaces/msg/Time"](sec=ns // 10**9, nanosec=ns % 10**9)
-        return self.T["std_msgs/msg/Header"](stamp=stamp, frame_id="world")
+        stamp = self.T[TIME](sec=ns // 10**9, nanosec=ns % 10**9)
+        return self.T[HEADER](stamp=stamp, frame_id="world")
 
     def joint_state(self, t, names, position, velocity=(), effort=()):
-        return self.T["sensor_msgs/msg/JointState"](
+        return self.T[JOINT_STATE](
             header=self.header(t), name=list(names), position=np.asarray(position, dtype=float),
             velocity=np.asarray(velocity, dtype=float), effort=np.asarray(effort, dtype=float))
 
     def branch_forces(self, t, names, force):
         empty = np.zeros(0)
-        return self.T[BRANCH_FORCES_MSGTYPE](header=self.header(t), name=list(names),
+        return self.T[BRANCH_FORCES](header=self.header(t), name=list(names),
                                              force=np.asarray(force, dtype=float), deflection=force / 5.464e6,
                                              deflection_rate=np.zeros(len(names)), force_stddev=empty)
 
     def pose(self, t, xy):
         T = self.T
         pose = T["geometry_msgs/msg/Pose"](position=T["geometry_msgs/msg/Point"](x=xy[0], y=xy[1], z=0.0),
-                                           orientation=T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0))
-        return T["geometry_msgs/msg/PoseStamped"](header=self.header(t), pose=pose)
+                                           orientation=T[QUATERNION](x=0.0, y=0.0, z=0.0, w=1.0))
+        return T[POSE_STAMPED](header=self.header(t), pose=pose)
 
     def float_array(self, values):
         T = self.T
         layout = T["std_msgs/msg/MultiArrayLayout"](dim=[], data_offset=0)
-        return T["std_msgs/msg/Float64MultiArray"](layout=layout, data=np.asarray(values, dtype=float))
+        return T[FLOAT64_ARRAY](layout=layout, data=np.asarray(values, dtype=float))
 
     def diagnostics(self, t, values: dict[str, str], level: int = 0, message: str = "running"):
         T = self.T
-        kvs = [T["diagnostic_msgs/msg/KeyValue"](key=k, value=v) for k, v in values.items()]
+        kvs = [T[KEY_VALUE](key=k, value=v) for k, v in values.items()]
         status = T["diagnostic_msgs/msg/DiagnosticStatus"](level=level, name="plant: plant", message=message,
                                                            hardware_id="five_bar", values=kvs)
-        return T["diagnostic_msgs/msg/DiagnosticArray"](header=self.header(t), status=[status])
+        return T[DIAGNOSTIC_ARRAY](header=self.header(t), status=[status])
 
 
 def run_messages(run: Run, ts, command: str = "joint_state", topics: set[str] | None = None,
@@ -167,22 +178,22 @@ def run_messages(run: Run, ts, command: str = "joint_state", topics: set[str] | 
             out.append((topic, msgtype, round((T0 + t + LATENCY) * 1e9), msg))
 
     for k, t in enumerate(run.t_state):
-        add("/joint_states", "sensor_msgs/msg/JointState", t,
+        add("/joint_states", JOINT_STATE, t,
             m.joint_state(t, names, run.q[k, order], run.qd[k, order], js_effort[k, order]))
-        add("/reference_joint_states", "sensor_msgs/msg/JointState", t,
+        add("/reference_joint_states", JOINT_STATE, t,
             m.joint_state(t, run.ref_names, run.q_ref[k], run.qd_ref[k]))
         if command == "joint_state":
-            add("/torque_command", "sensor_msgs/msg/JointState", t,
+            add("/torque_command", JOINT_STATE, t,
                 m.joint_state(t, run.motor_names, [], [], run.tau[k]))
         else:
-            add("/torque_command", "std_msgs/msg/Float64MultiArray", t, m.float_array(run.tau[k]))
-        add("/ee_pose", "geometry_msgs/msg/PoseStamped", t, m.pose(t, run.ee[k]))
+            add("/torque_command", FLOAT64_ARRAY, t, m.float_array(run.tau[k]))
+        add("/ee_pose", POSE_STAMPED, t, m.pose(t, run.ee[k]))
         if k % 100 == 0:
-            add("/diagnostics", "diagnostic_msgs/msg/DiagnosticArray", t,
+            add("/diagnostics", DIAGNOSTIC_ARRAY, t,
                 m.diagnostics(t, {"sync_mode": "lockstep", "command_age_s": "0.001", "real_time_factor": "1.5",
                                   "closure_gap_m": "1e-16"}))
     for k, t in enumerate(run.t_force):
-        add("/branch_forces", BRANCH_FORCES_MSGTYPE, t, m.branch_forces(t, run.branch_names, run.forces[k]))
+        add("/branch_forces", BRANCH_FORCES, t, m.branch_forces(t, run.branch_names, run.forces[k]))
     out.sort(key=lambda x: x[2])
     return out
 

@@ -10,18 +10,17 @@ from __future__ import annotations
 import argparse
 import csv
 import json
-import os
 from pathlib import Path
 
 import numpy as np
 import pytest
 from bag_factory import MODEL, run_messages, synthetic_run, write_bag
 
-from elastic_pm_dyn.analysis.bags import BagError, read_bag
+from elastic_pm_dyn.analysis.bags import read_bag
 from elastic_pm_dyn.analysis.report import analyze
 from elastic_pm_dyn.analysis.streams import SampleBuffer, StreamTimer, WindowBuffer
-from elastic_pm_dyn.errors import InputError
-from elastic_pm_dyn.ros.msg_types import make_typestore
+from elastic_pm_dyn.bags.errors import BagError
+from elastic_pm_dyn.bags.typestore import make_typestore
 
 
 @pytest.fixture(scope="module")
@@ -234,39 +233,6 @@ def test_sample_buffer_window_and_timer_stay_bounded():
     assert b["longest_gap"] == pytest.approx(a["longest_gap"], rel=1e-12)
     assert b["period_median"] == pytest.approx(a["period_median"], rel=0.01)
     assert b["period_p99"] == pytest.approx(a["period_p99"], rel=0.01)
-
-
-# -------------------------------------------------------------------------- errors
-def test_corrupt_truncated_and_missing_bags_give_one_line_errors(run, bag_dir, tmp_path):
-    good = {s: _bag(bag_dir, f"{s}_True", run, s) for s in ("mcap", "sqlite3")}
-    cases = {}
-    for storage, src in good.items():
-        for kind in ("truncated", "overwritten"):
-            dst = tmp_path / f"{storage}_{kind}"
-            dst.mkdir()
-            for f in src.iterdir():
-                dst.joinpath(f.name).write_bytes(f.read_bytes())
-            data = next(dst.glob("*.mcap" if storage == "mcap" else "*.db3"))
-            size = data.stat().st_size
-            if kind == "truncated":
-                os.truncate(data, size // 2)
-            else:
-                with data.open("r+b") as fh:
-                    fh.seek(size // 2)
-                    fh.write(b"\xff" * 5000)
-            cases[dst] = "truncated or corrupt"
-    no_meta = tmp_path / "no_metadata"
-    no_meta.mkdir()
-    cases[no_meta] = "not a rosbag2 bag"
-    cases[tmp_path / "missing"] = "no such bag"
-    bad_yaml = tmp_path / "bad_yaml"
-    bad_yaml.mkdir()
-    (bad_yaml / "metadata.yaml").write_text("rosbag2_bagfile_information: [")
-    cases[bad_yaml] = "cannot open the bag"
-    for path, text in cases.items():
-        with pytest.raises(BagError, match=text) as err:
-            read_bag(path)
-        assert isinstance(err.value, InputError) and "\n" not in str(err.value) and str(path) in str(err.value)
 
 
 # ---------------------------------------------------------------- export, command line

@@ -54,7 +54,7 @@ def test_recorder_bag_is_analysed(tmp_path):
 
         def recorded(topic: str) -> int:
             conn = recorder.connections.get(topic)
-            return recorder.writer.counts[conn.id] if conn else 0
+            return recorder.writer.count(conn) if conn else 0
 
         h.wait_until(lambda: all(t in recorder.connections for t in TOPICS)
                      and all(p.get_subscription_count() for p in pubs.values()), 10.0, "recorder subscribed")

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from elastic_pm_dyn.observer import Observer, ObserverConfig, kernels
-from elastic_pm_dyn.observer.offline import Event, run_events
+from elastic_pm_dyn.observer.bag_input import Event
+from elastic_pm_dyn.observer.event_filter import run_events
 from elastic_pm_dyn.observer.scenarios import manoeuvre_recording
 
 

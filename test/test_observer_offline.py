@@ -9,10 +9,13 @@ import json
 import numpy as np
 import pytest
 
+from elastic_pm_dyn.bags.series import read_series
 from elastic_pm_dyn.errors import InputError
 from elastic_pm_dyn.observer import Observer, ObserverConfig
+from elastic_pm_dyn.observer.bag_input import recording_to_bag
 from elastic_pm_dyn.observer.cli import register_cli
-from elastic_pm_dyn.observer.offline import estimates_equal, observe_bag, recording_to_bag
+from elastic_pm_dyn.observer.offline import observe_bag
+from elastic_pm_dyn.observer.results import estimates_equal
 from elastic_pm_dyn.observer.scenarios import manoeuvre_recording
 from elastic_pm_dyn.observer.stream import ObserverStream
 
@@ -58,7 +61,6 @@ def test_offline_equals_live_lockstep(five_bar, rec, bag) -> None:
 
 
 def test_cli_writes_csv_bag_and_summary(five_bar, rec, bag, tmp_path) -> None:
-    from elastic_pm_dyn.ros.bag import read_bag
     parser = argparse.ArgumentParser()
     register_cli(parser.add_subparsers(dest="command"))
     out = tmp_path / "out"
@@ -80,7 +82,7 @@ def test_cli_writes_csv_bag_and_summary(five_bar, rec, bag, tmp_path) -> None:
     assert summary["sensors"]["imu"]["accepted"] > 0.95 * len(rec.t)
     assert "left_spring" in summary["observability"]
     # The estimates bag is what `analyze` reads: joint states and branch forces with std devs.
-    series = read_bag(out / "estimates")
+    series = read_series(out / "estimates")
     assert {"/joint_states", "/branch_forces", "/ee_pose"} <= set(series)
     js = series["/joint_states"]
     assert js.names == list(five_bar.joint_names) and len(js.t) == len(rec.t)
@@ -101,33 +103,3 @@ def test_bad_inputs_are_one_line_errors(five_bar, bag, tmp_path) -> None:
                               str(tmp_path / "o"), "--set", "process.dt"])
     with pytest.raises(InputError, match="NAME=VALUE"):
         args.func(args)
-
-
-def test_fast_cdr_equals_rosbags() -> None:
-    """The offline pass's own CDR (de)serialisers agree byte for byte with rosbags."""
-    from elastic_pm_dyn.observer import cdr
-    from elastic_pm_dyn.ros.msg_types import BRANCH_FORCES_MSGTYPE, make_typestore
-    ts = make_typestore()
-    T, H = ts.types["builtin_interfaces/msg/Time"], ts.types["std_msgs/msg/Header"]
-    JS, BF = ts.types["sensor_msgs/msg/JointState"], ts.types[BRANCH_FORCES_MSGTYPE]
-    V3, Q = ts.types["geometry_msgs/msg/Vector3"], ts.types["geometry_msgs/msg/Quaternion"]
-    rng = np.random.default_rng(0)
-    for names, frame in ((["a", "bb", "ccc"], ""), (["left_motor", "right_motor"], "x"), ([], "frame")):
-        n = len(names)
-        pos, vel, eff = rng.standard_normal(n), np.zeros(0), rng.standard_normal(n)
-        hdr = H(stamp=T(sec=12, nanosec=345), frame_id=frame)
-        ref = bytes(ts.serialize_cdr(JS(header=hdr, name=names, position=pos, velocity=vel, effort=eff),
-                                     "sensor_msgs/msg/JointState"))
-        assert cdr.encode_joint_state(12_000_000_345, names, pos, vel, eff, frame) == ref
-        ns, nm, p, _, e = cdr.decode_joint_state(ref)
-        assert (ns, nm) == (12_000_000_345, names) and np.array_equal(p, pos) and np.array_equal(e, eff)
-        ref = bytes(ts.serialize_cdr(BF(header=hdr, name=names, force=pos, deflection=eff, deflection_rate=pos,
-                                        force_stddev=vel), BRANCH_FORCES_MSGTYPE))
-        assert cdr.encode_branch_forces(12_000_000_345, names, pos, eff, pos, vel, frame) == ref
-        assert cdr.decode_branch_forces(ref)[1] == names
-        imu = ts.types["sensor_msgs/msg/Imu"](
-            header=hdr, orientation=Q(x=0.0, y=0.0, z=0.0, w=1.0), orientation_covariance=np.arange(9.0),
-            angular_velocity=V3(x=1.0, y=2.0, z=3.0), angular_velocity_covariance=np.arange(9.0),
-            linear_acceleration=V3(x=7.0, y=8.0, z=9.0), linear_acceleration_covariance=np.zeros(9))
-        ns, f, a = cdr.decode_imu(bytes(ts.serialize_cdr(imu, "sensor_msgs/msg/Imu")))
-        assert (ns, f, list(a)) == (12_000_000_345, frame, [7.0, 8.0, 9.0])

@@ -8,8 +8,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from elastic_pm_dyn.bags.msgtypes import BRANCH_FORCES, HEADER, IMU, JOINT_STATE, NS, QUATERNION, TIME, VECTOR3
+from elastic_pm_dyn.bags.writer import BagWriter
 from elastic_pm_dyn.errors import InputError
-from elastic_pm_dyn.observer import ObserverConfig, bag_input, offline
+from elastic_pm_dyn.observer import ObserverConfig, bag_input, event_filter
 from elastic_pm_dyn.observer import pipeline as observe_pipeline
 from elastic_pm_dyn.observer.offline import observe_bag
 from elastic_pm_dyn.observer.scenarios import manoeuvre_recording
@@ -29,30 +31,26 @@ def _write(rec, path: Path, nan_at=(), late=(), gated_at=(), branch_at=(), stora
     NaN encoders at ``nan_at``, ``late`` = ((k, j), ...): the joint state of stamp j arrives after
     stamp k's messages, a gated encoder sample at ``gated_at``, branch forces at ``branch_at``,
     nothing else of the stamps in ``skip``."""
-    from rosbags.rosbag2 import StoragePlugin, Writer
-
-    from elastic_pm_dyn.ros.msg_types import BRANCH_FORCES_MSGTYPE, make_typestore
-    ts = make_typestore()
-    T, H = ts.types["builtin_interfaces/msg/Time"], ts.types["std_msgs/msg/Header"]
-    JS, BF, Imu = ts.types[offline.JOINT_STATE], ts.types[BRANCH_FORCES_MSGTYPE], ts.types[offline.IMU]
-    V3, Q = ts.types["geometry_msgs/msg/Vector3"], ts.types["geometry_msgs/msg/Quaternion"]
     names = list(rec.active_names)
-    plugin = {"mcap": StoragePlugin.MCAP, "sqlite3": StoragePlugin.SQLITE3}[storage]
     z = np.zeros(0)
-    log = iter(range(1_000_000_000, 2_000_000_000, 1000))
+    log = iter(range(NS, 2 * NS, 1000))
 
-    def hdr(ns, frame=""):
-        return H(stamp=T(sec=int(ns) // 1_000_000_000, nanosec=int(ns) % 1_000_000_000), frame_id=frame)
+    with BagWriter(path, storage) as w:
+        types = w.typestore.types
+        T, H, JS, BF, Imu = types[TIME], types[HEADER], types[JOINT_STATE], types[BRANCH_FORCES], types[IMU]
+        V3, Q = types[VECTOR3], types[QUATERNION]
 
-    with Writer(path, version=Writer.VERSION_LATEST, storage_plugin=plugin) as w:
-        c_cmd = w.add_connection("/torque_command", offline.JOINT_STATE, typestore=ts)
-        c_js = w.add_connection("/measured_joint_states", offline.JOINT_STATE, typestore=ts)
-        c_imu = w.add_connection("/ee_imu", offline.IMU, typestore=ts)
-        c_bf = w.add_connection("/measured_branch_forces", BRANCH_FORCES_MSGTYPE, typestore=ts)
+        def hdr(ns, frame=""):
+            return H(stamp=T(sec=int(ns) // NS, nanosec=int(ns) % NS), frame_id=frame)
+
+        c_cmd = w.add_connection("/torque_command", JOINT_STATE)
+        c_js = w.add_connection("/measured_joint_states", JOINT_STATE)
+        c_imu = w.add_connection("/ee_imu", IMU)
+        c_bf = w.add_connection("/measured_branch_forces", BRANCH_FORCES)
 
         def js(ns, enc):
-            w.write(c_js, next(log), ts.serialize_cdr(JS(header=hdr(ns), name=names, position=np.asarray(enc, float),
-                                                          velocity=z, effort=z), offline.JOINT_STATE))
+            w.write_message(c_js, next(log), JS(header=hdr(ns), name=names, position=np.asarray(enc, float),
+                                                velocity=z, effort=z))
 
         unknown = np.full(9, -1.0)
         for k, ns in enumerate(rec.stamp_ns):
@@ -69,17 +67,17 @@ def _write(rec, path: Path, nan_at=(), late=(), gated_at=(), branch_at=(), stora
             if k not in [j for _, j in late]:
                 js(ns, enc)
             a = rec.accel[k]
-            w.write(c_imu, next(log), ts.serialize_cdr(Imu(
+            w.write_message(c_imu, next(log), Imu(
                 header=hdr(ns, "ee_imu"), orientation=Q(x=0.0, y=0.0, z=0.0, w=1.0), orientation_covariance=unknown,
                 angular_velocity=V3(x=0.0, y=0.0, z=0.0), angular_velocity_covariance=unknown,
                 linear_acceleration=V3(x=float(a[0]), y=float(a[1]), z=float(a[2])),
-                linear_acceleration_covariance=np.zeros(9)), offline.IMU))
+                linear_acceleration_covariance=np.zeros(9)))
             if k in branch_at:
-                w.write(c_bf, next(log), ts.serialize_cdr(BF(
+                w.write_message(c_bf, next(log), BF(
                     header=hdr(ns), name=list(rec.branch_names), force=rec.branch[k], deflection=z,
-                    deflection_rate=z, force_stddev=z), BRANCH_FORCES_MSGTYPE))
-            w.write(c_cmd, next(log), ts.serialize_cdr(JS(header=hdr(ns), name=names, position=z, velocity=z,
-                                                          effort=rec.tau_cmd[k]), offline.JOINT_STATE))
+                    deflection_rate=z, force_stddev=z))
+            w.write_message(c_cmd, next(log), JS(header=hdr(ns), name=names, position=z, velocity=z,
+                                                 effort=rec.tau_cmd[k]))
 
 
 def _files(out: Path) -> dict:
@@ -117,9 +115,9 @@ def test_pipeline_equals_sequential(five_bar, rec, tmp_path, monkeypatch, chunk,
     monkeypatch.setattr(observe_pipeline, "CHUNK_EVENTS", chunk)
     monkeypatch.setattr(observe_pipeline, "STAMP_LAG_NS", lag_ns)
     feeds, starts = [], []
-    feed, inner = offline._Filter.feed, offline.run_events
-    monkeypatch.setattr(offline._Filter, "feed", lambda self, ev: feeds.append(len(ev)) or feed(self, ev))
-    monkeypatch.setattr(offline, "run_events", lambda *a, **k: starts.append(1) or inner(*a, **k))
+    feed, inner = event_filter.EventFilter.feed, event_filter.run_events
+    monkeypatch.setattr(event_filter.EventFilter, "feed", lambda self, ev: feeds.append(len(ev)) or feed(self, ev))
+    monkeypatch.setattr(event_filter, "run_events", lambda *a, **k: starts.append(1) or inner(*a, **k))
     seq = _run(five_bar, bag, tmp_path / "seq", False, order)
     feeds.clear()
     pipe = _run(five_bar, bag, tmp_path / "pipe", True, order)
@@ -139,8 +137,8 @@ def test_pipeline_starts_over_on_an_out_of_order_bag(five_bar, rec, tmp_path, mo
     monkeypatch.setattr(observe_pipeline, "CHUNK_EVENTS", 60)
     monkeypatch.setattr(observe_pipeline, "STAMP_LAG_NS", 5_000_000)
     starts = []
-    inner = offline.run_events
-    monkeypatch.setattr(offline, "run_events", lambda *a, **k: starts.append(1) or inner(*a, **k))
+    inner = event_filter.run_events
+    monkeypatch.setattr(event_filter, "run_events", lambda *a, **k: starts.append(1) or inner(*a, **k))
     seq = _run(five_bar, bag, tmp_path / "seq", False, order)
     pipe = _run(five_bar, bag, tmp_path / "pipe", True, order)
     _same(seq, pipe, tmp_path / "seq", tmp_path / "pipe")
@@ -153,8 +151,8 @@ def test_pipeline_arrival_order_starts_over_before_the_start(five_bar, rec, tmp_
     _write(rec, bag, late=((150, 0),), skip=(0,))
     monkeypatch.setattr(observe_pipeline, "CHUNK_EVENTS", 60)
     starts = []
-    inner = offline.run_events
-    monkeypatch.setattr(offline, "run_events", lambda *a, **k: starts.append(1) or inner(*a, **k))
+    inner = event_filter.run_events
+    monkeypatch.setattr(event_filter, "run_events", lambda *a, **k: starts.append(1) or inner(*a, **k))
     seq = _run(five_bar, bag, tmp_path / "seq", False, "arrival")
     pipe = _run(five_bar, bag, tmp_path / "pipe", True, "arrival")
     _same(seq, pipe, tmp_path / "seq", tmp_path / "pipe")
@@ -202,7 +200,7 @@ def test_pipeline_error_while_filtering_same_error_and_no_output(five_bar, rec, 
     _write(rec, bag)
     monkeypatch.setattr(observe_pipeline, "CHUNK_EVENTS", 50)
     monkeypatch.setattr(observe_pipeline, "STAMP_LAG_NS", 2_000_000)
-    inner = bag_input._fast_decode
+    inner = bag_input._decode
     for pipeline in (False, True):
         calls = []
 
@@ -212,7 +210,7 @@ def test_pipeline_error_while_filtering_same_error_and_no_output(five_bar, rec, 
                 raise RuntimeError("message 700: broken")
             return inner(*args)
 
-        monkeypatch.setattr(bag_input, "_fast_decode", decode)
+        monkeypatch.setattr(bag_input, "_decode", decode)
         out = tmp_path / f"out{pipeline}"
         with pytest.raises(RuntimeError, match=r"^message 700: broken$"):
             _run(five_bar, bag, out, pipeline)

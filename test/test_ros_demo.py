@@ -9,7 +9,7 @@ from pathlib import Path
 
 from ros_harness import domain_id, require
 
-from elastic_pm_dyn.ros.msg_types import BRANCH_FORCES_MSGTYPE
+from elastic_pm_dyn.bags.msgtypes import BRANCH_FORCES
 
 
 def _demo(out: Path, *extra: str) -> subprocess.CompletedProcess:
@@ -35,7 +35,7 @@ def test_ros_demo_lockstep(tmp_path: Path) -> None:
         assert (out / f"{name}.png").stat().st_size > 10_000
     with AnyReader([out / "bag"]) as reader:  # definitions from the bag itself
         conns = [c for c in reader.connections if c.topic == "/branch_forces"]
-        assert [c.msgtype for c in conns] == [BRANCH_FORCES_MSGTYPE]
+        assert [c.msgtype for c in conns] == [BRANCH_FORCES]
         assert sum(1 for _ in reader.messages(connections=conns)) == 501
     for log in ("plant", "feedforward", "recorder"):
         assert (out / "logs" / f"{log}.log").is_file()

@@ -22,6 +22,8 @@ import pytest
 import yaml
 from ros_harness import RosHarness, domain_id, require
 
+from elastic_pm_dyn.bags.msgtypes import BRANCH_FORCES, IMU, JOINT_STATE, stamp_ns
+from elastic_pm_dyn.bags.writer import BagWriter
 from elastic_pm_dyn.observer.config import flatten, load_config
 from elastic_pm_dyn.observer.scenarios import manoeuvre_recording
 
@@ -57,10 +59,10 @@ class Feeder:
     """Sends a recording to the observer node message by message; collects what it publishes."""
 
     TOPICS: ClassVar[dict[str, tuple[str, str]]] = {
-        "torque_command": ("/torque_command", "sensor_msgs/msg/JointState"),
-        "joint_state": ("/measured_joint_states", "sensor_msgs/msg/JointState"),
-        "imu": ("/ee_imu", "sensor_msgs/msg/Imu"),
-        "branch_forces": ("/measured_branch_forces", "elastic_pm_dyn_msgs/msg/BranchForces")}
+        "torque_command": ("/torque_command", JOINT_STATE),
+        "joint_state": ("/measured_joint_states", JOINT_STATE),
+        "imu": ("/ee_imu", IMU),
+        "branch_forces": ("/measured_branch_forces", BRANCH_FORCES)}
 
     def __init__(self, h: RosHarness, plant: Any, rec: Any):
         require("rclpy")
@@ -122,12 +124,9 @@ class Feeder:
         float64[] fields it may carry a few trailing padding bytes (see test_ros_msgs.py),
         which ``observe``'s CDR reader, reading field by field, never looks at."""
         from rclpy.serialization import serialize_message
-        from rosbags.rosbag2 import StoragePlugin, Writer
 
-        from elastic_pm_dyn.ros.msg_types import make_typestore
-        ts = make_typestore()
-        with Writer(path, version=Writer.VERSION_LATEST, storage_plugin=StoragePlugin.MCAP) as w:
-            conns = {k: w.add_connection(topic, msgtype, typestore=ts) for k, (topic, msgtype) in self.TOPICS.items()}
+        with BagWriter(path) as w:
+            conns = {k: w.add_connection(topic, msgtype) for k, (topic, msgtype) in self.TOPICS.items()}
             for i, (kind, msg) in enumerate(self.sent):
                 w.write(conns[kind], 1000 + i, serialize_message(msg))  # bag time = send order
 
@@ -148,7 +147,7 @@ class Feeder:
 
 
 def _stamps(msgs: list[Any]) -> list[int]:
-    return [m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec for m in msgs]
+    return [stamp_ns(m.header.stamp) for m in msgs]
 
 
 def _values(status: Any) -> dict[str, str]:

@@ -75,7 +75,7 @@ class Driver:
         self.node.create_subscription(JointState, "joint_states", self._on_state, STATE_QOS)
 
     def _on_state(self, msg: Any) -> None:
-        from elastic_pm_dyn.ros.messages import stamp_ns
+        from elastic_pm_dyn.bags.msgtypes import stamp_ns
         ns = stamp_ns(msg.header.stamp)
         self.names = list(msg.name)
         self.states.append((ns, np.array(msg.position), np.array(msg.velocity), np.array(msg.effort)))

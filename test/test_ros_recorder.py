@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 from ros_harness import RosHarness, domain_id, require
 
-from elastic_pm_dyn.ros.msg_types import BRANCH_FORCES_MSGTYPE
+from elastic_pm_dyn.bags.msgtypes import BRANCH_FORCES
+from elastic_pm_dyn.bags.typestore import make_typestore
 
 PERIODS = 20
 
@@ -22,7 +23,7 @@ def test_recorded_branch_forces_deserialise_with_rosbags(storage: str, tmp_path:
     from rosbags.highlevel import AnyReader
     from sensor_msgs.msg import JointState
 
-    from elastic_pm_dyn.ros.bag import read_bag
+    from elastic_pm_dyn.bags.series import read_series
     from elastic_pm_dyn.ros.plant_node import PlantNode
     from elastic_pm_dyn.ros.qos import COMMAND_QOS, STATE_QOS
     from elastic_pm_dyn.ros.recorder import RecorderNode
@@ -42,7 +43,7 @@ def test_recorded_branch_forces_deserialise_with_rosbags(storage: str, tmp_path:
         # subscribed and still gets recorded (transient local).
         def recorded(topic: str) -> int:
             conn = recorder.connections.get(topic)
-            return recorder.writer.counts[conn.id] if conn else 0
+            return recorder.writer.count(conn) if conn else 0
 
         h.wait_until(lambda: recorded("/joint_states") and recorded("/branch_forces"), 10.0,
                      "the state at t = 0 in the bag")
@@ -59,10 +60,9 @@ def test_recorded_branch_forces_deserialise_with_rosbags(storage: str, tmp_path:
 
     assert list(bag.glob("*.mcap" if storage == "mcap" else "*.db3"))
     for default_ts in ("ours", None):  # with our typestore, and from the definitions in the bag alone
-        from elastic_pm_dyn.ros.msg_types import make_typestore
         with AnyReader([bag], default_typestore=make_typestore() if default_ts else None) as reader:
             conns = [c for c in reader.connections if c.topic == "/branch_forces"]
-            assert [c.msgtype for c in conns] == [BRANCH_FORCES_MSGTYPE]
+            assert [c.msgtype for c in conns] == [BRANCH_FORCES]
             msgs = [reader.deserialize(raw, c.msgtype) for c, _, raw in reader.messages(connections=conns)]
         assert len(msgs) == PERIODS + 1
         for got, sent in zip(msgs, published, strict=True):
@@ -73,7 +73,7 @@ def test_recorded_branch_forces_deserialise_with_rosbags(storage: str, tmp_path:
             np.testing.assert_array_equal(got.deflection, sent.deflection)
             np.testing.assert_array_equal(got.deflection_rate, sent.deflection_rate)
             assert len(got.force_stddev) == 0
-    topics = read_bag(bag)
+    topics = read_series(bag)
     assert len(topics["/joint_states"].t) == PERIODS + 1
     np.testing.assert_allclose(topics["/joint_states"].t, np.arange(PERIODS + 1) * 1e-3, rtol=0, atol=1e-12)
     assert len(topics["/torque_command"].t) >= PERIODS - 1  # subscribed once the driver's publisher was seen

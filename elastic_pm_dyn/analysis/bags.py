@@ -1,8 +1,8 @@
-"""Read rosbag2 bags (mcap or sqlite3) with ``rosbags``: topic discovery by type, streaming.
+"""The analysis topics of a bag: topic discovery by role, streaming with bounded memory.
 
-- :func:`open_bag` opens a bag directory (or a single ``.mcap``/``.db3`` file) with
-  ``AnyReader``, our custom ``BranchForces`` type included even when the bag carries no
-  definitions (or only some), and turns rosbags' errors into one-line :class:`BagError`.
+Bags are opened and read through :mod:`elastic_pm_dyn.bags` (mcap or sqlite3, a directory
+or a single storage file, with or without definitions; errors as one-line ``BagError``).
+
 - :func:`discover_topics` maps the analysis roles (joint states, branch forces, ...) to
   topics: names given by the user first, then the default names, then by message type
   (and, among several ``JointState`` topics, by words in the name).
@@ -25,10 +25,7 @@ topic, whatever the length of the bag; decoding runs at ~30-40 us per message.
 from __future__ import annotations
 
 import math
-import sqlite3
-import struct
-from collections.abc import Iterator, Mapping
-from contextlib import contextmanager
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -36,14 +33,18 @@ from typing import Any
 import numpy as np
 
 from elastic_pm_dyn.analysis.streams import HoldDetector, SampleBuffer, StreamTimer, WindowBuffer
-from elastic_pm_dyn.errors import InputError
-from elastic_pm_dyn.ros.msg_types import BRANCH_FORCES_MSGTYPE, make_typestore
-
-JOINT_STATE = "sensor_msgs/msg/JointState"
-FLOAT64_ARRAY = "std_msgs/msg/Float64MultiArray"
-POSE_STAMPED = "geometry_msgs/msg/PoseStamped"
-DIAGNOSTIC_ARRAY = "diagnostic_msgs/msg/DiagnosticArray"
-BRANCH_FORCES = BRANCH_FORCES_MSGTYPE
+from elastic_pm_dyn.bags.errors import BagError
+from elastic_pm_dyn.bags.msgtypes import (
+    BRANCH_FORCES,
+    DIAGNOSTIC_ARRAY,
+    FLOAT64_ARRAY,
+    JOINT_STATE,
+    NS,
+    POSE_STAMPED,
+    stamp_ns,
+)
+from elastic_pm_dyn.bags.reader import open_bag
+from elastic_pm_dyn.bags.series import FIELDS, numeric_values
 
 # role -> (accepted message types, default topic, words that mark it among JointState topics)
 ROLES: dict[str, tuple[tuple[str, ...], str, tuple[str, ...]]] = {
@@ -57,20 +58,9 @@ ROLES: dict[str, tuple[tuple[str, ...], str, tuple[str, ...]]] = {
 }
 # Roles whose absence is normal (observer input, plant extras): not reported as missing.
 OPTIONAL = ("measured", "ee_pose", "diagnostics")
-# Numeric fields analysed per message type.
-FIELDS: dict[str, tuple[str, ...]] = {
-    JOINT_STATE: ("position", "velocity", "effort"),
-    BRANCH_FORCES: ("force", "deflection", "deflection_rate"),
-    FLOAT64_ARRAY: ("data",),
-    POSE_STAMPED: ("position",),
-}
 MAX_SAMPLES = 200_000  # per topic at full rate (JointState of 6 joints: ~30 MB)
 WINDOW_SAMPLES = 50_000  # full-rate rows kept for the vibration fit when decimating
 TIMER_STAMPS = 5  # x max_samples: stamps kept per topic for exact timing statistics (8 bytes each)
-
-
-class BagError(InputError):
-    """A bag that cannot be read: missing, not a bag, truncated or corrupt, undecodable."""
 
 
 @dataclass
@@ -141,77 +131,6 @@ class BagData:
     start_ns: int  # receive times [s] of the series count from here
     end_ns: int
     header_origin_ns: int  # header stamps [s] of the series count from here
-
-
-# --------------------------------------------------------------------------- opening
-# What broken storage files raise from inside rosbags (garbage sizes, offsets, strings).
-_CORRUPT = (sqlite3.DatabaseError, struct.error, EOFError, ValueError, KeyError, IndexError, UnicodeDecodeError,
-            OverflowError, MemoryError, AssertionError)
-
-
-def bag_errors() -> tuple[type[BaseException], ...]:
-    from rosbags.highlevel import AnyReaderError
-    from rosbags.rosbag2 import ReaderError
-    from rosbags.serde import SerdeError
-    from rosbags.typesys import TypesysError
-
-    return (AnyReaderError, ReaderError, SerdeError, TypesysError, *_CORRUPT)
-
-
-@contextmanager
-def open_bag(path: str | Path) -> Iterator[Any]:
-    """An open ``AnyReader`` on ``path``; errors become :class:`BagError` naming the bag."""
-    from rosbags.highlevel import AnyReader
-
-    path = Path(path)
-    if not path.exists():
-        raise BagError(f"{path}: no such bag")
-    if path.is_dir() and not (path / "metadata.yaml").is_file():
-        files = sorted(p.name for p in path.iterdir() if p.suffix in (".mcap", ".db3"))
-        hint = f"; to read a storage file without it, pass {path / files[0]}" if files else ""
-        raise BagError(f"{path}: not a rosbag2 bag (no metadata.yaml{hint})")
-    errors = bag_errors()
-    try:
-        reader = AnyReader([path], default_typestore=make_typestore())
-        reader.open()
-    except errors as err:
-        hint = ("; an mcap whose recorder was killed lacks its footer: repair it with `mcap recover`"
-                if "end magic" in str(err) else "")
-        raise BagError(f"{path}: cannot open the bag (truncated or corrupt?): {one_line(err)}{hint}") from None
-    try:
-        _complete_typestore(reader)
-        yield reader
-    finally:
-        reader.close()
-
-
-def one_line(err: BaseException) -> str:
-    text = " ".join(str(err).split()) or type(err).__name__
-    return text if len(text) <= 300 else text[:297] + "..."
-
-
-def _complete_typestore(reader: Any) -> None:
-    """Add our types (and Jazzy's) for connections whose bag carries no definition.
-
-    AnyReader uses its default typestore only when *no* connection has a definition; a
-    bag with definitions for some types and not for others would leave those undecodable.
-    """
-    have = reader.typestore.fielddefs
-    missing = {c.msgtype for c in reader.connections if c.msgtype not in have}
-    if missing:
-        defaults = make_typestore().fielddefs
-        reader.typestore.register({k: v for k, v in defaults.items() if k not in have})
-
-
-def storage_of(path: Path) -> str:
-    """'mcap' or 'sqlite3', from the storage files of a bag directory (or the file itself)."""
-    files = [path] if path.is_file() else list(path.iterdir())
-    suffixes = {p.suffix for p in files}
-    return "mcap" if ".mcap" in suffixes else "sqlite3" if ".db3" in suffixes else "?"
-
-
-def topic_table(reader: Any) -> dict[str, tuple[str, int]]:
-    return {name: (info.msgtype or "?", int(info.msgcount)) for name, info in reader.topics.items()}
 
 
 # --------------------------------------------------------------------------- discovery
@@ -297,22 +216,13 @@ class Clock:
         h = getattr(msg, "header", None)
         if h is None:
             return math.nan, False
-        ns = int(h.stamp.sec) * 1_000_000_000 + int(h.stamp.nanosec)
+        ns = stamp_ns(h.stamp)
         if self.header_origin_ns is None:
-            self.header_origin_ns = ns // 1_000_000_000 * 1_000_000_000
+            self.header_origin_ns = ns // NS * NS
         return (ns - self.header_origin_ns) * 1e-9, ns != 0
 
     def receive(self, t_ns: int) -> float:
         return (t_ns - self.receive_origin_ns) * 1e-9
-
-
-def _values(msg: Any, msgtype: str) -> tuple[list[str] | None, list[np.ndarray]]:
-    """Column names (None: by index) and one array per field of :data:`FIELDS`."""
-    if msgtype == POSE_STAMPED:
-        p = msg.pose.position
-        return ["x", "y", "z"], [np.array([p.x, p.y, p.z])]
-    names = list(msg.name) if hasattr(msg, "name") else None
-    return names, [np.asarray(getattr(msg, f), dtype=float) for f in FIELDS[msgtype]]
 
 
 class _TopicReader:
@@ -339,7 +249,7 @@ class _TopicReader:
         self.time_col = 0 if msgtype != FLOAT64_ARRAY else 1
 
     def add(self, msg: Any, t_ns: int) -> np.ndarray:
-        names, arrays = _values(msg, self.msgtype)
+        names, arrays = numeric_values(msg, self.msgtype)
         if self.names is None:
             width = max((len(a) for a in arrays), default=0)
             self.names = names if names and len(names) >= width else [str(k) for k in range(width)]
@@ -454,14 +364,14 @@ def read_bag(path: str | Path, given: Mapping[str, str | None] | None = None, ho
     no reference, holds the last ``window_samples`` messages).
     """
     path = Path(path)
-    with open_bag(path) as reader:
-        topics = topic_table(reader)
+    with open_bag(path) as bag:
+        topics = bag.topics()
         roles, notes = discover_topics(topics, given)
         by_topic: dict[str, list[str]] = {}
         for role, topic in roles.items():
             if topic is not None and topics[topic][1] > 0:
                 by_topic.setdefault(topic, []).append(role)
-        clock = Clock(int(reader.start_time))
+        clock = Clock(bag.start_ns)
         readers: dict[str, _TopicReader] = {}
         diag: _DiagnosticsReader | None = None
         for topic, rs in by_topic.items():
@@ -478,11 +388,11 @@ def read_bag(path: str | Path, given: Mapping[str, str | None] | None = None, ho
         ref = readers.get(roles["reference"] or "")
         user_hold: float | None = None  # absolute [s]
 
-        conns = [c for c in reader.connections if c.topic in by_topic]
+        conns = [c for c in bag.connections if c.topic in by_topic]
         for c in conns:
-            if c.msgtype not in reader.typestore.fielddefs:
+            if not bag.can_decode(c.msgtype):
                 raise BagError(f"{path}: cannot decode {c.topic}: no definition of {c.msgtype} in the bag")
-        for conn, t_ns, msg in decoded_messages(reader, conns, path):
+        for conn, t_ns, msg in bag.decoded(conns):
             if diag is not None and conn.topic == diag.topic:
                 diag.add(msg, t_ns)
                 continue
@@ -500,31 +410,11 @@ def read_bag(path: str | Path, given: Mapping[str, str | None] | None = None, ho
             if topic in readers and (s := readers[topic].series()) is not None:
                 series[role] = s
                 notes.extend(n for n in s.notes if n not in notes)
-        return BagData(path=path, storage=storage_of(path), topics=topics, roles=roles, series=series,
+        return BagData(path=path, storage=bag.storage, topics=topics, roles=roles, series=series,
                        diagnostics=diag.result() if diag is not None else None,
                        hold_start=user_hold if hold_start is not None else detector.hold_start,
-                       notes=notes, start_ns=int(reader.start_time), end_ns=int(reader.end_time),
+                       notes=notes, start_ns=bag.start_ns, end_ns=bag.end_ns,
                        header_origin_ns=clock.header_origin_ns or 0)
-
-
-def decoded_messages(reader: Any, conns: list, path: Path) -> Iterator[tuple[Any, int, Any]]:
-    """(connection, receive time [ns], message); errors of the bag (not of the caller) -> BagError."""
-    it = reader.messages(connections=conns)
-    decode = reader.typestore.deserialize_cdr
-    errors = bag_errors()
-    n_read, t_last = 0, math.nan
-    while True:
-        try:
-            conn, t_ns, raw = next(it)
-            msg = decode(raw, conn.msgtype)
-        except StopIteration:
-            return
-        except errors as err:
-            when = f" after {n_read} messages (bag time {t_last:.6f} s)" if n_read else ""
-            raise BagError(f"{path}: bag is truncated or corrupt{when}: {one_line(err)}") from None
-        n_read += 1
-        t_last = t_ns * 1e-9
-        yield conn, t_ns, msg
 
 
 def _speed(r: _TopicReader, row: np.ndarray) -> float:

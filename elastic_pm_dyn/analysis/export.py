@@ -20,10 +20,12 @@ from typing import Any
 
 import numpy as np
 
-from elastic_pm_dyn.analysis.bags import BagError, decoded_messages, open_bag, topic_table
+from elastic_pm_dyn.bags.errors import BagError
+from elastic_pm_dyn.bags.msgtypes import DURATION, KEY_VALUE, NS, TIME, stamp_ns
+from elastic_pm_dyn.bags.reader import open_bag
 
 MAX_ARRAY = 256  # longer arrays (images, point clouds) are exported as their length only
-TIME_TYPES = ("builtin_interfaces/msg/Time", "builtin_interfaces/msg/Duration")
+TIME_TYPES = (TIME, DURATION)
 
 
 @dataclass
@@ -39,8 +41,8 @@ class ExportedTopic:
 
 def _time_text(stamp: Any) -> str:
     """Seconds with all nine decimals (a float would round nanoseconds of epoch times)."""
-    ns = int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
-    return f"{'-' if ns < 0 else ''}{abs(ns) // 1_000_000_000}.{abs(ns) % 1_000_000_000:09d}"
+    ns = stamp_ns(stamp)
+    return f"{'-' if ns < 0 else ''}{abs(ns) // NS}.{abs(ns) % NS:09d}"
 
 
 def _scalar(v: Any) -> str:
@@ -105,7 +107,7 @@ class Flattener:
 
 
 def _is_key_value(x: Any) -> bool:
-    return getattr(x, "__msgtype__", "") == "diagnostic_msgs/msg/KeyValue"
+    return getattr(x, "__msgtype__", "") == KEY_VALUE
 
 
 def csv_name(topic: str) -> str:
@@ -117,7 +119,7 @@ def export_bag(bag: str | Path, out: str | Path, topics: Sequence[str] | None = 
     """Write ``out/<topic>.csv`` for every topic of ``bag`` (or the named ones); see module doc."""
     bag, out = Path(bag), Path(out)
     with open_bag(bag) as reader:
-        table = topic_table(reader)
+        table = reader.topics()
         wanted = list(table) if not topics else [t if t in table or t.startswith("/") else "/" + t for t in topics]
         unknown = [t for t in wanted if t not in table]
         if unknown:
@@ -126,12 +128,12 @@ def export_bag(bag: str | Path, out: str | Path, topics: Sequence[str] | None = 
         flat = {t: Flattener(reader.typestore) for t in wanted}
         writers: dict[str, tuple[Any, Any, list[str], list[int]]] = {}
         conns = [c for c in reader.connections if c.topic in wanted]
-        undecodable = sorted({c.topic for c in conns if c.msgtype not in reader.typestore.fielddefs})
+        undecodable = sorted({c.topic for c in conns if not reader.can_decode(c.msgtype)})
         if undecodable:
             raise BagError(f"{bag}: no message definition for {', '.join(undecodable)}")
         files: dict[str, Path] = {}
         try:
-            for conn, t_ns, msg in decoded_messages(reader, conns, bag):
+            for conn, t_ns, msg in reader.decoded(conns):
                 row = flat[conn.topic].flatten(msg, conn.msgtype)
                 if conn.topic not in writers:
                     files[conn.topic] = out / csv_name(conn.topic)

@@ -73,7 +73,8 @@ def _config(args: argparse.Namespace):
 def cmd_observe(args: argparse.Namespace) -> int:
     from elastic_pm_dyn.kinematics.mechanism import Mechanism
     from elastic_pm_dyn.model.loader import load_model
-    from elastic_pm_dyn.observer.offline import Topics, observe_bag
+    from elastic_pm_dyn.observer.bag_input import Topics
+    from elastic_pm_dyn.observer.offline import observe_bag
     cfg = _config(args)
     mech = Mechanism(load_model(args.model))
     res = observe_bag(mech, cfg, args.bag, args.out, Topics.from_config(cfg), args.order, args.storage,

@@ -1,11 +1,11 @@
 """``elastic-pm-dyn observe``: the observer over a recorded bag, as fast as possible.
 
-Feeds the events of a bag (:mod:`~elastic_pm_dyn.observer.bag_input`) through the same
+Reads the events of a bag (:mod:`~elastic_pm_dyn.observer.bag_input`), feeds them through
+the filter (:mod:`~elastic_pm_dyn.observer.event_filter`: the same
 :class:`~elastic_pm_dyn.observer.stream.ObserverStream` as the live node, ordinary periods
-many at once in one compiled call (``kernels.run_periods``), and writes
-(:mod:`~elastic_pm_dyn.observer.bag_output`) ``estimates.csv``, ``estimates/`` (a bag of
-estimates) and ``summary.json`` (counts, rejections, mean NIS, speed, the observability
-report).
+many at once in one compiled call) and writes (:mod:`~elastic_pm_dyn.observer.bag_output`)
+``estimates.csv``, ``estimates/`` (a bag of estimates) and ``summary.json`` (counts,
+rejections, mean NIS, speed, the observability report; :mod:`~elastic_pm_dyn.observer.results`).
 
 Message order: by header stamp, ties in bag order (``order="stamp"``, the best offline
 estimate), or the bag's own order (``order="arrival"``: what a live node saw, late samples
@@ -19,299 +19,17 @@ bag read in chunks.
 
 from __future__ import annotations
 
-import json
-import threading
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
-
-import numpy as np
 
 from elastic_pm_dyn.errors import InputError
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
-from elastic_pm_dyn.observer import kernels
-from elastic_pm_dyn.observer.bag_input import (  # noqa: F401 - IMU, JOINT_STATE, recording_to_bag: re-exported
-    IMU,
-    JOINT_STATE,
-    Event,
-    Topics,
-    read_events,
-    recording_to_bag,
-)
+from elastic_pm_dyn.observer import event_filter, results
+from elastic_pm_dyn.observer.bag_input import Topics, read_events
 from elastic_pm_dyn.observer.bag_output import write_outputs
 from elastic_pm_dyn.observer.config import ObserverConfig
-from elastic_pm_dyn.observer.ekf import Estimate, Observer, ObserverFault, UpdateResult
-from elastic_pm_dyn.observer.stream import ObserverStream
-
-
-@dataclass
-class Rows:
-    """One row per estimate: stamp [ns], ``Observer.estimate_flat`` array, NIS per sensor."""
-
-    obs: Observer | None = None
-    t: list = field(default_factory=list)
-    flat: list = field(default_factory=list)
-    nis: list = field(default_factory=list)
-
-    @property
-    def est(self) -> list[Estimate]:
-        """The rows as :class:`Estimate` objects (views into the flat arrays)."""
-        return [self.obs.unpack_estimate(f, True) for f in self.flat]
-
-    def table(self) -> np.ndarray:
-        """The flat estimates stacked (rows x width)."""
-        width = self.obs.flat_layout()["P"].stop
-        return np.array(self.flat).reshape(len(self.flat), width)
-
-
-class _Run:
-    """Consecutive ordinary stamp groups with one encoder plan (the offline fast path's input)."""
-
-    def __init__(self, g0: int, plan: tuple, has_imu: bool):
-        self.g0, self.g1, self.plan, self.has_imu = g0, g0, plan, has_imu
-        self.ns: list[int] = []
-        self.enc: list = []
-        self.imu: list = []
-        self.tau: list = []
-        self.flat: np.ndarray | None = None
-        self.nis: np.ndarray | None = None
-
-    def close(self) -> None:
-        self.ts = np.array([int(ns) * 1e-9 for ns in self.ns])
-        self.enc = np.array(self.enc, dtype=float).reshape(len(self.ns), len(self.plan[0]))
-        self.imu = np.array(self.imu, dtype=float).reshape(len(self.ns), -1 if self.imu else 0)
-        self.tau = np.array(self.tau, dtype=float).reshape(len(self.ns), -1)
-
-
-def _groups(events: list[Event]) -> list[tuple[int, int]]:
-    out, i, n = [], 0, len(events)
-    while i < n:
-        ns, j = events[i].stamp_ns, i + 1
-        while j < n and events[j].stamp_ns == ns:
-            j += 1
-        out.append((i, j))
-        i = j
-    return out
-
-
-def _fast_runs(obs: Observer, stream: ObserverStream, events: list[Event], groups: list[tuple[int, int]]) -> list:
-    """Per stamp group, the :class:`_Run` it belongs to, or None: groups of exactly a joint state
-    with positions of state joints only, an optional accelerometer sample, then a well-formed
-    torque command (:func:`run_events` gives the others to the per-message API, and so does
-    ``kernels.run_periods`` with any period that turns out unusual)."""
-    enc, imu = obs.encoders, obs.imu
-    run_of: list = [None] * len(groups)
-    if enc is None:
-        return run_of
-    branch_effort = obs.branch is not None and obs.branch.source == "joint_state_effort"
-    axes = imu.axes if imu is not None else None
-    cur: _Run | None = None
-    last_names, last_plan = None, None
-    for gi, (i0, i1) in enumerate(groups):
-        spec = None
-        size = i1 - i0
-        if size == 2 or (size == 3 and imu is not None):
-            ej, ec = events[i0], events[i1 - 1]
-            ei = events[i0 + 1] if size == 3 else None
-            if ej.kind == "joint_state" and ec.kind == "command" and (ei is None or ei.kind == "imu"):
-                names, pos, vel, eff = ej.data
-                if names is not last_names and names != last_names:  # decoded messages repeat them
-                    last_names, last_plan = names, enc.fast_plan(names, obs.nx)
-                plan = last_plan if len(pos) == len(names) else None
-                if plan is not None and not (plan[5] and len(vel)) and not (branch_effort and len(eff)):
-                    spec = plan
-                if spec is not None and ei is not None:
-                    acc, frame = ei.data
-                    if (imu.frame_id and frame and frame != imu.frame_id) or len(acc) != 3:
-                        spec = None
-                if spec is not None:
-                    try:
-                        tau = stream.command_tau(*ec.data)
-                    except InputError:
-                        spec = None
-        if spec is None:
-            if cur is not None:
-                cur.close()
-                cur = None
-            continue
-        has_imu = ei is not None
-        if cur is None or cur.plan is not spec or cur.has_imu != has_imu:
-            if cur is not None:
-                cur.close()
-            cur = _Run(gi, spec, has_imu)
-        cur.g1 = gi + 1
-        cur.ns.append(ej.stamp_ns)
-        cur.enc.append(np.asarray(pos, dtype=float)[spec[0]])
-        if has_imu:
-            cur.imu.append(np.asarray(acc, dtype=float)[axes])
-        cur.tau.append(tau)
-        run_of[gi] = cur
-    if cur is not None:
-        cur.close()
-    return run_of
-
-
-SENSORS = ("encoders", "imu", "branch_forces")
-
-
-class _Filter:
-    """:func:`run_events`' loop, fed one chunk of events after another: a chunk holds whole
-    stamp groups (all events of its stamps, none split across chunks) in the final order, so
-    that feeding the chunks one by one gives what feeding their concatenation gives."""
-
-    def __init__(self, obs: Observer, fast: bool = True, gate: threading.Event | None = None):
-        self.obs, self.fast = obs, fast
-        self.gate = gate  # cleared while this runs Python (other threads wait), set otherwise
-        self.stream = ObserverStream(obs)
-        self.rows = Rows(obs)
-        self.nis = dict.fromkeys(SENSORS, np.nan)
-        self.fault = ""
-        self.last_row_ns = None
-        self.fixed = None
-
-    def feed(self, events: list[Event]) -> None:
-        if self.fault:
-            return
-        if self.gate is None:
-            self._feed(events, None)
-            return
-        self.gate.clear()
-        try:
-            self._feed(events, self.gate)
-        finally:
-            self.gate.set()
-
-    def _feed(self, events: list[Event], gate: threading.Event | None) -> None:
-        obs, stream, rows, sensors = self.obs, self.stream, self.rows, SENSORS
-        nis, fault, last_row_ns, fixed = self.nis, self.fault, self.last_row_ns, self.fixed
-        groups = _groups(events)
-        run_of = _fast_runs(obs, stream, events, groups) if self.fast else [None] * len(groups)
-        skip = -1  # a group the fast path stopped at: the per-message API's
-
-        def record(ns: int) -> None:
-            rows.t.append(ns)
-            rows.flat.append(obs.estimate_flat())
-            rows.nis.append([nis[s] for s in sensors])
-
-        gi = 0
-        while gi < len(groups):
-            run = run_of[gi]
-            if run is not None and gi != skip and obs.initialised and obs.fault is None \
-                    and run.ns[gi - run.g0] != last_row_ns:
-                if fixed is None:
-                    obs.flat_layout()
-                    imu, p = obs.imu, obs.cfg.process
-                    fixed = (obs.mech.arrays, obs.dist_idx, obs.dist_col, obs.Lz, obs.Fz, obs.psd_ae, obs.rel_ae,
-                             obs.psd_z, obs.eps_q, obs.eps_v, obs.point, obs.with_point, obs._active_idx,
-                             np.array([p.max_interval, p.dt, obs.cfg.timing.stamp_tolerance, p.relinearize_every,
-                                       obs.cfg.timing.command_timeout]),
-                             imu.S if imu is not None else np.zeros((0, 3)), imu.g if imu is not None else np.zeros(3),
-                             imu.var if imu is not None else np.zeros(0),
-                             obs.gate(len(imu.axes)) if imu is not None else np.inf)
-                (ma, dist_idx, dist_col, Lz, Fz, psd_ae, rel_ae, psd_z, eps_q, eps_v, point, with_point, active_idx,
-                 timing, S, g, imu_R, imu_gate) = fixed
-                idx, H, var, js, wrap, _ = run.plan
-                a, b = gi - run.g0, run.g1 - run.g0
-                hold, last = obs.tau_hold.copy(), obs.tau_last.copy()
-                ctl = np.array([obs.t, float(obs._lin_age), obs._lin_T, obs.t_command])
-                if run.flat is None:  # the run's rows (views of it become rows.flat)
-                    run.flat, run.nis = np.empty((b, obs._flat_width)), np.empty((b, 2))
-                if gate is not None:  # the compiled call leaves the GIL to the other threads
-                    gate.set()
-                done = kernels.run_periods(
-                    ma, obs.q, obs.qd, obs.z, obs.P, obs.Phi, obs.Qd, obs.Hpt, obs.info, dist_idx, dist_col, Lz,
-                    Fz, psd_ae, rel_ae, psd_z, eps_q, eps_v, point, with_point, active_idx, hold, last, ctl, timing,
-                    H, var, js, wrap, obs.gate(len(idx)), run.enc, run.has_imu, S, g, imu_R, imu_gate, run.imu, run.ts,
-                    run.tau, obs._ee_point, obs._ee, obs._branch_joint, obs._stiff, obs._damp, obs._rest, a, b,
-                    run.flat, run.nis)
-                if gate is not None:
-                    gate.clear()
-                if done:
-                    obs.t, obs._lin_age, obs._lin_T, obs.t_command = float(ctl[0]), int(ctl[1]), float(ctl[2]), \
-                        float(ctl[3])
-                    obs.tau_hold, obs.tau_last = hold, last
-                    ns = run.ns[a:a + done]
-                    enc_nis = run.nis[a:a + done, 0].tolist()
-                    obs._accepted_many("encoders", enc_nis, len(idx))
-                    obs.stats["command"].accepted += done
-                    first = dict(nis, encoders=enc_nis[0])
-                    if run.has_imu:
-                        imu_nis = run.nis[a:a + done, 1].tolist()
-                        obs._accepted_many("imu", imu_nis, run.imu.shape[1])
-                        first["imu"] = imu_nis[0]
-                        stream.results = [UpdateResult("imu", ns[-1] * 1e-9, True, imu_nis[-1], run.imu.shape[1])]
-                        tail = [[e, i, np.nan] for e, i in zip(enc_nis[1:], imu_nis[1:], strict=True)]
-                    else:
-                        stream.results = [UpdateResult("encoders", ns[-1] * 1e-9, True, enc_nis[-1], len(idx))]
-                        tail = [[e, np.nan, np.nan] for e in enc_nis[1:]]
-                    rows.t.extend(ns)
-                    rows.flat.extend(run.flat[a:a + done])
-                    rows.nis.append([first[s] for s in sensors])
-                    rows.nis.extend(tail)
-                    nis = dict.fromkeys(sensors, np.nan)
-                    last_row_ns = ns[-1]
-                    gi += done
-                    if done < b - a:
-                        skip = gi
-                    continue
-            skip = -1
-            i0, i1 = groups[gi]
-            for i in range(i0, i1):
-                ev = events[i]
-                try:
-                    if ev.kind == "command":
-                        stream.on_torque_command(ev.stamp_ns, *ev.data)
-                    elif ev.kind == "joint_state":
-                        results = stream.on_joint_state(ev.stamp_ns, *ev.data)
-                    elif ev.kind == "imu":
-                        results = stream.on_imu(ev.stamp_ns, ev.data[0], ev.data[1])
-                    else:
-                        results = stream.on_branch_forces(ev.stamp_ns, *ev.data)
-                except ObserverFault as err:
-                    fault = str(err)
-                    break
-                if ev.kind != "command":
-                    for r in results:
-                        if r.accepted and r.dof:
-                            nis[r.sensor] = r.nis
-                nxt = events[i + 1].stamp_ns if i + 1 < len(events) else None
-                if nxt != ev.stamp_ns and obs.initialised and ev.stamp_ns != last_row_ns \
-                        and abs(obs.t - ev.stamp_ns * 1e-9) <= obs.cfg.timing.stamp_tolerance:
-                    record(ev.stamp_ns)
-                    last_row_ns = ev.stamp_ns
-                    nis = dict.fromkeys(sensors, np.nan)
-            if fault:
-                break
-            gi += 1
-        self.nis, self.fault, self.last_row_ns, self.fixed = nis, fault, last_row_ns, fixed
-
-
-def run_events(obs: Observer, events: list[Event], order: str = "stamp", fast: bool = True
-               ) -> tuple[Rows, ObserverStream, str]:
-    """Feed events through a stream; one estimate per distinct stamp. Returns (rows, stream, fault).
-
-    ``fast``: ordinary stamp groups (a joint state, an accelerometer sample, the command)
-    go through ``kernels.run_periods``, many in one compiled call, with the same numbers,
-    statistics and rows as the per-message API (``fast=False``) that takes all the others.
-    """
-    if order == "stamp":
-        events = sorted(events, key=_order_key)
-    elif order != "arrival":
-        raise InputError(f"unknown message order {order!r} (expected stamp or arrival)")
-    f = _Filter(obs, fast)
-    f.feed(events)
-    return f.rows, f.stream, f.fault
-
-
-def _order_key(e: Event) -> tuple[int, int]:
-    return e.stamp_ns, e.index
-
-
-@dataclass
-class OfflineResult:
-    rows: Rows
-    summary: dict
-    observer: Observer
+from elastic_pm_dyn.observer.pipeline import observe_pipelined
+from elastic_pm_dyn.observer.results import OfflineResult
 
 
 def observe_bag(mech: Mechanism, cfg: ObserverConfig, bag: str | Path, out: str | Path | None = None,
@@ -327,59 +45,17 @@ def observe_bag(mech: Mechanism, cfg: ObserverConfig, bag: str | Path, out: str 
     topics = topics or Topics.from_config(cfg)
     wall0 = time.perf_counter()
     if pipeline and order in ("stamp", "arrival"):
-        from elastic_pm_dyn.observer.pipeline import observe_pipelined  # imports this module
-
         return observe_pipelined(mech, cfg, Path(bag), out, topics, order, storage, write_estimates_bag, log, wall0)
     events, counts = read_events(Path(bag), topics, cfg)
     if not events:
         raise InputError(f"{bag}: no messages on the observer's topics")
     wall_read = time.perf_counter() - wall0
-    obs = Observer(mech, cfg, t0=min(e.stamp_ns for e in events) * 1e-9)
-    report = obs.observability()
-    log(report.text())
-    wall1 = time.perf_counter()
-    rows, stream, fault = run_events(obs, events, order)
-    wall_filter = time.perf_counter() - wall1
-    summary = _summary(bag, topics, counts, order, events, rows, obs, stream, fault, report, wall_read, wall_filter)
+    run = event_filter.filter_all(mech, cfg, events, order, log)
+    summary = results.summary(bag, topics, counts, order, events, run, wall_read)
     if out is not None:
         out = Path(out)
         out.mkdir(parents=True, exist_ok=True)
         wall2 = time.perf_counter()
-        write_outputs(out, obs, rows, write_estimates_bag, storage)
+        write_outputs(out, run.obs, run.rows, write_estimates_bag, storage)
         summary["wall_write_s"] = time.perf_counter() - wall2
-    return _finish(summary, out, wall0, rows, obs)
-
-
-def _summary(bag, topics, counts, order, events, rows, obs, stream, fault, report, wall_read, wall_filter) -> dict:
-    stamps = [e.stamp_ns for e in events]
-    duration = (max(stamps) - min(stamps)) * 1e-9
-    return {
-        "bag": str(bag), "topics": topics.__dict__, "messages": counts, "order": order,
-        "rows": len(rows.t), "fault": fault, "health": list(obs.health()),
-        "bad_commands": stream.bad_commands,
-        "sensors": {s: {"accepted": st.accepted, "rejected": st.rejected, "late": st.late, "nan_entries": st.nan,
-                        "mean_nis": obs.nis_band(s)[2], "last_rejection": st.last_reason}
-                    for s, st in obs.stats.items()},
-        "duration_s": duration,
-        "wall_read_s": wall_read, "wall_filter_s": wall_filter,
-        "observability": report.text(),
-    }
-
-
-def _finish(summary: dict, out, wall0: float, rows: Rows, obs: Observer) -> OfflineResult:
-    summary["wall_total_s"] = time.perf_counter() - wall0
-    duration = summary["duration_s"]
-    summary["speed_factor"] = duration / summary["wall_total_s"] if summary["wall_total_s"] > 0 else float("inf")
-    if out is not None:
-        (Path(out) / "summary.json").write_text(json.dumps(summary, indent=2, default=float))
-    return OfflineResult(rows, summary, obs)
-
-
-def estimates_equal(a: list[Estimate], b: list[Estimate]) -> float:
-    """Largest difference of states and covariances between two estimate sequences (inf if lengths differ)."""
-    if len(a) != len(b):
-        return float("inf")
-    worst = 0.0
-    for x, y in zip(a, b, strict=True):
-        worst = max(worst, float(np.max(np.abs(x.x - y.x))), float(np.max(np.abs(x.P - y.P))), abs(x.t - y.t))
-    return worst
+    return results.finish(summary, out, wall0, run.rows, run.obs)

@@ -33,11 +33,12 @@ import numpy as np
 
 from elastic_pm_dyn.errors import InputError
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
-from elastic_pm_dyn.observer import offline
+from elastic_pm_dyn.observer import event_filter, results
 from elastic_pm_dyn.observer.bag_input import Event, Topics, iter_events
-from elastic_pm_dyn.observer.bag_output import _BagOut, csv_header, csv_table, write_outputs
+from elastic_pm_dyn.observer.bag_output import EstimatesBag, write_outputs
 from elastic_pm_dyn.observer.config import ObserverConfig
 from elastic_pm_dyn.observer.ekf import Observer
+from elastic_pm_dyn.observer.results import FilterPass, OfflineResult, Rows, csv_header, csv_table
 
 STAMP_LAG_NS = 500_000_000
 """``observe_bag(pipeline=True, order="stamp")``: how far (header stamps) the bag must have
@@ -114,7 +115,7 @@ def _pieces(events: list[Event], size: int):
 class _WriteWorker(threading.Thread):
     """Writing thread: CSV (and bag) of the finished rows lo..hi-1 put into ``q``, into ``stage``."""
 
-    def __init__(self, stage: Path, obs: Observer, rows: offline.Rows, storage: str, with_bag: bool,
+    def __init__(self, stage: Path, obs: Observer, rows: Rows, storage: str, with_bag: bool,
                  gate: threading.Event):
         super().__init__(name="observe-write", daemon=True)
         self.stage, self.obs, self.rows, self.storage, self.with_bag = stage, obs, rows, storage, with_bag
@@ -137,13 +138,13 @@ class _WriteWorker(threading.Thread):
                     b = min(a + _WRITE_ROWS, hi)
                     self.gate.wait()
                     t = time.perf_counter()
-                    rows = offline.Rows(self.obs, self.rows.t[a:b], self.rows.flat[a:b], self.rows.nis[a:b])
+                    rows = Rows(self.obs, self.rows.t[a:b], self.rows.flat[a:b], self.rows.nis[a:b])
                     header = ""
                     if fh is None:
                         fh = open(self.stage / "estimates.csv", "w")  # noqa: SIM115 - closed below
                         header = self.header
                         if self.with_bag:
-                            bag = _BagOut(self.stage / "estimates", self.obs, self.storage)
+                            bag = EstimatesBag(self.stage / "estimates", self.obs, self.storage)
                     np.savetxt(fh, csv_table(rows), delimiter=",", header=header, comments="", fmt="%.12g")
                     if bag is not None:
                         bag.write(rows)
@@ -166,7 +167,7 @@ class _WriteWorker(threading.Thread):
 
 
 def observe_pipelined(mech: Mechanism, cfg: ObserverConfig, bag: Path, out, topics: Topics, order: str,
-                      storage: str, write_estimates_bag: bool, log, wall0: float) -> offline.OfflineResult:
+                      storage: str, write_estimates_bag: bool, log, wall0: float) -> OfflineResult:
     """:func:`~elastic_pm_dyn.observer.offline.observe_bag` with ``pipeline=True`` (``order``
     "stamp" or "arrival"; ``wall0``: its start time), Python's thread switch interval
     :data:`SWITCH_INTERVAL_S` meanwhile."""
@@ -175,7 +176,7 @@ def observe_pipelined(mech: Mechanism, cfg: ObserverConfig, bag: Path, out, topi
 
 
 def _observe_pipelined(mech: Mechanism, cfg: ObserverConfig, bag: Path, out, topics: Topics, order: str,
-                       storage: str, write_estimates_bag: bool, log, wall0: float) -> offline.OfflineResult:
+                       storage: str, write_estimates_bag: bool, log, wall0: float) -> OfflineResult:
     counts: dict = {}
     q: queue.Queue = queue.Queue(maxsize=8)
     stop = threading.Event()
@@ -199,7 +200,7 @@ def _observe_pipelined(mech: Mechanism, cfg: ObserverConfig, bag: Path, out, top
         if filt is None:
             state["t0"] = min(e.stamp_ns for e in events)
             obs = Observer(mech, cfg, t0=state["t0"] * 1e-9)
-            filt = state["filter"] = offline._Filter(obs, gate=gate)
+            filt = state["filter"] = event_filter.EventFilter(obs, gate=gate)
             state["report"] = obs.observability()
             if overlap_write:
                 for d in (out, *out.parents):
@@ -245,7 +246,7 @@ def _observe_pipelined(mech: Mechanism, cfg: ObserverConfig, bag: Path, out, top
                         chunk = [e for e in pending if e.stamp_ns < cut]
                         if chunk:
                             pending = [e for e in pending if e.stamp_ns >= cut]
-                            chunk.sort(key=offline._order_key)
+                            chunk.sort(key=event_filter.order_key)
                             released = cut
                             release(chunk)
                 else:
@@ -266,7 +267,7 @@ def _observe_pipelined(mech: Mechanism, cfg: ObserverConfig, bag: Path, out, top
             raise InputError(f"{bag}: no messages on the observer's topics")
         if not fallback and pending:
             if order == "stamp":
-                pending.sort(key=offline._order_key)
+                pending.sort(key=event_filter.order_key)
             for piece in _pieces(pending, CHUNK_EVENTS // 2):  # the rows written while the next is filtered
                 release(piece)
         writer = state["writer"]
@@ -275,19 +276,13 @@ def _observe_pipelined(mech: Mechanism, cfg: ObserverConfig, bag: Path, out, top
                 writer.finish()
                 state["writer"] = writer = None
                 shutil.rmtree(stage, ignore_errors=True)
-            obs = Observer(mech, cfg, t0=min(e.stamp_ns for e in events) * 1e-9)
-            report = obs.observability()
-            log(report.text())
-            wall1 = time.perf_counter()
-            rows, stream, fault = offline.run_events(obs, events, order)
-            wall_filter = time.perf_counter() - wall1
+            run = event_filter.filter_all(mech, cfg, events, order, log)
         else:
             filt = state["filter"]
-            obs, rows, stream, fault, report = filt.obs, filt.rows, filt.stream, filt.fault, state["report"]
-            log(report.text())
-            wall_filter = state["wall"]
-        summary = offline._summary(bag, topics, counts, order, events, rows, obs, stream, fault, report, wall_read,
-                           wall_filter)
+            run = FilterPass(filt.obs, state["report"], filt.rows, filt.stream, filt.fault, state["wall"])
+            log(run.report.text())
+        obs, rows = run.obs, run.rows
+        summary = results.summary(bag, topics, counts, order, events, run, wall_read)
         if out is not None:
             wall2 = time.perf_counter()
             if writer is not None:
@@ -315,5 +310,5 @@ def _observe_pipelined(mech: Mechanism, cfg: ObserverConfig, bag: Path, out, top
                 except OSError:
                     break
         raise
-    return offline._finish(summary, out, wall0, rows, obs)
+    return results.finish(summary, out, wall0, rows, obs)
 

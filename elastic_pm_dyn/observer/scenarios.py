@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from elastic_pm_dyn.bags.msgtypes import NS
 from elastic_pm_dyn.dynamics.direct import Dynamics
 from elastic_pm_dyn.dynamics.statics import static_deflection
 from elastic_pm_dyn.kinematics.assembly import initial_state
@@ -33,7 +34,6 @@ from elastic_pm_dyn.sim.simulator import SimulationOptions, Simulator
 from elastic_pm_dyn.sim.torque import TorqueSource
 
 PERIOD = 1.0 / REFERENCE_MANOEUVRE.control_rate  # [s] the reference manoeuvre's torques are held this long
-NS = 1_000_000_000
 
 
 class Multisine:

@@ -20,8 +20,6 @@ import numpy as np
 from elastic_pm_dyn.errors import InputError
 from elastic_pm_dyn.observer.ekf import Observer, UpdateResult
 
-NS = 1_000_000_000
-
 
 def seconds(stamp_ns: int) -> float:
     return int(stamp_ns) * 1e-9

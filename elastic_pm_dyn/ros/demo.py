@@ -18,13 +18,13 @@ from pathlib import Path
 import numpy as np
 
 from elastic_pm_dyn.analysis import metrics, plots
+from elastic_pm_dyn.bags.series import read_series
 from elastic_pm_dyn.errors import InputError
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.model.loader import load_model
 from elastic_pm_dyn.motion.feedforward import line_torques
 from elastic_pm_dyn.motion.manoeuvre import REFERENCE_MANOEUVRE
 from elastic_pm_dyn.motion.trajectory import QuinticLine
-from elastic_pm_dyn.ros.bag import read_bag
 from elastic_pm_dyn.ros.params import share_path
 from elastic_pm_dyn.ros.processes import (
     NodeProcess,
@@ -109,7 +109,7 @@ def analyse(out: Path, bag: Path, model_path: Path, sync: str, line: QuinticLine
     """Bag -> plots and summary, with the offline simulation of the same torques beside it."""
     model = load_model(model_path)
     mech = Mechanism(model)
-    topics = read_bag(bag)
+    topics = read_series(bag)
     missing = [t for t in [*PLANT_TOPICS, "/torque_command"] if t not in topics]
     if missing:
         raise InputError(f"{bag}: no messages on {', '.join(missing)} (see {out / 'logs'})")

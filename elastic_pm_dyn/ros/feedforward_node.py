@@ -27,6 +27,7 @@ from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
 from trajectory_msgs.msg import JointTrajectory
 
+from elastic_pm_dyn.bags.msgtypes import NS, stamp_ns
 from elastic_pm_dyn.errors import ElasticPmDynError, InputError
 from elastic_pm_dyn.model.loader import load_model
 from elastic_pm_dyn.motion.feedforward import rigid_feedforward
@@ -34,7 +35,7 @@ from elastic_pm_dyn.motion.manoeuvre import REFERENCE_MANOEUVRE
 from elastic_pm_dyn.motion.references import JointReference, LineReference
 from elastic_pm_dyn.motion.trajectory import QuinticLine
 from elastic_pm_dyn.ros.commands import CommandDecoder
-from elastic_pm_dyn.ros.messages import NS, joint_state, stamp_ns, torque_command
+from elastic_pm_dyn.ros.messages import joint_state, torque_command
 from elastic_pm_dyn.ros.node_main import ManagedNode, run_node
 from elastic_pm_dyn.ros.params import (
     COMMAND_JOINTS,

@@ -20,13 +20,12 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
+from elastic_pm_dyn.bags.msgtypes import NS
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.sim.plant import Plant
 
 if TYPE_CHECKING:
     from elastic_pm_dyn.observer.ekf import Estimate
-
-NS = 1_000_000_000
 
 
 def doubles(values: np.ndarray | Sequence[float]) -> array:
@@ -36,10 +35,6 @@ def doubles(values: np.ndarray | Sequence[float]) -> array:
 def stamp(ns: int) -> Time:
     sec, nanosec = divmod(int(ns), NS)
     return Time(sec=sec, nanosec=nanosec)
-
-
-def stamp_ns(msg_stamp: Time) -> int:
-    return msg_stamp.sec * NS + msg_stamp.nanosec
 
 
 class StateMessages:

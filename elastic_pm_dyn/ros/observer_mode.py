@@ -39,11 +39,12 @@ from std_msgs.msg import Float64MultiArray, Header
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
 
+from elastic_pm_dyn.bags.msgtypes import stamp_ns
 from elastic_pm_dyn.errors import InputError
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.observer.config import DEFAULT_PARAMETERS, PREFIX
 from elastic_pm_dyn.ros.markers import MechanismMarkers
-from elastic_pm_dyn.ros.messages import EstimateMessages, stamp, stamp_ns
+from elastic_pm_dyn.ros.messages import EstimateMessages, stamp
 from elastic_pm_dyn.ros.observer_session import ObserverSession, Outcome, observer_config, parameter_message
 from elastic_pm_dyn.ros.params import COMMAND_JOINTS, Param, ParameterError, read_parameters
 from elastic_pm_dyn.ros.qos import DIAGNOSTICS_QOS, OBSERVER_INPUT_QOS, STATE_QOS, VIEWER_QOS

@@ -38,13 +38,14 @@ from std_msgs.msg import Float64MultiArray, Header
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
 
+from elastic_pm_dyn.bags.msgtypes import NS
 from elastic_pm_dyn.dynamics.direct import FORMULATIONS
 from elastic_pm_dyn.errors import InputError, SingularConfigurationError
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.model.loader import load_model
 from elastic_pm_dyn.ros.commands import CommandDecoder
 from elastic_pm_dyn.ros.markers import MechanismMarkers
-from elastic_pm_dyn.ros.messages import NS, PlantMessages, stamp
+from elastic_pm_dyn.ros.messages import PlantMessages, stamp
 from elastic_pm_dyn.ros.node_main import ManagedNode, run_node
 from elastic_pm_dyn.ros.params import (
     COMMAND_JOINTS,

@@ -1,8 +1,9 @@
-"""Record topics into a rosbag2 with ``rosbags`` (console script ``recorder_node``, ``elastic-pm-dyn record``).
+"""Record topics into a rosbag2 (console script ``recorder_node``, ``elastic-pm-dyn record``).
 
 There is no ``ros2 bag`` with pip-only ROS; this node writes the same format (mcap by
-default, sqlite3 as an option) with the message definitions stored in the bag, so that
-``ros2 bag`` users and ``rosbags``-based analysis read it alike.
+default, sqlite3 as an option) through :class:`~elastic_pm_dyn.bags.writer.BagWriter`,
+with the message definitions stored in the bag, so that ``ros2 bag`` users and
+``rosbags``-based analysis read it alike.
 
 Topics are subscribed once the ROS graph shows a publisher (its type is used), and
 with ``raw=True``: the wire bytes are written as they are, never re-serialised (rclpy's
@@ -22,22 +23,21 @@ from typing import Any
 
 from rclpy.clock import Clock, ClockType
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
-from rosbags.typesys import TypesysError, get_types_from_msg
 
+from elastic_pm_dyn.bags.errors import BagError
+from elastic_pm_dyn.bags.typestore import register_msg_text
+from elastic_pm_dyn.bags.writer import STORAGES, BagWriter
 from elastic_pm_dyn.errors import InputError
-from elastic_pm_dyn.ros.msg_types import make_typestore
 from elastic_pm_dyn.ros.node_main import ManagedNode, run_node
 from elastic_pm_dyn.ros.params import Param, ParameterError, read_parameters, reject_unknown
 
 DEMO_TOPICS = ["/joint_states", "/branch_forces", "/ee_pose", "/torque_command", "/reference_joint_states"]
-STORAGES = {"mcap": StoragePlugin.MCAP, "sqlite3": StoragePlugin.SQLITE3}
 DISCOVERY_PERIOD = 0.1  # [s] wall-clock poll of the ROS graph for the wanted topics
 DEPTH = 1000  # a recorder must not drop samples in bursts
 
 PARAMS = [
     Param("output", "bag", "bag directory to create (must not exist)"),
-    Param("storage", "mcap", "mcap or sqlite3", choices=tuple(STORAGES)),
+    Param("storage", "mcap", "mcap or sqlite3", choices=STORAGES),
     Param("topics", DEMO_TOPICS, "topics to record (absolute names)"),
 ]
 
@@ -53,15 +53,11 @@ class RecorderNode(ManagedNode):
         if not self.wanted:
             raise ParameterError("parameter 'topics' is empty: nothing to record")
         self.path = Path(p["output"])
-        if self.path.exists():
-            raise ParameterError(f"parameter 'output': {str(self.path)!r} exists (a bag is never overwritten)")
-        self.typestore = make_typestore()
-        self.writer = Writer(self.path, version=Writer.VERSION_LATEST, storage_plugin=STORAGES[p["storage"]])
         try:
-            self.writer.open()
-        except OSError as err:
-            raise ParameterError(f"parameter 'output': cannot create {str(self.path)!r}: {err.strerror}") from None
-        self.connections: dict[str, Any] = {}  # topic -> rosbags connection
+            self.writer = BagWriter(self.path, p["storage"])
+        except BagError as err:
+            raise ParameterError(f"parameter 'output': {err}") from None
+        self.connections: dict[str, Any] = {}  # topic -> bag connection
         self.skipped: set[str] = set()  # topics whose type cannot be recorded (warned once)
         self.create_timer(DISCOVERY_PERIOD, self._discover, clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.get_logger().info(f"recording {', '.join(self.wanted)} -> {self.path} ({p['storage']})")
@@ -77,15 +73,15 @@ class RecorderNode(ManagedNode):
             msgtype = types[topic][0]
             try:
                 self._subscribe(topic, msgtype)
-            except (InputError, TypesysError, WriterError) as err:
+            except InputError as err:  # BagError too
                 self.skipped.add(topic)
                 self.get_logger().warning(f"not recording {topic}: {err}")
 
     def _subscribe(self, topic: str, msgtype: str) -> None:
         msg_class = _message_class(msgtype)
-        if msgtype not in self.typestore.types:
-            self.typestore.register(_installed_definition(msgtype))
-        self.connections[topic] = self.writer.add_connection(topic, msgtype, typestore=self.typestore)
+        if msgtype not in self.writer.typestore.types:
+            register_msg_text(self.writer.typestore, msgtype, _installed_definition(msgtype))
+        self.connections[topic] = self.writer.add_connection(topic, msgtype)
         self.create_subscription(msg_class, topic, lambda raw, t=topic: self._write(t, raw),
                                  self._qos(topic), raw=True)
         self.get_logger().info(f"recording {topic} [{msgtype}]")
@@ -102,7 +98,7 @@ class RecorderNode(ManagedNode):
         self.writer.write(self.connections[topic], self.get_clock().now().nanoseconds, raw)
 
     def close(self) -> None:
-        counts = {c.topic: self.writer.counts[c.id] for c in self.connections.values()}
+        counts = {c.topic: self.writer.count(c) for c in self.connections.values()}
         self.writer.close()
         missing = [t for t in self.wanted if t not in self.connections]
         self.get_logger().info(f"bag {self.path} closed: "
@@ -119,15 +115,15 @@ def _message_class(msgtype: str) -> type:
         raise InputError(f"message type {msgtype} is not installed for Python") from None
 
 
-def _installed_definition(msgtype: str) -> dict:
-    """rosbags types of a message not in its store, from the installed .msg (share/<pkg>/msg)."""
+def _installed_definition(msgtype: str) -> str:
+    """The .msg text of a message type the typestore lacks, as installed (share/<pkg>/msg)."""
     pkg, _, name = msgtype.split("/")
     module = importlib.import_module(pkg)
     # <prefix>/lib/pythonX.Y/site-packages/<pkg>/__init__.py -> <prefix>/share/<pkg>/msg/<name>.msg
     msg_file = Path(module.__file__).resolve().parents[4] / "share" / pkg / "msg" / f"{name}.msg"
     if not msg_file.is_file():
         raise InputError(f"no definition of {msgtype} found at {msg_file}")
-    return get_types_from_msg(msg_file.read_text(), msgtype)
+    return msg_file.read_text()
 
 
 def main(args: list[str] | None = None) -> int:

@@ -1,13 +1,15 @@
 """Fast CDR (little-endian XCDR1, as rosbag2 stores ROS 2 messages) for the few message types
-the offline observer reads and writes in bulk.
+read and written in bulk.
 
 rosbags' generic (de)serialisers build message objects field by field (~12 us per
 JointState); these functions go straight between bytes and numpy arrays (~2-4 us), which
-is what lets ``observe`` run several times faster than real time. They cover exactly
+is what lets ``observe`` run several times faster than real time. They decode
 ``sensor_msgs/JointState``, ``sensor_msgs/Imu`` (header + linear acceleration),
-``std_msgs/Float64MultiArray`` (data), ``elastic_pm_dyn_msgs/BranchForces`` and
-``geometry_msgs/PoseStamped``; the tests compare them byte for byte with rosbags. Any
-decoding surprise raises ``ValueError`` and the caller falls back to rosbags.
+``std_msgs/Float64MultiArray`` (data) and ``elastic_pm_dyn_msgs/BranchForces``, and encode
+JointState, BranchForces and ``geometry_msgs/PoseStamped`` (batches); the tests compare
+them byte for byte with rosbags. Any decoding surprise raises ``ValueError`` (or another of
+:data:`~elastic_pm_dyn.bags.decode.SURPRISES`) and :mod:`~elastic_pm_dyn.bags.decode`
+falls back to rosbags.
 """
 
 from __future__ import annotations
@@ -15,6 +17,8 @@ from __future__ import annotations
 import struct
 
 import numpy as np
+
+from elastic_pm_dyn.bags.msgtypes import NS
 
 ENCAPSULATION = b"\x00\x01\x00\x00"  # CDR, little endian
 _U32 = struct.Struct("<I")
@@ -43,7 +47,7 @@ class _Reader:
         self.align(4)
         sec, nsec = _HDR.unpack_from(self.buf, self.pos)
         self.pos += 8
-        return sec * 1_000_000_000 + nsec
+        return sec * NS + nsec
 
     def string(self) -> str:
         n = self.u32()
@@ -88,12 +92,6 @@ class _Writer:
         self.parts.append(_U32.pack(v))
         self.pos += 4
 
-    def stamp(self, ns: int) -> None:
-        self._pad(4)
-        sec, nsec = divmod(int(ns), 1_000_000_000)
-        self.parts.append(_HDR.pack(sec, nsec))
-        self.pos += 8
-
     def string(self, s: str) -> None:
         b = s.encode() + b"\x00"
         self.u32(len(b))
@@ -104,18 +102,6 @@ class _Writer:
         self.u32(len(items))
         for s in items:
             self.string(s)
-
-    def doubles(self, a, with_count: bool = True) -> None:
-        a = np.ascontiguousarray(a, dtype="<f8")
-        if with_count:
-            self.u32(len(a))
-        if len(a):
-            self._pad(8)
-            self.parts.append(a.tobytes())
-            self.pos += 8 * len(a)
-
-    def bytes(self) -> bytes:
-        return b"".join(self.parts)
 
 
 _RECENT: list[tuple[bytes, list[str], int]] = []  # (frame_id + names bytes, names, end) of recent messages
@@ -192,7 +178,7 @@ def _prefix(frame_id: str, names) -> tuple[bytes, int]:
 
 def _with_arrays(ns: int, frame_id: str, names, arrays) -> bytes:
     prefix, pos = _prefix(frame_id, names)
-    sec, nsec = divmod(int(ns), 1_000_000_000)
+    sec, nsec = divmod(int(ns), NS)
     parts = [ENCAPSULATION, _HDR.pack(sec, nsec), prefix]
     for a in arrays:
         a = np.ascontiguousarray(a, dtype="<f8")
@@ -212,15 +198,6 @@ def encode_joint_state(ns: int, names, position, velocity, effort, frame_id: str
 
 def encode_branch_forces(ns: int, names, force, deflection, rate, stddev, frame_id: str = "") -> bytes:
     return _with_arrays(ns, frame_id, names, (force, deflection, rate, stddev))
-
-
-def encode_pose_stamped(ns: int, xyz, frame_id: str = "world") -> bytes:
-    """A point pose (orientation: identity)."""
-    w = _Writer()
-    w.stamp(ns)
-    w.string(frame_id)
-    w.doubles(np.array([xyz[0], xyz[1], xyz[2], 0.0, 0.0, 0.0, 1.0]), with_count=False)
-    return w.bytes()
 
 
 def _batch_layout(frame_id: str, names, lengths, counted: bool) -> tuple[np.ndarray, list[int]]:
@@ -259,7 +236,7 @@ def _batch(ns, frame_id: str, names, arrays, counted: bool = True) -> np.ndarray
     arrays = [np.asarray(a, dtype="<f8").reshape(len(ns), -1) for a in arrays]
     template, offsets = _batch_layout(frame_id, names, [a.shape[1] for a in arrays], counted)
     out = np.tile(template, (len(ns), 1))
-    sec, nsec = np.divmod(ns, 1_000_000_000)
+    sec, nsec = np.divmod(ns, NS)
     out[:, 4:8] = sec.astype("<i4").view(np.uint8).reshape(-1, 4)
     out[:, 8:12] = nsec.astype("<u4").view(np.uint8).reshape(-1, 4)
     for a, off in zip(arrays, offsets, strict=True):

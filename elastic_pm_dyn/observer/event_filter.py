@@ -1,0 +1,277 @@
+"""The filter over a bag's events: :func:`run_events`, and :class:`EventFilter` fed chunk by chunk.
+
+Events go through the same :class:`~elastic_pm_dyn.observer.stream.ObserverStream` as the
+live node, ordinary periods many at once in one compiled call (``kernels.run_periods``);
+one estimate row per distinct stamp once the filter runs. Message order: by header stamp,
+ties in bag order (``order="stamp"``, the best offline estimate), or the bag's own order
+(``order="arrival"``: what a live node saw, late samples dropped alike).
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable
+
+import numpy as np
+
+from elastic_pm_dyn.errors import InputError
+from elastic_pm_dyn.kinematics.mechanism import Mechanism
+from elastic_pm_dyn.observer import kernels
+from elastic_pm_dyn.observer.bag_input import Event
+from elastic_pm_dyn.observer.config import ObserverConfig
+from elastic_pm_dyn.observer.ekf import Observer, ObserverFault, UpdateResult
+from elastic_pm_dyn.observer.results import SENSORS, FilterPass, Rows
+from elastic_pm_dyn.observer.stream import ObserverStream
+
+
+class _Run:
+    """Consecutive ordinary stamp groups with one encoder plan (the offline fast path's input)."""
+
+    def __init__(self, g0: int, plan: tuple, has_imu: bool):
+        self.g0, self.g1, self.plan, self.has_imu = g0, g0, plan, has_imu
+        self.ns: list[int] = []
+        self.enc: list = []
+        self.imu: list = []
+        self.tau: list = []
+        self.flat: np.ndarray | None = None
+        self.nis: np.ndarray | None = None
+
+    def close(self) -> None:
+        self.ts = np.array([int(ns) * 1e-9 for ns in self.ns])
+        self.enc = np.array(self.enc, dtype=float).reshape(len(self.ns), len(self.plan[0]))
+        self.imu = np.array(self.imu, dtype=float).reshape(len(self.ns), -1 if self.imu else 0)
+        self.tau = np.array(self.tau, dtype=float).reshape(len(self.ns), -1)
+
+
+def _groups(events: list[Event]) -> list[tuple[int, int]]:
+    out, i, n = [], 0, len(events)
+    while i < n:
+        ns, j = events[i].stamp_ns, i + 1
+        while j < n and events[j].stamp_ns == ns:
+            j += 1
+        out.append((i, j))
+        i = j
+    return out
+
+
+def _fast_runs(obs: Observer, stream: ObserverStream, events: list[Event], groups: list[tuple[int, int]]) -> list:
+    """Per stamp group, the :class:`_Run` it belongs to, or None: groups of exactly a joint state
+    with positions of state joints only, an optional accelerometer sample, then a well-formed
+    torque command (:func:`run_events` gives the others to the per-message API, and so does
+    ``kernels.run_periods`` with any period that turns out unusual)."""
+    enc, imu = obs.encoders, obs.imu
+    run_of: list = [None] * len(groups)
+    if enc is None:
+        return run_of
+    branch_effort = obs.branch is not None and obs.branch.source == "joint_state_effort"
+    axes = imu.axes if imu is not None else None
+    cur: _Run | None = None
+    last_names, last_plan = None, None
+    for gi, (i0, i1) in enumerate(groups):
+        spec = None
+        size = i1 - i0
+        if size == 2 or (size == 3 and imu is not None):
+            ej, ec = events[i0], events[i1 - 1]
+            ei = events[i0 + 1] if size == 3 else None
+            if ej.kind == "joint_state" and ec.kind == "command" and (ei is None or ei.kind == "imu"):
+                names, pos, vel, eff = ej.data
+                if names is not last_names and names != last_names:  # decoded messages repeat them
+                    last_names, last_plan = names, enc.fast_plan(names, obs.nx)
+                plan = last_plan if len(pos) == len(names) else None
+                if plan is not None and not (plan[5] and len(vel)) and not (branch_effort and len(eff)):
+                    spec = plan
+                if spec is not None and ei is not None:
+                    acc, frame = ei.data
+                    if (imu.frame_id and frame and frame != imu.frame_id) or len(acc) != 3:
+                        spec = None
+                if spec is not None:
+                    try:
+                        tau = stream.command_tau(*ec.data)
+                    except InputError:
+                        spec = None
+        if spec is None:
+            if cur is not None:
+                cur.close()
+                cur = None
+            continue
+        has_imu = ei is not None
+        if cur is None or cur.plan is not spec or cur.has_imu != has_imu:
+            if cur is not None:
+                cur.close()
+            cur = _Run(gi, spec, has_imu)
+        cur.g1 = gi + 1
+        cur.ns.append(ej.stamp_ns)
+        cur.enc.append(np.asarray(pos, dtype=float)[spec[0]])
+        if has_imu:
+            cur.imu.append(np.asarray(acc, dtype=float)[axes])
+        cur.tau.append(tau)
+        run_of[gi] = cur
+    if cur is not None:
+        cur.close()
+    return run_of
+
+
+class EventFilter:
+    """:func:`run_events`' loop, fed one chunk of events after another: a chunk holds whole
+    stamp groups (all events of its stamps, none split across chunks) in the final order, so
+    that feeding the chunks one by one gives what feeding their concatenation gives."""
+
+    def __init__(self, obs: Observer, fast: bool = True, gate: threading.Event | None = None):
+        self.obs, self.fast = obs, fast
+        self.gate = gate  # cleared while this runs Python (other threads wait), set otherwise
+        self.stream = ObserverStream(obs)
+        self.rows = Rows(obs)
+        self.nis = dict.fromkeys(SENSORS, np.nan)
+        self.fault = ""
+        self.last_row_ns = None
+        self.fixed = None
+
+    def feed(self, events: list[Event]) -> None:
+        if self.fault:
+            return
+        if self.gate is None:
+            self._feed(events, None)
+            return
+        self.gate.clear()
+        try:
+            self._feed(events, self.gate)
+        finally:
+            self.gate.set()
+
+    def _feed(self, events: list[Event], gate: threading.Event | None) -> None:
+        obs, stream, rows, sensors = self.obs, self.stream, self.rows, SENSORS
+        nis, fault, last_row_ns, fixed = self.nis, self.fault, self.last_row_ns, self.fixed
+        groups = _groups(events)
+        run_of = _fast_runs(obs, stream, events, groups) if self.fast else [None] * len(groups)
+        skip = -1  # a group the fast path stopped at: the per-message API's
+
+        def record(ns: int) -> None:
+            rows.t.append(ns)
+            rows.flat.append(obs.estimate_flat())
+            rows.nis.append([nis[s] for s in sensors])
+
+        gi = 0
+        while gi < len(groups):
+            run = run_of[gi]
+            if run is not None and gi != skip and obs.initialised and obs.fault is None \
+                    and run.ns[gi - run.g0] != last_row_ns:
+                if fixed is None:
+                    obs.flat_layout()
+                    imu, p = obs.imu, obs.cfg.process
+                    fixed = (obs.mech.arrays, obs.dist_idx, obs.dist_col, obs.Lz, obs.Fz, obs.psd_ae, obs.rel_ae,
+                             obs.psd_z, obs.eps_q, obs.eps_v, obs.point, obs.with_point, obs._active_idx,
+                             np.array([p.max_interval, p.dt, obs.cfg.timing.stamp_tolerance, p.relinearize_every,
+                                       obs.cfg.timing.command_timeout]),
+                             imu.S if imu is not None else np.zeros((0, 3)), imu.g if imu is not None else np.zeros(3),
+                             imu.var if imu is not None else np.zeros(0),
+                             obs.gate(len(imu.axes)) if imu is not None else np.inf)
+                (ma, dist_idx, dist_col, Lz, Fz, psd_ae, rel_ae, psd_z, eps_q, eps_v, point, with_point, active_idx,
+                 timing, S, g, imu_R, imu_gate) = fixed
+                idx, H, var, js, wrap, _ = run.plan
+                a, b = gi - run.g0, run.g1 - run.g0
+                hold, last = obs.tau_hold.copy(), obs.tau_last.copy()
+                ctl = np.array([obs.t, float(obs._lin_age), obs._lin_T, obs.t_command])
+                if run.flat is None:  # the run's rows (views of it become rows.flat)
+                    run.flat, run.nis = np.empty((b, obs._flat_width)), np.empty((b, 2))
+                if gate is not None:  # the compiled call leaves the GIL to the other threads
+                    gate.set()
+                done = kernels.run_periods(
+                    ma, obs.q, obs.qd, obs.z, obs.P, obs.Phi, obs.Qd, obs.Hpt, obs.info, dist_idx, dist_col, Lz,
+                    Fz, psd_ae, rel_ae, psd_z, eps_q, eps_v, point, with_point, active_idx, hold, last, ctl, timing,
+                    H, var, js, wrap, obs.gate(len(idx)), run.enc, run.has_imu, S, g, imu_R, imu_gate, run.imu, run.ts,
+                    run.tau, obs._ee_point, obs._ee, obs._branch_joint, obs._stiff, obs._damp, obs._rest, a, b,
+                    run.flat, run.nis)
+                if gate is not None:
+                    gate.clear()
+                if done:
+                    obs.t, obs._lin_age, obs._lin_T, obs.t_command = float(ctl[0]), int(ctl[1]), float(ctl[2]), \
+                        float(ctl[3])
+                    obs.tau_hold, obs.tau_last = hold, last
+                    ns = run.ns[a:a + done]
+                    enc_nis = run.nis[a:a + done, 0].tolist()
+                    obs._accepted_many("encoders", enc_nis, len(idx))
+                    obs.stats["command"].accepted += done
+                    first = dict(nis, encoders=enc_nis[0])
+                    if run.has_imu:
+                        imu_nis = run.nis[a:a + done, 1].tolist()
+                        obs._accepted_many("imu", imu_nis, run.imu.shape[1])
+                        first["imu"] = imu_nis[0]
+                        stream.results = [UpdateResult("imu", ns[-1] * 1e-9, True, imu_nis[-1], run.imu.shape[1])]
+                        tail = [[e, i, np.nan] for e, i in zip(enc_nis[1:], imu_nis[1:], strict=True)]
+                    else:
+                        stream.results = [UpdateResult("encoders", ns[-1] * 1e-9, True, enc_nis[-1], len(idx))]
+                        tail = [[e, np.nan, np.nan] for e in enc_nis[1:]]
+                    rows.t.extend(ns)
+                    rows.flat.extend(run.flat[a:a + done])
+                    rows.nis.append([first[s] for s in sensors])
+                    rows.nis.extend(tail)
+                    nis = dict.fromkeys(sensors, np.nan)
+                    last_row_ns = ns[-1]
+                    gi += done
+                    if done < b - a:
+                        skip = gi
+                    continue
+            skip = -1
+            i0, i1 = groups[gi]
+            for i in range(i0, i1):
+                ev = events[i]
+                try:
+                    if ev.kind == "command":
+                        stream.on_torque_command(ev.stamp_ns, *ev.data)
+                    elif ev.kind == "joint_state":
+                        results = stream.on_joint_state(ev.stamp_ns, *ev.data)
+                    elif ev.kind == "imu":
+                        results = stream.on_imu(ev.stamp_ns, ev.data[0], ev.data[1])
+                    else:
+                        results = stream.on_branch_forces(ev.stamp_ns, *ev.data)
+                except ObserverFault as err:
+                    fault = str(err)
+                    break
+                if ev.kind != "command":
+                    for r in results:
+                        if r.accepted and r.dof:
+                            nis[r.sensor] = r.nis
+                nxt = events[i + 1].stamp_ns if i + 1 < len(events) else None
+                if nxt != ev.stamp_ns and obs.initialised and ev.stamp_ns != last_row_ns \
+                        and abs(obs.t - ev.stamp_ns * 1e-9) <= obs.cfg.timing.stamp_tolerance:
+                    record(ev.stamp_ns)
+                    last_row_ns = ev.stamp_ns
+                    nis = dict.fromkeys(sensors, np.nan)
+            if fault:
+                break
+            gi += 1
+        self.nis, self.fault, self.last_row_ns, self.fixed = nis, fault, last_row_ns, fixed
+
+
+def run_events(obs: Observer, events: list[Event], order: str = "stamp", fast: bool = True
+               ) -> tuple[Rows, ObserverStream, str]:
+    """Feed events through a stream; one estimate per distinct stamp. Returns (rows, stream, fault).
+
+    ``fast``: ordinary stamp groups (a joint state, an accelerometer sample, the command)
+    go through ``kernels.run_periods``, many in one compiled call, with the same numbers,
+    statistics and rows as the per-message API (``fast=False``) that takes all the others.
+    """
+    if order == "stamp":
+        events = sorted(events, key=order_key)
+    elif order != "arrival":
+        raise InputError(f"unknown message order {order!r} (expected stamp or arrival)")
+    f = EventFilter(obs, fast)
+    f.feed(events)
+    return f.rows, f.stream, f.fault
+
+
+def order_key(e: Event) -> tuple[int, int]:
+    return e.stamp_ns, e.index
+
+
+def filter_all(mech: Mechanism, cfg: ObserverConfig, events: list[Event], order: str,
+               log: Callable[[str], object]) -> FilterPass:
+    """An observer started at the first stamp (its observability report logged), then every
+    event through :func:`run_events` at once."""
+    obs = Observer(mech, cfg, t0=min(e.stamp_ns for e in events) * 1e-9)
+    report = obs.observability()
+    log(report.text())
+    wall = time.perf_counter()
+    rows, stream, fault = run_events(obs, events, order)
+    return FilterPass(obs, report, rows, stream, fault, time.perf_counter() - wall)
