@@ -20,13 +20,13 @@ EXIT_RUN_FAILED = 1
 
 def _add_simulation_options(p: argparse.ArgumentParser) -> None:
     from elastic_pm_dyn.dynamics.direct import FORMULATIONS
-    from elastic_pm_dyn.sim.simulator import INTEGRATORS, STABILISATIONS
+    from elastic_pm_dyn.sim.simulator import INTEGRATORS, STABILIZATIONS
     p.add_argument("--method", choices=FORMULATIONS, default="scdd", help="formulation (default scdd)")
     p.add_argument("--integrator", choices=INTEGRATORS, default="rk4")
     p.add_argument("--dt", type=float, default=1e-4, help="RK4 step [s] (default 1e-4)")
     p.add_argument("--rtol", type=float, default=1e-10, help="dop853 relative tolerance")
     p.add_argument("--atol", type=float, default=1e-12, help="dop853 absolute tolerance")
-    p.add_argument("--stabilization", choices=tuple(STABILISATIONS), default="projection")
+    p.add_argument("--stabilization", choices=tuple(STABILIZATIONS), default="projection")
     p.add_argument("--sample", type=float, default=1e-3, help="output interval [s] (default 1e-3)")
 
 
@@ -59,14 +59,17 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 def cmd_feedforward(args: argparse.Namespace) -> int:
     from elastic_pm_dyn.model.loader import load_model
     from elastic_pm_dyn.motion.feedforward import line_torques
+    from elastic_pm_dyn.motion.manoeuvre import REFERENCE_MANOEUVRE as ref
     from elastic_pm_dyn.motion.trajectory import QuinticLine
     from elastic_pm_dyn.sim.torque import write_torque_csv
     model = load_model(args.model)
-    a, b = np.array(args.line[:len(args.line) // 2]), np.array(args.line[len(args.line) // 2:])
-    line = QuinticLine(a, b, args.move, args.hold)
-    times, torques, names = line_torques(model, line, args.rate)
+    points = args.line or [*ref.start, *ref.end]
+    a, b = np.array(points[:len(points) // 2]), np.array(points[len(points) // 2:])
+    rate = ref.control_rate if args.rate is None else args.rate
+    line = QuinticLine(a, b, ref.move if args.move is None else args.move, ref.hold if args.hold is None else args.hold)
+    times, torques, names = line_torques(model, line, rate)
     write_torque_csv(args.out, times, torques, names)
-    print(f"{len(times)} samples at {args.rate:g} Hz -> {args.out}  (peak |tau| "
+    print(f"{len(times)} samples at {rate:g} Hz -> {args.out}  (peak |tau| "
           + ", ".join(f"{n} {v:.3f} N m" for n, v in zip(names, np.abs(torques).max(0), strict=True)) + ")")
     return 0
 
@@ -162,11 +165,13 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("feedforward", help="rigid inverse-dynamics torques of a quintic straight line")
     p.add_argument("--model", required=True)
-    p.add_argument("--line", type=float, nargs="+", required=True, metavar="X",
-                   help="start and end point: XA YA XB YB (planar) or six numbers (spatial)")
-    p.add_argument("--move", type=float, default=0.2, help="move time [s]")
-    p.add_argument("--hold", type=float, default=0.3, help="hold time at the end [s]")
-    p.add_argument("--rate", type=float, default=1000.0, help="sample rate [Hz]")
+    # Unset options take the reference manoeuvre's values (motion.manoeuvre), read when the command runs.
+    p.add_argument("--line", type=float, nargs="+", metavar="X",
+                   help="start and end point: XA YA XB YB (planar) or six numbers (spatial); "
+                        "default: the reference manoeuvre's")
+    p.add_argument("--move", type=float, help="move time [s] (default: the reference manoeuvre's)")
+    p.add_argument("--hold", type=float, help="hold time at the end [s] (default: the reference manoeuvre's)")
+    p.add_argument("--rate", type=float, help="sample rate [Hz] (default: the reference manoeuvre's)")
     p.add_argument("--out", required=True)
     p.set_defaults(func=cmd_feedforward)
 
@@ -215,7 +220,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _validate(args: argparse.Namespace) -> None:
     from elastic_pm_dyn.errors import InputError
-    if args.command == "feedforward" and len(args.line) not in (4, 6):
+    if args.command == "feedforward" and args.line is not None and len(args.line) not in (4, 6):
         raise InputError("--line takes 4 numbers (planar) or 6 (spatial)")
     for name in ("duration", "rate"):
         value = getattr(args, name, None)

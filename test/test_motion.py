@@ -65,3 +65,18 @@ def test_joint_spline_meets_waypoints_in_output_order_and_rests_outside() -> Non
         assert not qd.any() and not qdd.any()
     with pytest.raises(InputError, match="accelerations need velocities"):
         JointSpline(times, pos, [0, 1], accelerations=vel)
+
+
+def test_feedforward_command_defaults_to_the_reference_manoeuvre(tmp_path: Path) -> None:
+    """`elastic-pm-dyn feedforward` without --line/--move/--hold/--rate writes the reference manoeuvre's torques."""
+    from elastic_pm_dyn.cli import main
+    from elastic_pm_dyn.model.loader import load_model
+    from elastic_pm_dyn.motion.feedforward import line_torques
+
+    out = tmp_path / "torques.csv"
+    assert main(["feedforward", "--model", str(CONFIG / "five_bar.yaml"), "--out", str(out)]) == 0
+    table = np.loadtxt(out, delimiter=",", skiprows=1)
+    times, torques, _ = line_torques(load_model(CONFIG / "five_bar.yaml"), REFERENCE_MANOEUVRE.line,
+                                     REFERENCE_MANOEUVRE.control_rate)
+    np.testing.assert_allclose(table[:, 0], times, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(table[:, 1:], torques, rtol=1e-12, atol=1e-12)
