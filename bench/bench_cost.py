@@ -86,7 +86,7 @@ PAPER_TABLE1 = {  # machine: (n_a, n_pk, n_ek, SCDD, L-D'A, reduction)
     "five_bar": (2, 1, 1, 54, 64, "16 %"), "hexa": (6, 2, 1, 384, 1728, "78 %"),
     "triglide": (3, 2, 1, 162, 729, "78 %")}
 PAPER_TABLE2 = {"scdd": {"+": 192, "-": 80, "*": 432, "/": 38}, "lda": {"+": 670, "-": 302, "*": 2482, "/": 36}}
-TARGET_RATIO = 1.0 / 3.0  # the issue: SCDD <= 1/3 of L-D'A's time on Hexa, n_ek = 2
+TARGET_RATIO = 1.0 / 3.0  # design goal: SCDD <= 1/3 of L-D'A's time on Hexa, n_ek = 2
 
 
 # ------------------------------------------------------------------ profile kernels

@@ -419,7 +419,7 @@ def stats(samples: list[float]) -> dict:
             "min_us": a.min() * 1e6, "n_batches": int(a.size)}
 
 
-RATIOS = [  # (ours, peer, is it one of the issue's targets: ratio <= 1)
+RATIOS = [  # (ours, peer, is it a design goal: ratio <= 1)
     ("ours.kernel.scdd", "pin.constraintDynamics", True),
     ("ours.facade.scdd", "pin.constraintDynamics", False),
     ("ours.kernel.scdd", "pin.constraintDynamics+springs", False),
@@ -439,7 +439,7 @@ RATIOS = [  # (ours, peer, is it one of the issue's targets: ratio <= 1)
     ("ours.rk4_long.scdd.none", "mujoco.mj_step_rk4", True),
     ("ours.rk4_long.scdd.projection", "mujoco.mj_step_rk4", True),
 ]
-RTF_TARGET = 7.0  # the issue: real-time factor >= 7 at dt = 1e-4 s
+RTF_TARGET = 7.0  # design goal: real-time factor >= 7 at dt = 1e-4 s
 RTF_ITEMS = ["ours.rk4_long.scdd.none", "ours.rk4_long.scdd.projection", "ours.rk4_long.lda.projection",
              "ours.rk4_1.scdd.none", "ours.rk4_1.scdd.projection"]
 

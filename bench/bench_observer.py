@@ -5,7 +5,7 @@
 Measures, on simulated 1 kHz recordings (``elastic_pm_dyn.observer.scenarios``: the
 reference manoeuvre and a 3 N m chirp (6 seeds), each with an unknown 2-200 Hz multisine of
 0.02 N m RMS per motor):
-- acceptance numbers per sensor set: branch-force error RMS over the RMS of the elastic
+- scores per sensor set: branch-force error RMS over the RMS of the elastic
   part (F - F_qs), the same for an open-loop elastic simulation driven by the same
   commands, motor-angle error RMS over the encoder noise, fraction of samples whose NEES
   of [q_ae, qd_ae] lies in its 95 % band (after 50 ms of settling);

@@ -2,7 +2,7 @@
 
     .venv/bin/python bench/observer_bound.py        # ~2 min
 
-The acceptance recordings of the observer (``elastic_pm_dyn.observer.scenarios``) add an
+The test recordings of the observer (``elastic_pm_dyn.observer.scenarios``) add an
 unknown multisine torque d(t) = sum_i a (alpha_i sin w_i t + beta_i cos w_i t) to each motor
 (24 log-spaced tones in 2-200 Hz, 0.02 N m RMS per motor). Around the recorded motion the
 machine answers linearly to so small a torque, so every sample of every sensor and every
@@ -20,7 +20,7 @@ with G_s the sensors' rows and H_k the branch forces' rows at sample k. Two vers
 do), ``causal`` only the samples up to k (the best a live filter can do). The open loop
 (the model driven by the commands, no sensors) errs by H_k Sigma_c H_k^T. No real observer
 knows the tone frequencies, so its error is larger than the genie's: the ratios below are
-lower bounds for the issue's "branch-force error at most half of the open loop's".
+lower bounds for the goal "branch-force error at most half of the open loop's".
 
 Writes ``bench/results/observer_bound.json`` and ``observer_bound.md``.
 """
@@ -112,7 +112,7 @@ def main() -> int:
     result = {"when": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "noise": noise, "scenarios": {}}
     lines = ["Genie bounds on the branch-force error (unknown 2-200 Hz multisine, 0.02 N m RMS per motor; "
              f"noise: encoders {n.encoder:g} rad, accelerometer {n.accelerometer:g} m/s^2, gauges "
-             f"{n.branch_force:g} N). Ratios to the open loop's error; the issue asks for <= 0.5.", "",
+             f"{n.branch_force:g} N). Ratios to the open loop's error; the goal is <= 0.5.", "",
              "| scenario | sensors | open loop [mN] | causal genie [mN] | ratio | smoother genie [mN] | ratio |",
              "|---|---|---:|---:|---:|---:|---:|"]
     for rec in (manoeuvre_recording(mech, seed=1), chirp_recording(mech, seed=101)):

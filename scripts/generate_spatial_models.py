@@ -1,4 +1,4 @@
-"""Write config/triglide.yaml and config/hexa.yaml (spatial machines of issue 6).
+"""Write config/triglide.yaml and config/hexa.yaml (the spatial example machines).
 
 The files are committed; this script documents how their numbers were chosen (home
 geometry, rod lengths and assembly guesses follow from the parameters below) and

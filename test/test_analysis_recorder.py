@@ -18,7 +18,7 @@ TOPICS = ["/joint_states", "/branch_forces", "/torque_command", "/reference_join
 CHUNK = 0.1  # [s] of the run published at once, then the recorder catches up
 
 
-def test_recorder_bag_is_analysed(tmp_path):
+def test_recorder_bag_is_analyzed(tmp_path):
     require("rclpy")
     require("elastic_pm_dyn_msgs.msg")
     from builtin_interfaces.msg import Time

@@ -58,7 +58,7 @@ def test_load_config_from_a_node_section(tmp_path) -> None:
 
 
 # ---------------------------------------------------------------------------- discretisation
-def test_van_loan_discretisation_matches_scipy() -> None:
+def test_van_loan_discretization_matches_scipy() -> None:
     rng = np.random.default_rng(3)
     n = 7
     # A stiff, badly scaled oscillator pair plus integrators, like the observer's model.

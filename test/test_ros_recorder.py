@@ -15,7 +15,7 @@ PERIODS = 20
 
 
 @pytest.mark.parametrize("storage", ["mcap", "sqlite3"])
-def test_recorded_branch_forces_deserialise_with_rosbags(storage: str, tmp_path: Path) -> None:
+def test_recorded_branch_forces_deserialize_with_rosbags(storage: str, tmp_path: Path) -> None:
     require("rclpy")
     require("rosbags")
     from elastic_pm_dyn_msgs.msg import BranchForces

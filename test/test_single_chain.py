@@ -48,7 +48,7 @@ def _chain(damping: float, gravity_x: float = 0.0) -> Mechanism:
     return Mechanism(parse_model(YamlSource(text, "single_chain.yaml")))
 
 
-def test_natural_frequency_from_linearisation_equals_sqrt_c_over_m() -> None:
+def test_natural_frequency_from_linearization_equals_sqrt_c_over_m() -> None:
     mech = _chain(damping=40.0)
     modes = elastic_modes(mech, np.zeros(2))
     omega = math.sqrt(C / M_TIP)

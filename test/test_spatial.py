@@ -163,7 +163,7 @@ def test_hexa_static_deflection_against_stiffness_and_jacobian() -> None:
     assert np.allclose(dp, lin[:3] if lin.shape[0] == 6 else lin, rtol=1e-3, atol=1e-10)
 
 
-def test_flexible_link_discretisation_keeps_mass_and_stiffness() -> None:
+def test_flexible_link_discretization_keeps_mass_and_stiffness() -> None:
     masses = {}
     for n_ek in (0, 1, 2, 4):
         model = load_model(CONFIG / "hexa.yaml", elastic_dof_per_chain=n_ek)

@@ -5,8 +5,8 @@ checks and message-stream timing statistics; ``plots`` turns recorded runs into
 the figures of the seed paper (path, branch forces, closure gap) and a few more
 (motor torques, tracking error, spectrum).
 
-Bags: ``bags`` reads rosbag2 (mcap, sqlite3) with rosbags, finds the topics by type and
-streams them with bounded memory (``streams``); ``run_data`` turns topics into model
+Bags: ``bags`` finds the analysed topics of a rosbag2 (read through :mod:`elastic_pm_dyn.bags`)
+by role and type and streams them with bounded memory (``streams``); ``run_data`` turns topics into model
 quantities (forward kinematics, closure gap, hold phase); ``report`` assembles metrics,
 ``summary.json``/``summary.md`` and the plots for one run or several side by side;
 ``export`` writes one CSV per topic; ``paper`` reproduces the paper's Figs. 2-4; ``cli``

@@ -216,7 +216,7 @@ class Observer:
         self.Hpt = np.zeros((3, self.nx))
         self.info = np.zeros(2)
         if self.with_point:
-            self._linearise_here()
+            self._linearize_here()
 
     def initialise_from_joint_state(self, t: float, names, position, velocity=None,
                                     velocity_stddev: float | None = None) -> bool:
@@ -267,7 +267,7 @@ class Observer:
         tau[self.mech.active] = tau_active
         return tau
 
-    def _linearise_here(self) -> None:
+    def _linearize_here(self) -> None:
         """Accelerometer Jacobian at the current state (before the first prediction)."""
         from elastic_pm_dyn.observer.observability import linear_model
         _, _, self.Hpt = linear_model(self, self.q, self.qd, self.tau_last)

@@ -1,4 +1,4 @@
-"""Scoring the observer on simulated recordings (acceptance numbers of the issue).
+"""Scoring the observer on simulated recordings (the figures bench/bench_observer.py reports).
 
 - Elastic part of a branch force: F minus its quasi-static rigid-model value F_qs, the
   force the rod would carry were it rigid, at the same state under the same (true) motor
@@ -136,7 +136,7 @@ def _rms(x: np.ndarray) -> float:
 
 def score(rec: Recording, run: Run, ol: OpenLoop | None = None, F_qs: np.ndarray | None = None,
           settle: float = 0.02) -> dict:
-    """Acceptance numbers of one run (samples with t >= t_0 + settle)."""
+    """Scores of one run (samples with t >= t_0 + settle)."""
     mech = rec.mech
     keep = rec.t >= rec.t[0] + settle - 1e-12
     F_qs = quasi_static_series(rec) if F_qs is None else F_qs

@@ -58,7 +58,7 @@ from elastic_pm_dyn.ros.params import (
 )
 from elastic_pm_dyn.ros.qos import CLOCK_QOS, COMMAND_QOS, DIAGNOSTICS_QOS, STATE_QOS, VIEWER_QOS
 from elastic_pm_dyn.sim.plant import Plant
-from elastic_pm_dyn.sim.simulator import INTEGRATORS, STABILISATIONS, SimulationOptions
+from elastic_pm_dyn.sim.simulator import INTEGRATORS, STABILIZATIONS, SimulationOptions
 
 MODES = ("plant", "observer")
 SYNC_MODES = ("realtime", "fast", "lockstep")
@@ -74,7 +74,7 @@ PARAMS = [
     Param("formulation", "scdd", "direct dynamics formulation", choices=FORMULATIONS),
     Param("integrator", "rk4", "rk4 (fixed step dt) or dop853 (adaptive, offline accuracy)", choices=INTEGRATORS),
     Param("dt", 1.0e-4, "internal RK4 step [s]; shortened so steps end on control periods", positive=True),
-    Param("stabilization", "projection", "closure drift stabilisation", choices=tuple(STABILISATIONS)),
+    Param("stabilization", "projection", "closure drift stabilisation", choices=tuple(STABILIZATIONS)),
     Param("publish_rate", 1000.0, "control and publish rate [Hz]; a command is held for one period",
           positive=True),
     Param("sync_mode", "realtime", "realtime | fast | lockstep", choices=SYNC_MODES),

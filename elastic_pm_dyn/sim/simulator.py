@@ -16,7 +16,7 @@ from elastic_pm_dyn.sim.result import SimulationResult
 from elastic_pm_dyn.sim.torque import TorqueSource
 
 INTEGRATORS = ("rk4", "dop853")
-STABILISATIONS = {"none": 0, "baumgarte": kernels.STAB_BAUMGARTE, "projection": kernels.STAB_PROJECTION,
+STABILIZATIONS = {"none": 0, "baumgarte": kernels.STAB_BAUMGARTE, "projection": kernels.STAB_PROJECTION,
                   "both": kernels.STAB_BAUMGARTE | kernels.STAB_PROJECTION}
 
 # What breaks down at a singular configuration, per formulation.
@@ -49,9 +49,9 @@ class SimulationOptions:
                              f"(expected one of: {', '.join(FORMULATION_CODES)})")
         if self.integrator not in INTEGRATORS:
             raise InputError(f"unknown integrator {self.integrator!r} (expected rk4 or dop853)")
-        if self.stabilization not in STABILISATIONS:
+        if self.stabilization not in STABILIZATIONS:
             raise InputError(f"unknown stabilization {self.stabilization!r} "
-                             f"(expected one of: {', '.join(STABILISATIONS)})")
+                             f"(expected one of: {', '.join(STABILIZATIONS)})")
         for name in ("dt", "rtol", "atol", "sample"):
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
@@ -66,7 +66,7 @@ class Simulator:
         self.options = options or SimulationOptions()
         self.options.validate()
         self.code = FORMULATION_CODES[self.options.formulation]
-        self.stab = STABILISATIONS[self.options.stabilization]
+        self.stab = STABILIZATIONS[self.options.stabilization]
         self.qdd_prev = np.zeros(mech.n)
         self.lam = np.zeros(mech.m)
         # Reused by every advance(): a plant node calls it once per control period.

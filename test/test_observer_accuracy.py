@@ -1,4 +1,4 @@
-"""Acceptance of the observer on simulated recordings of the reference five-bar (1 kHz).
+"""Accuracy of the observer on simulated recordings of the reference five-bar (1 kHz).
 
 Recordings (``elastic_pm_dyn.observer.scenarios``): the core simulator at 50 us steps,
 commands held per 1 ms period, plus an unknown 2-200 Hz multisine torque of 0.02 N m RMS
@@ -98,7 +98,7 @@ def test_gauges_resolve_strong_vibration(scores) -> None:
 
 def test_encoders_halve_the_error_of_a_slow_disturbance(five_bar) -> None:
     # A 0.5-5 Hz unknown torque (friction, payload) moves the motors long before it changes:
-    # the encoders pin down the quasi-static branch force it causes (issue section 1).
+    # the encoders pin down the quasi-static branch force it causes.
     rec = manoeuvre_recording(five_bar, seed=1, disturbance_band=(0.5, 5.0))
     cfg = ObserverConfig.from_parameters({"sensors": ["encoders"], "process.disturbance_bandwidth": [1.0, 5.0]})
     s = score(rec, feed(Observer(five_bar, cfg), rec, ("encoders",)), open_loop(rec), settle=0.05)
