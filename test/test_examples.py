@@ -1,0 +1,106 @@
+"""Every script in examples/ runs (short arguments, a temporary directory) and does what it says.
+
+Each runs as a user would run it: ``python examples/<name>.py ...`` in a fresh interpreter,
+with the current directory elsewhere than the repository.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from ros_harness import domain_id, require
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+
+
+def run_example(name: str, *args: str | Path, cwd: Path, timeout: float = 120.0) -> str:
+    proc = subprocess.run([sys.executable, str(EXAMPLES / name), *map(str, args)], cwd=cwd,
+                          capture_output=True, text=True, timeout=timeout)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    return proc.stdout
+
+
+def number_after(text: str, label: str) -> float:
+    match = re.search(re.escape(label) + r"\s*(-?[0-9.]+(?:e[-+]?[0-9]+)?)", text)
+    assert match, f"{label!r} not in:\n{text}"
+    return float(match.group(1))
+
+
+def test_every_example_has_a_docstring_that_says_how_to_run_it() -> None:
+    scripts = sorted(EXAMPLES.glob("*.py"))
+    assert {p.stem for p in scripts} >= {"simulate_manoeuvre", "compare_formulations", "observe_bag",
+                                         "analyze_bag", "ros_controller"}
+    for path in scripts:
+        text = path.read_text()
+        assert text.startswith('"""') and f"python examples/{path.name}" in text, path.name
+        assert len(text.splitlines()) <= 110, path.name
+
+
+def test_simulate_manoeuvre(tmp_path: Path) -> None:
+    out = run_example("simulate_manoeuvre.py", "--move", "0.1", "--hold", "0.05", "--out", tmp_path / "out",
+                      cwd=tmp_path)
+    for name in ("path", "branch_forces"):
+        assert (tmp_path / "out" / f"{name}.png").stat().st_size > 10_000
+    assert number_after(out, "largest distance from the straight line:") < 100.0  # [um]
+    assert number_after(out, "peak force in branch left:") > 1.0  # [N]: the rods are loaded
+
+
+def test_compare_formulations(tmp_path: Path) -> None:
+    out = run_example("compare_formulations.py", "--states", "30", cwd=tmp_path)
+    for f in ("scdd", "multipliers"):
+        assert float(re.search(rf"^{f}\s+(\S+)", out, re.MULTILINE).group(1)) <= 1e-9
+    assert "the formulations agree" in out
+
+
+@pytest.fixture(scope="module")
+def observed(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str]:
+    require("rosbags")
+    tmp = tmp_path_factory.mktemp("observe")
+    return tmp / "out", run_example("observe_bag.py", "--duration", "0.15", "--out", tmp / "out", cwd=tmp)
+
+
+def test_observe_bag_makes_its_own_recording_and_estimates_the_forces(observed: tuple[Path, str]) -> None:
+    out, text = observed
+    for item in ("recording/metadata.yaml", "estimates/metadata.yaml", "estimates.csv", "summary.json"):
+        assert (out / item).is_file(), item
+    assert json.loads((out / "summary.json").read_text())["rows"] == 151
+    rms = [float(line.split()[-1]) for line in text.splitlines() if line.split()[:1] in (["left"], ["right"])]
+    assert len(rms) == 2 and max(rms) < 0.02, text  # [N], against the simulated truth
+    # The same recording given as BAG, with the strain gauges too.
+    again = run_example("observe_bag.py", out / "recording", "--sensors", "encoders", "imu", "branch_forces",
+                        "--out", out.parent / "again", cwd=out.parent)
+    assert "branch_forces: 151 accepted" in again
+
+
+def test_analyze_bag(observed: tuple[Path, str], tmp_path: Path) -> None:
+    require("rosbags")
+    from bag_factory import run_messages, synthetic_run, write_bag
+
+    from elastic_pm_dyn.bags.typestore import make_typestore
+    run = synthetic_run()
+    bag = write_bag(tmp_path / "synthetic", run_messages(run, make_typestore()))
+    text = run_example("analyze_bag.py", bag, observed[0] / "estimates", "--out", tmp_path / "out", cwd=tmp_path)
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    fit = summary["runs"]["synthetic"]["vibration"]["left"]
+    assert fit["f_d_hz"] == pytest.approx(run.truth["f_d"], rel=1e-3)
+    assert f"rings at {run.truth['f_d']:.1f} Hz" in text
+    assert "estimates - synthetic:" in text  # the second bag compared with the first
+    for name in summary["plots"].values():
+        assert (tmp_path / "out" / name).stat().st_size > 10_000
+    assert (tmp_path / "out" / "summary.md").is_file()
+
+
+def test_ros_controller(tmp_path: Path) -> None:
+    require("rclpy")
+    text = run_example("ros_controller.py", "--periods", "150", "--domain-id", domain_id(97), "--timeout", "60",
+                       "--out", tmp_path / "out", cwd=tmp_path, timeout=120.0)
+    assert "150 periods of 1 ms in lockstep" in text
+    assert number_after(text, "motor angle error: max") < 5.0  # [mrad]
+    assert number_after(text, "end-effector error: max") < 1000.0  # [um]
+    log = (tmp_path / "out" / "logs" / "plant.log").read_text()
+    assert "lockstep" in log and "Traceback" not in log
