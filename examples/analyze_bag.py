@@ -1,4 +1,4 @@
-"""Analyse recorded runs: path accuracy, branch forces, residual vibration, closure gap; plots.
+"""Analyze recorded runs: path accuracy, branch forces, residual vibration, closure gap; plots.
 
 ``epd.analyze`` reads one or more rosbag2 recordings of the machine (the plant node's or a
 robot's: joint states, branch forces, torque commands, the reference motion, found by name
