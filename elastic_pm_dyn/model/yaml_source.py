@@ -2,7 +2,8 @@
 
 Model files are hand-written; an error must point at the line, not just say "invalid".
 PyYAML's node graph carries marks, so we convert it ourselves and keep a map from key
-path to line number.
+path to line number. Scalars resolve as YAML 1.2 (:mod:`~elastic_pm_dyn.model.yaml12`:
+``stiffness: 1e5`` is a float).
 """
 
 from __future__ import annotations
@@ -13,11 +14,9 @@ from typing import Any
 import yaml
 
 from elastic_pm_dyn.errors import ModelError
+from elastic_pm_dyn.model import yaml12
 
 KeyPath = tuple[str | int, ...]
-
-# A constructor with SafeLoader's scalar resolution (int/float/bool/null/str).
-_SCALARS = yaml.SafeLoader("")
 
 
 def format_path(path: KeyPath) -> str:
@@ -38,7 +37,7 @@ class YamlSource:
         self.file = file
         self.lines: dict[KeyPath, int] = {}
         try:
-            node = yaml.compose(text, Loader=yaml.SafeLoader)
+            node = yaml12.compose(text)
         except yaml.YAMLError as exc:
             mark = getattr(exc, "problem_mark", None)
             line = mark.line + 1 if mark is not None else None
@@ -68,8 +67,8 @@ class YamlSource:
             return out
         if isinstance(node, yaml.SequenceNode):
             return [self._convert(v, path + (i,)) for i, v in enumerate(node.value)]
-        # Scalars: let SafeLoader's resolver pick int/float/bool/str/null.
-        return _SCALARS.construct_object(node, deep=True)
+        # Scalars: the YAML 1.2 resolver picks int/float/bool/str/null.
+        return yaml12.construct_scalar(node)
 
     def line(self, path: KeyPath) -> int | None:
         """Line of ``path``, or of its nearest ancestor that exists."""

@@ -18,6 +18,7 @@ from pathlib import Path
 import yaml
 
 from elastic_pm_dyn.errors import InputError
+from elastic_pm_dyn.model import yaml12
 
 DEFAULT_CONFIG = Path(__file__).resolve().parent.parent.parent / "config" / "observer.yaml"
 
@@ -43,7 +44,7 @@ def register_cli(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap", help="output bag storage")
     p.add_argument("--no-bag", action="store_true", help="write the CSV and summary only")
     p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
-                   help="override an observer parameter, e.g. --set process.dt=5e-5 (YAML value syntax)")
+                   help="override an observer parameter, e.g. --set process.dt=5e-5 (a YAML 1.2 value)")
     p.set_defaults(func=cmd_observe)
     return p
 
@@ -60,7 +61,7 @@ def _config(args: argparse.Namespace):
         if not sep:
             raise InputError(f"--set {item!r}: expected NAME=VALUE")
         try:
-            params[name.strip().removeprefix("observer.")] = yaml.safe_load(value)
+            params[name.strip().removeprefix("observer.")] = yaml12.load(value)
         except yaml.YAMLError as exc:
             raise InputError(f"--set {item!r}: {exc}") from None
     for key, attr in (("torque_command", "torque_topic"), ("measured_joint_states", "joint_topic"),
