@@ -23,6 +23,7 @@ from typing import Any
 import yaml
 
 from elastic_pm_dyn.errors import InputError
+from elastic_pm_dyn.model import yaml12
 
 PREFIX = "observer."
 SENSOR_KINDS = ("encoders", "imu", "branch_forces")
@@ -359,7 +360,7 @@ def load_config(path: str | Path | None = None, node: str | None = None) -> Obse
         return ObserverConfig.from_parameters({}, "<defaults>")
     p = Path(path)
     try:
-        data = yaml.safe_load(p.read_text())
+        data = yaml12.load(p.read_text())
     except OSError as exc:
         raise InputError(f"{p}: cannot read observer configuration: {exc.strerror}") from None
     except yaml.YAMLError as exc:
