@@ -129,10 +129,16 @@ def iter_events(bag: Path, topics: Topics, cfg: ObserverConfig, counts: dict, ch
 
 
 def recording_to_bag(rec, path: str | Path, use: tuple[str, ...] = ("encoders", "imu", "branch_forces"),
-                     storage: str = "mcap", topics: Topics | None = None, imu_frame: str = "ee_imu") -> None:
+                     storage: str = "mcap", topics: Topics | None = None, imu_frame: str = "ee_imu",
+                     receive_ns: dict[str, np.ndarray] | None = None) -> None:
     """Write a simulated :class:`~elastic_pm_dyn.observer.scenarios.Recording` as the bag a
-    robot would give: per sample the measurements stamped t_k, then the command of t_k."""
+    robot would give: per sample the measurements stamped ``rec.stamp_ns[k]``, then the
+    command of t_k. ``receive_ns``: the receive time [ns] per sample of each kind
+    ("encoders", "imu", "branch_forces", "command"); a kind not given: its stamps."""
     topics = topics or Topics()
+    stamps = np.asarray(rec.stamp_ns, dtype=np.int64)
+    recv = {kind: np.asarray((receive_ns or {}).get(kind, stamps), dtype=np.int64)
+            for kind in ("encoders", "imu", "branch_forces", "command")}
     names = list(rec.active_names)
     zero9 = np.zeros(9)
     unknown = np.full(9, -1.0)  # covariance[0] = -1: not provided (sensor_msgs/Imu convention)
@@ -145,22 +151,21 @@ def recording_to_bag(rec, path: str | Path, use: tuple[str, ...] = ("encoders", 
         c_imu = w.add_connection(topics.ee_imu, IMU) if "imu" in use else None
         c_bf = w.add_connection(topics.measured_branch_forces, BRANCH_FORCES) if "branch_forces" in use else None
         for k, ns in enumerate(rec.stamp_ns):
-            ns = int(ns)
-            sec, nsec = divmod(ns, NS)
+            sec, nsec = divmod(int(ns), NS)
             hdr = H(stamp=T(sec=sec, nanosec=nsec), frame_id="")
-            w.write_message(c_js, ns, JS(header=hdr, name=names, position=rec.encoder[k], velocity=np.zeros(0),
-                                         effort=np.zeros(0)))
+            w.write_message(c_js, int(recv["encoders"][k]), JS(header=hdr, name=names, position=rec.encoder[k],
+                                                               velocity=np.zeros(0), effort=np.zeros(0)))
             if c_imu is not None:
                 a = rec.accel[k]
-                w.write_message(c_imu, ns, Imu(
+                w.write_message(c_imu, int(recv["imu"][k]), Imu(
                     header=H(stamp=T(sec=sec, nanosec=nsec), frame_id=imu_frame),
                     orientation=Q(x=0.0, y=0.0, z=0.0, w=1.0), orientation_covariance=unknown,
                     angular_velocity=V3(x=0.0, y=0.0, z=0.0), angular_velocity_covariance=unknown,
                     linear_acceleration=V3(x=float(a[0]), y=float(a[1]), z=float(a[2])),
                     linear_acceleration_covariance=zero9))
             if c_bf is not None:
-                w.write_message(c_bf, ns, BF(header=hdr, name=list(rec.branch_names), force=rec.branch[k],
-                                             deflection=np.zeros(0), deflection_rate=np.zeros(0),
-                                             force_stddev=np.zeros(0)))
-            w.write_message(c_cmd, ns, JS(header=hdr, name=names, position=np.zeros(0), velocity=np.zeros(0),
-                                          effort=rec.tau_cmd[k]))
+                w.write_message(c_bf, int(recv["branch_forces"][k]), BF(
+                    header=hdr, name=list(rec.branch_names), force=rec.branch[k], deflection=np.zeros(0),
+                    deflection_rate=np.zeros(0), force_stddev=np.zeros(0)))
+            w.write_message(c_cmd, int(recv["command"][k]), JS(header=hdr, name=names, position=np.zeros(0),
+                                                               velocity=np.zeros(0), effort=rec.tau_cmd[k]))

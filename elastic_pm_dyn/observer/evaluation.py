@@ -67,11 +67,12 @@ class OpenLoop:
 
 
 def open_loop(rec: Recording, dt: float = 1e-4) -> OpenLoop:
-    """The elastic model driven by the recorded commands alone (ZOH), from the true start state."""
+    """The elastic model driven by the recorded commands alone (ZOH, each acting when it acted on
+    the plant: a command delay is known to it), without the disturbance, from the true start state."""
     mech = rec.mech
     sim = Simulator(mech, SimulationOptions(formulation="scdd", dt=dt, sample=rec.t[1] - rec.t[0],
                                             stabilization="projection"))
-    res = sim.run(TorqueTable(rec.t, rec.tau_cmd, "zoh"), rec.t[-1] - rec.t[0], rec.q[0], rec.qd[0], t0=rec.t[0])
+    res = sim.run(TorqueTable(rec.t, rec.acting, "zoh"), rec.t[-1] - rec.t[0], rec.q[0], rec.qd[0], t0=rec.t[0])
     n = len(rec.t)
     return OpenLoop(res.q[:n], res.qd[:n], res.branch_forces[:n])
 
