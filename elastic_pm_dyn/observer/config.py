@@ -79,6 +79,7 @@ DEFAULT_PARAMETERS: dict[str, Any] = {
     "gating.nis_warn_factor": 2.0,  # health WARN when the windowed mean NIS / dof leaves [1/f, f]
     "timing.stamp_tolerance": 1.0e-6,  # [s] stamps this close count as simultaneous
     "timing.command_timeout": 0.0,  # [s] older command -> zero torque; 0 = hold forever
+    "timing.max_future": 1.0,  # [s] a stamp further ahead of the filter is not used ("future"); .inf: no limit
     # --- topics (live node; defaults of the offline command)
     "topics.torque_command": "torque_command",
     "topics.measured_joint_states": "measured_joint_states",
@@ -152,6 +153,7 @@ class GatingConfig:
 class TimingConfig:
     stamp_tolerance: float
     command_timeout: float
+    max_future: float = 1.0
 
 
 @dataclass
@@ -215,7 +217,8 @@ class ObserverConfig:
                                   p["initial.disturbance_rate_stddev"]),
             gating=GatingConfig(p["gating.probability"], p["gating.max_consecutive_rejections"],
                                 p["gating.nis_window"], p["gating.nis_warn_factor"]),
-            timing=TimingConfig(p["timing.stamp_tolerance"], p["timing.command_timeout"]),
+            timing=TimingConfig(p["timing.stamp_tolerance"], p["timing.command_timeout"],
+                                max_future=p["timing.max_future"]),
             topics=Topics(p["topics.torque_command"], p["topics.measured_joint_states"], p["topics.ee_imu"],
                           p["topics.measured_branch_forces"]),
             observability_horizon=p["observability.horizon"],
@@ -251,6 +254,7 @@ class ObserverConfig:
                     "initial.disturbance_stddev": self.initial.disturbance_stddev,
                     "initial.disturbance_rate_stddev": self.initial.disturbance_rate_stddev,
                     "timing.stamp_tolerance": self.timing.stamp_tolerance,
+                    "timing.max_future": self.timing.max_future,
                     "observability.horizon": self.observability_horizon}
         for key, value in positive.items():
             if not value > 0:
