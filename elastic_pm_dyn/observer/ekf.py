@@ -18,10 +18,13 @@ through Phi = expm(A T) of the model linearised at the interval's start, with Va
 discrete process noise (see :mod:`elastic_pm_dyn.observer.kernels`). Correction:
 sequential per message, Joseph form, chi-square gating of the normalised innovation
 squared (NIS). Samples stamped before the filter's time are late and dropped (the filter
-never rewinds); a stamp ahead of it is first predicted to. Missing samples just mean
-longer predictions.
+never rewinds); a stamp ahead of it is first predicted to, unless more than
+``timing.max_future`` ahead (an outlier: not used, counted as ``future``, the time stays).
+Missing samples just mean longer predictions; ``reset()`` without a time restarts the clock
+at the next stamp.
 
-Time: float seconds of the message stamps. The command stamped t_k acts on
+Time: float seconds of the message stamps since an integer-ns origin (the stream's,
+:mod:`~elastic_pm_dyn.observer.stream`: epoch stamps keep their nanoseconds). The command stamped t_k acts on
 [t_k, t_k+1); a sample stamped t_k (taken just before that command) is compared with the
 state at t_k, an accelerometer with the command of the interval that ended at t_k.
 Corrections at one stamp and the command at that stamp commute, so a live node and the
@@ -69,7 +72,7 @@ class UpdateResult:
     accepted: bool
     nis: float = float("nan")
     dof: int = 0
-    reason: str = ""  # "" (accepted) | gate | nan | late | frame | uninitialised | empty
+    reason: str = ""  # "" (accepted) | gate | nan | late | future | frame | uninitialised | empty
     dropped: list[str] = field(default_factory=list)
 
 
@@ -78,6 +81,7 @@ class SensorStats:
     accepted: int = 0
     rejected: int = 0  # gated out
     late: int = 0
+    future: int = 0  # stamped more than timing.max_future ahead of the filter
     nan: int = 0  # NaN entries dropped
     other: int = 0  # wrong frame, before initialisation
     consecutive_rejections: int = 0
@@ -180,7 +184,8 @@ class Observer:
 
     def reset(self, t: float | None = None, q: np.ndarray | None = None, qd: np.ndarray | None = None,
               P0: np.ndarray | None = None, initialised: bool = True) -> None:
-        """Restart at time t (default: the current time) from tree state (q, qd).
+        """Restart at time t from tree state (q, qd); t None: at the stamp of the next sample
+        or command (the time an outlier may have left behind is not kept).
 
         q defaults to the model's initial state, qd to rest; the closure fixes q_p and qd_p
         (q_p from q's values as the Newton guess). Statistics, disturbance estimates and
@@ -189,6 +194,7 @@ class Observer:
         """
         mech = self.mech
         self.t = float(getattr(self, "t", 0.0) if t is None else t)
+        self.time_pending = t is None  # the next stamp sets the time
         q = initial_state(mech) if q is None else np.array(q, dtype=float)
         qd = np.zeros(mech.n) if qd is None else np.array(qd, dtype=float)
         if q.shape != (mech.n,) or qd.shape != (mech.n,):
@@ -326,12 +332,33 @@ class Observer:
         if not self.initialised:
             st.other += 1
             return UpdateResult(sensor, t, False, reason="uninitialised")
+        if self.time_pending:
+            self._restart_clock(t)
         if t < self.t - self.cfg.timing.stamp_tolerance:
             st.late += 1
             st.last_reason = f"late by {self.t - t:.6f} s"
             return UpdateResult(sensor, t, False, reason="late")
+        if self._future(t, st):
+            return UpdateResult(sensor, t, False, reason="future")
         self._advance(t)
         return None
+
+    def _future(self, t: float, st: SensorStats) -> bool:
+        """A stamp more than timing.max_future ahead of the filter: an outlier (counted), the time stays."""
+        if not t - self.t > self.cfg.timing.max_future:
+            return False
+        st.future += 1
+        st.consecutive_rejections += 1
+        st.last_reason = (f"stamped {t - self.t:.6g} s ahead of the filter's time {self.t:.6f} s "
+                          f"(timing.max_future {self.cfg.timing.max_future:g} s)")
+        return True
+
+    def _restart_clock(self, t: float) -> None:
+        """After ``reset(t=None)``: the filter (and the held command) restart at this stamp."""
+        self.t = t
+        if self.t_command > -np.inf:
+            self.t_command = t
+        self.time_pending = False
 
     # ------------------------------------------------------------------ inputs
     def predict(self, tau: np.ndarray, t_to: float) -> None:
@@ -346,6 +373,10 @@ class Observer:
         command, then hold this one. A command older than the last one is ignored (False)."""
         tau = self._check_tau(tau)
         st = self.stats["command"]
+        if self.initialised and self.time_pending:
+            self._restart_clock(t)
+        if self.initialised and self._future(t, st):
+            return False
         if t < self.t_command - self.cfg.timing.stamp_tolerance:
             st.late += 1
             return False
@@ -357,6 +388,7 @@ class Observer:
         self.tau_hold = tau
         self.t_command = t
         st.accepted += 1
+        st.consecutive_rejections = 0
         return True
 
     def _check_tau(self, tau) -> np.ndarray:
@@ -594,6 +626,7 @@ class Observer:
             out[f"{name}.accepted"] = str(st.accepted)
             out[f"{name}.rejected"] = str(st.rejected)
             out[f"{name}.late"] = str(st.late)
+            out[f"{name}.future"] = str(st.future)
             out[f"{name}.nan_entries"] = str(st.nan)
             if st.window:
                 lo, hi, mean = self.nis_band(name)
