@@ -10,6 +10,9 @@
 - Motor-angle error RMS, against the encoder noise.
 - NEES of the mechanical states [q_ae, qd_ae] and the fraction of samples in its
   two-sided 95 % chi-square band.
+
+Runs come from :func:`feed` (the stream fed sample by sample) or from ``observe`` over a
+bag (:func:`offline_run`: its estimate rows matched to the samples by stamp).
 """
 
 from __future__ import annotations
@@ -21,6 +24,7 @@ from scipy.stats import chi2
 
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.observer.ekf import Observer
+from elastic_pm_dyn.observer.results import Rows
 from elastic_pm_dyn.observer.scenarios import Recording
 from elastic_pm_dyn.observer.stream import ObserverStream
 from elastic_pm_dyn.sim.simulator import SimulationOptions, Simulator
@@ -129,6 +133,21 @@ def feed(obs: Observer, rec: Recording, use: tuple[str, ...] = ("encoders", "imu
                np.array(out["F_std"]), np.array(out["x"]), np.array(out["P"]), np.array(out["q_std"]),
                {s: v.accepted for s, v in st.items()}, {s: v.rejected for s, v in st.items()},
                np.array(out["dt"]))
+
+
+def offline_run(rec: Recording, rows: Rows) -> Run:
+    """The rows of ``observe`` (:class:`~elastic_pm_dyn.observer.results.Rows`) at the
+    recording's sample stamps: for each sample the last row at or before its stamp (the first
+    row before any), so that :func:`score` compares them with the truth sample by sample."""
+    est = rows.est
+    stamps = np.asarray(rows.t, dtype=np.int64)
+    idx = np.clip(np.searchsorted(stamps, np.asarray(rec.stamp_ns, dtype=np.int64), side="right") - 1, 0, None)
+    pick = [est[i] for i in idx]
+    st = rows.obs.stats
+    return Run(np.array([e.t for e in pick]), np.array([e.q for e in pick]), np.array([e.qd for e in pick]),
+               np.array([e.branch_force for e in pick]), np.array([e.branch_force_std for e in pick]),
+               np.array([e.x for e in pick]), np.array([e.P for e in pick]), np.array([e.q_std for e in pick]),
+               {s: v.accepted for s, v in st.items()}, {s: v.rejected for s, v in st.items()}, np.zeros(0))
 
 
 def _rms(x: np.ndarray) -> float:

@@ -17,7 +17,7 @@ converged to far below the sensor noise (test_observer_recordings checks two ste
 
 Disturbance spectra (:class:`SpectrumDisturbance`; each channel scaled to the asked RMS
 over the recording, random phases):
-- ``flat``: equal amplitudes on a linear grid over 2-200 Hz (flat power density);
+- ``flat``: equal amplitudes on a 1 Hz grid over 2-200 Hz (flat power density);
 - ``pink``: amplitudes ~ f^-1/2 on the same grid (power density ~ 1/f);
 - ``tones``: three sines per motor at random frequencies in 5-150 Hz;
 - ``drift``: three sines per motor at 0.05-1 Hz, starting from zero (a slow wander).
@@ -51,7 +51,7 @@ class SpectrumDisturbance:
     scaled so that its RMS over [0, ``duration``] is ``rms`` on every channel."""
 
     def __init__(self, spectrum: str, channels: int, rms: float, duration: float, rng: np.random.Generator,
-                 band: tuple[float, float] | None = None, n_lines: int = 48, fade: float = 0.02):
+                 band: tuple[float, float] | None = None, n_lines: int = 199, fade: float = 0.02):
         if spectrum not in SPECTRA:
             raise ValueError(f"spectrum must be one of {SPECTRA}, got {spectrum!r}")
         lo, hi = band or BANDS[spectrum]
