@@ -70,13 +70,15 @@ class OpenLoop:
     F: np.ndarray
 
 
-def open_loop(rec: Recording, dt: float = 1e-4) -> OpenLoop:
-    """The elastic model driven by the recorded commands alone (ZOH, each acting when it acted on
-    the plant: a command delay is known to it), without the disturbance, from the true start state."""
+def open_loop(rec: Recording, dt: float = 1e-4, as_acted: bool = True) -> OpenLoop:
+    """The elastic model driven by the recorded commands alone (ZOH), without the disturbance,
+    from the true start state; each command acting when it acted on the plant (``as_acted``: a
+    command delay known) or from its stamp on (as the observer applies it)."""
     mech = rec.mech
     sim = Simulator(mech, SimulationOptions(formulation="scdd", dt=dt, sample=rec.t[1] - rec.t[0],
                                             stabilization="projection"))
-    res = sim.run(TorqueTable(rec.t, rec.acting, "zoh"), rec.t[-1] - rec.t[0], rec.q[0], rec.qd[0], t0=rec.t[0])
+    table = TorqueTable(rec.t, rec.acting if as_acted else rec.tau_cmd, "zoh")
+    res = sim.run(table, rec.t[-1] - rec.t[0], rec.q[0], rec.qd[0], t0=rec.t[0])
     n = len(rec.t)
     return OpenLoop(res.q[:n], res.qd[:n], res.branch_forces[:n])
 
