@@ -30,6 +30,7 @@ SENSOR_KINDS = ("encoders", "imu", "branch_forces")
 DISTURBANCE_MODELS = ("none", "random_walk", "gauss_markov", "integrated_random_walk", "band_limited",
                       "bias_band_limited")
 BRANCH_SOURCES = ("branch_forces", "joint_state_effort")
+SAMPLE_TIMINGS = ("before_command", "after_command", "auto")
 AXES = ("x", "y", "z")
 
 # Every parameter (without the "observer." prefix) and its default. Floats are floats,
@@ -47,9 +48,11 @@ DEFAULT_PARAMETERS: dict[str, Any] = {
     "imu.axes": ["x", "y"],  # measured sensor axes
     "imu.stddev": [0.02],  # [m/s^2]
     "imu.specific_force": True,  # True: the sensor reads a - g (a real accelerometer)
+    "imu.sample_timing": "auto",  # the sample of t_k: before_command | after_command (a(t_k+)) | auto (from the data)
     "branch_forces.source": "branch_forces",  # branch_forces (BranchForces msg) | joint_state_effort
     "branch_forces.branches": ["all"],
     "branch_forces.stddev": [0.5],  # [N]
+    "command_delay": 0.0,  # [s] actuation latency: the command stamped t_k acts from t_k + command_delay
     # --- process model
     "process.dt": 1.0e-4,  # [s] RK4 substep of the SCDD model
     "process.max_interval": 1.0e-3,  # [s] longest prediction piece
@@ -105,6 +108,7 @@ class ImuConfig:
     axes: list[str]
     stddev: list[float]
     specific_force: bool
+    sample_timing: str
 
 
 @dataclass
@@ -178,6 +182,7 @@ class ObserverConfig:
     timing: TimingConfig
     topics: Topics
     observability_horizon: float
+    command_delay: float
     source: str = "<defaults>"
     parameters: dict[str, Any] = field(default_factory=dict)
 
@@ -201,7 +206,7 @@ class ObserverConfig:
             encoders=EncoderConfig(p["encoders.position_joints"], p["encoders.position_stddev"],
                                    p["encoders.velocity_joints"], p["encoders.velocity_stddev"]),
             imu=ImuConfig(p["imu.chain"], p["imu.frame_id"], p["imu.rpy"], p["imu.axes"], p["imu.stddev"],
-                          p["imu.specific_force"]),
+                          p["imu.specific_force"], p["imu.sample_timing"]),
             branch_forces=BranchForceConfig(p["branch_forces.source"], p["branch_forces.branches"],
                                             p["branch_forces.stddev"]),
             process=ProcessConfig(p["process.dt"], p["process.max_interval"], p["process.relinearize_every"],
@@ -222,6 +227,7 @@ class ObserverConfig:
             topics=Topics(p["topics.torque_command"], p["topics.measured_joint_states"], p["topics.ee_imu"],
                           p["topics.measured_branch_forces"]),
             observability_horizon=p["observability.horizon"],
+            command_delay=p["command_delay"],
             source=source, parameters=p,
         )
         cfg.validate()
@@ -264,7 +270,8 @@ class ObserverConfig:
                         "process.torque_noise_psd": self.process.torque_noise_psd,
                         "process.elastic_force_psd": self.process.elastic_force_psd,
                         "process.vibration_noise": self.process.vibration_noise,
-                        "timing.command_timeout": self.timing.command_timeout}
+                        "timing.command_timeout": self.timing.command_timeout,
+                        "command_delay": self.command_delay}
         for key, value in non_negative.items():
             if not value >= 0:
                 raise bad(key, f"must be >= 0, got {value!r}")
@@ -285,6 +292,9 @@ class ObserverConfig:
         if self.branch_forces.source not in BRANCH_SOURCES:
             raise bad("branch_forces.source", f"expected one of {', '.join(BRANCH_SOURCES)}, "
                                               f"got {self.branch_forces.source!r}")
+        if self.imu.sample_timing not in SAMPLE_TIMINGS:
+            raise bad("imu.sample_timing", f"expected one of {', '.join(SAMPLE_TIMINGS)}, "
+                                           f"got {self.imu.sample_timing!r}")
         if self.initial.source not in ("measurement", "model"):
             raise bad("initial.source", f"expected measurement or model, got {self.initial.source!r}")
         if not self.imu.axes or any(a not in AXES for a in self.imu.axes) or len(set(self.imu.axes)) != len(
