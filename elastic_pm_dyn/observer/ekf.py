@@ -24,11 +24,34 @@ Missing samples just mean longer predictions; ``reset()`` without a time restart
 at the next stamp.
 
 Time: float seconds of the message stamps since an integer-ns origin (the stream's,
-:mod:`~elastic_pm_dyn.observer.stream`: epoch stamps keep their nanoseconds). The command stamped t_k acts on
-[t_k, t_k+1); a sample stamped t_k (taken just before that command) is compared with the
-state at t_k, an accelerometer with the command of the interval that ended at t_k.
-Corrections at one stamp and the command at that stamp commute, so a live node and the
-offline pass give the same estimates whichever message arrives first.
+:mod:`~elastic_pm_dyn.observer.stream`: epoch stamps keep their nanoseconds). The command
+stamped t_k acts on [t_k + delay, t_k+1 + delay) (``command_delay``, the actuation latency:
+the zero-order hold shifted; a delayed command waits in a queue and the prediction starts a
+new piece where it starts to act). A sample stamped t_k is compared with the state at t_k.
+
+Feed-through (``imu.sample_timing``): the accelerometer reads J qdd + Jdot qd, and qdd jumps
+where the torque jumps, so a sample taken at the instant a command starts to act depends on
+which side of it it was taken:
+- ``before_command``: a(t_k-), under the torque of the interval that ended at t_k (a
+  controller that reads its sensors, then applies the next command);
+- ``after_command``: a(t_k+), under the torque acting from t_k on (a logged feedforward run
+  that applies the command, then samples). With no delay that is the command of t_k itself:
+  an accelerometer sample waits (is held) until the command of its stamp, or any message
+  stamped later, arrives, then is corrected at t_k with the torque acting then. So a live node
+  and the offline pass give the same estimates whichever arrives first;
+- ``auto``: both hypotheses are evaluated on every sample at the same state (two predicted
+  accelerations, one innovation covariance S; ``kernels.imu_correct_auto``). Over the first
+  :data:`TIMING_TRIAL` seconds after (re)initialisation each sample is corrected with the
+  likelier so far; then the likelier is chosen (:class:`TimingDecision`, with both Gaussian
+  log-likelihoods, in ``timing_decisions``, :meth:`timing_summary` and :meth:`diagnostics`).
+  Every :data:`TIMING_RECHECK` seconds the evidence since the last check is weighed again, and
+  the choice switches only if the other is likelier by :data:`TIMING_SWITCH_EVIDENCE` (logged
+  likewise). Where no command starts to act at a sample (a delay that is not a whole number
+  of periods, a repeated command), the hypotheses agree and the sample is no evidence.
+Other corrections at one stamp and the command at that stamp commute (they do not depend
+on the command), so a live node and the offline pass give the same estimates whichever
+message arrives first. Strain gauges have no feed-through in this model: a branch force
+F = c (u - u_rest) + d du/dt is a function of the state, continuous where the torque jumps.
 
 Typical use (live node or offline)::
 
@@ -57,6 +80,12 @@ from elastic_pm_dyn.observer.config import ObserverConfig
 from elastic_pm_dyn.observer.sensors import Accelerometer, BranchForces, Encoders, Sample, resolve_joints
 
 OK, WARN, ERROR = 0, 1, 2  # diagnostic levels (as diagnostic_msgs/DiagnosticStatus)
+TIMING_MODES = {"before_command": 0, "after_command": 1, "auto": 2}  # kernels.run_periods' codes
+TIMING_TRIAL = 0.1  # [s] auto: samples weighed before the first choice (about 100 at 1 kHz)
+TIMING_MIN_SAMPLES = 20  # auto: the first choice waits for at least this many accelerometer samples
+TIMING_RECHECK = 1.0  # [s] auto: evidence window of each later check
+TIMING_SWITCH_EVIDENCE = 20.0  # auto: log-likelihood margin (nats) the other hypothesis needs to take over
+MAX_PENDING_COMMANDS = 10_000  # delayed commands kept before the filter runs (the oldest then act)
 
 
 class ObserverFault(ElasticPmDynError):
@@ -88,6 +117,25 @@ class SensorStats:
     last_nis: float = float("nan")
     last_reason: str = ""
     window: deque = field(default_factory=deque)  # (nis, dof) of recent accepted samples
+
+
+@dataclass
+class TimingDecision:
+    """A choice of ``imu.sample_timing: auto``: at time t, over ``samples`` accelerometer
+    samples, the Gaussian log-likelihoods of their innovations under each hypothesis."""
+
+    t: float
+    samples: int
+    loglik_before: float
+    loglik_after: float
+    choice: str  # before_command | after_command
+    switched: bool  # a later check that changed the choice
+
+    def text(self) -> str:
+        what = "switched to" if self.switched else "chose"
+        return (f"accelerometer sample timing: {what} {self.choice} at t = {self.t:.6f} s (log-likelihood of "
+                f"{self.samples} samples: before_command {self.loglik_before:.6g}, after_command "
+                f"{self.loglik_after:.6g})")
 
 
 @dataclass
@@ -157,6 +205,18 @@ class Observer:
         self.branch = BranchForces(mech, cfg, self.x_of_ae, nae) if "branch_forces" in cfg.sensors else None
         self.point = self.imu.point if self.imu is not None else int(model.end_effector_chain)
         self.with_point = self.imu is not None
+        # Sample timing and actuation latency (module docstring)
+        self.delay = cfg.command_delay
+        self.imu_mode = TIMING_MODES[cfg.imu.sample_timing] if self.imu is not None else 0
+        self.imu_after = self.imu_mode == 1  # the hypothesis in use (auto: the choice so far)
+        self.timing_trial = self.imu_mode == 2  # auto before the first choice
+        self._hold_imu = self.imu_mode != 0 and self.delay <= cfg.timing.stamp_tolerance
+        self.evidence = np.zeros(4)  # kernels.imu_correct_auto's, since the last choice or check
+        self.timing_decisions: list[TimingDecision] = []  # the first choice and every switch
+        self.timing_last: TimingDecision | None = None  # the latest choice or check
+        self._pending: deque = deque()  # (time it acts from, torque) of delayed commands
+        self._held: tuple[float, np.ndarray] | None = None  # an accelerometer sample waiting for its command
+        self.released: list[UpdateResult] = []  # held samples the last call corrected
         self._gates: dict[int, float] = {}
         self.branch_names = [b.name for b in model.branches]
         self._branch_joint = np.array([mech.joint_names.index(b.joint) for b in model.branches], dtype=np.int64)
@@ -221,6 +281,9 @@ class Observer:
         self._lin_age, self._lin_T = 1 << 30, -1.0  # intervals since the last linearisation, its length
         self.Hpt = np.zeros((3, self.nx))
         self.info = np.zeros(2)
+        self._held = None
+        self.evidence[:] = 0.0
+        self._t_decide = self._next_check(self.t)
         if self.with_point:
             self._linearize_here()
 
@@ -298,10 +361,15 @@ class Observer:
         tol = self.cfg.timing.stamp_tolerance
         pc = self.cfg.process
         timeout = self.cfg.timing.command_timeout
+        if self._held is not None and t_to - self._held[0] > tol:
+            self._flush_held()  # the command of its stamp did not come: the torque acting now
+        self._activate_due()
         while t_to - self.t > tol:
             end = min(t_to, self.t + pc.max_interval)
             if timeout > 0 and self.t < self.t_command + timeout < end - tol:
                 end = self.t_command + timeout  # the command expires inside: stop there
+            if self._pending and self._pending[0][0] < end - tol:
+                end = self._pending[0][0]  # a delayed command starts to act there
             T = end - self.t
             tau = self._torque_at(self.t)
             n_sub = max(1, int(np.ceil(T / pc.dt - 1e-9)))
@@ -321,6 +389,17 @@ class Observer:
             self.tau_last = tau.copy()
             if status == kernels.COVARIANCE_LOST:
                 self._fail(f"covariance lost positive definiteness at t = {self.t:.6f} s")
+            self._activate_due()
+
+    def _activate_due(self, now: float | None = None) -> None:
+        """Delayed commands whose time (``now``, default the filter's) has come: the newest is held."""
+        now = self.t if now is None else now
+        while self._pending and self._pending[0][0] <= now + self.cfg.timing.stamp_tolerance:
+            self.t_command, self.tau_hold = self._pending.popleft()
+
+    def _newest_command(self) -> float:
+        """When the newest accepted command acts from (-inf if none)."""
+        return self._pending[-1][0] if self._pending else self.t_command
 
     def _fail(self, message: str) -> None:
         self.fault = message
@@ -340,6 +419,7 @@ class Observer:
             return UpdateResult(sensor, t, False, reason="late")
         if self._future(t, st):
             return UpdateResult(sensor, t, False, reason="future")
+        self._timing_check(t)
         self._advance(t)
         return None
 
@@ -359,6 +439,7 @@ class Observer:
         if self.t_command > -np.inf:
             self.t_command = t
         self.time_pending = False
+        self._t_decide = self._next_check(t)
 
     # ------------------------------------------------------------------ inputs
     def predict(self, tau: np.ndarray, t_to: float) -> None:
@@ -372,23 +453,31 @@ class Observer:
         """A torque command stamped t (active joint order): predict to t with the previous
         command, then hold this one. A command older than the last one is ignored (False)."""
         tau = self._check_tau(tau)
+        self.released = []
         st = self.stats["command"]
         if self.initialised and self.time_pending:
             self._restart_clock(t)
         if self.initialised and self._future(t, st):
             return False
-        if t < self.t_command - self.cfg.timing.stamp_tolerance:
+        tol = self.cfg.timing.stamp_tolerance
+        t_act = t + self.delay  # it acts from here
+        if t_act < self._newest_command() - tol:
             st.late += 1
             return False
         if self.initialised:
-            if t < self.t - self.cfg.timing.stamp_tolerance:
+            if t_act < self.t - tol:
                 st.late += 1  # late but newest: applies from now on
-            else:
+            if t >= self.t - tol:
+                self._timing_check(t)
                 self._advance(t)
-        self.tau_hold = tau
-        self.t_command = t
+        self._pending.append((t_act, tau))
+        if len(self._pending) > MAX_PENDING_COMMANDS:
+            self.t_command, self.tau_hold = self._pending.popleft()
+        self._activate_due(None if self.initialised else t)
         st.accepted += 1
         st.consecutive_rejections = 0
+        if self._held is not None:
+            self._flush_held()  # the sample of this stamp waited for it
         return True
 
     def _check_tau(self, tau) -> np.ndarray:
@@ -404,6 +493,7 @@ class Observer:
     def update_joint_states(self, t: float, names, position=None, velocity=None, effort=None
                             ) -> list[UpdateResult]:
         """Encoder positions/rates (and elastic-joint efforts as branch forces, if so configured)."""
+        self.released = []
         out = []
         if not self.initialised:
             if (self.cfg.initial.source == "measurement" and position is not None and len(position)
@@ -443,7 +533,11 @@ class Observer:
         return out
 
     def update_imu(self, t: float, linear_acceleration, frame_id: str = "") -> UpdateResult | None:
-        """Accelerometer sample (x, y, z of sensor_msgs/Imu linear_acceleration)."""
+        """Accelerometer sample (x, y, z of sensor_msgs/Imu linear_acceleration). None if there is
+        no accelerometer, or if the sample waits for the command of its stamp (``after_command``
+        or ``auto`` without a delay): that command or the next later message corrects it
+        (its result then in :attr:`released`)."""
+        self.released = []
         if self.imu is None:
             return None
         st = self.stats["imu"]
@@ -454,21 +548,120 @@ class Observer:
         late = self._sync(t, "imu")
         if late is not None:
             return late
+        acc = np.array(linear_acceleration, dtype=float)
+        if self._hold_imu and self._newest_command() < t + self.delay - self.cfg.timing.stamp_tolerance:
+            if self._held is not None:
+                self._flush_held()  # two samples at one stamp: the first goes now
+            self._held = (t, acc)
+            return None
+        return self._imu_update(t, acc)
+
+    def _flush_held(self) -> None:
+        t, acc = self._held
+        self._held = None
+        self.released.append(self._imu_update(t, acc))
+
+    def _imu_update(self, t: float, acc: np.ndarray) -> UpdateResult:
+        """Correct with an accelerometer sample at the filter's time (stamp t): the torque before
+        it is the last prediction piece's, the one after it the torque acting now."""
         imu = self.imu
-        meas = np.asarray(linear_acceleration, dtype=float)[imu.axes]
-        if not np.all(np.isfinite(meas)):  # the slow path drops NaN axes and reports them
+        meas = acc[imu.axes]
+        tau_before = self._tree_tau(self.tau_last)
+        tau_after = self._tree_tau(self._torque_at(self.t))
+        after = self.imu_after if not self.timing_trial else self.evidence[1] < self.evidence[0]
+        if not np.all(np.isfinite(meas)):  # the slow path drops NaN axes and reports them (no evidence)
             a = np.empty(3)
-            kernels.point_acceleration(self.mech.arrays, self.q, self.qd, self._tree_tau(self.tau_last),
+            kernels.point_acceleration(self.mech.arrays, self.q, self.qd, tau_after if after else tau_before,
                                        self.dist_idx, self.disturbance(), self.point, a)
-            return self._correct(imu.sample(np.asarray(linear_acceleration, dtype=float), a, self.Hpt), t)
+            return self._correct(imu.sample(acc, a, self.Hpt), t)
         gate = self.gate(len(meas))
-        nis, status = kernels.imu_correct(self.mech.arrays, self.q, self.qd, self.z, self.P,
-                                          self._tree_tau(self.tau_last), self.dist_idx, self.Lz, self.point, imu.S,
-                                          imu.g, meas, imu.var, self.Hpt, gate)
+        if self.imu_mode == 2:
+            nis, status = kernels.imu_correct_auto(self.mech.arrays, self.q, self.qd, self.z, self.P, tau_before,
+                                                   tau_after, self.timing_trial, self.imu_after, self.dist_idx,
+                                                   self.Lz, self.point, imu.S, imu.g, meas, imu.var, self.Hpt, gate,
+                                                   self.evidence)
+        else:
+            nis, status = kernels.imu_correct(self.mech.arrays, self.q, self.qd, self.z, self.P,
+                                              tau_after if after else tau_before, self.dist_idx, self.Lz, self.point,
+                                              imu.S, imu.g, meas, imu.var, self.Hpt, gate)
         return self._after("imu", t, nis, status, len(meas), gate, [])
+
+    # ------------------------------------------------------------------ sample timing (auto)
+    def _next_check(self, t: float) -> float:
+        if self.imu_mode != 2:
+            return np.inf
+        return t + (TIMING_TRIAL if self.timing_trial else TIMING_RECHECK)
+
+    def _timing_check(self, t: float) -> None:
+        """``auto``: at a stamp from the decision time on, choose (first) or check the choice."""
+        if not t >= self._t_decide - self.cfg.timing.stamp_tolerance:
+            return
+        if self._held is not None:
+            self._flush_held()  # its evidence belongs to this window
+        nis_b, nis_a, logdet, n = self.evidence
+        if self.timing_trial and n < TIMING_MIN_SAMPLES:
+            self._t_decide = t + TIMING_TRIAL  # too few samples yet: weigh on
+            return
+        self._t_decide = t + TIMING_RECHECK
+        if n == 0:
+            return
+        ll_b, ll_a = -0.5 * (nis_b + logdet), -0.5 * (nis_a + logdet)
+        if self.timing_trial:
+            after, switched = bool(ll_a > ll_b), False
+        else:
+            gain = ll_b - ll_a if self.imu_after else ll_a - ll_b
+            switched = bool(gain > TIMING_SWITCH_EVIDENCE)
+            after = self.imu_after != switched
+        decision = TimingDecision(t, int(n), float(ll_b), float(ll_a), "after_command" if after else "before_command",
+                                  switched)
+        if self.timing_trial or switched:
+            self.timing_decisions.append(decision)
+        self.timing_last = decision
+        self.imu_after, self.timing_trial = after, False
+        self.evidence[:] = 0.0
+
+    def sample_timing(self) -> str:
+        """The accelerometer sample timing in use: before_command | after_command (auto: ``auto
+        (trial)`` until the first choice)."""
+        if self.timing_trial:
+            return "auto (trial)"
+        return "after_command" if self.imu_after else "before_command"
+
+    def timing_summary(self) -> dict:
+        """The timing settings and, for ``auto``, its choices (for summary.json)."""
+        return {"imu_sample_timing": self.cfg.imu.sample_timing, "in_use": self.sample_timing(),
+                "command_delay_s": self.delay,
+                "decisions": [vars(d) | {"text": d.text()} for d in self.timing_decisions],
+                "last_check": None if self.timing_last is None else vars(self.timing_last)}
+
+    # ------------------------------------------------------------------ offline fast path
+    def fast_timing(self) -> np.ndarray:
+        """``kernels.run_periods``' timing array (fixed for the observer's life)."""
+        p, tm = self.cfg.process, self.cfg.timing
+        return np.array([p.max_interval, p.dt, tm.stamp_tolerance, p.relinearize_every, tm.command_timeout,
+                         self.delay, float(self.imu_mode), float(self._hold_imu)])
+
+    def fast_state(self, periods: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``kernels.run_periods``' control array and delayed-command queue (room for ``periods``
+        more); a held sample stops the fast path at once (the per-message API corrects it)."""
+        n = len(self._pending)
+        pend_t = np.empty(n + periods)
+        pend_tau = np.empty((n + periods, len(self.mech.active)))
+        for i, (ta, tau) in enumerate(self._pending):
+            pend_t[i], pend_tau[i] = ta, tau
+        t_stop = -np.inf if self._held is not None else self._t_decide
+        ctl = np.array([self.t, float(self._lin_age), self._lin_T, self.t_command, 0.0, float(n), t_stop,
+                        float(self.timing_trial), float(self.imu_after)])
+        return ctl, pend_t, pend_tau
+
+    def set_fast_state(self, ctl: np.ndarray, pend_t: np.ndarray, pend_tau: np.ndarray) -> None:
+        """Take back what :meth:`fast_state` gave ``kernels.run_periods``."""
+        self.t, self._lin_age, self._lin_T, self.t_command = float(ctl[0]), int(ctl[1]), float(ctl[2]), float(ctl[3])
+        self._pending = deque((float(pend_t[i]), pend_tau[i].copy()) for i in range(int(ctl[4]), int(ctl[5])))
 
     def update_branch_forces(self, t: float, names, force) -> UpdateResult | None:
         """Measured branch forces (strain gauges), by branch name."""
+        self.released = []
         if self.branch is None:
             return None
         return self._branch_update(t, list(names), force)
@@ -635,6 +828,12 @@ class Observer:
                 out[f"{name}.nis_band95"] = f"[{lo:.4g}, {hi:.4g}]"
             if st.last_reason:
                 out[f"{name}.last_rejection"] = st.last_reason
+        if self.imu is not None:
+            out["imu.sample_timing"] = self.sample_timing()
+            d = self.timing_last
+            if d is not None:
+                out["imu.sample_timing_check"] = d.text()
+        out["command_delay"] = f"{self.delay:g}"
         return out
 
     def observability(self, horizon: float | None = None):

@@ -653,6 +653,86 @@ def imu_correct(ma, q, qd, z, P, tau, dist_idx, Lz, point, S, g, meas, R, Hpt, g
 
 
 @njit(cache=True)
+def innovation_nis(P, H, R, r):
+    """(NIS r^T S^-1 r, log det S) of innovation r with S = H P H^T + diag(R) (as
+    :func:`kalman_update` scales it); (inf, nan) if S is not positive definite."""
+    nz = H.shape[0]
+    S = H @ P @ H.T
+    sc = np.empty(nz)
+    for i in range(nz):
+        S[i, i] += R[i]
+        if not S[i, i] > 0.0:
+            return np.inf, np.nan
+        sc[i] = 1.0 / np.sqrt(S[i, i])
+    for i in range(nz):
+        for j in range(nz):
+            S[i, j] *= sc[i] * sc[j]
+    if not cholesky(S):
+        return np.inf, np.nan
+    nis = 0.0
+    logdet = 0.0
+    y = np.empty(nz)
+    for i in range(nz):
+        v = r[i] * sc[i]
+        for k in range(i):
+            v -= S[i, k] * y[k]
+        y[i] = v / S[i, i]
+        nis += y[i] * y[i]
+        logdet += 2.0 * np.log(S[i, i]) - 2.0 * np.log(sc[i])
+    return nis, logdet
+
+
+@njit(cache=True)
+def imu_correct_auto(ma, q, qd, z, P, tau_before, tau_after, trial, use_after, dist_idx, Lz, point, S, g, meas, R,
+                     Hpt, gate, evidence):
+    """Accelerometer correction when its sample timing is learnt from the data (``imu.sample_timing:
+    auto``). The sample is predicted under both hypotheses at the same state: y_b under
+    ``tau_before`` (the torque of the interval that ended at the sample, a(t_k-)) and y_a under
+    ``tau_after`` (the torque acting from it on, a(t_k+)); both innovations share S = H P H^T + R.
+    evidence += [NIS_b, NIS_a, log det(2 pi S), 1], so that the Gaussian log-likelihoods of the
+    samples so far are -(evidence[0 or 1] + evidence[2]) / 2. The correction uses the after
+    hypothesis if ``use_after``, or, on ``trial``, whichever is the likelier so far (this sample
+    included). Returns (NIS, status) as :func:`imu_correct`."""
+    nd = dist_idx.shape[0]
+    d = np.zeros(nd)
+    for k in range(nd):
+        for m in range(z.shape[0]):
+            d[k] += Lz[k, m] * z[m]
+    a_b = np.empty(3)
+    a_a = np.empty(3)
+    if not point_acceleration(ma, q, qd, tau_before, dist_idx, d, point, a_b) >= SINGULAR_TOL:
+        return np.inf, 4
+    same = True
+    for i in range(tau_before.shape[0]):
+        same = same and tau_before[i] == tau_after[i]
+    if same:
+        a_a[:] = a_b
+    elif not point_acceleration(ma, q, qd, tau_after, dist_idx, d, point, a_a) >= SINGULAR_TOL:
+        return np.inf, 4
+    nz = S.shape[0]
+    r_b = np.empty(nz)
+    r_a = np.empty(nz)
+    for i in range(nz):
+        h_b = 0.0
+        h_a = 0.0
+        for c in range(3):
+            h_b += S[i, c] * (a_b[c] - g[c])
+            h_a += S[i, c] * (a_a[c] - g[c])
+        r_b[i] = meas[i] - h_b
+        r_a[i] = meas[i] - h_a
+    H = S @ Hpt
+    nis_b, logdet = innovation_nis(P, H, R, r_b)
+    nis_a, _ = innovation_nis(P, H, R, r_a)
+    if np.isfinite(nis_b) and np.isfinite(nis_a):
+        evidence[0] += nis_b
+        evidence[1] += nis_a
+        evidence[2] += logdet + nz * np.log(2.0 * np.pi)
+        evidence[3] += 1.0
+    after = evidence[1] < evidence[0] if trial else use_after
+    return correct(ma, q, qd, z, P, H, R, r_a if after else r_b, gate)
+
+
+@njit(cache=True)
 def covariance_ok(P):
     """True if P is finite, symmetric and positive definite (Cholesky of its correlation matrix)."""
     n = P.shape[0]
@@ -683,47 +763,66 @@ def covariance_ok(P):
     return True
 
 
+@njit(cache=True)
+def _activate(pend_t, pend_tau, head, tail, t, tol, tau_hold):
+    """Delayed commands whose time has come (``Observer._activate_due``): the newest becomes the
+    held torque. Returns (head, activation time of the held torque or -inf if none came)."""
+    t_act = -np.inf
+    while head < tail and pend_t[head] <= t + tol:
+        t_act = pend_t[head]
+        for i in range(tau_hold.shape[0]):
+            tau_hold[i] = pend_tau[head, i]
+        head += 1
+    return head, t_act
+
+
 @njit(cache=True, nogil=True)
 def run_periods(ma, q, qd, z, P, Phi, Qd, Hpt, info, dist_idx, dist_col, Lz, Fz, psd_ae, rel_ae, psd_z, eps_q, eps_v,
-                point, with_point, active_idx, tau_hold, tau_last, ctl, timing, enc_H, enc_R, enc_js, enc_wrap,
-                enc_gate, enc_meas, has_imu, S, g, imu_R, imu_gate, imu_meas, ts, taus, ee_point, ee_comp,
-                branch_joint, stiff, damp, rest, start, stop, out, nis_out):
+                point, with_point, active_idx, tau_hold, tau_last, ctl, timing, pend_t, pend_tau, evidence, enc_H,
+                enc_R, enc_js, enc_wrap, enc_gate, enc_meas, has_imu, S, g, imu_R, imu_gate, imu_meas, ts, taus,
+                ee_point, ee_comp, branch_joint, stiff, damp, rest, start, stop, out, nis_out):
     """Ordinary periods ``start``..``stop``-1 (offline fast path), each what the per-message API
     does for a joint state (state-joint positions), an optional accelerometer sample and the
-    torque command at one stamp ``ts[k]``, in that order: ``Observer._advance`` (one
-    :func:`predict_checked` piece with the held command), :func:`encoder_correct`,
-    :func:`imu_correct`, the command (``taus[k]`` held from then on) and :func:`estimate_flat`
-    into ``out[k]`` -- the same kernels on the same numbers in the same order.
+    torque command at one stamp ``ts[k]``, in that order: ``Observer._advance`` (its
+    :func:`predict_checked` pieces with the held command, a delayed command starting to act
+    where its time comes), :func:`encoder_correct`, the accelerometer (:func:`imu_correct` with
+    the torque before or after the stamp, or :func:`imu_correct_auto`; a sample waiting for the
+    command of its stamp after the command), the command (acting from ``ts[k]`` + delay) and
+    :func:`estimate_flat` into ``out[k]`` -- the same kernels on the same numbers in the same order.
 
-    ctl = [t, intervals since the linearisation, its length, t_command] (in place);
-    timing = [max_interval, dt, stamp tolerance, relinearize_every, command_timeout];
-    tau_hold, tau_last (active order) in place; nis_out[k] = (encoder, imu) NIS.
+    ctl = [t, intervals since the linearisation, its length, activation time of the held command,
+    first and end index of the delayed commands in ``pend_t``/``pend_tau`` (room for one more per
+    period), t_stop, timing trial (0/1), after-command hypothesis in use (0/1)] (in place);
+    timing = [max_interval, dt, stamp tolerance, relinearize_every, command_timeout, command_delay,
+    accelerometer timing (0 before, 1 after, 2 auto), sample waits for the command (0/1)];
+    tau_hold, tau_last (active order), ``evidence`` (:func:`imu_correct_auto`) in place;
+    nis_out[k] = (encoder, imu) NIS.
     A period stops the run, the filter state restored as it was before it, when it is not
-    ordinary: not exactly one prediction piece ahead (late, simultaneous, a gap), a command
-    timeout involved, a late command, a non-finite input, a gated sample, a failure. Returns
-    the number of periods done; the caller runs the next one through the per-message API.
-    (ctl[0] ends up min(ts[k], t + max_interval): a stamp a rounding error more than one
-    piece ahead leaves the filter that close to it, as ``Observer._advance`` does.)
+    ordinary: stamped from t_stop on (a timing decision, or a held sample, is Python's), late or
+    simultaneous, a command timeout involved, a late command, a non-finite input, a gated
+    sample, a failure. Returns the number of periods done; the caller runs the next one through
+    the per-message API.
     """
     n = q.shape[0]
     na = active_idx.shape[0]
-    max_interval, dt, tol, every, timeout = timing[0], timing[1], timing[2], timing[3], timing[4]
+    max_interval, dt, tol, every, timeout, delay = timing[0], timing[1], timing[2], timing[3], timing[4], timing[5]
+    imu_mode = int(timing[6])
+    hold_imu = timing[7] > 0.5
     q0, qd0, z0 = np.empty_like(q), np.empty_like(qd), np.empty_like(z)
     P0, Phi0, Qd0, Hpt0, info0 = np.empty_like(P), np.empty_like(Phi), np.empty_like(Qd), np.empty_like(Hpt), \
         np.empty_like(info)
+    hold0, last0, ev0 = np.empty_like(tau_hold), np.empty_like(tau_last), np.empty_like(evidence)
     tree = np.empty(n)
-    tau_used = np.empty(na)
+    tree_b = np.empty(n)
     enc_m = np.empty(enc_meas.shape[1])
     imu_m = np.empty(imu_meas.shape[1])
     for k in range(start, stop):
         t, lin_age, lin_T, t_command = ctl[0], ctl[1], ctl[2], ctl[3]
+        head, tail = int(ctl[4]), int(ctl[5])
+        t_stop, trial, use_after = ctl[6], ctl[7] > 0.5, ctl[8] > 0.5
         t_to = ts[k]
-        # Observer._advance's single piece: to min(t_to, t + max_interval), t_to within the tolerance
-        end = min(t_to, t + max_interval)
-        t_end = t_to if end >= t_to else end
-        if not t_to - t > tol or t_to - t_end > tol or t_to < t_command - tol:
-            return k - start
-        if timeout > 0 and (t - t_command >= timeout - 1e-12 or (t < t_command + timeout < end - tol)):
+        newest = pend_t[tail - 1] if tail > head else t_command
+        if t_to >= t_stop - tol or not t_to - t > tol or t_to + delay < newest - tol:
             return k - start
         ok = True
         for i in range(na):
@@ -745,25 +844,68 @@ def run_periods(ma, q, qd, z, P, Phi, Qd, Hpt, info, dist_idx, dist_col, Lz, Fz,
         Qd0[:] = Qd
         Hpt0[:] = Hpt
         info0[:] = info
-        T = end - t
-        n_sub = max(1, int(np.ceil(T / dt - 1e-9)))
-        relin = lin_age >= every or abs(T - lin_T) > 1e-12
-        tree[:] = 0.0
-        for i in range(na):
-            tree[active_idx[i]] = tau_hold[i]
-            tau_used[i] = tau_hold[i]
-        status = predict_checked(ma, q, qd, tree, dist_idx, z, dist_col, Lz, Fz, psd_ae, rel_ae, psd_z, eps_q, eps_v,
-                                 point, with_point, relin, T, n_sub, P, Phi, Qd, Hpt, info)
-        nis_e, st_e = np.nan, 0
-        nis_i, st_i = np.nan, 0
-        if status == OK:
-            nis_e, st_e = encoder_correct(ma, q, qd, z, P, enc_H, enc_R, enc_js, enc_wrap, enc_m, enc_gate)
-        if status == OK and st_e == 0 and has_imu:
+        hold0[:] = tau_hold
+        last0[:] = tau_last
+        ev0[:] = evidence
+        # Observer._advance: pieces up to t_to, a delayed command acting from where its time comes
+        head, t_act = _activate(pend_t, pend_tau, head, tail, t, tol, tau_hold)
+        t_command = t_act if t_act > -np.inf else t_command
+        while ok and t_to - t > tol:
+            end = min(t_to, t + max_interval)
+            if timeout > 0 and (t - t_command >= timeout - 1e-12 or t < t_command + timeout < end - tol):
+                ok = False
+                break
+            if head < tail and pend_t[head] < end - tol:
+                end = pend_t[head]
+            T = end - t
+            n_sub = max(1, int(np.ceil(T / dt - 1e-9)))
+            relin = lin_age >= every or abs(T - lin_T) > 1e-12
             tree[:] = 0.0
             for i in range(na):
-                tree[active_idx[i]] = tau_used[i]
-            nis_i, st_i = imu_correct(ma, q, qd, z, P, tree, dist_idx, Lz, point, S, g, imu_m, imu_R, Hpt, imu_gate)
-        if status != OK or st_e != 0 or st_i != 0:
+                tree[active_idx[i]] = tau_hold[i]
+            status = predict_checked(ma, q, qd, tree, dist_idx, z, dist_col, Lz, Fz, psd_ae, rel_ae, psd_z, eps_q,
+                                     eps_v, point, with_point, relin, T, n_sub, P, Phi, Qd, Hpt, info)
+            if status != OK:
+                ok = False
+                break
+            if relin:
+                lin_age, lin_T = 0.0, T
+            lin_age += 1.0
+            t = t_to if end >= t_to else end
+            tau_last[:] = tau_hold
+            head, t_act = _activate(pend_t, pend_tau, head, tail, t, tol, tau_hold)
+            t_command = t_act if t_act > -np.inf else t_command
+        nis_e, nis_i = np.nan, np.nan
+        if ok:
+            nis_e, st_e = encoder_correct(ma, q, qd, z, P, enc_H, enc_R, enc_js, enc_wrap, enc_m, enc_gate)
+            ok = st_e == 0
+        for step in range(2):
+            if step == 1 and ok:
+                # Observer.command: the command of t_to, acting from t_to + delay
+                pend_t[tail] = t_to + delay
+                for i in range(na):
+                    pend_tau[tail, i] = taus[k, i]
+                tail += 1
+                head, t_act = _activate(pend_t, pend_tau, head, tail, t, tol, tau_hold)
+                t_command = t_act if t_act > -np.inf else t_command
+            if not (ok and has_imu and (step == 1) == hold_imu):
+                continue
+            if imu_mode != 0 and timeout > 0 and t - t_command >= timeout - 1e-12:
+                ok = False  # the torque after the stamp has timed out: the per-message API's
+                continue
+            tree_b[:] = 0.0
+            tree[:] = 0.0
+            for i in range(na):
+                tree_b[active_idx[i]] = tau_last[i]
+                tree[active_idx[i]] = tau_hold[i]
+            if imu_mode == 2:
+                nis_i, st_i = imu_correct_auto(ma, q, qd, z, P, tree_b, tree, trial, use_after, dist_idx, Lz, point,
+                                               S, g, imu_m, imu_R, Hpt, imu_gate, evidence)
+            else:
+                nis_i, st_i = imu_correct(ma, q, qd, z, P, tree if imu_mode == 1 else tree_b, dist_idx, Lz, point, S,
+                                          g, imu_m, imu_R, Hpt, imu_gate)
+            ok = st_i == 0
+        if not ok:
             q[:] = q0
             qd[:] = qd0
             z[:] = z0
@@ -772,15 +914,13 @@ def run_periods(ma, q, qd, z, P, Phi, Qd, Hpt, info, dist_idx, dist_col, Lz, Fz,
             Qd[:] = Qd0
             Hpt[:] = Hpt0
             info[:] = info0
+            tau_hold[:] = hold0
+            tau_last[:] = last0
+            evidence[:] = ev0
             return k - start
-        if relin:
-            lin_age, lin_T = 0.0, T
-        ctl[0], ctl[1], ctl[2], ctl[3] = t_end, lin_age + 1.0, lin_T, t_to
-        for i in range(na):
-            tau_last[i] = tau_used[i]
-            tau_hold[i] = taus[k, i]
+        ctl[0], ctl[1], ctl[2], ctl[3], ctl[4], ctl[5] = t, lin_age, lin_T, t_command, float(head), float(tail)
         estimate_flat(ma, q, qd, z, P, tau_last, active_idx, dist_idx, Lz, ee_point, ee_comp, branch_joint, stiff,
-                      damp, rest, t_end, out[k])
+                      damp, rest, t, out[k])
         nis_out[k, 0] = nis_e
         nis_out[k, 1] = nis_i
     return stop - start
