@@ -1,7 +1,8 @@
 """The observer's estimates written out: ``estimates.csv`` and a bag of estimates.
 
-- ``estimates.csv``: the table of :func:`~elastic_pm_dyn.observer.results.csv_table`;
-- ``estimates/`` (:func:`write_bag`, a bag, mcap by default) with ``/joint_states``
+- ``estimates.csv``: :func:`~elastic_pm_dyn.observer.results.write_csv` (``t`` since the
+  first stamp and the exact ``stamp_ns``, then the estimates);
+- ``estimates/`` (:func:`write_bag`, a bag, mcap by default; header stamps exact) with ``/joint_states``
   (position, velocity, effort of every tree joint), ``/branch_forces`` (with
   ``force_stddev``) and ``/ee_pose`` for ``elastic-pm-dyn analyze``, plus
   ``/observer/joint_states_stddev`` (JointState whose position/velocity fields hold the
@@ -22,15 +23,15 @@ from elastic_pm_dyn.bags import cdr
 from elastic_pm_dyn.bags.msgtypes import BRANCH_FORCES, JOINT_STATE, POSE_STAMPED
 from elastic_pm_dyn.bags.writer import BagWriter
 from elastic_pm_dyn.observer.ekf import Observer
-from elastic_pm_dyn.observer.results import Rows, csv_header, csv_table
+from elastic_pm_dyn.observer.results import Rows, write_csv
 
 
 def write_outputs(out: Path, obs: Observer, rows: Rows, write_estimates_bag: bool, storage: str) -> None:
     """``estimates.csv`` and (optionally) the ``estimates/`` bag of all rows into ``out`` (nothing if no rows)."""
     if not rows.t:
         return
-    np.savetxt(out / "estimates.csv", csv_table(rows), delimiter=",", header=",".join(csv_header(obs)),
-               comments="", fmt="%.12g")
+    with open(out / "estimates.csv", "w") as fh:
+        write_csv(fh, rows)
     if write_estimates_bag:
         write_bag(out / "estimates", obs, rows, storage)
 

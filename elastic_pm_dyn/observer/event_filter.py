@@ -4,7 +4,9 @@ Events go through the same :class:`~elastic_pm_dyn.observer.stream.ObserverStrea
 live node, ordinary periods many at once in one compiled call (``kernels.run_periods``);
 one estimate row per distinct stamp once the filter runs. Message order: by header stamp,
 ties in bag order (``order="stamp"``, the best offline estimate), or the bag's own order
-(``order="arrival"``: what a live node saw, late samples dropped alike).
+(``order="arrival"``: what a live node saw, late samples dropped alike). Times are seconds
+since the stream's integer-ns origin (:mod:`~elastic_pm_dyn.observer.stream`); the rows
+keep the exact stamps.
 """
 
 from __future__ import annotations
@@ -37,8 +39,8 @@ class _Run:
         self.flat: np.ndarray | None = None
         self.nis: np.ndarray | None = None
 
-    def close(self) -> None:
-        self.ts = np.array([int(ns) * 1e-9 for ns in self.ns])
+    def close(self, origin_ns: int) -> None:
+        self.ts = np.array([(int(ns) - origin_ns) * 1e-9 for ns in self.ns])  # as ObserverStream.seconds
         self.enc = np.array(self.enc, dtype=float).reshape(len(self.ns), len(self.plan[0]))
         self.imu = np.array(self.imu, dtype=float).reshape(len(self.ns), -1 if self.imu else 0)
         self.tau = np.array(self.tau, dtype=float).reshape(len(self.ns), -1)
@@ -59,11 +61,13 @@ def _fast_runs(obs: Observer, stream: ObserverStream, events: list[Event], group
     """Per stamp group, the :class:`_Run` it belongs to, or None: groups of exactly a joint state
     with positions of state joints only, an optional accelerometer sample, then a well-formed
     torque command (:func:`run_events` gives the others to the per-message API, and so does
-    ``kernels.run_periods`` with any period that turns out unusual)."""
+    ``kernels.run_periods`` with any period that turns out unusual). A run ends before a stamp
+    more than ``timing.max_future`` after the one before (the per-message API rejects it)."""
     enc, imu = obs.encoders, obs.imu
     run_of: list = [None] * len(groups)
     if enc is None:
         return run_of
+    origin, max_future = stream.origin_ns, obs.cfg.timing.max_future
     branch_effort = obs.branch is not None and obs.branch.source == "joint_state_effort"
     axes = imu.axes if imu is not None else None
     cur: _Run | None = None
@@ -77,7 +81,8 @@ def _fast_runs(obs: Observer, stream: ObserverStream, events: list[Event], group
             if ej.kind == "joint_state" and ec.kind == "command" and (ei is None or ei.kind == "imu"):
                 names, pos, vel, eff = ej.data
                 if names is not last_names and names != last_names:  # decoded messages repeat them
-                    last_names, last_plan = names, enc.fast_plan(names, obs.nx)
+                    last_names = names
+                    last_plan = None if stream.name_problem(names)[0] else enc.fast_plan(names, obs.nx)
                 plan = last_plan if len(pos) == len(names) else None
                 if plan is not None and not (plan[5] and len(vel)) and not (branch_effort and len(eff)):
                     spec = plan
@@ -92,13 +97,14 @@ def _fast_runs(obs: Observer, stream: ObserverStream, events: list[Event], group
                         spec = None
         if spec is None:
             if cur is not None:
-                cur.close()
+                cur.close(origin)
                 cur = None
             continue
         has_imu = ei is not None
-        if cur is None or cur.plan is not spec or cur.has_imu != has_imu:
+        if cur is None or cur.plan is not spec or cur.has_imu != has_imu or \
+                (ej.stamp_ns - origin) * 1e-9 - (cur.ns[-1] - origin) * 1e-9 > max_future:
             if cur is not None:
-                cur.close()
+                cur.close(origin)
             cur = _Run(gi, spec, has_imu)
         cur.g1 = gi + 1
         cur.ns.append(ej.stamp_ns)
@@ -108,19 +114,21 @@ def _fast_runs(obs: Observer, stream: ObserverStream, events: list[Event], group
         cur.tau.append(tau)
         run_of[gi] = cur
     if cur is not None:
-        cur.close()
+        cur.close(origin)
     return run_of
 
 
 class EventFilter:
     """:func:`run_events`' loop, fed one chunk of events after another: a chunk holds whole
     stamp groups (all events of its stamps, none split across chunks) in the final order, so
-    that feeding the chunks one by one gives what feeding their concatenation gives."""
+    that feeding the chunks one by one gives what feeding their concatenation gives.
+    ``origin_ns``: the stream's time origin (default: the first stamp fed)."""
 
-    def __init__(self, obs: Observer, fast: bool = True, gate: threading.Event | None = None):
+    def __init__(self, obs: Observer, fast: bool = True, gate: threading.Event | None = None,
+                 origin_ns: int | None = None):
         self.obs, self.fast = obs, fast
         self.gate = gate  # cleared while this runs Python (other threads wait), set otherwise
-        self.stream = ObserverStream(obs)
+        self.stream = ObserverStream(obs, origin_ns=origin_ns)
         self.rows = Rows(obs)
         self.nis = dict.fromkeys(SENSORS, np.nan)
         self.fault = ""
@@ -142,6 +150,10 @@ class EventFilter:
     def _feed(self, events: list[Event], gate: threading.Event | None) -> None:
         obs, stream, rows, sensors = self.obs, self.stream, self.rows, SENSORS
         nis, fault, last_row_ns, fixed = self.nis, self.fault, self.last_row_ns, self.fixed
+        if events and stream.origin_ns is None:
+            stream.seconds(events[0].stamp_ns)  # sets the origin
+        rows.origin_ns = stream.origin_ns or 0
+        seconds, max_future = stream.seconds, obs.cfg.timing.max_future
         groups = _groups(events)
         run_of = _fast_runs(obs, stream, events, groups) if self.fast else [None] * len(groups)
         skip = -1  # a group the fast path stopped at: the per-message API's
@@ -155,13 +167,15 @@ class EventFilter:
         while gi < len(groups):
             run = run_of[gi]
             if run is not None and gi != skip and obs.initialised and obs.fault is None \
-                    and run.ns[gi - run.g0] != last_row_ns:
+                    and not obs.time_pending and run.ns[gi - run.g0] != last_row_ns \
+                    and not run.ts[gi - run.g0] - obs.t > max_future:
                 if fixed is None:
                     obs.flat_layout()
-                    imu = obs.imu
+                    imu, p = obs.imu, obs.cfg.process
                     fixed = (obs.mech.arrays, obs.dist_idx, obs.dist_col, obs.Lz, obs.Fz, obs.psd_ae, obs.rel_ae,
                              obs.psd_z, obs.eps_q, obs.eps_v, obs.point, obs.with_point, obs._active_idx,
-                             obs.fast_timing(),
+                             np.array([p.max_interval, p.dt, obs.cfg.timing.stamp_tolerance, p.relinearize_every,
+                                       obs.cfg.timing.command_timeout]),
                              imu.S if imu is not None else np.zeros((0, 3)), imu.g if imu is not None else np.zeros(3),
                              imu.var if imu is not None else np.zeros(0),
                              obs.gate(len(imu.axes)) if imu is not None else np.inf)
@@ -170,7 +184,7 @@ class EventFilter:
                 idx, H, var, js, wrap, _ = run.plan
                 a, b = gi - run.g0, run.g1 - run.g0
                 hold, last = obs.tau_hold.copy(), obs.tau_last.copy()
-                ctl, pend_t, pend_tau = obs.fast_state(b - a)
+                ctl = np.array([obs.t, float(obs._lin_age), obs._lin_T, obs.t_command])
                 if run.flat is None:  # the run's rows (views of it become rows.flat)
                     run.flat, run.nis = np.empty((b, obs._flat_width)), np.empty((b, 2))
                 if gate is not None:  # the compiled call leaves the GIL to the other threads
@@ -178,28 +192,29 @@ class EventFilter:
                 done = kernels.run_periods(
                     ma, obs.q, obs.qd, obs.z, obs.P, obs.Phi, obs.Qd, obs.Hpt, obs.info, dist_idx, dist_col, Lz,
                     Fz, psd_ae, rel_ae, psd_z, eps_q, eps_v, point, with_point, active_idx, hold, last, ctl, timing,
-                    pend_t, pend_tau, obs.evidence, H, var, js, wrap, obs.gate(len(idx)), run.enc, run.has_imu, S, g,
-                    imu_R, imu_gate, run.imu, run.ts,
+                    H, var, js, wrap, obs.gate(len(idx)), run.enc, run.has_imu, S, g, imu_R, imu_gate, run.imu, run.ts,
                     run.tau, obs._ee_point, obs._ee, obs._branch_joint, obs._stiff, obs._damp, obs._rest, a, b,
                     run.flat, run.nis)
                 if gate is not None:
                     gate.clear()
                 if done:
-                    obs.set_fast_state(ctl, pend_t, pend_tau)
+                    obs.t, obs._lin_age, obs._lin_T, obs.t_command = float(ctl[0]), int(ctl[1]), float(ctl[2]), \
+                        float(ctl[3])
                     obs.tau_hold, obs.tau_last = hold, last
                     ns = run.ns[a:a + done]
                     enc_nis = run.nis[a:a + done, 0].tolist()
                     obs._accepted_many("encoders", enc_nis, len(idx))
                     obs.stats["command"].accepted += done
+                    obs.stats["command"].consecutive_rejections = 0
                     first = dict(nis, encoders=enc_nis[0])
                     if run.has_imu:
                         imu_nis = run.nis[a:a + done, 1].tolist()
                         obs._accepted_many("imu", imu_nis, run.imu.shape[1])
                         first["imu"] = imu_nis[0]
-                        stream.results = [UpdateResult("imu", ns[-1] * 1e-9, True, imu_nis[-1], run.imu.shape[1])]
+                        stream.results = [UpdateResult("imu", seconds(ns[-1]), True, imu_nis[-1], run.imu.shape[1])]
                         tail = [[e, i, np.nan] for e, i in zip(enc_nis[1:], imu_nis[1:], strict=True)]
                     else:
-                        stream.results = [UpdateResult("encoders", ns[-1] * 1e-9, True, enc_nis[-1], len(idx))]
+                        stream.results = [UpdateResult("encoders", seconds(ns[-1]), True, enc_nis[-1], len(idx))]
                         tail = [[e, np.nan, np.nan] for e in enc_nis[1:]]
                     rows.t.extend(ns)
                     rows.flat.extend(run.flat[a:a + done])
@@ -218,7 +233,6 @@ class EventFilter:
                 try:
                     if ev.kind == "command":
                         stream.on_torque_command(ev.stamp_ns, *ev.data)
-                        results = obs.released  # accelerometer samples that waited for it
                     elif ev.kind == "joint_state":
                         results = stream.on_joint_state(ev.stamp_ns, *ev.data)
                     elif ev.kind == "imu":
@@ -228,12 +242,13 @@ class EventFilter:
                 except ObserverFault as err:
                     fault = str(err)
                     break
-                for r in results:
-                    if r.accepted and r.dof:
-                        nis[r.sensor] = r.nis
+                if ev.kind != "command":
+                    for r in results:
+                        if r.accepted and r.dof:
+                            nis[r.sensor] = r.nis
                 nxt = events[i + 1].stamp_ns if i + 1 < len(events) else None
                 if nxt != ev.stamp_ns and obs.initialised and ev.stamp_ns != last_row_ns \
-                        and abs(obs.t - ev.stamp_ns * 1e-9) <= obs.cfg.timing.stamp_tolerance:
+                        and abs(obs.t - seconds(ev.stamp_ns)) <= obs.cfg.timing.stamp_tolerance:
                     record(ev.stamp_ns)
                     last_row_ns = ev.stamp_ns
                     nis = dict.fromkeys(sensors, np.nan)
@@ -243,9 +258,11 @@ class EventFilter:
         self.nis, self.fault, self.last_row_ns, self.fixed = nis, fault, last_row_ns, fixed
 
 
-def run_events(obs: Observer, events: list[Event], order: str = "stamp", fast: bool = True
-               ) -> tuple[Rows, ObserverStream, str]:
+def run_events(obs: Observer, events: list[Event], order: str = "stamp", fast: bool = True,
+               origin_ns: int | None = None) -> tuple[Rows, ObserverStream, str]:
     """Feed events through a stream; one estimate per distinct stamp. Returns (rows, stream, fault).
+
+    ``origin_ns``: the stream's time origin (default: the first stamp, at the observer's time).
 
     ``fast``: ordinary stamp groups (a joint state, an accelerometer sample, the command)
     go through ``kernels.run_periods``, many in one compiled call, with the same numbers,
@@ -255,7 +272,7 @@ def run_events(obs: Observer, events: list[Event], order: str = "stamp", fast: b
         events = sorted(events, key=order_key)
     elif order != "arrival":
         raise InputError(f"unknown message order {order!r} (expected stamp or arrival)")
-    f = EventFilter(obs, fast)
+    f = EventFilter(obs, fast, origin_ns=origin_ns)
     f.feed(events)
     return f.rows, f.stream, f.fault
 
@@ -266,11 +283,11 @@ def order_key(e: Event) -> tuple[int, int]:
 
 def filter_all(mech: Mechanism, cfg: ObserverConfig, events: list[Event], order: str,
                log: Callable[[str], object]) -> FilterPass:
-    """An observer started at the first stamp (its observability report logged), then every
-    event through :func:`run_events` at once."""
-    obs = Observer(mech, cfg, t0=min(e.stamp_ns for e in events) * 1e-9)
+    """An observer started at the first stamp (the time origin: t = 0 there; its observability
+    report logged), then every event through :func:`run_events` at once."""
+    obs = Observer(mech, cfg, t0=0.0)
     report = obs.observability()
     log(report.text())
     wall = time.perf_counter()
-    rows, stream, fault = run_events(obs, events, order)
+    rows, stream, fault = run_events(obs, events, order, origin_ns=min(e.stamp_ns for e in events))
     return FilterPass(obs, report, rows, stream, fault, time.perf_counter() - wall)

@@ -29,8 +29,6 @@ import threading
 import time
 from pathlib import Path
 
-import numpy as np
-
 from elastic_pm_dyn.errors import InputError
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.observer import event_filter, results
@@ -38,7 +36,7 @@ from elastic_pm_dyn.observer.bag_input import Event, Topics, iter_events
 from elastic_pm_dyn.observer.bag_output import EstimatesBag, write_outputs
 from elastic_pm_dyn.observer.config import ObserverConfig
 from elastic_pm_dyn.observer.ekf import Observer
-from elastic_pm_dyn.observer.results import FilterPass, OfflineResult, Rows, csv_header, csv_table
+from elastic_pm_dyn.observer.results import FilterPass, OfflineResult, Rows, write_csv
 
 STAMP_LAG_NS = 500_000_000
 """``observe_bag(pipeline=True, order="stamp")``: how far (header stamps) the bag must have
@@ -120,7 +118,6 @@ class _WriteWorker(threading.Thread):
         super().__init__(name="observe-write", daemon=True)
         self.stage, self.obs, self.rows, self.storage, self.with_bag = stage, obs, rows, storage, with_bag
         self.gate = gate
-        self.header = ",".join(csv_header(obs))
         obs.flat_layout()
         self.q: queue.Queue = queue.Queue()
         self.error: BaseException | None = None
@@ -138,14 +135,14 @@ class _WriteWorker(threading.Thread):
                     b = min(a + _WRITE_ROWS, hi)
                     self.gate.wait()
                     t = time.perf_counter()
-                    rows = Rows(self.obs, self.rows.t[a:b], self.rows.flat[a:b], self.rows.nis[a:b])
-                    header = ""
+                    rows = Rows(self.obs, self.rows.t[a:b], self.rows.flat[a:b], self.rows.nis[a:b],
+                                self.rows.origin_ns)
+                    header = fh is None
                     if fh is None:
                         fh = open(self.stage / "estimates.csv", "w")  # noqa: SIM115 - closed below
-                        header = self.header
                         if self.with_bag:
                             bag = EstimatesBag(self.stage / "estimates", self.obs, self.storage)
-                    np.savetxt(fh, csv_table(rows), delimiter=",", header=header, comments="", fmt="%.12g")
+                    write_csv(fh, rows, header)
                     if bag is not None:
                         bag.write(rows)
                     self.busy += time.perf_counter() - t
@@ -199,8 +196,8 @@ def _observe_pipelined(mech: Mechanism, cfg: ObserverConfig, bag: Path, out, top
         filt = state["filter"]
         if filt is None:
             state["t0"] = min(e.stamp_ns for e in events)
-            obs = Observer(mech, cfg, t0=state["t0"] * 1e-9)
-            filt = state["filter"] = event_filter.EventFilter(obs, gate=gate)
+            obs = Observer(mech, cfg, t0=0.0)  # filter time 0 at the first stamp, the time origin
+            filt = state["filter"] = event_filter.EventFilter(obs, gate=gate, origin_ns=state["t0"])
             state["report"] = obs.observability()
             if overlap_write:
                 for d in (out, *out.parents):

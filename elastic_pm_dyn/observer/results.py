@@ -2,9 +2,10 @@
 
 :class:`Rows` (one per distinct stamp once the filter runs) fill up while the filter runs
 (:mod:`~elastic_pm_dyn.observer.event_filter`); :func:`summary` and :func:`finish` make
-``summary.json``; :func:`csv_header` and :func:`csv_table` the CSV's columns: ``t``,
-every tree joint, ``<joint>_vel``, ``F_<branch>``, the standard deviation of each
-(``<column>_std``), ``ee_x``, ``ee_y`` (``ee_z`` if spatial; + std), the disturbance
+``summary.json``; :func:`csv_header` and :func:`write_csv` the CSV: ``t`` (seconds since
+the time origin, the first stamp, exact to the nanosecond), ``stamp_ns`` (the header stamp,
+an integer), every tree joint, ``<joint>_vel``, ``F_<branch>``, the standard deviation of
+each (``<column>_std``), ``ee_x``, ``ee_y`` (``ee_z`` if spatial; + std), the disturbance
 estimates ``d_<joint>`` (+ std) and the NIS of each sensor at that stamp.
 """
 
@@ -14,23 +15,26 @@ import json
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, TextIO
 
 import numpy as np
 
 from elastic_pm_dyn.observer.ekf import Estimate, Observer
+from elastic_pm_dyn.observer.stream import NAME_PROBLEMS
 
 SENSORS = ("encoders", "imu", "branch_forces")  # the NIS columns of a row, in this order
 
 
 @dataclass
 class Rows:
-    """One row per estimate: stamp [ns], ``Observer.estimate_flat`` array, NIS per sensor."""
+    """One row per estimate: stamp [ns], ``Observer.estimate_flat`` array, NIS per sensor;
+    ``origin_ns``: the stamp of filter time 0 (the estimates' ``t`` count from there)."""
 
     obs: Observer | None = None
     t: list = field(default_factory=list)
     flat: list = field(default_factory=list)
     nis: list = field(default_factory=list)
+    origin_ns: int = 0
 
     @property
     def est(self) -> list[Estimate]:
@@ -71,10 +75,13 @@ def summary(bag: str | Path, topics: Any, counts: dict, order: str, events: list
     rows, obs, stream, fault, report = run.rows, run.obs, run.stream, run.fault, run.report
     return {
         "bag": str(bag), "topics": topics.__dict__, "messages": counts, "order": order,
+        "time_origin_ns": int(stream.origin_ns or 0),  # filter time 0 (estimates.csv's t = 0) [ns]
         "rows": len(rows.t), "fault": fault, "health": list(obs.health()),
         "bad_commands": stream.bad_commands,
-        "sensors": {s: {"accepted": st.accepted, "rejected": st.rejected, "late": st.late, "nan_entries": st.nan,
-                        "mean_nis": obs.nis_band(s)[2], "last_rejection": st.last_reason}
+        "joint_states_rejected": {r: stream.joint_state_rejections[r] for r in NAME_PROBLEMS},
+        "last_joint_state_problem": stream.last_joint_state_problem,
+        "sensors": {s: {"accepted": st.accepted, "rejected": st.rejected, "late": st.late, "future": st.future,
+                        "nan_entries": st.nan, "mean_nis": obs.nis_band(s)[2], "last_rejection": st.last_reason}
                     for s, st in obs.stats.items()},
         "duration_s": duration,
         "wall_read_s": wall_read, "wall_filter_s": run.wall,
@@ -99,19 +106,40 @@ def csv_header(obs: Observer) -> list[str]:
     F = [f"F_{b}" for b in obs.branch_names]
     ee = ["ee_x", "ee_y", "ee_z"][:len(mech.ee_components)]
     d = [f"d_{mech.joint_names[j]}" for j in obs.dist_idx]
-    cols = ["t", *names, *vel, *F]
+    cols = ["t", "stamp_ns", *names, *vel, *F]
     cols += [f"{c}_std" for c in (*names, *vel, *F)]
     cols += [*ee, *[f"{c}_std" for c in ee], *d, *[f"{c}_std" for c in d]]
     return [*cols, *[f"nis_{s}" for s in SENSORS]]
 
 
 def csv_table(rows: Rows) -> np.ndarray:
+    """The float columns of the CSV (all after ``t`` and ``stamp_ns``), one row per estimate."""
     lay = rows.obs.flat_layout()
     cols = np.r_[lay["q"], lay["qd"], lay["branch_force"], lay["q_std"], lay["qd_std"], lay["branch_force_std"],
                  lay["ee"], lay["ee_std"], lay["disturbance"], lay["disturbance_std"]]
-    t = np.array(rows.t, dtype=np.int64) * 1e-9
-    return np.column_stack([t, rows.table()[:, cols],
-                            np.array(rows.nis, dtype=float).reshape(len(rows.t), len(SENSORS))])
+    return np.column_stack([rows.table()[:, cols], np.array(rows.nis, dtype=float).reshape(len(rows.t), len(SENSORS))])
+
+
+def seconds_text(ns: int) -> str:
+    """An integer number of nanoseconds as exact decimal seconds (``1500`` -> ``0.0000015``)."""
+    whole, frac = divmod(abs(int(ns)), 1_000_000_000)
+    text = f"{whole}.{frac:09d}".rstrip("0").rstrip(".")
+    return "-" + text if ns < 0 else text
+
+
+def write_csv(fh: TextIO, rows: Rows, header: bool = True) -> None:
+    """``estimates.csv`` rows (after its header line, if ``header``): ``t`` and ``stamp_ns``
+    exact (from the integer stamps; a float would round epoch stamps to 0.24 us), the rest
+    as ``%.12g``."""
+    if header:
+        fh.write(",".join(csv_header(rows.obs)) + "\n")
+    if not rows.t:
+        return
+    values = csv_table(rows)
+    fmt = ",".join(["%.12g"] * values.shape[1])
+    origin = int(rows.origin_ns)
+    fh.writelines(f"{seconds_text(int(ns) - origin)},{int(ns)},{fmt % tuple(v)}\n"
+                  for ns, v in zip(rows.t, values.tolist(), strict=True))
 
 
 def estimates_equal(a: list[Estimate], b: list[Estimate]) -> float:

@@ -20,6 +20,13 @@ wants the accelerometer of t_k in the estimate of t_k sends it before the joint 
 Faults (:class:`~elastic_pm_dyn.observer.ekf.ObserverFault`: singular model, state or
 covariance not finite) stop the filter: messages are refused (counted), nothing is
 published, diagnostics say ERROR until :meth:`ObserverSession.reset`.
+
+Time: the filter counts seconds from the first stamp (:attr:`ObserverStream.origin_ns`, in
+the diagnostics), the estimates are published at the exact header stamps. A message stamped
+more than ``timing.max_future`` ahead of the filter (a clock jump, a bad stamp) is not used
+and counted (``future``); it leaves the filter's time and the state kept for ``~/reset``
+alone. Joint states with duplicate names, without a measured joint or with no joint of the
+model are not used and counted per reason.
 """
 
 from __future__ import annotations
@@ -37,13 +44,12 @@ from elastic_pm_dyn.errors import ElasticPmDynError, InputError
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.observer import Observer, ObserverConfig, ObserverFault
 from elastic_pm_dyn.observer.ekf import OK, WARN, Estimate, UpdateResult
-from elastic_pm_dyn.observer.stream import ObserverStream, seconds
+from elastic_pm_dyn.observer.stream import NAME_PROBLEMS, ObserverStream
 
 KINDS = ("torque_command", "joint_state", "imu", "branch_forces")
 SOURCE = "plant node"  # the config's error prefix, replaced by "parameter '...'"
 MAX_DIFFERENCE_INTERVAL = 0.1  # [s] reset: difference motor rates over at most this
 DIFFERENCE_MARGIN = 3.0  # reset: std of differenced rates = this x the encoder-noise part
-MAX_GAP = 1.0  # [s] a message stamped further ahead of the filter stops it (no prediction over such a gap)
 
 
 def observer_config(flat: Mapping[str, Any]) -> ObserverConfig:
@@ -121,23 +127,28 @@ class ObserverSession:
     # ------------------------------------------------------------------ inputs
     def torque_command(self, ns: int, names: Sequence[str], effort: Sequence[float]) -> Outcome:
         """``names`` empty: ``effort`` in the command-joint order (Float64MultiArray)."""
-        bad = self.stream.bad_commands
+        bad, future = self.stream.bad_commands, self.obs.stats["command"].future
         done, out = self._run("torque_command", ns, lambda: self.stream.on_torque_command(ns, names, effort))
         if self.stream.bad_commands != bad:
             self._window["torque commands rejected"] += 1
             out.problems.append(f"torque command rejected: {self.stream.last_error}")
         elif done or self.obs.fault is not None:
             self._command = (int(ns), list(names), np.array(effort, dtype=float))
+        elif self.obs.stats["command"].future != future:
+            self._window["torque commands stamped too far ahead"] += 1
+            out.problems.append(f"torque command not used: {self.obs.stats['command'].last_reason}")
         elif done is False:
             self._window["torque commands late"] += 1
-            out.problems.append(f"torque command stamped {seconds(ns):.6f} s, before the previous one: ignored")
+            out.problems.append(f"torque command stamped {self.stream.seconds(ns):.6f} s, before the previous one: "
+                                "ignored")
         return out
 
     def joint_state(self, ns: int, names: Sequence[str], position: Sequence[float], velocity: Sequence[float] = (),
                     effort: Sequence[float] = ()) -> Outcome:
-        self._remember(ns, names, position, velocity)
         results, out = self._run("joint_state", ns,
                                  lambda: self.stream.on_joint_state(ns, names, position, velocity, effort))
+        if not any(r.reason in _NOT_KEPT for r in results or ()):  # an outlier is no state to reset to
+            self._remember(ns, names, position, velocity)
         return self._finish("joint_state", ns, results, out)
 
     def imu(self, ns: int, linear_acceleration: Sequence[float], frame_id: str = "") -> Outcome:
@@ -153,14 +164,8 @@ class ObserverSession:
         out = Outcome()
         obs = self.obs
         if not self._started:
-            obs.reset(seconds(ns))
+            obs.reset(self.stream.seconds(ns))
             self._started = True
-        if obs.initialised and obs.fault is None and seconds(ns) - obs.t > MAX_GAP:
-            obs.fault = (f"a {kind} message stamped {seconds(ns) - obs.t:.3g} s after the filter's time "
-                         f"{obs.t:.6f} s (more than {MAX_GAP:g} s without samples, or a clock change)")
-            self.faults += 1
-            out.stopped = f"observer stopped: {obs.fault}; call ~/reset"
-            return None, out
         stopped = obs.fault is not None
         t0 = time.perf_counter()
         try:
@@ -194,19 +199,29 @@ class ObserverSession:
                 continue
             if r.reason == "uninitialised":  # expected until the first joint state; health says so
                 continue
+            if r.reason in NAME_PROBLEMS:  # the stream's, not the observer's
+                self._window[f"joint states with {r.reason} names"] += 1
+                out.problems.append(self.stream.last_joint_state_problem)
+                continue
             if r.reason != "nan":
                 self._window[f"{r.sensor} samples {_REASONS.get(r.reason, r.reason)}"] += 1
             why = self.obs.stats[r.sensor].last_reason if r.reason != "empty" else "no configured branch in it"
             out.problems.append(f"{r.sensor} sample at t = {r.t:.6f} s not used ({r.reason}): {why}")
         obs = self.obs
         out.publish = (kind == self.primary and obs.initialised and obs.fault is None
-                       and abs(obs.t - seconds(ns)) <= self.cfg.timing.stamp_tolerance)
+                       and abs(obs.t - self.stream.seconds(ns)) <= self.cfg.timing.stamp_tolerance)
         return out
 
     def _remember(self, ns: int, names: Sequence[str], position: Sequence[float], velocity: Sequence[float]) -> None:
-        """Keep the latest two joint states that give every motor position (for :meth:`reset`)."""
-        if len(position) != len(names) or (self._joint_states and ns <= self._joint_states[-1].ns):
+        """Keep the latest two joint states that give every motor position (for :meth:`reset`);
+        an older one only after the clock went back by more than ``timing.max_future``."""
+        if len(position) != len(names):
             return
+        if self._joint_states and ns <= self._joint_states[-1].ns and \
+                not (self._joint_states[-1].ns - ns) * 1e-9 > self.cfg.timing.max_future:
+            return
+        if self._joint_states and ns < self._joint_states[-1].ns:
+            self._joint_states.clear()  # a clock that went back: no differencing across the jump
         lookup = dict(zip(names, position, strict=True))
         if all(n in lookup and np.isfinite(lookup[n]) for n in self.mech.active_names):
             vel = np.array(velocity, dtype=float) if len(velocity) == len(names) else None
@@ -226,8 +241,11 @@ class ObserverSession:
             parts.append("not used since the last report: "
                          + ", ".join(f"{what} {n}" for what, n in sorted(self._window.items())))
         values = {"mode": "observer", "sensors": ", ".join(self.cfg.sensors),
-                  "initialised": str(obs.initialised).lower()}
+                  "initialised": str(obs.initialised).lower(), "time_origin_ns": str(stream.origin_ns or 0)}
         values |= obs.diagnostics()
+        values |= {f"joint_states_rejected.{r}": str(stream.joint_state_rejections[r]) for r in NAME_PROBLEMS}
+        if stream.last_joint_state_problem:
+            values["last_joint_state_problem"] = stream.last_joint_state_problem
         values |= {f"messages.{k}": str(n) for k, n in self.received.items()}
         values |= {
             "estimates_published": str(self.published), "commands_rejected": str(stream.bad_commands),
@@ -247,18 +265,20 @@ class ObserverSession:
     def reset(self) -> str:
         """Restart the filter from the latest measured joint state (motor rates from its
         velocities or by differencing the one before), keeping the latest torque command;
-        without one, from the model (``initial.source: model``) or the next joint state."""
+        without one, from the model (``initial.source: model``) or the next joint state, the
+        filter's time then from the next message (never from a stamp rejected as too far ahead)."""
         obs = self.obs
         if self._joint_states:
             js = self._joint_states[-1]
             rates, std, how = self._rates()
+            t = self.stream.seconds(js.ns)
             try:
-                ok = obs.initialise_from_joint_state(seconds(js.ns), js.names, js.position, rates, std)
+                ok = obs.initialise_from_joint_state(t, js.names, js.position, rates, std)
             except InputError:
                 ok = False
             if ok:
                 self._started = True
-                text = f"re-initialised from the measured joint state at t = {seconds(js.ns):.6f} s ({how})"
+                text = f"re-initialised from the measured joint state at t = {t:.6f} s ({how})"
                 if self._command is not None:  # the controller's latest command holds on
                     try:
                         self.stream.on_torque_command(*self._command)
@@ -266,9 +286,9 @@ class ObserverSession:
                         return f"{text}; the latest torque command stopped it again: {err}"
                 return text
         if self.cfg.initial.source == "model" and self._started:
-            obs.reset(obs.t)
-            return f"reset to the model's initial state at rest at t = {obs.t:.6f} s"
-        obs.reset(obs.t, initialised=False)  # before any message the filter has no time yet
+            obs.reset()
+            return "reset to the model's initial state at rest at the next message's stamp"
+        obs.reset(initialised=False)  # the next joint state sets state and time
         return ("reset: starting from the model at the next message" if self.cfg.initial.source == "model"
                 else "reset: waiting for a measured joint state with every motor position")
 
@@ -287,7 +307,7 @@ class ObserverSession:
                 how = "measured motor rates"
         if len(self._joint_states) == 2:
             prev = self._joint_states[0]
-            dt = seconds(js.ns - prev.ns)
+            dt = (js.ns - prev.ns) * 1e-9
             before = dict(zip(prev.names, prev.position, strict=True))
             missing = [i for i, n in enumerate(js.names) if n in active and not np.isfinite(rates[i])]
             if missing and 0 < dt <= MAX_DIFFERENCE_INTERVAL:
@@ -316,7 +336,9 @@ class ObserverSession:
         return f"estimate set at t = {obs.t:.6f} s"
 
 
-_REASONS = {"gate": "gated out", "late": "late", "frame": "in a wrong frame", "empty": "without a configured branch"}
+_REASONS = {"gate": "gated out", "late": "late", "future": "stamped too far ahead", "frame": "in a wrong frame",
+            "empty": "without a configured branch"}
+_NOT_KEPT = ("future", *NAME_PROBLEMS)  # joint states :meth:`ObserverSession.reset` must not start from
 
 
 def _mean(x: list[float]) -> float:
