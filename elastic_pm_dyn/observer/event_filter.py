@@ -171,11 +171,10 @@ class EventFilter:
                     and not run.ts[gi - run.g0] - obs.t > max_future:
                 if fixed is None:
                     obs.flat_layout()
-                    imu, p = obs.imu, obs.cfg.process
+                    imu = obs.imu
                     fixed = (obs.mech.arrays, obs.dist_idx, obs.dist_col, obs.Lz, obs.Fz, obs.psd_ae, obs.rel_ae,
                              obs.psd_z, obs.eps_q, obs.eps_v, obs.point, obs.with_point, obs._active_idx,
-                             np.array([p.max_interval, p.dt, obs.cfg.timing.stamp_tolerance, p.relinearize_every,
-                                       obs.cfg.timing.command_timeout]),
+                             obs.fast_timing(),
                              imu.S if imu is not None else np.zeros((0, 3)), imu.g if imu is not None else np.zeros(3),
                              imu.var if imu is not None else np.zeros(0),
                              obs.gate(len(imu.axes)) if imu is not None else np.inf)
@@ -184,7 +183,7 @@ class EventFilter:
                 idx, H, var, js, wrap, _ = run.plan
                 a, b = gi - run.g0, run.g1 - run.g0
                 hold, last = obs.tau_hold.copy(), obs.tau_last.copy()
-                ctl = np.array([obs.t, float(obs._lin_age), obs._lin_T, obs.t_command])
+                ctl, pend_t, pend_tau = obs.fast_state(b - a)
                 if run.flat is None:  # the run's rows (views of it become rows.flat)
                     run.flat, run.nis = np.empty((b, obs._flat_width)), np.empty((b, 2))
                 if gate is not None:  # the compiled call leaves the GIL to the other threads
@@ -192,14 +191,14 @@ class EventFilter:
                 done = kernels.run_periods(
                     ma, obs.q, obs.qd, obs.z, obs.P, obs.Phi, obs.Qd, obs.Hpt, obs.info, dist_idx, dist_col, Lz,
                     Fz, psd_ae, rel_ae, psd_z, eps_q, eps_v, point, with_point, active_idx, hold, last, ctl, timing,
-                    H, var, js, wrap, obs.gate(len(idx)), run.enc, run.has_imu, S, g, imu_R, imu_gate, run.imu, run.ts,
+                    pend_t, pend_tau, obs.evidence, H, var, js, wrap, obs.gate(len(idx)), run.enc, run.has_imu, S, g,
+                    imu_R, imu_gate, run.imu, run.ts,
                     run.tau, obs._ee_point, obs._ee, obs._branch_joint, obs._stiff, obs._damp, obs._rest, a, b,
                     run.flat, run.nis)
                 if gate is not None:
                     gate.clear()
                 if done:
-                    obs.t, obs._lin_age, obs._lin_T, obs.t_command = float(ctl[0]), int(ctl[1]), float(ctl[2]), \
-                        float(ctl[3])
+                    obs.set_fast_state(ctl, pend_t, pend_tau)
                     obs.tau_hold, obs.tau_last = hold, last
                     ns = run.ns[a:a + done]
                     enc_nis = run.nis[a:a + done, 0].tolist()
@@ -233,6 +232,7 @@ class EventFilter:
                 try:
                     if ev.kind == "command":
                         stream.on_torque_command(ev.stamp_ns, *ev.data)
+                        results = obs.released  # accelerometer samples that waited for it
                     elif ev.kind == "joint_state":
                         results = stream.on_joint_state(ev.stamp_ns, *ev.data)
                     elif ev.kind == "imu":
@@ -242,10 +242,9 @@ class EventFilter:
                 except ObserverFault as err:
                     fault = str(err)
                     break
-                if ev.kind != "command":
-                    for r in results:
-                        if r.accepted and r.dof:
-                            nis[r.sensor] = r.nis
+                for r in results:
+                    if r.accepted and r.dof:
+                        nis[r.sensor] = r.nis
                 nxt = events[i + 1].stamp_ns if i + 1 < len(events) else None
                 if nxt != ev.stamp_ns and obs.initialised and ev.stamp_ns != last_row_ns \
                         and abs(obs.t - seconds(ev.stamp_ns)) <= obs.cfg.timing.stamp_tolerance:
