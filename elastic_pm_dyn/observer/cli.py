@@ -82,9 +82,15 @@ def cmd_observe(args: argparse.Namespace) -> int:
                       not args.no_bag, log=lambda s: print(s, file=sys.stderr))
     s = res.summary
     sens = ", ".join(f"{k} {v['accepted']} ok/{v['rejected']} gated/{v['late']} late"
+                     + (f"/{v['future']} future" if v["future"] else "")
                      for k, v in s["sensors"].items() if k in cfg.sensors)
     print(f"{s['rows']} estimates over {s['duration_s']:.3f} s -> {args.out}  ({sens}; "
           f"{s['speed_factor']:.1f}x real time)")
+    names = {reason: n for reason, n in s["joint_states_rejected"].items() if n}
+    if names:
+        print("elastic-pm-dyn: warning: joint states not used: "
+              + ", ".join(f"{n} with {reason} names" for reason, n in names.items())
+              + f" (last: {s['last_joint_state_problem']})", file=sys.stderr)
     level, message = s["health"]
     if level:
         print(f"elastic-pm-dyn: warning: observer health: {message}", file=sys.stderr)
