@@ -7,7 +7,13 @@ overridable per topic with ``qos_overrides.<topic>.subscription.*``):
 ``measured_joint_states`` (sensor_msgs/JointState), ``ee_imu`` (sensor_msgs/Imu, if
 ``imu`` is among ``observer.sensors``), ``measured_branch_forces``
 (elastic_pm_dyn_msgs/BranchForces, if ``branch_forces`` is and its source is that topic).
-Time is the messages' header stamps, never their arrival.
+Time is the messages' header stamps, never their arrival: the filter counts seconds from the
+first one (an integer-ns origin, so epoch stamps keep their nanoseconds) and every estimate
+is published at the exact stamp of its message. A message stamped more than
+``observer.timing.max_future`` ahead of the filter is not used (counted as ``future``), and
+a joint state with duplicate names, without a measured joint or with no joint of the model
+is not used either (counted per reason); one throttled warning line each, the counts in
+``/diagnostics``.
 
 Outputs on the plant's own topics, so RViz and the analysis work unchanged:
 ``joint_states`` (every tree joint; effort = command + estimated disturbance on the motors,
@@ -15,7 +21,8 @@ spring force on the elastic joints), ``branch_forces`` (with ``force_stddev``), 
 ``markers``; plus ``topics.joint_states_stddev`` (default ``~/joint_states_stddev``:
 JointState whose position/velocity hold the standard deviations) and ``/diagnostics``
 (health, NIS statistics, gated samples, update times). ``~/reset`` restarts the filter from
-the latest measured joint state, ``~/set_state`` from a given one.
+the latest measured joint state it used (never from one stamped too far ahead),
+``~/set_state`` from a given one.
 
 The callbacks convert messages and call :class:`~elastic_pm_dyn.ros.observer_session.ObserverSession`
 (no physics here). They never overlap: the node runs in a single-threaded executor.
