@@ -689,8 +689,10 @@ def imu_correct_auto(ma, q, qd, z, P, tau_before, tau_after, trial, use_after, d
     auto``). The sample is predicted under both hypotheses at the same state: y_b under
     ``tau_before`` (the torque of the interval that ended at the sample, a(t_k-)) and y_a under
     ``tau_after`` (the torque acting from it on, a(t_k+)); both innovations share S = H P H^T + R.
-    evidence += [NIS_b, NIS_a, log det(2 pi S), 1], so that the Gaussian log-likelihoods of the
-    samples so far are -(evidence[0 or 1] + evidence[2]) / 2. The correction uses the after
+    evidence += [min(NIS_b, gate), min(NIS_a, gate), log det(2 pi S), 1], so that the
+    log-likelihoods of the samples so far are -(evidence[0 or 1] + evidence[2]) / 2: Gaussian,
+    the NIS capped at the gate so that an outlier (beyond it under both) weighs nothing and a
+    sample weighs at most gate / 2 nats for one hypothesis. The correction uses the after
     hypothesis if ``use_after``, or, on ``trial``, whichever is the likelier so far (this sample
     included). Returns (NIS, status) as :func:`imu_correct`."""
     nd = dist_idx.shape[0]
@@ -724,8 +726,8 @@ def imu_correct_auto(ma, q, qd, z, P, tau_before, tau_after, trial, use_after, d
     nis_b, logdet = innovation_nis(P, H, R, r_b)
     nis_a, _ = innovation_nis(P, H, R, r_a)
     if np.isfinite(nis_b) and np.isfinite(nis_a):
-        evidence[0] += nis_b
-        evidence[1] += nis_a
+        evidence[0] += min(nis_b, gate)
+        evidence[1] += min(nis_a, gate)
         evidence[2] += logdet + nz * np.log(2.0 * np.pi)
         evidence[3] += 1.0
     after = evidence[1] < evidence[0] if trial else use_after
