@@ -93,13 +93,13 @@ def test_matching_command_delay_beats_a_mismatched_one(five_bar, delayed_rec) ->
 
 
 # ---------------------------------------------------------------------------- message order
-@pytest.mark.parametrize(("timing", "delay"), [("after_command", 0), ("auto", 0), ("after_command", 1),
-                                               ("before_command", 1)])
-def test_command_and_samples_at_one_stamp_commute(five_bar, timing, delay) -> None:
+@pytest.mark.parametrize(("recorded", "timing", "delay"), [
+    ("after_command", "after_command", 0), ("after_command", "auto", 0), ("before_command", "auto", 0),
+    ("after_command", "after_command", 1), ("before_command", "before_command", 1)])
+def test_command_and_samples_at_one_stamp_commute(five_bar, recorded, timing, delay) -> None:
     """The command of t_k before or after the samples of t_k: the same estimates (an
-    after_command sample waits for its command)."""
-    rec = manoeuvre_recording(five_bar, duration=0.15, seed=3, accel_timing=timing.replace("auto", "after_command"),
-                              command_delay=delay)
+    after_command sample waits for its command; auto under before_command weighs it then)."""
+    rec = manoeuvre_recording(five_bar, duration=0.15, seed=3, accel_timing=recorded, command_delay=delay)
     runs = []
     cfg = ObserverConfig.from_parameters({"imu.sample_timing": timing, "command_delay": delay * 1e-3})
     for command_first in (False, True):
@@ -186,14 +186,17 @@ def count_fast(monkeypatch):
 
 @pytest.fixture(scope="module")
 def short_after(five_bar):
-    """0.2 s with a(t_k+), commands acting at their stamp (0) or 1 or 2 periods later."""
-    return {delay: manoeuvre_recording(five_bar, duration=0.2, seed=5, accel_timing="after_command",
-                                       command_delay=delay) for delay in (0, 1, 2)}
+    """0.2 s with a(t_k+) (or a(t_k-)), commands acting at their stamp (0) or 1 or 2 periods later."""
+    out = {delay: manoeuvre_recording(five_bar, duration=0.2, seed=5, accel_timing="after_command",
+                                      command_delay=delay) for delay in (0, 1, 2)}
+    out["before"] = manoeuvre_recording(five_bar, duration=0.2, seed=5)
+    return out
 
 
 @pytest.mark.parametrize(("params", "rec_delay", "min_fast"), [
     ({"imu.sample_timing": "after_command"}, 0, 0.8),
     ({"imu.sample_timing": "auto"}, 0, 0.8),
+    ({"imu.sample_timing": "auto"}, "before", 0.8),  # corrected at once, weighed with the command
     ({"imu.sample_timing": "after_command", "command_delay": 1e-3}, 1, 0.8),
     ({"imu.sample_timing": "auto", "command_delay": 1e-3}, 1, 0.8),
     ({"imu.sample_timing": "auto", "command_delay": 2e-3}, 2, 0.8),

@@ -39,11 +39,14 @@ which side of it it was taken:
   an accelerometer sample waits (is held) until the command of its stamp, or any message
   stamped later, arrives, then is corrected at t_k with the torque acting then. So a live node
   and the offline pass give the same estimates whichever arrives first;
-- ``auto``: both hypotheses are evaluated on every sample at the same state (two predicted
-  accelerations, one innovation covariance S; ``kernels.imu_correct_auto``). Over the first
-  :data:`TIMING_TRIAL` seconds after (re)initialisation each sample is corrected with the
-  likelier so far; then the likelier is chosen (:class:`TimingDecision`, with both Gaussian
-  log-likelihoods, in ``timing_decisions``, :meth:`timing_summary` and :meth:`diagnostics`).
+- ``auto``: both hypotheses are weighed on every sample at the same (prior) state (two
+  predicted accelerations, one innovation covariance S; ``kernels.imu_innovations``). Over the
+  first :data:`TIMING_TRIAL` seconds after (re)initialisation each sample is corrected with the
+  likelier so far (this sample not counted); then the likelier is chosen (:class:`TimingDecision`,
+  with both log-likelihoods, in ``timing_decisions``, :meth:`timing_summary` and
+  :meth:`diagnostics`). Under ``before_command`` a sample is corrected at once and weighed when
+  the command of its stamp arrives (so a live node's estimate at the joint state of t_k holds
+  the accelerometer of t_k, as today's); under ``after_command`` it waits, as above.
   Every :data:`TIMING_RECHECK` seconds the evidence since the last check is weighed again, and
   the choice switches only if the other is likelier by :data:`TIMING_SWITCH_EVIDENCE` (logged
   likewise). Where no command starts to act at a sample (a delay that is not a whole number
@@ -210,12 +213,14 @@ class Observer:
         self.imu_mode = TIMING_MODES[cfg.imu.sample_timing] if self.imu is not None else 0
         self.imu_after = self.imu_mode == 1  # the hypothesis in use (auto: the choice so far)
         self.timing_trial = self.imu_mode == 2  # auto before the first choice
-        self._hold_imu = self.imu_mode != 0 and self.delay <= cfg.timing.stamp_tolerance
+        # no delay: the command that starts to act at a sample is the one of its own stamp
+        self._no_delay = self.delay <= cfg.timing.stamp_tolerance
         self.evidence = np.zeros(4)  # kernels.imu_correct_auto's, since the last choice or check
         self.timing_decisions: list[TimingDecision] = []  # the first choice and every switch
         self.timing_last: TimingDecision | None = None  # the latest choice or check
         self._pending: deque = deque()  # (time it acts from, torque) of delayed commands
         self._held: tuple[float, np.ndarray] | None = None  # an accelerometer sample waiting for its command
+        self._deferred: tuple | None = None  # (t, the sample's prior) to weigh when its command comes (auto)
         self.released: list[UpdateResult] = []  # held samples the last call corrected
         self._gates: dict[int, float] = {}
         self.branch_names = [b.name for b in model.branches]
@@ -282,6 +287,7 @@ class Observer:
         self.Hpt = np.zeros((3, self.nx))
         self.info = np.zeros(2)
         self._held = None
+        self._deferred = None
         self.evidence[:] = 0.0
         self._t_decide = self._next_check(self.t)
         if self.with_point:
@@ -361,8 +367,8 @@ class Observer:
         tol = self.cfg.timing.stamp_tolerance
         pc = self.cfg.process
         timeout = self.cfg.timing.command_timeout
-        if self._held is not None and t_to - self._held[0] > tol:
-            self._flush_held()  # the command of its stamp did not come: the torque acting now
+        if self._waiting_since() < t_to - tol:
+            self._settle()  # the command of its stamp did not come: the torque acting now
         self._activate_due()
         while t_to - self.t > tol:
             end = min(t_to, self.t + pc.max_interval)
@@ -476,8 +482,7 @@ class Observer:
         self._activate_due(None if self.initialised else t)
         st.accepted += 1
         st.consecutive_rejections = 0
-        if self._held is not None:
-            self._flush_held()  # the sample of this stamp waited for it
+        self._settle()  # the sample of this stamp waited for it
         return True
 
     def _check_tau(self, tau) -> np.ndarray:
@@ -534,9 +539,9 @@ class Observer:
 
     def update_imu(self, t: float, linear_acceleration, frame_id: str = "") -> UpdateResult | None:
         """Accelerometer sample (x, y, z of sensor_msgs/Imu linear_acceleration). None if there is
-        no accelerometer, or if the sample waits for the command of its stamp (``after_command``
-        or ``auto`` without a delay): that command or the next later message corrects it
-        (its result then in :attr:`released`)."""
+        no accelerometer, or if the sample waits for the command of its stamp (no delay, under the
+        after_command hypothesis): that command or the next later message corrects it (its
+        result then in :attr:`released`)."""
         self.released = []
         if self.imu is None:
             return None
@@ -549,38 +554,64 @@ class Observer:
         if late is not None:
             return late
         acc = np.array(linear_acceleration, dtype=float)
-        if self._hold_imu and self._newest_command() < t + self.delay - self.cfg.timing.stamp_tolerance:
-            if self._held is not None:
-                self._flush_held()  # two samples at one stamp: the first goes now
+        # With no delay the command that starts to act at t may still come (the command of t)
+        waiting = (self.imu_mode != 0 and self._no_delay
+                   and self._newest_command() < t + self.delay - self.cfg.timing.stamp_tolerance)
+        if waiting and self._use_after():
+            self._settle()  # two samples at one stamp: the first goes now
             self._held = (t, acc)
             return None
-        return self._imu_update(t, acc)
+        return self._imu_update(t, acc, defer=waiting)
 
-    def _flush_held(self) -> None:
-        t, acc = self._held
-        self._held = None
-        self.released.append(self._imu_update(t, acc))
+    def _use_after(self) -> bool:
+        """The hypothesis in use: ``auto``'s likelier so far before its first choice."""
+        return bool(self.evidence[1] < self.evidence[0]) if self.timing_trial else self.imu_after
 
-    def _imu_update(self, t: float, acc: np.ndarray) -> UpdateResult:
+    def _waiting_since(self) -> float:
+        """Stamp of a sample that waits for its command (held, or to be weighed), else inf."""
+        if self._held is not None:
+            return self._held[0]
+        return self._deferred[0] if self._deferred is not None else np.inf
+
+    def _settle(self) -> None:
+        """What waited for the command of its stamp: a deferred weighing (``auto``: the sample's
+        prior under both hypotheses, the torque acting now as the after one) and a held sample."""
+        if self._deferred is not None:
+            _, meas, q, qd, z, P, Hpt, tau_before = self._deferred
+            self._deferred = None
+            imu = self.imu
+            kernels.imu_innovations(self.mech.arrays, q, qd, z, P, tau_before, self._tree_tau(self._torque_at(self.t)),
+                                    self.dist_idx, self.Lz, self.point, imu.S, imu.g, meas, imu.var, Hpt,
+                                    self.gate(len(meas)), self.evidence)
+        if self._held is not None:
+            t, acc = self._held
+            self._held = None
+            self.released.append(self._imu_update(t, acc))
+
+    def _imu_update(self, t: float, acc: np.ndarray, defer: bool = False) -> UpdateResult:
         """Correct with an accelerometer sample at the filter's time (stamp t): the torque before
-        it is the last prediction piece's, the one after it the torque acting now."""
+        it is the last prediction piece's, the one after it the torque acting now. ``defer``
+        (``auto`` under before_command, the command of t still to come): weigh it then."""
         imu = self.imu
         meas = acc[imu.axes]
         tau_before = self._tree_tau(self.tau_last)
         tau_after = self._tree_tau(self._torque_at(self.t))
-        after = self.imu_after if not self.timing_trial else self.evidence[1] < self.evidence[0]
+        after = self._use_after()
         if not np.all(np.isfinite(meas)):  # the slow path drops NaN axes and reports them (no evidence)
             a = np.empty(3)
             kernels.point_acceleration(self.mech.arrays, self.q, self.qd, tau_after if after else tau_before,
                                        self.dist_idx, self.disturbance(), self.point, a)
             return self._correct(imu.sample(acc, a, self.Hpt), t)
         gate = self.gate(len(meas))
-        if self.imu_mode == 2:
+        if self.imu_mode == 2 and not defer:
             nis, status = kernels.imu_correct_auto(self.mech.arrays, self.q, self.qd, self.z, self.P, tau_before,
-                                                   tau_after, self.timing_trial, self.imu_after, self.dist_idx,
-                                                   self.Lz, self.point, imu.S, imu.g, meas, imu.var, self.Hpt, gate,
-                                                   self.evidence)
+                                                   tau_after, after, self.dist_idx, self.Lz, self.point, imu.S, imu.g,
+                                                   meas, imu.var, self.Hpt, gate, self.evidence)
         else:
+            if defer:
+                self._settle()
+                self._deferred = (t, meas.copy(), self.q.copy(), self.qd.copy(), self.z.copy(), self.P.copy(),
+                                  self.Hpt.copy(), tau_before)
             nis, status = kernels.imu_correct(self.mech.arrays, self.q, self.qd, self.z, self.P,
                                               tau_after if after else tau_before, self.dist_idx, self.Lz, self.point,
                                               imu.S, imu.g, meas, imu.var, self.Hpt, gate)
@@ -596,8 +627,7 @@ class Observer:
         """``auto``: at a stamp from the decision time on, choose (first) or check the choice."""
         if not t >= self._t_decide - self.cfg.timing.stamp_tolerance:
             return
-        if self._held is not None:
-            self._flush_held()  # its evidence belongs to this window
+        self._settle()  # what waits belongs to this window
         nis_b, nis_a, logdet, n = self.evidence
         if self.timing_trial and n < TIMING_MIN_SAMPLES:
             self._t_decide = t + TIMING_TRIAL  # too few samples yet: weigh on
@@ -639,17 +669,17 @@ class Observer:
         """``kernels.run_periods``' timing array (fixed for the observer's life)."""
         p, tm = self.cfg.process, self.cfg.timing
         return np.array([p.max_interval, p.dt, tm.stamp_tolerance, p.relinearize_every, tm.command_timeout,
-                         self.delay, float(self.imu_mode), float(self._hold_imu)])
+                         self.delay, float(self.imu_mode), float(self._no_delay)])
 
     def fast_state(self, periods: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``kernels.run_periods``' control array and delayed-command queue (room for ``periods``
-        more); a held sample stops the fast path at once (the per-message API corrects it)."""
+        more); a sample waiting for its command stops the fast path at once (the per-message API's)."""
         n = len(self._pending)
         pend_t = np.empty(n + periods)
         pend_tau = np.empty((n + periods, len(self.mech.active)))
         for i, (ta, tau) in enumerate(self._pending):
             pend_t[i], pend_tau[i] = ta, tau
-        t_stop = -np.inf if self._held is not None else self._t_decide
+        t_stop = -np.inf if self._waiting_since() < np.inf else self._t_decide
         ctl = np.array([self.t, float(self._lin_age), self._lin_T, self.t_command, 0.0, float(n), t_stop,
                         float(self.timing_trial), float(self.imu_after)])
         return ctl, pend_t, pend_tau

@@ -683,37 +683,35 @@ def innovation_nis(P, H, R, r):
 
 
 @njit(cache=True)
-def imu_correct_auto(ma, q, qd, z, P, tau_before, tau_after, trial, use_after, dist_idx, Lz, point, S, g, meas, R,
-                     Hpt, gate, evidence):
-    """Accelerometer correction when its sample timing is learnt from the data (``imu.sample_timing:
-    auto``). The sample is predicted under both hypotheses at the same state: y_b under
-    ``tau_before`` (the torque of the interval that ended at the sample, a(t_k-)) and y_a under
-    ``tau_after`` (the torque acting from it on, a(t_k+)); both innovations share S = H P H^T + R.
-    evidence += [min(NIS_b, gate), min(NIS_a, gate), log det(2 pi S), 1], so that the
-    log-likelihoods of the samples so far are -(evidence[0 or 1] + evidence[2]) / 2: Gaussian,
-    the NIS capped at the gate so that an outlier (beyond it under both) weighs nothing and a
-    sample weighs at most gate / 2 nats for one hypothesis. The correction uses the after
-    hypothesis if ``use_after``, or, on ``trial``, whichever is the likelier so far (this sample
-    included). Returns (NIS, status) as :func:`imu_correct`."""
+def imu_innovations(ma, q, qd, z, P, tau_before, tau_after, dist_idx, Lz, point, S, g, meas, R, Hpt, gate, evidence):
+    """The accelerometer sample predicted under both timing hypotheses at the same state (for
+    ``imu.sample_timing: auto``): y_b under ``tau_before`` (the torque of the interval that ended
+    at the sample, a(t_k-)) and y_a under ``tau_after`` (the torque acting from it on, a(t_k+));
+    both innovations share S = H P H^T + R, H = S Hpt. Adds [min(NIS_b, gate), min(NIS_a, gate),
+    log det(2 pi S), 1] to ``evidence``, so that the log-likelihoods of the samples so far are
+    -(evidence[0 or 1] + evidence[2]) / 2: Gaussian, the NIS capped at the gate so that an
+    outlier (beyond it under both) weighs nothing and a sample weighs at most gate / 2 nats for
+    one hypothesis. Returns (r_b, r_a, H, False if the model is singular there)."""
     nd = dist_idx.shape[0]
     d = np.zeros(nd)
     for k in range(nd):
         for m in range(z.shape[0]):
             d[k] += Lz[k, m] * z[m]
+    nz = S.shape[0]
+    r_b = np.empty(nz)
+    r_a = np.empty(nz)
+    H = S @ Hpt
     a_b = np.empty(3)
     a_a = np.empty(3)
     if not point_acceleration(ma, q, qd, tau_before, dist_idx, d, point, a_b) >= SINGULAR_TOL:
-        return np.inf, 4
+        return r_b, r_a, H, False
     same = True
     for i in range(tau_before.shape[0]):
         same = same and tau_before[i] == tau_after[i]
     if same:
         a_a[:] = a_b
     elif not point_acceleration(ma, q, qd, tau_after, dist_idx, d, point, a_a) >= SINGULAR_TOL:
-        return np.inf, 4
-    nz = S.shape[0]
-    r_b = np.empty(nz)
-    r_a = np.empty(nz)
+        return r_b, r_a, H, False
     for i in range(nz):
         h_b = 0.0
         h_a = 0.0
@@ -722,7 +720,6 @@ def imu_correct_auto(ma, q, qd, z, P, tau_before, tau_after, trial, use_after, d
             h_a += S[i, c] * (a_a[c] - g[c])
         r_b[i] = meas[i] - h_b
         r_a[i] = meas[i] - h_a
-    H = S @ Hpt
     nis_b, logdet = innovation_nis(P, H, R, r_b)
     nis_a, _ = innovation_nis(P, H, R, r_a)
     if np.isfinite(nis_b) and np.isfinite(nis_a):
@@ -730,8 +727,20 @@ def imu_correct_auto(ma, q, qd, z, P, tau_before, tau_after, trial, use_after, d
         evidence[1] += min(nis_a, gate)
         evidence[2] += logdet + nz * np.log(2.0 * np.pi)
         evidence[3] += 1.0
-    after = evidence[1] < evidence[0] if trial else use_after
-    return correct(ma, q, qd, z, P, H, R, r_a if after else r_b, gate)
+    return r_b, r_a, H, True
+
+
+@njit(cache=True)
+def imu_correct_auto(ma, q, qd, z, P, tau_before, tau_after, use_after, dist_idx, Lz, point, S, g, meas, R, Hpt,
+                     gate, evidence):
+    """:func:`imu_innovations` (the evidence), then the correction under the after hypothesis if
+    ``use_after``, else the before one (the same numbers as :func:`imu_correct` with that torque).
+    Returns (NIS, status) as :func:`imu_correct`."""
+    r_b, r_a, H, ok = imu_innovations(ma, q, qd, z, P, tau_before, tau_after, dist_idx, Lz, point, S, g, meas, R,
+                                      Hpt, gate, evidence)
+    if not ok:
+        return np.inf, 4
+    return correct(ma, q, qd, z, P, H, R, r_a if use_after else r_b, gate)
 
 
 @njit(cache=True)
@@ -796,8 +805,9 @@ def run_periods(ma, q, qd, z, P, Phi, Qd, Hpt, info, dist_idx, dist_col, Lz, Fz,
     first and end index of the delayed commands in ``pend_t``/``pend_tau`` (room for one more per
     period), t_stop, timing trial (0/1), after-command hypothesis in use (0/1)] (in place);
     timing = [max_interval, dt, stamp tolerance, relinearize_every, command_timeout, command_delay,
-    accelerometer timing (0 before, 1 after, 2 auto), sample waits for the command (0/1)];
-    tau_hold, tau_last (active order), ``evidence`` (:func:`imu_correct_auto`) in place;
+    accelerometer timing (0 before, 1 after, 2 auto), no delay (0/1: a sample stamped with the
+    command that starts to act waits for it, under the after hypothesis)];
+    tau_hold, tau_last (active order), ``evidence`` (:func:`imu_innovations`) in place;
     nis_out[k] = (encoder, imu) NIS.
     A period stops the run, the filter state restored as it was before it, when it is not
     ordinary: stamped from t_stop on (a timing decision, or a held sample, is Python's), late or
@@ -809,13 +819,14 @@ def run_periods(ma, q, qd, z, P, Phi, Qd, Hpt, info, dist_idx, dist_col, Lz, Fz,
     na = active_idx.shape[0]
     max_interval, dt, tol, every, timeout, delay = timing[0], timing[1], timing[2], timing[3], timing[4], timing[5]
     imu_mode = int(timing[6])
-    hold_imu = timing[7] > 0.5
+    no_delay = timing[7] > 0.5
     q0, qd0, z0 = np.empty_like(q), np.empty_like(qd), np.empty_like(z)
     P0, Phi0, Qd0, Hpt0, info0 = np.empty_like(P), np.empty_like(Phi), np.empty_like(Qd), np.empty_like(Hpt), \
         np.empty_like(info)
     hold0, last0, ev0 = np.empty_like(tau_hold), np.empty_like(tau_last), np.empty_like(evidence)
     tree = np.empty(n)
     tree_b = np.empty(n)
+    tree_k = np.empty(n)
     enc_m = np.empty(enc_meas.shape[1])
     imu_m = np.empty(imu_meas.shape[1])
     for k in range(start, stop):
@@ -881,6 +892,11 @@ def run_periods(ma, q, qd, z, P, Phi, Qd, Hpt, info, dist_idx, dist_col, Lz, Fz,
         if ok:
             nis_e, st_e = encoder_correct(ma, q, qd, z, P, enc_H, enc_R, enc_js, enc_wrap, enc_m, enc_gate)
             ok = st_e == 0
+        # The hypothesis in use: auto's likelier so far (this sample not yet weighed). With no
+        # delay a sample under the after hypothesis waits for the command of its stamp; under
+        # the before one it is corrected at once and weighed with that command (Observer._settle).
+        after = imu_mode == 1 or (imu_mode == 2 and (evidence[1] < evidence[0] if trial else use_after))
+        hold = no_delay and after
         for step in range(2):
             if step == 1 and ok:
                 # Observer.command: the command of t_to, acting from t_to + delay
@@ -890,22 +906,25 @@ def run_periods(ma, q, qd, z, P, Phi, Qd, Hpt, info, dist_idx, dist_col, Lz, Fz,
                 tail += 1
                 head, t_act = _activate(pend_t, pend_tau, head, tail, t, tol, tau_hold)
                 t_command = t_act if t_act > -np.inf else t_command
-            if not (ok and has_imu and (step == 1) == hold_imu):
+            if not (ok and has_imu and (step == 1) == hold):
                 continue
-            if imu_mode != 0 and timeout > 0 and t - t_command >= timeout - 1e-12:
+            if imu_mode != 0 and not (no_delay and not after) and timeout > 0 and t - t_command >= timeout - 1e-12:
                 ok = False  # the torque after the stamp has timed out: the per-message API's
                 continue
             tree_b[:] = 0.0
             tree[:] = 0.0
+            tree_k[:] = 0.0
             for i in range(na):
                 tree_b[active_idx[i]] = tau_last[i]
                 tree[active_idx[i]] = tau_hold[i]
+                tree_k[active_idx[i]] = taus[k, i]
             if imu_mode == 2:
-                nis_i, st_i = imu_correct_auto(ma, q, qd, z, P, tree_b, tree, trial, use_after, dist_idx, Lz, point,
-                                               S, g, imu_m, imu_R, Hpt, imu_gate, evidence)
+                # before the command with no delay: the torque after the stamp is that command's
+                nis_i, st_i = imu_correct_auto(ma, q, qd, z, P, tree_b, tree_k if no_delay and not after else tree,
+                                               after, dist_idx, Lz, point, S, g, imu_m, imu_R, Hpt, imu_gate, evidence)
             else:
-                nis_i, st_i = imu_correct(ma, q, qd, z, P, tree if imu_mode == 1 else tree_b, dist_idx, Lz, point, S,
-                                          g, imu_m, imu_R, Hpt, imu_gate)
+                nis_i, st_i = imu_correct(ma, q, qd, z, P, tree if after else tree_b, dist_idx, Lz, point, S, g,
+                                          imu_m, imu_R, Hpt, imu_gate)
             ok = st_i == 0
         if not ok:
             q[:] = q0
