@@ -12,12 +12,17 @@ variances R) at the filter's current state; the filter does the correction and g
   the end-effector point), axes fixed in the world frame up to a constant rotation
   ``rpy`` (the reference five-bar's end effector is a point that translates).
   y = S R^T (J qdd + Jdot qd - g) for a specific-force sensor; qdd from the SCDD model at
-  the state with the torque held over the interval that ended at the sample (the sample
-  at t_k shows the command of [t_k-1, t_k), as a controller reads sensors before it
-  applies the next command) plus the disturbance states. H comes from the prediction's
-  linearisation (columns d a / d x, exact for d).
+  the state plus the disturbance states, under the torque on one side of the sample
+  (``imu.sample_timing``): the torque held over the interval that ended at it
+  (``before_command``: the sample at t_k shows the command of [t_k-1, t_k), as a controller
+  reads sensors before it applies the next command) or the one acting from it on
+  (``after_command``, a(t_k+)); ``auto`` weighs both (:mod:`~elastic_pm_dyn.observer.ekf`).
+  qdd, and so y, jumps where the torque jumps: the sensor has feed-through. H comes from
+  the prediction's linearisation (columns d a / d x, exact for d).
 - Branch forces (strain gauges; ``elastic_pm_dyn_msgs/BranchForces`` force or JointState
-  effort of the elastic joint): F = c (u - u_rest) + d du/dt, linear in x.
+  effort of the elastic joint): F = c (u - u_rest) + d du/dt, linear in x. No feed-through:
+  u and du/dt are states, continuous where the torque jumps, so a gauge sample reads the
+  same on either side of a command.
 """
 
 from __future__ import annotations
