@@ -123,6 +123,7 @@ class ObserverSession:
         self._window: Counter[str] = Counter()  # unused samples/messages since the last report
         self._joint_states: deque[_JointState] = deque(maxlen=2)  # latest with every motor position
         self._command: tuple[int, list[str], np.ndarray] | None = None  # latest valid torque command
+        self._released: list[UpdateResult] = []  # held accelerometer samples the last message corrected
 
     # ------------------------------------------------------------------ inputs
     def torque_command(self, ns: int, names: Sequence[str], effort: Sequence[float]) -> Outcome:
@@ -141,6 +142,7 @@ class ObserverSession:
             self._window["torque commands late"] += 1
             out.problems.append(f"torque command stamped {self.stream.seconds(ns):.6f} s, before the previous one: "
                                 "ignored")
+        self._account(self._released, out)
         return out
 
     def joint_state(self, ns: int, names: Sequence[str], position: Sequence[float], velocity: Sequence[float] = (),
@@ -168,8 +170,12 @@ class ObserverSession:
             self._started = True
         stopped = obs.fault is not None
         t0 = time.perf_counter()
+        obs.released = []
+        self._released = []
         try:
-            return call(), out
+            result = call()
+            self._released = list(obs.released)  # accelerometer samples that waited for this message
+            return result, out
         except ObserverFault as err:
             if stopped:
                 self.refused += 1
@@ -189,7 +195,15 @@ class ObserverSession:
         return None, out
 
     def _finish(self, kind: str, ns: int, results: list[UpdateResult] | None, out: Outcome) -> Outcome:
-        for r in results or ():
+        self._account([*(results or ()), *self._released], out)
+        obs = self.obs
+        out.publish = (kind == self.primary and obs.initialised and obs.fault is None
+                       and abs(obs.t - self.stream.seconds(ns)) <= self.cfg.timing.stamp_tolerance)
+        return out
+
+    def _account(self, results: list[UpdateResult], out: Outcome) -> None:
+        """Count the samples not used (and NaN entries dropped), one problem line each."""
+        for r in results:
             if r.dropped:
                 self._window[f"{r.sensor} NaN entries"] += len(r.dropped)
             if r.accepted:
@@ -207,10 +221,6 @@ class ObserverSession:
                 self._window[f"{r.sensor} samples {_REASONS.get(r.reason, r.reason)}"] += 1
             why = self.obs.stats[r.sensor].last_reason if r.reason != "empty" else "no configured branch in it"
             out.problems.append(f"{r.sensor} sample at t = {r.t:.6f} s not used ({r.reason}): {why}")
-        obs = self.obs
-        out.publish = (kind == self.primary and obs.initialised and obs.fault is None
-                       and abs(obs.t - self.stream.seconds(ns)) <= self.cfg.timing.stamp_tolerance)
-        return out
 
     def _remember(self, ns: int, names: Sequence[str], position: Sequence[float], velocity: Sequence[float]) -> None:
         """Keep the latest two joint states that give every motor position (for :meth:`reset`);
