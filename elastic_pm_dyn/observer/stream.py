@@ -70,10 +70,6 @@ class ObserverStream:
             self.origin_ns = ns - round(self.obs.t * 1e9)
         return (ns - self.origin_ns) * 1e-9
 
-    def stamp_of(self, t: float) -> int:
-        """The stamp [ns] of a filter time (the inverse of :meth:`seconds`, to the nanosecond)."""
-        return (self.origin_ns or 0) + round(t * 1e9)
-
     def name_problem(self, names: Sequence[str]) -> tuple[str, str]:
         """("", "") if a joint state with these names can be used, else (reason, detail): reason
         one of :data:`NAME_PROBLEMS`. Checked once per distinct name list."""
