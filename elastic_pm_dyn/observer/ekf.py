@@ -27,7 +27,8 @@ Time: float seconds of the message stamps since an integer-ns origin (the stream
 :mod:`~elastic_pm_dyn.observer.stream`: epoch stamps keep their nanoseconds). The command
 stamped t_k acts on [t_k + delay, t_k+1 + delay) (``command_delay``, the actuation latency:
 the zero-order hold shifted; a delayed command waits in a queue and the prediction starts a
-new piece where it starts to act). A sample stamped t_k is compared with the state at t_k.
+new piece where it starts to act; ``timing.command_timeout`` counts from there). A sample
+stamped t_k is compared with the state at t_k.
 
 Feed-through (``imu.sample_timing``): the accelerometer reads J qdd + Jdot qd, and qdd jumps
 where the torque jumps, so a sample taken at the instant a command starts to act depends on
@@ -215,7 +216,7 @@ class Observer:
         self.timing_trial = self.imu_mode == 2  # auto before the first choice
         # no delay: the command that starts to act at a sample is the one of its own stamp
         self._no_delay = self.delay <= cfg.timing.stamp_tolerance
-        self.evidence = np.zeros(4)  # kernels.imu_correct_auto's, since the last choice or check
+        self.evidence = np.zeros(4)  # kernels.imu_innovations', since the last choice or check
         self.timing_decisions: list[TimingDecision] = []  # the first choice and every switch
         self.timing_last: TimingDecision | None = None  # the latest choice or check
         self._pending: deque = deque()  # (time it acts from, torque) of delayed commands
