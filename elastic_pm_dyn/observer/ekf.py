@@ -107,6 +107,7 @@ class UpdateResult:
     dof: int = 0
     reason: str = ""  # "" (accepted) | gate | nan | late | future | frame | uninitialised | empty
     dropped: list[str] = field(default_factory=list)
+    logdet: float = float("nan")  # log det S of the innovation covariance (with nis: the log-likelihood)
 
 
 @dataclass
@@ -121,6 +122,18 @@ class SensorStats:
     last_nis: float = float("nan")
     last_reason: str = ""
     window: deque = field(default_factory=deque)  # (nis, dof) of recent accepted samples
+    # Prediction-error negative log-likelihood of the samples weighed (accepted and gated; a
+    # gated one counted at the gate): sum of (NIS + log det S + dof log 2 pi) / 2
+    nll: float = 0.0
+    nis_sum: float = 0.0  # NIS of the accepted samples, summed
+
+
+LOG_2PI = float(np.log(2.0 * np.pi))
+
+
+def nll_term(nis: float, logdet: float, dof: int) -> float:
+    """One sample's negative Gaussian log-likelihood (NIS + log det S + dof log 2 pi) / 2."""
+    return 0.5 * (nis + logdet + dof * LOG_2PI)
 
 
 @dataclass
@@ -224,6 +237,9 @@ class Observer:
         self._deferred: tuple | None = None  # (t, the sample's prior) to weigh when its command comes (auto)
         self.released: list[UpdateResult] = []  # held samples the last call corrected
         self._gates: dict[int, float] = {}
+        # False: no sample is gated (gate = inf), so that a likelihood cannot be won by gating
+        # (observer.tuning sets it before the first sample)
+        self.gating = True
         self.branch_names = [b.name for b in model.branches]
         self._branch_joint = np.array([mech.joint_names.index(b.joint) for b in model.branches], dtype=np.int64)
         self._stiff = np.array([model.joints[j].stiffness for j in self._branch_joint])
@@ -349,6 +365,8 @@ class Observer:
         _, _, self.Hpt = linear_model(self, self.q, self.qd, self.tau_last)
 
     def gate(self, dof: int) -> float:
+        if not self.gating:
+            return np.inf
         g = self._gates.get(dof)
         if g is None:
             g = self._gates[dof] = float(chi2.ppf(self.cfg.gating.probability, dof))
@@ -518,10 +536,11 @@ class Observer:
                 # positions of state joints only: one compiled call (the same numbers as below)
                 idx, H, var, js, wrap, _ = fast
                 gate = self.gate(len(idx))
-                nis, status = kernels.encoder_correct(self.mech.arrays, self.q, self.qd, self.z, self.P, H, var, js,
-                                                      wrap, np.asarray(position, dtype=float)[idx], gate)
+                nis, status, logdet = kernels.encoder_correct(self.mech.arrays, self.q, self.qd, self.z, self.P, H,
+                                                              var, js, wrap, np.asarray(position, dtype=float)[idx],
+                                                              gate)
                 if status >= 0:
-                    out.append(self._after("encoders", t, nis, status, len(idx), gate, []))
+                    out.append(self._after("encoders", t, nis, status, len(idx), gate, [], logdet))
                     fast = True
             if fast is not True:
                 W = self._passive_jacobian() if self.encoders.needs_w else None
@@ -605,18 +624,19 @@ class Observer:
             return self._correct(imu.sample(acc, a, self.Hpt), t)
         gate = self.gate(len(meas))
         if self.imu_mode == 2 and not defer:
-            nis, status = kernels.imu_correct_auto(self.mech.arrays, self.q, self.qd, self.z, self.P, tau_before,
-                                                   tau_after, after, self.dist_idx, self.Lz, self.point, imu.S, imu.g,
-                                                   meas, imu.var, self.Hpt, gate, self.evidence)
+            nis, status, logdet = kernels.imu_correct_auto(self.mech.arrays, self.q, self.qd, self.z, self.P,
+                                                           tau_before, tau_after, after, self.dist_idx, self.Lz,
+                                                           self.point, imu.S, imu.g, meas, imu.var, self.Hpt, gate,
+                                                           self.evidence)
         else:
             if defer:
                 self._settle()
                 self._deferred = (t, meas.copy(), self.q.copy(), self.qd.copy(), self.z.copy(), self.P.copy(),
                                   self.Hpt.copy(), tau_before)
-            nis, status = kernels.imu_correct(self.mech.arrays, self.q, self.qd, self.z, self.P,
-                                              tau_after if after else tau_before, self.dist_idx, self.Lz, self.point,
-                                              imu.S, imu.g, meas, imu.var, self.Hpt, gate)
-        return self._after("imu", t, nis, status, len(meas), gate, [])
+            nis, status, logdet = kernels.imu_correct(self.mech.arrays, self.q, self.qd, self.z, self.P,
+                                                      tau_after if after else tau_before, self.dist_idx, self.Lz,
+                                                      self.point, imu.S, imu.g, meas, imu.var, self.Hpt, gate)
+        return self._after("imu", t, nis, status, len(meas), gate, [], logdet)
 
     # ------------------------------------------------------------------ sample timing (auto)
     def _next_check(self, t: float) -> float:
@@ -715,19 +735,20 @@ class Observer:
             st.last_reason = "NaN: " + ", ".join(s.dropped)
             return UpdateResult(s.sensor, t, False, reason="nan", dropped=s.dropped)
         gate = self.gate(s.r.size)
-        nis, status = kernels.correct(self.mech.arrays, self.q, self.qd, self.z, self.P, np.ascontiguousarray(s.H),
-                                      s.R, s.r, gate)
-        return self._after(s.sensor, t, nis, status, s.r.size, gate, s.dropped)
+        nis, status, logdet = kernels.correct(self.mech.arrays, self.q, self.qd, self.z, self.P,
+                                              np.ascontiguousarray(s.H), s.R, s.r, gate)
+        return self._after(s.sensor, t, nis, status, s.r.size, gate, s.dropped, logdet)
 
     def _after(self, sensor: str, t: float, nis: float, status: int, dof: int, gate: float,
-               dropped: list[str]) -> UpdateResult:
+               dropped: list[str], logdet: float = float("nan")) -> UpdateResult:
         st = self.stats[sensor]
         st.last_nis = nis
         if status == 1:
             st.rejected += 1
             st.consecutive_rejections += 1
+            st.nll += nll_term(min(nis, gate), logdet, dof)
             st.last_reason = f"gated out at t = {t:.6f} s: NIS {nis:.3g} > {gate:.3g} ({dof} dof)"
-            return UpdateResult(sensor, t, False, nis, dof, "gate", dropped)
+            return UpdateResult(sensor, t, False, nis, dof, "gate", dropped, logdet)
         if status == 2:
             self._fail(f"a {sensor} correction left the closure unsolvable at t = {t:.6f} s")
         if status == 3:
@@ -736,17 +757,25 @@ class Observer:
             self._fail(f"singular configuration in the {sensor} model at t = {t:.6f} s")
         st.accepted += 1
         st.consecutive_rejections = 0
+        st.nll += nll_term(nis, logdet, dof)
+        st.nis_sum += nis
         st.window.append((nis, dof))
         if len(st.window) > self.cfg.gating.nis_window:
             st.window.popleft()
-        return UpdateResult(sensor, t, True, nis, dof, "", dropped)
+        return UpdateResult(sensor, t, True, nis, dof, "", dropped, logdet)
 
-    def _accepted_many(self, sensor: str, nis: list[float], dof: int) -> None:
-        """The statistics of :meth:`_after` for consecutive accepted samples (the offline fast path)."""
+    def _accepted_many(self, sensor: str, nis: list[float], dof: int, logdet: list[float]) -> None:
+        """The statistics of :meth:`_after` for consecutive accepted samples (the offline fast
+        path; the same sums in the same order)."""
         if not nis:
             return
         st = self.stats[sensor]
         st.last_nis = nis[-1]
+        nll, nis_sum = st.nll, st.nis_sum
+        for v, ld in zip(nis, logdet, strict=True):
+            nll += nll_term(v, ld, dof)
+            nis_sum += v
+        st.nll, st.nis_sum = nll, nis_sum
         st.accepted += len(nis)
         st.consecutive_rejections = 0
         keep = self.cfg.gating.nis_window

@@ -185,7 +185,8 @@ class EventFilter:
                 hold, last = obs.tau_hold.copy(), obs.tau_last.copy()
                 ctl, pend_t, pend_tau = obs.fast_state(b - a)
                 if run.flat is None:  # the run's rows (views of it become rows.flat)
-                    run.flat, run.nis = np.empty((b, obs._flat_width)), np.empty((b, 2))
+                    # run.nis: NIS and log det S per sensor (encoders, imu), kernels.run_periods'
+                    run.flat, run.nis = np.empty((b, obs._flat_width)), np.empty((b, 4))
                 if gate is not None:  # the compiled call leaves the GIL to the other threads
                     gate.set()
                 done = kernels.run_periods(
@@ -202,18 +203,20 @@ class EventFilter:
                     obs.tau_hold, obs.tau_last = hold, last
                     ns = run.ns[a:a + done]
                     enc_nis = run.nis[a:a + done, 0].tolist()
-                    obs._accepted_many("encoders", enc_nis, len(idx))
+                    obs._accepted_many("encoders", enc_nis, len(idx), run.nis[a:a + done, 2].tolist())
                     obs.stats["command"].accepted += done
                     obs.stats["command"].consecutive_rejections = 0
                     first = dict(nis, encoders=enc_nis[0])
                     if run.has_imu:
                         imu_nis = run.nis[a:a + done, 1].tolist()
-                        obs._accepted_many("imu", imu_nis, run.imu.shape[1])
+                        obs._accepted_many("imu", imu_nis, run.imu.shape[1], run.nis[a:a + done, 3].tolist())
                         first["imu"] = imu_nis[0]
-                        stream.results = [UpdateResult("imu", seconds(ns[-1]), True, imu_nis[-1], run.imu.shape[1])]
+                        stream.results = [UpdateResult("imu", seconds(ns[-1]), True, imu_nis[-1], run.imu.shape[1],
+                                                       logdet=float(run.nis[a + done - 1, 3]))]
                         tail = [[e, i, np.nan] for e, i in zip(enc_nis[1:], imu_nis[1:], strict=True)]
                     else:
-                        stream.results = [UpdateResult("encoders", seconds(ns[-1]), True, enc_nis[-1], len(idx))]
+                        stream.results = [UpdateResult("encoders", seconds(ns[-1]), True, enc_nis[-1], len(idx),
+                                                       logdet=float(run.nis[a + done - 1, 2]))]
                         tail = [[e, np.nan, np.nan] for e in enc_nis[1:]]
                     rows.t.extend(ns)
                     rows.flat.extend(run.flat[a:a + done])

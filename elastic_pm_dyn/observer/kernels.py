@@ -524,6 +524,14 @@ def kalman_update(P, H, R, r, gate, dx):
     by the Joseph form (I - K H) P (I - K H)^T + K R K^T (symmetrised); otherwise (or if S is
     not positive definite, NIS = inf) nothing changes.
     """
+    return kalman_update_ld(P, H, R, r, gate, dx)[0]
+
+
+@njit(cache=True)
+def kalman_update_ld(P, H, R, r, gate, dx):
+    """:func:`kalman_update`, returning (NIS, log det S): the sample's Gaussian log-likelihood is
+    -(NIS + log det S + m log 2 pi) / 2 (the prediction-error method's term; (inf, nan) if S is
+    not positive definite). log det S comes from the Cholesky factor the update needs anyway."""
     nx = P.shape[0]
     nz = H.shape[0]
     PHt = P @ H.T
@@ -534,26 +542,28 @@ def kalman_update(P, H, R, r, gate, dx):
     sc = np.empty(nz)
     for i in range(nz):
         if not S[i, i] > 0.0:
-            return np.inf
+            return np.inf, np.nan
         sc[i] = 1.0 / np.sqrt(S[i, i])
     L = np.empty((nz, nz))
     for i in range(nz):
         for j in range(nz):
             L[i, j] = S[i, j] * sc[i] * sc[j]
     if not cholesky(L):
-        return np.inf
-    # y = L^-1 (sc * r): NIS = |y|^2
+        return np.inf, np.nan
+    # y = L^-1 (sc * r): NIS = |y|^2; det S = prod (L_ii / sc_i)^2
     y = np.empty(nz)
+    logdet = 0.0
     for i in range(nz):
         s = r[i] * sc[i]
         for k in range(i):
             s -= L[i, k] * y[k]
         y[i] = s / L[i, i]
+        logdet += 2.0 * np.log(L[i, i]) - 2.0 * np.log(sc[i])
     nis = 0.0
     for i in range(nz):
         nis += y[i] * y[i]
     if not nis <= gate:
-        return nis
+        return nis, logdet
     # K = P H^T S^-1: solve S K^T = (P H^T)^T column by column, via the scaled factor.
     K = np.empty((nx, nz))
     z = np.empty(nz)
@@ -576,7 +586,7 @@ def kalman_update(P, H, R, r, gate, dx):
     for i in range(nx):
         for j in range(nx):
             P[i, j] = 0.5 * (Pn[i, j] + Pn[j, i])
-    return nis
+    return nis, logdet
 
 
 @njit(cache=True)
@@ -599,30 +609,31 @@ def apply_correction(ma, q, qd, z, dx):
 @njit(cache=True)
 def correct(ma, q, qd, z, P, H, R, r, gate):
     """One correction: :func:`kalman_update`, then x <- x + dx on the tree state (closure
-    re-solved) and a covariance check. Returns (NIS, status): 0 applied, 1 gated out,
-    2 the closure could not be re-solved, 3 P no longer positive definite."""
+    re-solved) and a covariance check. Returns (NIS, status, log det S): status 0 applied,
+    1 gated out, 2 the closure could not be re-solved, 3 P no longer positive definite."""
     dx = np.zeros(P.shape[0])
-    nis = kalman_update(P, H, R, r, gate, dx)
+    nis, logdet = kalman_update_ld(P, H, R, r, gate, dx)
     if not nis <= gate:
-        return nis, 1
+        return nis, 1, logdet
     gap, ratio = apply_correction(ma, q, qd, z, dx)
     if not (gap <= 1e-9 and ratio >= SINGULAR_TOL):
-        return nis, 2
+        return nis, 2, logdet
     if not covariance_ok(P):
-        return nis, 3
-    return nis, 0
+        return nis, 3, logdet
+    return nis, 0, logdet
 
 
 @njit(cache=True)
 def encoder_correct(ma, q, qd, z, P, H, R, js, wrap, meas, gate):
     """Encoder positions of state joints ``js`` (H: their constant rows): innovation
     meas - q[js], wrapped to (-pi, pi] where ``wrap`` (revolute), then :func:`correct`.
-    Returns (NIS, status) as :func:`correct`, or (nan, -1) untouched if a value is not finite."""
+    Returns (NIS, status, log det S) as :func:`correct`, or (nan, -1, nan) untouched if a value
+    is not finite."""
     k = js.shape[0]
     r = np.empty(k)
     for i in range(k):
         if not np.isfinite(meas[i]):
-            return np.nan, -1
+            return np.nan, -1, np.nan
         r[i] = meas[i] - q[js[i]]
         if wrap[i]:
             r[i] = (r[i] + np.pi) % (2 * np.pi) - np.pi
@@ -632,7 +643,7 @@ def encoder_correct(ma, q, qd, z, P, H, R, js, wrap, meas, gate):
 @njit(cache=True)
 def imu_correct(ma, q, qd, z, P, tau, dist_idx, Lz, point, S, g, meas, R, Hpt, gate):
     """Accelerometer correction: y = S (J qdd + Jdot qd - g) at the state under tau + Lz z;
-    H = S Hpt. Returns (NIS, status) as :func:`correct`, status 4 if the model is singular."""
+    H = S Hpt. Returns (NIS, status, log det S) as :func:`correct`, status 4 if the model is singular."""
     nd = dist_idx.shape[0]
     d = np.zeros(nd)
     for k in range(nd):
@@ -640,7 +651,7 @@ def imu_correct(ma, q, qd, z, P, tau, dist_idx, Lz, point, S, g, meas, R, Hpt, g
             d[k] += Lz[k, m] * z[m]
     a = np.empty(3)
     if not point_acceleration(ma, q, qd, tau, dist_idx, d, point, a) >= SINGULAR_TOL:
-        return np.inf, 4
+        return np.inf, 4, np.nan
     nz = S.shape[0]
     r = np.empty(nz)
     for i in range(nz):
@@ -735,11 +746,11 @@ def imu_correct_auto(ma, q, qd, z, P, tau_before, tau_after, use_after, dist_idx
                      gate, evidence):
     """:func:`imu_innovations` (the evidence), then the correction under the after hypothesis if
     ``use_after``, else the before one (the same numbers as :func:`imu_correct` with that torque).
-    Returns (NIS, status) as :func:`imu_correct`."""
+    Returns (NIS, status, log det S) as :func:`imu_correct`."""
     r_b, r_a, H, ok = imu_innovations(ma, q, qd, z, P, tau_before, tau_after, dist_idx, Lz, point, S, g, meas, R,
                                       Hpt, gate, evidence)
     if not ok:
-        return np.inf, 4
+        return np.inf, 4, np.nan
     return correct(ma, q, qd, z, P, H, R, r_a if use_after else r_b, gate)
 
 
@@ -808,7 +819,8 @@ def run_periods(ma, q, qd, z, P, Phi, Qd, Hpt, info, dist_idx, dist_col, Lz, Fz,
     accelerometer timing (0 before, 1 after, 2 auto), no delay (0/1: a sample stamped with the
     command that starts to act waits for it, under the after hypothesis)];
     tau_hold, tau_last (active order), ``evidence`` (:func:`imu_innovations`) in place;
-    nis_out[k] = (encoder, imu) NIS.
+    nis_out[k] = (encoder NIS, imu NIS, encoder log det S, imu log det S): each sample's
+    log-likelihood is -(NIS + log det S + dof log 2 pi) / 2.
     A period stops the run, the filter state restored as it was before it, when it is not
     ordinary: stamped from t_stop on (a timing decision, or a held sample, is Python's), late or
     simultaneous, a command timeout involved, a late command, a non-finite input, a gated
@@ -888,9 +900,9 @@ def run_periods(ma, q, qd, z, P, Phi, Qd, Hpt, info, dist_idx, dist_col, Lz, Fz,
             tau_last[:] = tau_hold
             head, t_act = _activate(pend_t, pend_tau, head, tail, t, tol, tau_hold)
             t_command = t_act if t_act > -np.inf else t_command
-        nis_e, nis_i = np.nan, np.nan
+        nis_e, nis_i, ld_e, ld_i = np.nan, np.nan, np.nan, np.nan
         if ok:
-            nis_e, st_e = encoder_correct(ma, q, qd, z, P, enc_H, enc_R, enc_js, enc_wrap, enc_m, enc_gate)
+            nis_e, st_e, ld_e = encoder_correct(ma, q, qd, z, P, enc_H, enc_R, enc_js, enc_wrap, enc_m, enc_gate)
             ok = st_e == 0
         # The hypothesis in use: auto's likelier so far (this sample not yet weighed). With no
         # delay a sample under the after hypothesis waits for the command of its stamp; under
@@ -920,11 +932,12 @@ def run_periods(ma, q, qd, z, P, Phi, Qd, Hpt, info, dist_idx, dist_col, Lz, Fz,
                 tree_k[active_idx[i]] = taus[k, i]
             if imu_mode == 2:
                 # before the command with no delay: the torque after the stamp is that command's
-                nis_i, st_i = imu_correct_auto(ma, q, qd, z, P, tree_b, tree_k if no_delay and not after else tree,
-                                               after, dist_idx, Lz, point, S, g, imu_m, imu_R, Hpt, imu_gate, evidence)
+                nis_i, st_i, ld_i = imu_correct_auto(ma, q, qd, z, P, tree_b,
+                                                     tree_k if no_delay and not after else tree, after, dist_idx, Lz,
+                                                     point, S, g, imu_m, imu_R, Hpt, imu_gate, evidence)
             else:
-                nis_i, st_i = imu_correct(ma, q, qd, z, P, tree if after else tree_b, dist_idx, Lz, point, S, g,
-                                          imu_m, imu_R, Hpt, imu_gate)
+                nis_i, st_i, ld_i = imu_correct(ma, q, qd, z, P, tree if after else tree_b, dist_idx, Lz, point, S,
+                                                g, imu_m, imu_R, Hpt, imu_gate)
             ok = st_i == 0
         if not ok:
             q[:] = q0
@@ -944,4 +957,6 @@ def run_periods(ma, q, qd, z, P, Phi, Qd, Hpt, info, dist_idx, dist_col, Lz, Fz,
                       damp, rest, t, out[k])
         nis_out[k, 0] = nis_e
         nis_out[k, 1] = nis_i
+        nis_out[k, 2] = ld_e
+        nis_out[k, 3] = ld_i
     return stop - start
