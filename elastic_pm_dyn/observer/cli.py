@@ -1,9 +1,16 @@
-"""The ``observe`` subcommand: ``register_cli(subparsers)`` adds it to ``elastic-pm-dyn``.
+"""The ``observe`` and ``tune`` subcommands: ``register_cli(subparsers)`` adds them to ``elastic-pm-dyn``.
 
     elastic-pm-dyn observe --model MODEL --bag BAG --out DIR [--config config/observer.yaml]
         [--sensors encoders imu branch_forces] [--torque-topic T] [--joint-topic T]
         [--imu-topic T] [--branch-topic T] [--order stamp|arrival] [--storage mcap|sqlite3]
         [--no-bag] [--set NAME=VALUE ...]
+    elastic-pm-dyn tune --model MODEL --bag BAG --out tuned.yaml [--config base.yaml]
+        [--sensors ...] [--set NAME=VALUE ...] [--seconds S] [--max-evaluations N] [--keep-delay]
+
+``tune`` fits the process noise, the disturbance spectrum, the sensor noise the base file
+leaves at its defaults and the command delay to the recording by maximum innovation
+likelihood (no truth needed; :mod:`~elastic_pm_dyn.observer.tuning`) and writes a parameter
+file that ``observe --config`` and the plant node in ``mode: observer`` read.
 
 Exit status: 0 done; 1 the filter faulted (partial output written); 2 a user mistake
 (one line on stderr, as every subcommand).
@@ -46,6 +53,34 @@ def register_cli(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                    help="override an observer parameter, e.g. --set process.dt=5e-5 (a YAML 1.2 value)")
     p.set_defaults(func=cmd_observe)
+    _register_tune(subparsers)
+    return p
+
+
+def _register_tune(subparsers) -> argparse.ArgumentParser:
+    p = subparsers.add_parser(
+        "tune", help="tune the observer's noise model to a recorded bag (maximum innovation likelihood)",
+        description="Fit the process noise, disturbance spectrum, default sensor noise and the command delay "
+                    "to a bag without truth (prediction-error method); write a ros__parameters YAML file.")
+    p.add_argument("--model", required=True, help="model YAML")
+    p.add_argument("--bag", required=True, help="input rosbag2 directory (mcap or sqlite3)")
+    p.add_argument("--out", required=True, help="tuned parameter YAML to write")
+    p.add_argument("--config", default=None,
+                   help="base observer parameter YAML (default: config/observer.yaml of the package if present); "
+                        "its sensor noise levels are kept, its other keys copied")
+    p.add_argument("--sensors", nargs="+", choices=("encoders", "imu", "branch_forces"),
+                   help="sensor set (overrides the file's observer.sensors)")
+    p.add_argument("--torque-topic", help="torque commands (default /torque_command)")
+    p.add_argument("--joint-topic", help="measured joint states (default /measured_joint_states)")
+    p.add_argument("--imu-topic", help="accelerometer (default /ee_imu)")
+    p.add_argument("--branch-topic", help="measured branch forces (default /measured_branch_forces)")
+    p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                   help="override an observer parameter (kept fixed if it is a sensor noise level)")
+    p.add_argument("--seconds", type=float, default=None, help="tune on the first S seconds only (default: all)")
+    p.add_argument("--max-evaluations", type=int, default=160, help="filter passes at most (default 160)")
+    p.add_argument("--keep-delay", action="store_true", help="keep observer.command_delay (no likelihood scan)")
+    p.add_argument("--threads", type=int, default=2, help="filter passes at once (default 2)")
+    p.set_defaults(func=cmd_tune)
     return p
 
 
@@ -97,4 +132,31 @@ def cmd_observe(args: argparse.Namespace) -> int:
     if s["fault"]:
         print(f"elastic-pm-dyn: error: {s['fault']} (estimates up to the fault written)", file=sys.stderr)
         return 1
+    return 0
+
+
+def cmd_tune(args: argparse.Namespace) -> int:
+    from elastic_pm_dyn.kinematics.mechanism import Mechanism
+    from elastic_pm_dyn.model.loader import load_model
+    from elastic_pm_dyn.observer import tuning
+    from elastic_pm_dyn.observer.bag_input import Topics, read_events
+    if args.seconds is not None and not args.seconds > 0:
+        raise InputError(f"--seconds must be > 0, got {args.seconds}")
+    if args.max_evaluations < 8:
+        raise InputError(f"--max-evaluations must be >= 8, got {args.max_evaluations}")
+    cfg = _config(args)
+    base_path = args.config if args.config else (DEFAULT_CONFIG if DEFAULT_CONFIG.exists() else None)
+    # the sensor noise a user gave (a file of theirs, --set) stays as given
+    explicit = tuning.explicit_names(args.config) | {item.partition("=")[0].strip().removeprefix("observer.")
+                                                     for item in args.set}
+    mech = Mechanism(load_model(args.model))
+    events, _ = read_events(Path(args.bag), Topics.from_config(cfg), cfg)
+    events = tuning.select(events, args.seconds)
+    if not events:
+        raise InputError(f"{args.bag}: no messages on the observer's topics")
+    res = tuning.tune(mech, cfg, events, explicit, delay=not args.keep_delay, max_evaluations=args.max_evaluations,
+                      threads=max(1, args.threads), log=lambda s: print(s, file=sys.stderr))
+    tuning.write_parameters(res.params, args.out, base_path)
+    print(tuning.report(res))
+    print(f"-> {args.out}")
     return 0

@@ -1,0 +1,357 @@
+"""Tuning the observer from a recording without truth: maximum innovation likelihood.
+
+The prediction-error method: for a candidate configuration theta the filter runs over the
+recording and its innovations r_k (covariance S_k, m_k components) give the negative
+log-likelihood
+
+    NLL(theta) = sum_k (r_k^T S_k^-1 r_k + log det S_k + m_k log 2 pi) / 2
+
+over every sensor sample (the filter reports NIS and log det S per sample:
+``kernels.kalman_update_ld``, ``SensorStats.nll``). A Kalman filter whose noise model is the
+data's whitens the innovations and minimises it; it needs nothing but the recording. Gating
+is off while tuning (``Observer.gating``), so a candidate cannot win by throwing samples away.
+
+What is tuned (:func:`knobs`): the process noise and the disturbance spectrum
+(``process.disturbance_stddev``, the ``process.disturbance_bandwidth`` corners,
+``process.disturbance_intensity``, ``process.torque_noise_psd``, ``process.vibration_noise``),
+and, where the base configuration leaves them at their defaults, the sensor noise levels
+(``encoders.position_stddev``, ``imu.stddev``). Every knob in log space within bounds, by a
+compass (coordinate) search: each sweep tries every knob one step up and one step down,
+the two trials of a knob at once in two threads (the compiled filter kernel releases the
+GIL), keeps what lowers the NLL and halves the step after a sweep without gain, until the
+step is small or the budget is spent. ``command_delay`` (the filter is very sensitive to it)
+is chosen first by a likelihood scan over 0, 1/2, ..., 2 periods, and checked again at the
+end with the tuned noise.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Mapping
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from elastic_pm_dyn.errors import InputError
+from elastic_pm_dyn.kinematics.mechanism import Mechanism
+from elastic_pm_dyn.model import yaml12
+from elastic_pm_dyn.observer.bag_input import Event
+from elastic_pm_dyn.observer.config import DEFAULT_PARAMETERS, PREFIX, ObserverConfig, flatten
+from elastic_pm_dyn.observer.ekf import Observer
+from elastic_pm_dyn.observer.event_filter import order_key, run_events
+
+FAILED_NLL = 1e30  # a candidate whose filter faulted
+# A step is kept only if it gains this much log-likelihood [nats]: smaller gains are within
+# what chance gives one more free parameter (a likelihood-ratio test at ~5 %), and the
+# default stays where the recording does not tell
+MIN_GAIN = 2.0
+DEFAULT_SECONDS = 2.5  # [s] of the recording tuned on by default (the whole if shorter)
+DELAY_STEPS = (0.0, 0.5, 1.0, 1.5, 2.0)  # [periods] of the command-delay scan
+
+
+@dataclass(frozen=True)
+class Knob:
+    """One tuned parameter in log space: ``index`` picks an entry of a list parameter (the
+    bandwidth corners), None a scalar (a list parameter with one value is set to that value)."""
+
+    name: str
+    lo: float
+    hi: float
+    index: int | None = None
+
+    @property
+    def label(self) -> str:
+        return self.name if self.index is None else f"{self.name}[{self.index}]"
+
+    def get(self, params: Mapping[str, Any]) -> float:
+        v = params[self.name]
+        if isinstance(v, list):
+            return float(v[self.index or 0])
+        return float(v)
+
+    def set(self, params: dict[str, Any], value: float) -> None:
+        value = float(min(max(value, self.lo), self.hi))
+        if self.index is not None:
+            v = list(params[self.name])
+            v[self.index] = value
+            params[self.name] = v
+        elif isinstance(DEFAULT_PARAMETERS[self.name], list):
+            params[self.name] = [value]
+        else:
+            params[self.name] = value
+
+
+# Bounds: wide enough for any machine we know of, narrow enough that the filter stays sane.
+PROCESS_KNOBS = {
+    "process.disturbance_stddev": (1e-4, 2.0),  # [N m]
+    "process.disturbance_intensity": (1e-9, 1e2),  # [(N m)^2/s]
+    "process.torque_noise_psd": (1e-14, 1e-4),  # [(N m)^2 s]
+    "process.vibration_noise": (1e-14, 1e-4),  # [s]
+    "process.elastic_force_psd": (1e-16, 1e-4),  # [N^2 s]
+}
+BANDWIDTH_BOUNDS = (0.2, 400.0)  # [Hz]
+SENSOR_KNOBS = {"encoders.position_stddev": ("encoders", (1e-7, 1e-2)), "imu.stddev": ("imu", (1e-4, 5.0))}
+
+
+def knobs(cfg: ObserverConfig, explicit: set[str]) -> list[Knob]:
+    """The parameters tuned for ``cfg`` (module docstring); sensor noise only where not in ``explicit``
+    and the sensor is used, the disturbance's only for the disturbance model that has them."""
+    out = []
+    model = cfg.process.disturbance
+    for name, (lo, hi) in PROCESS_KNOBS.items():
+        if name == "process.disturbance_stddev" and model not in ("band_limited", "bias_band_limited",
+                                                                  "gauss_markov"):
+            continue
+        if name == "process.disturbance_intensity" and model not in ("bias_band_limited", "random_walk",
+                                                                     "integrated_random_walk"):
+            continue
+        out.append(Knob(name, lo, hi))
+    if model in ("band_limited", "bias_band_limited"):
+        out += [Knob("process.disturbance_bandwidth", *BANDWIDTH_BOUNDS, index=i)
+                for i in range(len(cfg.process.disturbance_bandwidth))]
+    for name, (sensor, (lo, hi)) in SENSOR_KNOBS.items():
+        if sensor in cfg.sensors and name not in explicit and len(cfg.parameters[name]) == 1:
+            out.append(Knob(name, lo, hi))
+    return out
+
+
+@dataclass
+class Evaluation:
+    """One filter pass over the recording."""
+
+    nll: float
+    per_sensor: dict[str, dict]  # sensor -> {samples, nll, mean_nis_per_dof, gated}
+    fault: str
+    wall_s: float
+
+
+def evaluate(mech: Mechanism, params: Mapping[str, Any], events: list[Event], gating: bool = False) -> Evaluation:
+    """The filter with flat ``params`` over ``events`` (in stamp order, :func:`select`): the NLL of every sensor
+    sample (gating off unless ``gating``), per sensor its share, mean NIS / dof and gated count."""
+    wall = time.perf_counter()
+    cfg = ObserverConfig.from_parameters(params, "<tuning>")
+    obs = Observer(mech, cfg, t0=0.0)
+    obs.gating = gating
+    _, _, fault = run_events(obs, events, "arrival", origin_ns=events[0].stamp_ns)
+    per, total = {}, 0.0
+    for s in cfg.sensors:
+        st = obs.stats[s]
+        n = st.accepted + st.rejected
+        dof = sum(d for _, d in st.window) / len(st.window) if st.window else float("nan")
+        per[s] = {"samples": n, "nll": st.nll, "gated": st.rejected,
+                  "mean_nis_per_dof": st.nis_sum / st.accepted / dof if st.accepted else float("nan")}
+        total += st.nll
+    if fault or not math.isfinite(total):
+        total = FAILED_NLL
+    return Evaluation(total, per, fault, time.perf_counter() - wall)
+
+
+@dataclass
+class TuneResult:
+    params: dict[str, Any]  # the tuned flat parameters (without the prefix)
+    base: dict[str, Any]
+    before: Evaluation
+    after: Evaluation
+    gated_before: Evaluation  # the passes with the gate on, as observe runs
+    gated_after: Evaluation
+    changed: dict[str, tuple[Any, Any]]  # name -> (base, tuned)
+    evaluations: int
+    wall_s: float
+    history: list[tuple[str, float]] = field(default_factory=list)  # (what, NLL) of each kept step
+
+
+def period_of(events: list[Event]) -> float:
+    """The median step between joint-state stamps [s] (the command period)."""
+    ns = np.array([e.stamp_ns for e in events if e.kind == "joint_state"], dtype=np.int64)
+    if len(ns) < 2:
+        raise InputError("tuning needs at least two joint states")
+    return float(np.median(np.diff(ns))) * 1e-9
+
+
+def select(events: list[Event], seconds: float | None) -> list[Event]:
+    """The events in stamp order, only the first ``seconds`` if given."""
+    ev = sorted(events, key=order_key)
+    if seconds is not None and ev:
+        end = ev[0].stamp_ns + round(seconds * 1e9)
+        ev = [e for e in ev if e.stamp_ns <= end]
+    return ev
+
+
+def tune(mech: Mechanism, base: ObserverConfig, events: list[Event], explicit: set[str] | None = None,
+         delay: bool = True, max_evaluations: int = 160, min_step: float = 0.1, threads: int = 2,
+         log: Callable[[str], object] = print) -> TuneResult:
+    """Maximum-likelihood tuning of ``base`` on ``events`` (module docstring). ``explicit``: flat
+    names the user set (their sensor noise is kept); ``delay``: scan ``command_delay``;
+    ``min_step``: the smallest log step (0.1: about 10 %)."""
+    wall0 = time.perf_counter()
+    explicit = set(explicit or ())
+    if not events:
+        raise InputError("no messages on the observer's topics")
+    base_params = dict(base.parameters)
+    theta = dict(base_params)
+    count = [0]
+    pool = ThreadPoolExecutor(max(1, threads))
+
+    def run(params_list: list[dict]) -> list[Evaluation]:
+        count[0] += len(params_list)
+        return list(pool.map(lambda p: evaluate(mech, p, events), params_list))
+
+    try:
+        before = run([theta])[0]  # alone: compiles and caches the kernels once
+        log(f"base: NLL {before.nll:.6g} ({before.wall_s:.2f} s per pass)")
+        best = before
+        history = [("base", before.nll)]
+        if delay:
+            best, theta = _scan_delay(run, theta, events, best, history, log)
+        ks = knobs(base, explicit)
+        step = math.log(10.0)
+        while step >= min_step and count[0] < max_evaluations:
+            improved = False
+            for k in ks:
+                if count[0] + 2 > max_evaluations:
+                    break
+                x = math.log(k.get(theta))
+                trials = []
+                for sgn in (1.0, -1.0):
+                    value = math.exp(x + sgn * step)
+                    if not k.lo <= value <= k.hi and not (k.lo < k.get(theta) < k.hi):
+                        continue
+                    p = dict(theta)
+                    k.set(p, value)
+                    if _valid(p):
+                        trials.append(p)
+                if not trials:
+                    continue
+                results = run(trials)
+                i = int(np.argmin([r.nll for r in results]))
+                if results[i].nll < best.nll - MIN_GAIN:
+                    best, theta, improved = results[i], trials[i], True
+                    history.append((f"{k.label} = {k.get(theta):.4g}", best.nll))
+                    log(f"  {k.label} -> {k.get(theta):.4g}: NLL {best.nll:.6g}")
+            if not improved:
+                step /= 2.0
+        if delay:
+            best, theta = _scan_delay(run, theta, events, best, history, log)
+        # the gate on, as observe runs: what the tuning does to the gated counts
+        g_before, g_after = pool.map(lambda p: evaluate(mech, p, events, gating=True), (base_params, theta))
+        count[0] += 2
+    finally:
+        pool.shutdown()
+    changed = {name: (base_params[name], theta[name]) for name in theta if theta[name] != base_params[name]}
+    return TuneResult(theta, base_params, before, best, g_before, g_after, changed, count[0],
+                      time.perf_counter() - wall0, history)
+
+
+def _valid(params: Mapping[str, Any]) -> bool:
+    """Bandwidth corners must stay distinct."""
+    b = params.get("process.disturbance_bandwidth", [])
+    return len(set(round(x, 9) for x in b)) == len(b)
+
+
+def _scan_delay(run, theta: dict, events: list[Event], best: Evaluation, history: list, log) -> tuple:
+    """``command_delay`` by likelihood over :data:`DELAY_STEPS` periods (the current value kept
+    unless another is likelier)."""
+    period = period_of(events)
+    current = theta["command_delay"]
+    trials = []
+    for k in DELAY_STEPS:
+        d = k * period
+        if abs(d - current) > 1e-9:
+            trials.append(dict(theta, command_delay=float(d)))
+    results = run(trials)
+    log("  command_delay scan: " + ", ".join(f"{p['command_delay'] * 1e3:.3g} ms {r.nll:.6g}"
+                                            for p, r in zip(trials, results, strict=True))
+        + f" (now {current * 1e3:.3g} ms {best.nll:.6g})")
+    i = int(np.argmin([r.nll for r in results]))
+    if results[i].nll < best.nll - MIN_GAIN:
+        best, theta = results[i], trials[i]
+        history.append((f"command_delay = {theta['command_delay']:.4g}", best.nll))
+    return best, theta
+
+
+# ---------------------------------------------------------------------- parameter files
+def explicit_names(path: str | Path | None) -> set[str]:
+    """Flat observer names (without the prefix) a parameter file sets."""
+    if path is None:
+        return set()
+    data = yaml12.load(Path(path).read_text())
+    names = set()
+    if isinstance(data, dict):
+        for body in data.values():
+            if isinstance(body, dict) and isinstance(body.get("ros__parameters"), dict):
+                names |= {k[len(PREFIX):] for k in flatten(body["ros__parameters"]) if k.startswith(PREFIX)}
+        if "observer" in data and isinstance(data["observer"], dict):
+            names |= {k[len(PREFIX):] for k in flatten(data) if k.startswith(PREFIX)}
+    return names
+
+
+def nest(flat: Mapping[str, Any]) -> dict:
+    """Dotted names -> nested maps (what :func:`~elastic_pm_dyn.observer.config.flatten` undoes)."""
+    out: dict = {}
+    for name, value in flat.items():
+        node = out
+        *head, last = name.split(".")
+        for part in head:
+            node = node.setdefault(part, {})
+        node[last] = value
+    return out
+
+
+def write_parameters(params: Mapping[str, Any], out: str | Path, base_path: str | Path | None = None) -> Path:
+    """A ``ros__parameters`` YAML file with every observer parameter of ``params`` (floats as
+    floats); the base file's other sections and keys kept (its observer block replaced)."""
+    data: dict = {}
+    if base_path is not None:
+        loaded = yaml12.load(Path(base_path).read_text())
+        data = loaded if isinstance(loaded, dict) else {}
+    section = None
+    for body in data.values():
+        if isinstance(body, dict) and isinstance(body.get("ros__parameters"), dict) and \
+                any(k == "observer" or k.startswith(PREFIX) for k in body["ros__parameters"]):
+            section = body["ros__parameters"]
+            break
+    if section is None:
+        data.setdefault("/**", {}).setdefault("ros__parameters", {})
+        section = data["/**"]["ros__parameters"]
+    for k in [k for k in section if k.startswith(PREFIX)]:
+        del section[k]
+    typed = {k: (float(v) if isinstance(DEFAULT_PARAMETERS[k], float) else
+                 [float(x) for x in v] if isinstance(DEFAULT_PARAMETERS[k], list)
+                 and isinstance(DEFAULT_PARAMETERS[k][0], float) else v)
+             for k, v in params.items()}
+    section["observer"] = nest(typed)
+    text = ("# Observer parameters tuned by `elastic-pm-dyn tune` (maximum innovation likelihood)\n"
+            + yaml.safe_dump(data, sort_keys=False, default_flow_style=None))
+    out = Path(out)
+    out.write_text(text)
+    return out
+
+
+def report(res: TuneResult) -> str:
+    """What :func:`tune` found, and the NLL, mean NIS / dof and gated counts before and after."""
+    lines = [f"tuned in {res.wall_s:.1f} s ({res.evaluations} filter passes)"]
+    for name, (a, b) in res.changed.items():
+        lines.append(f"  {PREFIX}{name}: {_text(a)} -> {_text(b)}")
+    if not res.changed:
+        lines.append("  (the base configuration is the likeliest found)")
+    lines.append(f"NLL (gate off): {res.before.nll:.6g} -> {res.after.nll:.6g}")
+    for s, b in res.before.per_sensor.items():
+        a = res.after.per_sensor[s]
+        gb, ga = res.gated_before.per_sensor[s]["gated"], res.gated_after.per_sensor[s]["gated"]
+        lines.append(f"  {s}: {b['samples']} samples, NLL {b['nll']:.6g} -> {a['nll']:.6g}, mean NIS / dof "
+                     f"{b['mean_nis_per_dof']:.3g} -> {a['mean_nis_per_dof']:.3g}, gated (gate on) {gb} -> {ga}")
+    for name, ev in (("base", res.before), ("tuned", res.after)):
+        if ev.fault:
+            lines.append(f"  the {name} filter faulted: {ev.fault}")
+    return "\n".join(lines)
+
+
+def _text(v: Any) -> str:
+    if isinstance(v, list):
+        return "[" + ", ".join(_text(x) for x in v) + "]"
+    return f"{v:.4g}" if isinstance(v, float) else str(v)
