@@ -79,7 +79,7 @@ from elastic_pm_dyn.errors import ElasticPmDynError, InputError
 from elastic_pm_dyn.kinematics.assembly import initial_state, solve_pose
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.model.description import ACTIVE, ELASTIC
-from elastic_pm_dyn.observer import disturbance, kernels
+from elastic_pm_dyn.observer import consistency, disturbance, kernels
 from elastic_pm_dyn.observer.config import ObserverConfig
 from elastic_pm_dyn.observer.sensors import Accelerometer, BranchForces, Encoders, Sample, resolve_joints
 
@@ -845,22 +845,21 @@ class Observer:
             return ERROR, f"fault: {self.fault}; reset needed"
         if not self.initialised:
             return WARN, "waiting for a joint state with every motor position"
+        findings = list(self.nis_findings().values())  # a sensor far off, with its likely cause
         limit = self.cfg.gating.max_consecutive_rejections
         for name, st in self.stats.items():
             if st.consecutive_rejections >= limit:
-                return ERROR, (f"{name}: {st.consecutive_rejections} consecutive samples gated out "
-                               f"(last: {st.last_reason}); the estimate has diverged, reset needed")
-        warnings = []
-        f = self.cfg.gating.nis_warn_factor
-        for name, st in self.stats.items():
-            lo, hi, mean = self.nis_band(name)
-            dof = sum(d for _, d in st.window) / max(len(st.window), 1)
-            if mean == mean and not dof / f <= mean <= dof * f:
-                warnings.append(f"{name}: mean NIS {mean:.3g} for {dof:.0f} dof (95 % band [{lo:.3g}, {hi:.3g}]): "
-                                "noise levels or process noise mistuned")
-        if warnings:
-            return WARN, "; ".join(warnings)
+                return ERROR, "; ".join([f"{name}: {st.consecutive_rejections} consecutive samples gated out "
+                                         f"(last: {st.last_reason}); the estimate has diverged, reset needed",
+                                         *findings])
+        if findings:
+            return WARN, "; ".join(findings)
         return OK, "tracking"
+
+    def nis_findings(self) -> dict[str, str]:
+        """Sensors whose windowed NIS is far off (or that are mostly gated out), each with one line
+        naming its likely cause (:mod:`~elastic_pm_dyn.observer.consistency`)."""
+        return consistency.findings(self, TIMING_SWITCH_EVIDENCE)
 
     def nis_band(self, sensor: str, p: float = 0.95) -> tuple[float, float, float]:
         """Two-sided p band of the windowed mean NIS and its value (NaN if no samples)."""
@@ -888,6 +887,8 @@ class Observer:
                 out[f"{name}.nis_band95"] = f"[{lo:.4g}, {hi:.4g}]"
             if st.last_reason:
                 out[f"{name}.last_rejection"] = st.last_reason
+        for name, text in self.nis_findings().items():
+            out[f"{name}.nis_diagnosis"] = text
         if self.imu is not None:
             out["imu.sample_timing"] = self.sample_timing()
             d = self.timing_last
