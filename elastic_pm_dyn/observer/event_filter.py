@@ -286,10 +286,13 @@ def order_key(e: Event) -> tuple[int, int]:
 def filter_all(mech: Mechanism, cfg: ObserverConfig, events: list[Event], order: str,
                log: Callable[[str], object]) -> FilterPass:
     """An observer started at the first stamp (the time origin: t = 0 there; its observability
-    report logged), then every event through :func:`run_events` at once."""
+    report logged), then every event through :func:`run_events` at once (the accelerometer
+    sample timing's decisions logged)."""
     obs = Observer(mech, cfg, t0=0.0)
     report = obs.observability()
     log(report.text())
     wall = time.perf_counter()
     rows, stream, fault = run_events(obs, events, order, origin_ns=min(e.stamp_ns for e in events))
+    for decision in obs.timing_decisions:  # imu.sample_timing auto: what it chose (and any switch)
+        log(decision.text())
     return FilterPass(obs, report, rows, stream, fault, time.perf_counter() - wall)

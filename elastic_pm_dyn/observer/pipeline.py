@@ -278,6 +278,8 @@ def _observe_pipelined(mech: Mechanism, cfg: ObserverConfig, bag: Path, out, top
             filt = state["filter"]
             run = FilterPass(filt.obs, state["report"], filt.rows, filt.stream, filt.fault, state["wall"])
             log(run.report.text())
+            for decision in run.obs.timing_decisions:  # as event_filter.filter_all logs them
+                log(decision.text())
         obs, rows = run.obs, run.rows
         summary = results.summary(bag, topics, counts, order, events, run, wall_read)
         if out is not None:

@@ -73,6 +73,7 @@ def summary(bag: str | Path, topics: Any, counts: dict, order: str, events: list
     stamps = [e.stamp_ns for e in events]
     duration = (max(stamps) - min(stamps)) * 1e-9
     rows, obs, stream, fault, report = run.rows, run.obs, run.stream, run.fault, run.report
+    findings = obs.nis_findings()  # a sensor far off, with its likely cause
     return {
         "bag": str(bag), "topics": topics.__dict__, "messages": counts, "order": order,
         "time_origin_ns": int(stream.origin_ns or 0),  # filter time 0 (estimates.csv's t = 0) [ns]
@@ -81,8 +82,10 @@ def summary(bag: str | Path, topics: Any, counts: dict, order: str, events: list
         "joint_states_rejected": {r: stream.joint_state_rejections[r] for r in NAME_PROBLEMS},
         "last_joint_state_problem": stream.last_joint_state_problem,
         "sensors": {s: {"accepted": st.accepted, "rejected": st.rejected, "late": st.late, "future": st.future,
-                        "nan_entries": st.nan, "mean_nis": obs.nis_band(s)[2], "last_rejection": st.last_reason}
+                        "nan_entries": st.nan, "mean_nis": obs.nis_band(s)[2], "last_rejection": st.last_reason,
+                        "diagnosis": findings.get(s, "")}
                     for s, st in obs.stats.items()},
+        "sample_timing": obs.timing_summary(),
         "duration_s": duration,
         "wall_read_s": wall_read, "wall_filter_s": run.wall,
         "observability": report.text(),
