@@ -6,7 +6,9 @@
   (position, velocity, effort of every tree joint), ``/branch_forces`` (with
   ``force_stddev``) and ``/ee_pose`` for ``elastic-pm-dyn analyze``, plus
   ``/observer/joint_states_stddev`` (JointState whose position/velocity fields hold the
-  standard deviations).
+  standard deviations);
+- ``filtered.csv`` (with a smoother only: ``estimates.csv`` and the bag are then smoothed):
+  the filter's estimates, the same columns.
 
 Both can be written a chunk of rows after another (:class:`EstimatesBag` for the bag),
 giving the same files as all rows at once. Every message of a chunk is encoded at once
@@ -26,12 +28,18 @@ from elastic_pm_dyn.observer.ekf import Observer
 from elastic_pm_dyn.observer.results import Rows, write_csv
 
 
-def write_outputs(out: Path, obs: Observer, rows: Rows, write_estimates_bag: bool, storage: str) -> None:
-    """``estimates.csv`` and (optionally) the ``estimates/`` bag of all rows into ``out`` (nothing if no rows)."""
+def write_outputs(out: Path, obs: Observer, rows: Rows, write_estimates_bag: bool, storage: str,
+                  filtered: Rows | None = None) -> None:
+    """``estimates.csv`` and (optionally) the ``estimates/`` bag of all rows into ``out`` (nothing
+    if no rows); with ``filtered`` (the filter's rows when ``rows`` are smoothed) also
+    ``filtered.csv`` (the same columns)."""
     if not rows.t:
         return
     with open(out / "estimates.csv", "w") as fh:
         write_csv(fh, rows)
+    if filtered is not None:
+        with open(out / "filtered.csv", "w") as fh:
+            write_csv(fh, filtered)
     if write_estimates_bag:
         write_bag(out / "estimates", obs, rows, storage)
 

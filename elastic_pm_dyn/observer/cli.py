@@ -3,7 +3,7 @@
     elastic-pm-dyn observe --model MODEL --bag BAG --out DIR [--config config/observer.yaml]
         [--sensors encoders imu branch_forces] [--torque-topic T] [--joint-topic T]
         [--imu-topic T] [--branch-topic T] [--order stamp|arrival] [--storage mcap|sqlite3]
-        [--no-bag] [--set NAME=VALUE ...]
+        [--no-bag] [--smoother rts] [--set NAME=VALUE ...]
     elastic-pm-dyn tune --model MODEL --bag BAG --out tuned.yaml [--config base.yaml]
         [--sensors ...] [--set NAME=VALUE ...] [--seconds S] [--max-evaluations N] [--keep-delay]
 
@@ -50,6 +50,9 @@ def register_cli(subparsers) -> argparse.ArgumentParser:
                    help="process by header stamp (default) or in the bag's order (as a live node saw it)")
     p.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap", help="output bag storage")
     p.add_argument("--no-bag", action="store_true", help="write the CSV and summary only")
+    p.add_argument("--smoother", choices=("rts",), default=None,
+                   help="after the filter, a Rauch-Tung-Striebel pass: estimates.csv and the bag smoothed, "
+                        "the filter's estimates in filtered.csv")
     p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                    help="override an observer parameter, e.g. --set process.dt=5e-5 (a YAML 1.2 value)")
     p.set_defaults(func=cmd_observe)
@@ -114,13 +117,17 @@ def cmd_observe(args: argparse.Namespace) -> int:
     cfg = _config(args)
     mech = Mechanism(load_model(args.model))
     res = observe_bag(mech, cfg, args.bag, args.out, Topics.from_config(cfg), args.order, args.storage,
-                      not args.no_bag, log=lambda s: print(s, file=sys.stderr))
+                      not args.no_bag, log=lambda s: print(s, file=sys.stderr), smoother=args.smoother)
     s = res.summary
     sens = ", ".join(f"{k} {v['accepted']} ok/{v['rejected']} gated/{v['late']} late"
                      + (f"/{v['future']} future" if v["future"] else "")
                      for k, v in s["sensors"].items() if k in cfg.sensors)
     print(f"{s['rows']} estimates over {s['duration_s']:.3f} s -> {args.out}  ({sens}; "
           f"{s['speed_factor']:.1f}x real time)")
+    if s.get("smoothing"):
+        sm = s["smoothing"]
+        print(f"rts smoother: {sm['segments']} segment(s), branch-force std x{sm['branch_force_std_ratio_mean']:.3f} "
+              f"of the filter's on average ({sm['wall_smooth_s']:.2f} s); the filter's estimates in filtered.csv")
     names = {reason: n for reason, n in s["joint_states_rejected"].items() if n}
     if names:
         print("elastic-pm-dyn: warning: joint states not used: "

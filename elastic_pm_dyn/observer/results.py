@@ -49,9 +49,12 @@ class Rows:
 
 @dataclass
 class OfflineResult:
+    """``rows``: the estimates (smoothed with a smoother, then ``filtered`` holds the filter's)."""
+
     rows: Rows
     summary: dict
     observer: Observer
+    filtered: Rows | None = None
 
 
 @dataclass
@@ -89,17 +92,19 @@ def summary(bag: str | Path, topics: Any, counts: dict, order: str, events: list
         "duration_s": duration,
         "wall_read_s": wall_read, "wall_filter_s": run.wall,
         "observability": report.text(),
+        "smoother": None,  # or the smoother's name (observe --smoother), its numbers in "smoothing"
     }
 
 
-def finish(summary: dict, out: str | Path | None, wall0: float, rows: Rows, obs: Observer) -> OfflineResult:
+def finish(summary: dict, out: str | Path | None, wall0: float, rows: Rows, obs: Observer,
+           filtered: Rows | None = None) -> OfflineResult:
     """Total wall time (since ``wall0``) and speed into ``summary``, written as ``out/summary.json``."""
     summary["wall_total_s"] = time.perf_counter() - wall0
     duration = summary["duration_s"]
     summary["speed_factor"] = duration / summary["wall_total_s"] if summary["wall_total_s"] > 0 else float("inf")
     if out is not None:
         (Path(out) / "summary.json").write_text(json.dumps(summary, indent=2, default=float))
-    return OfflineResult(rows, summary, obs)
+    return OfflineResult(rows, summary, obs, filtered)
 
 
 def csv_header(obs: Observer) -> list[str]:
