@@ -35,6 +35,7 @@ setup(
         "console_scripts": [
             "elastic-pm-dyn = elastic_pm_dyn.cli:main",
             "plant_node = elastic_pm_dyn.ros.plant_node:main",
+            "observer_node = elastic_pm_dyn.ros.observer_node:main",
             "feedforward_node = elastic_pm_dyn.ros.feedforward_node:main",
             "recorder_node = elastic_pm_dyn.ros.recorder:main",
         ],

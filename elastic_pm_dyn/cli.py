@@ -131,6 +131,12 @@ def cmd_plant(args: argparse.Namespace) -> int:
     return plant_main(_ros_argv(args.params_file, overrides, args.ros_args))
 
 
+def cmd_observer(args: argparse.Namespace) -> int:
+    from elastic_pm_dyn.ros.observer_node import main as observer_main
+    overrides = {"model": args.model} if args.model else {}
+    return observer_main(_ros_argv(args.params_file, overrides, args.ros_args))
+
+
 def cmd_record(args: argparse.Namespace) -> int:
     from elastic_pm_dyn.ros.recorder import main as recorder_main
     overrides = {"output": args.out, "storage": args.storage}
@@ -192,6 +198,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--model", help="model YAML (overrides the file)")
     _add_ros_args(p)
     p.set_defaults(func=cmd_plant)
+
+    p = sub.add_parser("observer", help="ROS 2 observer node: the state observer (EKF) live, estimates on the "
+                       "plant's topics (see config/observer_node.yaml)")
+    p.add_argument("--params-file", help="ROS parameter YAML (e.g. config/observer_node.yaml)")
+    p.add_argument("--model", help="model YAML (overrides the file)")
+    _add_ros_args(p)
+    p.set_defaults(func=cmd_observer)
 
     p = sub.add_parser("record", help="record ROS 2 topics into a rosbag2 (mcap or sqlite3) with rosbags")
     p.add_argument("--out", default="bag", help="bag directory to create (default: bag)")

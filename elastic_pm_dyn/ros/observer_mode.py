@@ -1,4 +1,8 @@
-"""The plant node in ``mode: observer``: it does not simulate, it estimates.
+"""The state observer on a node: the observer node (``observer_node``) and the plant node in
+``mode: observer`` (which does not simulate then, it estimates) run this, with the same
+parameters: :data:`~elastic_pm_dyn.ros.machine_params.MACHINE_PARAMS` and
+:data:`~elastic_pm_dyn.ros.machine_params.ESTIMATE_PARAMS` (model, command message, output
+topics, frames, rates) and :data:`OBSERVER_PARAMS` (every ``observer.*`` of config/observer.yaml).
 
 Inputs (topics ``observer.topics.*``, QoS :data:`~elastic_pm_dyn.ros.qos.OBSERVER_INPUT_QOS`,
 overridable per topic with ``qos_overrides.<topic>.subscription.*``):
@@ -20,7 +24,10 @@ Outputs on the plant's own topics, so RViz and the analysis work unchanged:
 spring force on the elastic joints), ``branch_forces`` (with ``force_stddev``), ``ee_pose``,
 ``markers``; plus ``topics.joint_states_stddev`` (default ``~/joint_states_stddev``:
 JointState whose position/velocity hold the standard deviations) and ``/diagnostics``
-(health, NIS statistics, gated samples, update times). ``~/reset`` restarts the filter from
+(health, NIS statistics, gated samples, update times, the accelerometer sample timing in
+use, and per sensor whose NIS is far off its likely cause, ``<sensor>.nis_diagnosis``).
+The diagnostics timer also logs each new choice of ``imu.sample_timing: auto`` (info) and
+those causes (a throttled warning). ``~/reset`` restarts the filter from
 the latest measured joint state it used (never from one stamped too far ahead),
 ``~/set_state`` from a given one.
 
@@ -57,10 +64,11 @@ from elastic_pm_dyn.ros.params import COMMAND_JOINTS, Param, ParameterError, rea
 from elastic_pm_dyn.ros.qos import DIAGNOSTICS_QOS, OBSERVER_INPUT_QOS, STATE_QOS, VIEWER_QOS
 
 WARN_EVERY = 1.0  # [s] throttle of repeated warnings
+FINDINGS_EVERY = 10.0  # [s] throttle of the NIS findings (they describe a window of samples, not one)
 LEVELS = {0: DiagnosticStatus.OK, 1: DiagnosticStatus.WARN, 2: DiagnosticStatus.ERROR}
 
 # Every observer parameter, typed by its default (floats are floats), as config/observer.yaml.
-OBSERVER_PARAMS = [Param(PREFIX + name, default, "state observer (mode: observer); see config/observer.yaml")
+OBSERVER_PARAMS = [Param(PREFIX + name, default, "state observer; see config/observer.yaml")
                    for name, default in DEFAULT_PARAMETERS.items()]
 
 
@@ -83,6 +91,7 @@ class ObserverMode:
         self.messages = EstimateMessages(mech, p["frames.base"])
         self.markers = MechanismMarkers(mech, p["frames.base"])
         self.last_stamp = 0  # [ns] of the latest published estimate
+        self.timing_logged = 0  # sample timing decisions logged so far
 
         self.pub_joint_states = node.create_publisher(JointState, p["topics.joint_states"], STATE_QOS)
         self.pub_branch_forces = node.create_publisher(BranchForces, p["topics.branch_forces"], STATE_QOS)
@@ -168,6 +177,14 @@ class ObserverMode:
             self.pub_markers.publish(self.markers.build(self.session.obs.q, self.last_stamp))
 
     def _publish_diagnostics(self) -> None:
+        log, obs = self.node.get_logger(), self.session.obs
+        decisions = obs.timing_decisions
+        for decision in decisions[self.timing_logged:]:
+            log.info(decision.text())
+        self.timing_logged = len(decisions)
+        findings = obs.nis_findings()
+        if findings:
+            log.warning("; ".join(findings.values()), throttle_duration_sec=FINDINGS_EVERY)
         level, message, values = self.session.report()
         status = DiagnosticStatus(name=f"{self.node.get_name()}: observer", hardware_id=self.model_name,
                                   level=LEVELS[level], message=message,

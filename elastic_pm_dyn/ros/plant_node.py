@@ -14,7 +14,9 @@ Callbacks only validate and store; the timers and the lockstep handler (a guard
 condition) advance the :class:`~elastic_pm_dyn.sim.plant.Plant`. With ``mode: observer``
 the node does not simulate: :class:`~elastic_pm_dyn.ros.observer_mode.ObserverMode`
 subscribes to commands and measurements and publishes the state observer's estimates on
-the same output topics (the sync parameters then do not apply).
+the same output topics (the sync parameters then do not apply): the observer node
+(``observer_node``, :mod:`~elastic_pm_dyn.ros.observer_node`) under the plant's name, with
+the same parameters (:mod:`~elastic_pm_dyn.ros.machine_params`, ``observer.*``).
 Torque held over a period: the last valid command, or zero when it is older than
 ``command_timeout`` (wall time in realtime, simulated time in fast; lockstep waits).
 """
@@ -42,27 +44,17 @@ from elastic_pm_dyn.bags.msgtypes import NS
 from elastic_pm_dyn.dynamics.direct import FORMULATIONS
 from elastic_pm_dyn.errors import InputError, SingularConfigurationError
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
-from elastic_pm_dyn.model.loader import load_model
-from elastic_pm_dyn.ros.commands import CommandDecoder
+from elastic_pm_dyn.ros.machine_params import ESTIMATE_PARAMS, MACHINE_PARAMS, load_machine
 from elastic_pm_dyn.ros.markers import MechanismMarkers
 from elastic_pm_dyn.ros.messages import PlantMessages, stamp
 from elastic_pm_dyn.ros.node_main import ManagedNode, run_node
-from elastic_pm_dyn.ros.params import (
-    COMMAND_JOINTS,
-    Param,
-    ParameterError,
-    command_joints_param,
-    model_path,
-    read_parameters,
-    reject_unknown,
-)
+from elastic_pm_dyn.ros.params import COMMAND_JOINTS, Param, read_parameters, reject_unknown
 from elastic_pm_dyn.ros.qos import CLOCK_QOS, COMMAND_QOS, DIAGNOSTICS_QOS, STATE_QOS, VIEWER_QOS
 from elastic_pm_dyn.sim.plant import Plant
 from elastic_pm_dyn.sim.simulator import INTEGRATORS, STABILIZATIONS, SimulationOptions
 
 MODES = ("plant", "observer")
 SYNC_MODES = ("realtime", "fast", "lockstep")
-COMMAND_TYPES = ("joint_state", "float64_multi_array")
 MAX_CATCH_UP = 5  # realtime: periods advanced in one late tick before the schedule slips
 FAST_SLICE = 0.005  # [s] fast mode: wall time per executor turn (amortises its ~0.2 ms, stays responsive)
 WARN_EVERY = 1.0  # [s] throttle of repeated warnings
@@ -70,7 +62,6 @@ WARN_EVERY = 1.0  # [s] throttle of repeated warnings
 PARAMS = [
     Param("mode", "plant", "plant: simulate the machine; observer: estimate its state from commands and measurements",
           choices=MODES),
-    Param("model", "", "model YAML file; empty = the five-bar shipped with the package"),
     Param("formulation", "scdd", "direct dynamics formulation", choices=FORMULATIONS),
     Param("integrator", "rk4", "rk4 (fixed step dt) or dop853 (adaptive, offline accuracy)", choices=INTEGRATORS),
     Param("dt", 1.0e-4, "internal RK4 step [s]; shortened so steps end on control periods", positive=True),
@@ -80,23 +71,14 @@ PARAMS = [
     Param("sync_mode", "realtime", "realtime | fast | lockstep", choices=SYNC_MODES),
     Param("command_timeout", 0.1, "[s] an older command means zero torque (wall time in realtime, "
           "simulated time in fast; unused in lockstep)", positive=True),
-    Param("command_type", "joint_state", "torque_command message: sensor_msgs/JointState (name + effort) or "
-          "std_msgs/Float64MultiArray (command_joints order)", choices=COMMAND_TYPES),
     Param("topics.command", "torque_command", "torque command topic"),
-    Param("topics.joint_states", "joint_states", "every tree joint: position, velocity, effort"),
-    Param("topics.branch_forces", "branch_forces", "elastic_pm_dyn_msgs/BranchForces"),
-    Param("topics.ee_pose", "ee_pose", "geometry_msgs/PoseStamped of the end-effector point"),
-    Param("topics.markers", "markers", "visualization_msgs/MarkerArray of the links"),
-    Param("topics.joint_states_stddev", "~/joint_states_stddev", "observer mode: JointState of the standard "
-          "deviations (position, velocity) of every tree joint"),
-    Param("frames.base", "world", "frame of ee_pose and markers (the model's base)"),
-    Param("marker_rate", 30.0, "[Hz] wall-clock rate of the RViz markers", positive=True),
-    Param("diagnostics_rate", 1.0, "[Hz] wall-clock rate of /diagnostics", positive=True),
+    *MACHINE_PARAMS,
+    *ESTIMATE_PARAMS,
 ]
 # Parameters that only one mode uses (a warning lists the ones given to the other mode); and observer.*
 ONLY = {"plant": ("formulation", "integrator", "dt", "stabilization", "publish_rate", "sync_mode", "command_timeout",
                   "topics.command"),
-        "observer": ("topics.joint_states_stddev",)}
+        "observer": tuple(s.name for s in ESTIMATE_PARAMS)}
 OBSERVER_PREFIX = "observer."
 
 
@@ -113,12 +95,7 @@ class PlantNode(ManagedNode):
         reject_unknown(self, known)
         p = read_parameters(self, PARAMS)
         self.mode: str = p["mode"]
-        mech = Mechanism(load_model(model_path(p["model"])))
-        p |= read_parameters(self, [command_joints_param(mech.active_names)])
-        try:
-            self.decoder = CommandDecoder(mech.active_names, p[COMMAND_JOINTS])
-        except InputError as err:
-            raise ParameterError(f"parameter '{COMMAND_JOINTS}': {err}") from None
+        mech, self.decoder = load_machine(self, p)
         self._warn_unused()
         if self.mode == "observer":
             from elastic_pm_dyn.ros.observer_mode import ObserverMode

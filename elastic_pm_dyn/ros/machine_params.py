@@ -1,0 +1,59 @@
+"""The parameters of a node that stands for the machine, and the machine they name.
+
+Two nodes publish a machine's state on the same topics: the plant node (simulating it, or
+estimating it with ``mode: observer``) and the observer node (estimating it). Both read
+:data:`MACHINE_PARAMS` (model, command message, output topics, frames, rates); an observer
+also :data:`ESTIMATE_PARAMS`. One list each, so a parameter file of one node means the same
+to the other; :func:`load_machine` turns them into the mechanism and its command decoder.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from rclpy.node import Node
+
+from elastic_pm_dyn.errors import InputError
+from elastic_pm_dyn.kinematics.mechanism import Mechanism
+from elastic_pm_dyn.model.loader import load_model
+from elastic_pm_dyn.ros.commands import CommandDecoder
+from elastic_pm_dyn.ros.params import (
+    COMMAND_JOINTS,
+    Param,
+    ParameterError,
+    command_joints_param,
+    model_path,
+    read_parameters,
+)
+
+COMMAND_TYPES = ("joint_state", "float64_multi_array")
+
+MACHINE_PARAMS = [
+    Param("model", "", "model YAML file; empty = the five-bar shipped with the package"),
+    Param("command_type", "joint_state", "torque_command message: sensor_msgs/JointState (name + effort) or "
+          "std_msgs/Float64MultiArray (command_joints order)", choices=COMMAND_TYPES),
+    Param("topics.joint_states", "joint_states", "every tree joint: position, velocity, effort"),
+    Param("topics.branch_forces", "branch_forces", "elastic_pm_dyn_msgs/BranchForces"),
+    Param("topics.ee_pose", "ee_pose", "geometry_msgs/PoseStamped of the end-effector point"),
+    Param("topics.markers", "markers", "visualization_msgs/MarkerArray of the links"),
+    Param("frames.base", "world", "frame of ee_pose and markers (the model's base)"),
+    Param("marker_rate", 30.0, "[Hz] wall-clock rate of the RViz markers", positive=True),
+    Param("diagnostics_rate", 1.0, "[Hz] wall-clock rate of /diagnostics", positive=True),
+]
+# What only an estimate has.
+ESTIMATE_PARAMS = [
+    Param("topics.joint_states_stddev", "~/joint_states_stddev", "observer: JointState of the standard "
+          "deviations (position, velocity) of every tree joint"),
+]
+
+
+def load_machine(node: Node, p: dict[str, Any]) -> tuple[Mechanism, CommandDecoder]:
+    """The mechanism of ``p["model"]`` and the decoder of its torque commands; reads the
+    ``command_joints`` parameter (its default depends on the model) into ``p``."""
+    mech = Mechanism(load_model(model_path(p["model"])))
+    p |= read_parameters(node, [command_joints_param(mech.active_names)])
+    try:
+        decoder = CommandDecoder(mech.active_names, p[COMMAND_JOINTS])
+    except InputError as err:
+        raise ParameterError(f"parameter '{COMMAND_JOINTS}': {err}") from None
+    return mech, decoder
