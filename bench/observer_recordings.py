@@ -2,6 +2,7 @@
 
     .venv/bin/python bench/observer_recordings.py            # the full matrix, ~10-15 min on 2 cores
     .venv/bin/python bench/observer_recordings.py --quick    # 4 short recordings, < 2 min
+    .venv/bin/python bench/observer_recordings.py --quick --tune  # each tuned first (elastic-pm-dyn tune)
 
 Recordings (``elastic_pm_dyn.observer.recordings``; seeds 7001... held out from every seed
 the observer's defaults were fitted on): the reference manoeuvre and a 3 N m chirp through
@@ -21,7 +22,11 @@ motor-angle error RMS / encoder noise, fraction of samples whose NEES of [q_ae, 
 in its 95 % band, mean NIS per sensor over its dof, gated samples per sensor, whether the
 CSV's t column tells the stamps apart; all after 50 ms of settling. The truth's convergence
 is checked once (RK4 at 25 us against 12.5 us on the first recording).
-Writes ``bench/results/observer_recordings.json`` and ``observer_recordings.md``.
+``--tune``: before each observe run, the configuration is tuned to the bag with that sensor
+set (``observer.tuning.tune``, what ``elastic-pm-dyn tune`` does: no truth), and the table
+has the default's figures beside the tuned ones.
+Writes ``bench/results/observer_recordings.json`` and ``observer_recordings.md``
+(``observer_recordings_tuned.*`` with ``--tune``).
 """
 
 from __future__ import annotations
@@ -43,7 +48,8 @@ sys.path.insert(0, str(ROOT))
 
 from elastic_pm_dyn.kinematics.mechanism import Mechanism  # noqa: E402
 from elastic_pm_dyn.model.loader import load_model  # noqa: E402
-from elastic_pm_dyn.observer import ObserverConfig  # noqa: E402
+from elastic_pm_dyn.observer import ObserverConfig, tuning  # noqa: E402
+from elastic_pm_dyn.observer.bag_input import Topics, read_events  # noqa: E402
 from elastic_pm_dyn.observer.evaluation import offline_run, open_loop, quasi_static_series, score  # noqa: E402
 from elastic_pm_dyn.observer.offline import observe_bag  # noqa: E402
 from elastic_pm_dyn.observer.recordings import EPOCH, RecordingSpec, generate, write_bag  # noqa: E402
@@ -89,7 +95,16 @@ def csv_distinct_t(out: Path) -> bool:
     return len(np.unique(t)) == len(t)
 
 
-def one_recording(mech, spec: RecordingSpec, storage: str, tmp: Path) -> list[dict]:
+def tuned_config(mech, cfg: ObserverConfig, bag: Path) -> tuple[ObserverConfig, dict]:
+    """``cfg`` tuned to ``bag`` as ``elastic-pm-dyn tune`` does (defaults), and what it found."""
+    events = tuning.select(read_events(bag, Topics.from_config(cfg), cfg)[0], tuning.DEFAULT_SECONDS)
+    res = tuning.tune(mech, cfg, events, log=lambda s: None)
+    info = {"changed": {k: [a, b] for k, (a, b) in res.changed.items()}, "nll": [res.before.nll, res.after.nll],
+            "evaluations": res.evaluations, "wall_s": res.wall_s}
+    return ObserverConfig.from_parameters(res.params, "<tuned>"), info
+
+
+def one_recording(mech, spec: RecordingSpec, storage: str, tmp: Path, tune: bool = False) -> list[dict]:
     rec = generate(mech, spec)
     ol, F_qs = open_loop(rec), quasi_static_series(rec)
     # the open loop as the observer applies the commands (from their stamps): differs only with a delay
@@ -99,6 +114,13 @@ def one_recording(mech, spec: RecordingSpec, storage: str, tmp: Path) -> list[di
     rows = []
     for name, sensors in SETS.items():
         cfg = ObserverConfig.from_parameters({"sensors": list(sensors)})
+        default = None
+        if tune:
+            res = observe_bag(mech, cfg, bag, None, log=lambda s: None, write_estimates_bag=False)
+            d = score(rec, offline_run(rec, res.rows), ol, F_qs, settle=SETTLE)
+            default = {"vs_open_loop": d["F_ratio"] / d["F_ratio_open_loop"], "nees_in_band": d["nees_in_band"],
+                       "gated": {k: v.rejected for k, v in res.observer.stats.items() if k in sensors}}
+            cfg, default["tuning"] = tuned_config(mech, cfg, bag)
         out = tmp / f"{spec.name}_{name}"
         res = observe_bag(mech, cfg, bag, out, log=lambda s: None, write_estimates_bag=False)
         run = offline_run(rec, res.rows)
@@ -126,7 +148,7 @@ def one_recording(mech, spec: RecordingSpec, storage: str, tmp: Path) -> list[di
             "vs_open_loop": s["F_ratio"] / s["F_ratio_open_loop"], "elastic_rms_N": s["elastic_rms_N"],
             "motor_rmse_over_noise": s["motor_rmse_over_noise"], "nees_in_band": s["nees_in_band"],
             "nees_mean": s["nees_mean"], "sensors_nis": per_sensor, "fault": res.summary["fault"],
-            "health": res.summary["health"], "csv_t_distinct": csv_distinct_t(out)})
+            "health": res.summary["health"], "csv_t_distinct": csv_distinct_t(out), "default": default})
     return rows
 
 
@@ -136,7 +158,8 @@ def _f(x: float, fmt: str = ".3f") -> str:
 
 def markdown(result: dict) -> str:
     c = result["convergence"]
-    lines = [f"Observer (default configuration) on independent recordings, {result['when']} on {result['machine']}; "
+    what = "tuned to each recording (elastic-pm-dyn tune)" if result.get("tune") else "default configuration"
+    lines = [f"Observer ({what}) on independent recordings, {result['when']} on {result['machine']}; "
              f"{len(result['rows']) // len(SETS)} recordings, {result['wall_s']:.0f} s. Truth converged: RK4 "
              f"{c['dt'][0]:g} s vs {c['dt'][1]:g} s differ by at most {c['motor_angle_over_encoder_noise']:.1e} "
              f"encoder noise, {c['accel_over_noise']:.1e} accelerometer noise, {c['branch_force_over_noise']:.1e} "
@@ -144,25 +167,37 @@ def markdown(result: dict) -> str:
              "| recording | sensors | elastic RMS [N] | F err / elastic | open loop | filter / open loop | "
              "motor err / noise | NEES in band | NIS / dof (enc, imu, gauges) | gated (enc, imu, gauges) | CSV t ok |",
              "|---|---|---:|---:|---:|---:|---:|---:|---|---|:-:|"]
+    if result.get("tune"):
+        lines[-2] = lines[-2].replace("filter / open loop |", "filter / open loop (default) |").replace(
+            "NEES in band |", "NEES in band (default) |")
     for r in result["rows"]:
         ns = r["sensors_nis"]
         nis = ", ".join(_f(ns[s]["mean_nis"] / ns[s]["dof"], ".2f") if s in ns else "-" for s in SENSORS)
         gated = ", ".join(str(ns[s]["gated"]) if s in ns else "-" for s in SENSORS)
+        d = r.get("default")
+        vs = _f(r["vs_open_loop"], ".2f") + (f" ({_f(d['vs_open_loop'], '.2f')})" if d else "")
+        nees = _f(r["nees_in_band"], ".2f") + (f" ({_f(d['nees_in_band'], '.2f')})" if d else "")
         lines.append(f"| {r['recording']} | {r['sensors']} | {_f(r['elastic_rms_N'])} | {_f(r['F_ratio'])} | "
-                     f"{_f(r['F_ratio_open_loop'])} | {_f(r['vs_open_loop'], '.2f')} | "
-                     f"{_f(r['motor_rmse_over_noise'], '.1f')} | {_f(r['nees_in_band'], '.2f')} | {nis} | {gated} | "
+                     f"{_f(r['F_ratio_open_loop'])} | {vs} | "
+                     f"{_f(r['motor_rmse_over_noise'], '.1f')} | {nees} | {nis} | {gated} | "
                      f"{'yes' if r['csv_t_distinct'] else 'no'} |")
     lines += ["", "Medians per sensor set (filter / open loop; NEES in band):", ""]
     for name in SETS:
         sub = [r for r in result["rows"] if r["sensors"] == name]
-        lines.append(f"- {name}: {np.nanmedian([r['vs_open_loop'] for r in sub]):.2f}; "
-                     f"{np.nanmedian([r['nees_in_band'] for r in sub]):.2f}")
+        line = (f"- {name}: {np.nanmedian([r['vs_open_loop'] for r in sub]):.2f}; "
+                f"{np.nanmedian([r['nees_in_band'] for r in sub]):.2f}")
+        if result.get("tune"):
+            line += (f" (default: {np.nanmedian([r['default']['vs_open_loop'] for r in sub]):.2f}; "
+                     f"{np.nanmedian([r['default']['nees_in_band'] for r in sub]):.2f}; tuning "
+                     f"{np.median([r['default']['tuning']['wall_s'] for r in sub]):.0f} s median)")
+        lines.append(line)
     return "\n".join(lines)
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="4 recordings of 0.5 s")
+    ap.add_argument("--tune", action="store_true", help="tune the configuration to each recording first")
     ap.add_argument("--out", default=str(ROOT / "bench" / "results"))
     args = ap.parse_args()
     wall0 = time.perf_counter()
@@ -170,12 +205,12 @@ def main() -> int:
     specs = matrix(args.quick)
     result = {"when": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "machine": f"{platform.processor() or platform.machine()} "
               f"({os.cpu_count()} cores)", "load": " ".join(f"{x:.2f}" for x in os.getloadavg()),
-              "quick": args.quick, "specs": [s.name for s in specs]}
+              "quick": args.quick, "tune": args.tune, "specs": [s.name for s in specs]}
     result["convergence"] = convergence(mech, specs[0].with_(duration=min(specs[0].duration, 0.5)))
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for i, spec in enumerate(specs):
-            rows += one_recording(mech, spec, ("mcap", "sqlite3")[i % 2], Path(tmp))
+            rows += one_recording(mech, spec, ("mcap", "sqlite3")[i % 2], Path(tmp), args.tune)
             print(f"[{i + 1}/{len(specs)}] {spec.name}", flush=True)
     result["rows"] = rows
     result["wall_s"] = time.perf_counter() - wall0
@@ -183,8 +218,9 @@ def main() -> int:
     print(md)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "observer_recordings.json").write_text(json.dumps(result, indent=2, default=float))
-    (out / "observer_recordings.md").write_text(md + "\n")
+    stem = "observer_recordings_tuned" if args.tune else "observer_recordings"
+    (out / f"{stem}.json").write_text(json.dumps(result, indent=2, default=float))
+    (out / f"{stem}.md").write_text(md + "\n")
     return 0
 
 
