@@ -6,7 +6,7 @@ at a time as in test_ros_observer.py:
    config/observer.yaml's observer block;
 2. the node starts from its file and publishes, on the same messages, exactly the estimates
    of the plant node in ``mode: observer``; the accelerometer sample timing it chose is
-   logged (info) by the diagnostics timer;
+   logged (info) by the diagnostics timer, a sensor far off with its likely cause (warning);
 3. a wrong parameter stops the start with one line (node process and ``elastic-pm-dyn observer``);
 4. the launch file starts the installed executable with the installed parameter file.
 """
@@ -65,9 +65,11 @@ class _Logger:
         self.lines.append(("error", text))
 
 
-def _run(params_file: Path, node_class: str, rec: Any) -> tuple[dict[str, list], list[tuple[str, str]], Any]:
-    """Start the node from ``params_file`` (all three sensors, fast diagnostics), send the
-    recording sample by sample; what it published and logged, and its flat parameters."""
+def _run(params_file: Path, node_class: str, rec: Any,
+         **params: Any) -> tuple[dict[str, list], list[tuple[str, str]], Any]:
+    """Start the node from ``params_file`` (all three sensors, fast diagnostics; ``params``
+    override more), send the recording sample by sample; what it published and logged, and
+    its flat parameters."""
     h = RosHarness(DOMAIN, args=["test", "--ros-args", "--params-file", str(params_file)])
     try:
         from diagnostic_msgs.msg import DiagnosticArray
@@ -81,7 +83,8 @@ def _run(params_file: Path, node_class: str, rec: Any) -> tuple[dict[str, list],
         from elastic_pm_dyn.ros.observer_node import ObserverNode
         from elastic_pm_dyn.ros.plant_node import PlantNode
         from elastic_pm_dyn.ros.qos import DIAGNOSTICS_QOS, OBSERVER_INPUT_QOS, STATE_QOS
-        overrides = [Parameter("observer.sensors", value=SENSORS), Parameter("diagnostics_rate", value=50.0)]
+        overrides = [Parameter(k, value=v) for k, v in
+                     {"observer.sensors": SENSORS, "diagnostics_rate": 50.0, **params}.items()]
         cls = {"observer": ObserverNode, "plant": PlantNode}[node_class]
         node = h.add(cls(context=h.context, parameter_overrides=overrides))
         logged: list[tuple[str, str]] = []
@@ -172,6 +175,17 @@ def test_node_publishes_the_plant_nodes_observer_estimates(rec: Any, five_bar: A
     choices = [text for level, text in logged if "accelerometer sample timing" in text]
     assert len(choices) == 1 and choices[0].startswith("accelerometer sample timing: chose before_command at t = ")
     assert ("info", choices[0]) in logged
+
+
+def test_node_names_a_far_off_sensor_with_its_cause(rec: Any) -> None:
+    """The accelerometer's noise level set 2.5x too low: a warning names it and the cause, and
+    so does /diagnostics."""
+    require("rclpy")
+    out, logged, _ = _run(NODE_FILE, "observer", rec, **{"observer.imu.stddev": [0.008]})
+    warnings = [text for level, text in logged if level == "warning" and "imu: NIS" in text]
+    assert warnings and "noise level too low (imu.stddev)" in warnings[-1]
+    values = {kv.key: kv.value for kv in out["diag"][-1].status[0].values}
+    assert values["imu.nis_diagnosis"] in warnings[-1]
 
 
 def _one_line_error(argv: list[str]) -> subprocess.CompletedProcess:

@@ -5,8 +5,8 @@ A consistent filter's normalised innovations squared (NIS) average their degrees
 (``SensorStats.window``, ``gating.nis_window`` long), the gated counts and the accelerometer
 timing evidence of ``imu.sample_timing: auto`` (``Observer.evidence``, ``timing_last``), and
 names one cause per sensor whose windowed mean NIS leaves [dof / f, dof f]
-(f = ``gating.nis_warn_factor``; judged once half a window of samples is in it, when the
-start-up's wide covariance has faded) or that is gated out
+(f = ``gating.nis_warn_factor``; judged after half a window of samples, when the start-up's
+wide covariance has faded, and :data:`MIN_SAMPLES` accepted) or that is gated out
 (``gating.max_consecutive_rejections`` in a row, or most of its samples; its window then
 holds the samples accepted before):
 
@@ -15,13 +15,13 @@ holds the samples accepted before):
 - NIS >> dof otherwise: the sensor's noise level set too low, or the disturbance model too
   narrow for the machine's unknown torques (both make the innovations larger than S says);
 - NIS << dof: the noise level set too high;
-- gated out with no NIS to judge (fewer than half a window of samples accepted): the
+- gated out with no NIS to judge (fewer than :data:`MIN_SAMPLES` accepted): the
   candidates (for the accelerometer: sample timing, frame / bias, noise level far too low);
-- the encoders far off or gated out while the accelerometer, nearly every sample accepted,
-  is in its band: the filter follows an accelerometer that is wrong by an offset (its
-  disturbance states absorb it: an accelerometer this precise pulls the estimate away from
-  the encoders rather than show a large NIS of its own): ``frame / bias`` (``imu.rpy``,
-  ``imu.specific_force``), named on the accelerometer, the encoders' own line dropped.
+- the encoders far off or gated out while nearly every accelerometer sample is accepted:
+  the filter follows an accelerometer that is wrong by an offset (its disturbance states
+  absorb it: an accelerometer this precise pulls the estimate away from the encoders rather
+  than show a large NIS of its own): ``frame / bias`` (``imu.rpy``, ``imu.specific_force``),
+  named on the accelerometer (in place of its own line), the encoders' line dropped.
 
 Python only, on demand (diagnostics, health, summary.json): nothing here runs per sample.
 """
@@ -30,7 +30,7 @@ from __future__ import annotations
 
 from typing import Any
 
-MIN_SAMPLES = 10  # accepted samples before a window's mean NIS is judged: at least this and half the window
+MIN_SAMPLES = 10  # accepted samples in a window before its mean NIS is judged
 MIN_GATED = 20  # gated samples before a sensor with too few accepted ones is named
 AGREES = 0.95  # the accelerometer "agrees": at least this share of its samples accepted
 NOISE_KEYS = {"encoders": "encoders.position_stddev", "imu": "imu.stddev", "branch_forces": "branch_forces.stddev"}
@@ -46,7 +46,7 @@ def findings(obs: Any, switch_evidence: float) -> dict[str, str]:
     names ``timing`` here)."""
     f = obs.cfg.gating.nis_warn_factor
     limit = obs.cfg.gating.max_consecutive_rejections
-    least = max(MIN_SAMPLES, obs.cfg.gating.nis_window // 2)  # the start-up's wide covariance fades first
+    least = obs.cfg.gating.nis_window // 2  # samples first: the start-up's wide covariance fades meanwhile
     out: dict[str, str] = {}
     seen: dict[str, tuple[float | None, str]] = {}  # sensor: (window ratio, what is off) of the far-off ones
     for sensor, key in NOISE_KEYS.items():
@@ -72,20 +72,21 @@ def findings(obs: Any, switch_evidence: float) -> dict[str, str]:
         elif sensor == "imu":
             cause = f"sample timing (imu.sample_timing), {OFFSET} or noise level far too low ({key})"
         else:
-            cause = f"an offset or noise level far too low ({key})"
+            cause = f"{NARROW}, an offset or noise level far too low ({key})"
         out[sensor] = f"{sensor}: {what}: {cause}"
     imu = obs.stats.get("imu")
     imu_ratio = _ratio(imu, least) if imu is not None else None
-    if "encoders" in seen and "imu" not in seen and imu_ratio is not None and _share_accepted(imu) >= AGREES:
+    if "encoders" in seen and imu_ratio is not None and not _gated(imu, limit) and _share_accepted(imu) >= AGREES:
         del out["encoders"]  # the encoders are right: the estimate was pulled away from them
         out["imu"] = f"imu: NIS {imu_ratio:.2g}x its dof, but the encoders disagree ({seen['encoders'][1]}): {OFFSET}"
     return out
 
 
 def _ratio(st: Any, least: int) -> float | None:
-    """The window's mean NIS / mean dof, None below ``least`` accepted samples."""
+    """The window's mean NIS / mean dof; None before ``least`` samples (accepted or gated) or
+    with fewer than :data:`MIN_SAMPLES` accepted ones."""
     w = st.window
-    if len(w) < least:
+    if len(w) < MIN_SAMPLES or st.accepted + st.rejected < least:
         return None
     return sum(n for n, _ in w) / sum(d for _, d in w)
 
