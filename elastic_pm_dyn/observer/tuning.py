@@ -305,6 +305,15 @@ def nest(flat: Mapping[str, Any]) -> dict:
     return out
 
 
+class _QuotingDumper(yaml.SafeDumper):
+    """Strings YAML 1.1 would read as something else quoted: ROS reads a bare y (an imu axis) as true."""
+
+
+_YAML11_WORDS = {"y", "n", "yes", "no", "on", "off", "true", "false", "null", "~"}
+_QuotingDumper.add_representer(str, lambda d, v: d.represent_scalar(
+    "tag:yaml.org,2002:str", v, style='"' if v.lower() in _YAML11_WORDS else None))
+
+
 def write_parameters(params: Mapping[str, Any], out: str | Path, base_path: str | Path | None = None) -> Path:
     """A ``ros__parameters`` YAML file with every observer parameter of ``params`` (floats as
     floats); the base file's other sections and keys kept (its observer block replaced)."""
@@ -329,7 +338,7 @@ def write_parameters(params: Mapping[str, Any], out: str | Path, base_path: str 
              for k, v in params.items()}
     section["observer"] = nest(typed)
     text = ("# Observer parameters tuned by `elastic-pm-dyn tune` (maximum innovation likelihood)\n"
-            + yaml.safe_dump(data, sort_keys=False, default_flow_style=None))
+            + yaml.dump(data, Dumper=_QuotingDumper, sort_keys=False, default_flow_style=None))
     out = Path(out)
     out.write_text(text)
     return out
