@@ -1,6 +1,7 @@
 """Benchmark of the state observer on the reference five-bar: accuracy, update time, offline speed.
 
     .venv/bin/python bench/bench_observer.py            # ~1-2 min; --quick for a short run
+    .venv/bin/python bench/bench_observer.py --smoother # the RTS smoother only (observe --smoother rts)
 
 Measures, on simulated 1 kHz recordings (``elastic_pm_dyn.observer.scenarios``: the
 reference manoeuvre and a 3 N m chirp (6 seeds), each with an unknown 2-200 Hz multisine of
@@ -16,6 +17,14 @@ reference manoeuvre and a 3 N m chirp (6 seeds), each with an unknown 2-200 Hz m
   of reading, filtering, writing CSV + bag, and the real-time factor (bag duration / wall
   time; the process start and numba's cache loading excluded, both once per run).
 Writes ``bench/results/observer.json`` and ``observer.md`` and prints the tables.
+
+``--smoother``: instead, ``observe --smoother rts`` (:mod:`elastic_pm_dyn.observer.smoother`)
+with encoders + accelerometer: its cost on a 5 s bag (the filter pass, the replay of the
+filter's predictions, the backward pass and outputs; best of three), and on independent
+recordings (``elastic_pm_dyn.observer.recordings``, seeds 9501... not used anywhere else) the
+filtered and the smoothed branch-force error over the elastic part, motor-angle error over
+the encoder noise, NEES in its 95 % band and the mean smoothed/filtered branch-force std.
+Writes ``bench/results/observer_smoother.json`` and ``observer_smoother.md``.
 """
 
 from __future__ import annotations
@@ -39,8 +48,9 @@ from elastic_pm_dyn.kinematics.mechanism import Mechanism  # noqa: E402
 from elastic_pm_dyn.model.loader import load_model  # noqa: E402
 from elastic_pm_dyn.observer import Observer, ObserverConfig  # noqa: E402
 from elastic_pm_dyn.observer.bag_input import recording_to_bag  # noqa: E402
-from elastic_pm_dyn.observer.evaluation import feed, open_loop, quasi_static_series, score  # noqa: E402
+from elastic_pm_dyn.observer.evaluation import feed, offline_run, open_loop, quasi_static_series, score  # noqa: E402
 from elastic_pm_dyn.observer.offline import observe_bag  # noqa: E402
+from elastic_pm_dyn.observer.recordings import RecordingSpec, generate, write_bag  # noqa: E402
 from elastic_pm_dyn.observer.scenarios import chirp_recording, manoeuvre_recording  # noqa: E402
 from elastic_pm_dyn.observer.stream import ObserverStream  # noqa: E402
 
@@ -135,6 +145,97 @@ def offline_speed(mech, seconds: float, repeats: int) -> dict:
     return res
 
 
+SMOOTHER_SPECS = [RecordingSpec(duration=1.0, spectrum=spectrum, disturbance_rms=0.02, seed=9501 + i)
+                  for i, spectrum in enumerate(("flat", "pink", "tones", "drift"))]
+SMOOTHER_SPECS += [RecordingSpec(motion="chirp", duration=1.0, spectrum="pink", disturbance_rms=0.02, seed=9505),
+                   RecordingSpec(duration=1.0, spectrum="pink", disturbance_rms=0.02, seed=9506, t0=1.7e9)]
+
+
+def smoother_cost(mech, seconds: float, repeats: int) -> dict:
+    """Wall times of ``observe --smoother rts`` over a ``seconds`` long bag (best total of ``repeats``)."""
+    rec = manoeuvre_recording(mech, duration=seconds, seed=11, truth_dt=1e-4)
+    cfg = ObserverConfig.from_parameters({"sensors": ["encoders", "imu"]})
+    best = None
+    with tempfile.TemporaryDirectory() as tmp:
+        bag = Path(tmp) / "in"
+        recording_to_bag(rec, bag, use=("encoders", "imu"))
+        warm = Path(tmp) / "warm"
+        recording_to_bag(manoeuvre_recording(mech, duration=0.05, seed=11), warm, use=("encoders", "imu"))
+        observe_bag(mech, cfg, warm, Path(tmp) / "warm_out", log=lambda s: None, smoother="rts")
+        for r in range(repeats):
+            plain = observe_bag(mech, cfg, bag, Path(tmp) / f"plain{r}", log=lambda s: None, pipeline=False).summary
+            s = observe_bag(mech, cfg, bag, Path(tmp) / f"rts{r}", log=lambda s: None, smoother="rts").summary
+            if best is None or s["wall_total_s"] < best["smoothed"]["wall_total_s"]:
+                best = {"plain": plain, "smoothed": s}
+    p, s = best["plain"], best["smoothed"]
+    sm = s["smoothing"]
+    return {"duration_s": s["duration_s"], "rows": s["rows"], "wall_filter_s": s["wall_filter_s"],
+            "wall_replay_s": sm["wall_replay_s"], "wall_smooth_s": sm["wall_smooth_s"],
+            "wall_total_s": s["wall_total_s"], "wall_total_without_s": p["wall_total_s"],
+            "speed_factor": s["speed_factor"], "speed_factor_without": p["speed_factor"],
+            "smooth_us_per_row": 1e6 * sm["wall_smooth_s"] / max(s["rows"], 1),
+            "branch_force_std_ratio_mean": sm["branch_force_std_ratio_mean"]}
+
+
+def smoother_accuracy(mech, specs: list[RecordingSpec]) -> list[dict]:
+    rows = []
+    cfg = ObserverConfig.from_parameters({"sensors": ["encoders", "imu"]})
+    with tempfile.TemporaryDirectory() as tmp:
+        for spec in specs:
+            rec = generate(mech, spec)
+            ol, F_qs = open_loop(rec), quasi_static_series(rec)
+            bag = write_bag(rec, Path(tmp) / spec.name, use=("encoders", "imu"))
+            res = observe_bag(mech, cfg, bag, None, log=lambda s: None, smoother="rts")
+            f = score(rec, offline_run(rec, res.filtered), ol, F_qs, settle=0.05)
+            s = score(rec, offline_run(rec, res.rows), ol, F_qs, settle=0.05)
+            rows.append({"recording": spec.name, "elastic_rms_N": f["elastic_rms_N"],
+                         "F_ratio_open_loop": f["F_ratio_open_loop"], "F_ratio_filtered": f["F_ratio"],
+                         "F_ratio_smoothed": s["F_ratio"], "smoothed_over_filtered": s["F_ratio"] / f["F_ratio"],
+                         "motor_filtered": f["motor_rmse_over_noise"], "motor_smoothed": s["motor_rmse_over_noise"],
+                         "nees_in_band_filtered": f["nees_in_band"], "nees_in_band_smoothed": s["nees_in_band"],
+                         "std_ratio": res.summary["smoothing"]["branch_force_std_ratio_mean"],
+                         "fault": res.summary["fault"]})
+            print(f"{spec.name}: F err / elastic {f['F_ratio']:.3f} -> {s['F_ratio']:.3f}", flush=True)
+    return rows
+
+
+def smoother_markdown(result: dict) -> str:
+    c = result["cost"]
+    lines = [f"RTS smoother (`observe --smoother rts`, encoders + accelerometer), {result['when']} on "
+             f"{result['machine']} (load {result['load']}).", "",
+             f"Cost over a {c['duration_s']:.1f} s bag ({c['rows']} rows): filter {c['wall_filter_s']:.2f} s, "
+             f"smoother {c['wall_smooth_s']:.2f} s (of which the replay of the filter's predictions "
+             f"{c['wall_replay_s']:.2f} s; {c['smooth_us_per_row']:.0f} us per row); `observe` in total "
+             f"{c['wall_total_s']:.2f} s = {c['speed_factor']:.1f}x real time (without the smoother "
+             f"{c['wall_total_without_s']:.2f} s, {c['speed_factor_without']:.1f}x, one stage after the other).", "",
+             "| recording | elastic RMS [N] | open loop | F err / elastic, filtered | smoothed | smoothed / filtered | "
+             "motor err / noise (filt., smoothed) | NEES in band (filt., smoothed) | F std smoothed / filtered |",
+             "|---|---:|---:|---:|---:|---:|---|---|---:|"]
+    for r in result["accuracy"]:
+        lines.append(f"| {r['recording']} | {r['elastic_rms_N']:.4f} | {r['F_ratio_open_loop']:.3f} | "
+                     f"{r['F_ratio_filtered']:.3f} | {r['F_ratio_smoothed']:.3f} | "
+                     f"**{r['smoothed_over_filtered']:.2f}** | {r['motor_filtered']:.2f}, {r['motor_smoothed']:.2f} | "
+                     f"{r['nees_in_band_filtered']:.2f}, {r['nees_in_band_smoothed']:.2f} | {r['std_ratio']:.2f} |")
+    ratios = [r["smoothed_over_filtered"] for r in result["accuracy"]]
+    lines += ["", f"Median smoothed / filtered branch-force error: {np.median(ratios):.2f}."]
+    return "\n".join(lines)
+
+
+def smoother_main(args: argparse.Namespace, mech) -> int:
+    result = {"when": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "machine": f"{platform.processor() or platform.machine()} "
+              f"({os.cpu_count()} cores)", "load": " ".join(f"{x:.2f}" for x in os.getloadavg())}
+    result["cost"] = smoother_cost(mech, 2.0 if args.quick else 5.0, 1 if args.quick else 3)
+    specs = [s.with_(duration=0.5) for s in SMOOTHER_SPECS[:2]] if args.quick else SMOOTHER_SPECS
+    result["accuracy"] = smoother_accuracy(mech, specs)
+    md = smoother_markdown(result)
+    print(md)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "observer_smoother.json").write_text(json.dumps(result, indent=2, default=float))
+    (out / "observer_smoother.md").write_text(md + "\n")
+    return 0
+
+
 def markdown(result: dict) -> str:
     lines = [f"Five-bar observer, {result['when']} on {result['machine']} (load {result['load']}); "
              f"numpy {result['numpy']}, numba {result['numba']}.", "",
@@ -162,8 +263,11 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="one seed, few rounds, a 2 s bag")
     ap.add_argument("--out", default=str(ROOT / "bench" / "results"))
+    ap.add_argument("--smoother", action="store_true", help="the RTS smoother's cost and accuracy only")
     args = ap.parse_args()
     mech = Mechanism(load_model(ROOT / "config" / "five_bar.yaml"))
+    if args.smoother:
+        return smoother_main(args, mech)
     # Warm-up (compiles or loads the cached kernels).
     warm = manoeuvre_recording(mech, duration=0.05)
     feed(Observer(mech, ObserverConfig.from_parameters({})), warm, ("encoders", "imu"))
