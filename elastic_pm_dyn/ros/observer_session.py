@@ -1,4 +1,5 @@
-"""The plant node's ``mode: observer`` without rclpy: the state observer behind the callbacks.
+"""The observer node (and the plant node's ``mode: observer``) without rclpy: the state
+observer behind the callbacks.
 
 The node converts each message to plain arguments (header stamp as integer ns, names,
 float arrays) and calls one method here, which calls the same
@@ -47,7 +48,7 @@ from elastic_pm_dyn.observer.ekf import OK, WARN, Estimate, UpdateResult
 from elastic_pm_dyn.observer.stream import NAME_PROBLEMS, ObserverStream
 
 KINDS = ("torque_command", "joint_state", "imu", "branch_forces")
-SOURCE = "plant node"  # the config's error prefix, replaced by "parameter '...'"
+SOURCE = "node parameters"  # the config's error prefix, replaced by "parameter '...'"
 MAX_DIFFERENCE_INTERVAL = 0.1  # [s] reset: difference motor rates over at most this
 DIFFERENCE_MARGIN = 3.0  # reset: std of differenced rates = this x the encoder-noise part
 
@@ -61,7 +62,7 @@ def observer_config(flat: Mapping[str, Any]) -> ObserverConfig:
 
 
 def parameter_message(err: Exception) -> str:
-    """``plant node: observer.x.y: reason`` (or ``observer.x.y: reason``) -> ``parameter 'observer.x.y': reason``."""
+    """``<SOURCE>: observer.x.y: reason`` (or ``observer.x.y: reason``) -> ``parameter 'observer.x.y': reason``."""
     text = str(err).removeprefix(f"{SOURCE}: ")
     m = re.fullmatch(r"(observer\.[\w.]+): (.*)", text, re.S)
     return f"parameter '{m[1]}': {m[2]}" if m else f"observer parameters: {text}"
