@@ -110,7 +110,7 @@ def csv_distinct_t(out: Path) -> bool:
 
 def tuned_config(mech, cfg: ObserverConfig, bag: Path) -> tuple[ObserverConfig, dict]:
     """``cfg`` tuned to ``bag`` as ``elastic-pm-dyn tune`` does (defaults), and what it found."""
-    events = tuning.select(read_events(bag, Topics.from_config(cfg), cfg)[0], tuning.DEFAULT_SECONDS)
+    events = tuning.select(read_events(bag, Topics.from_config(cfg), cfg)[0], None)
     res = tuning.tune(mech, cfg, events, log=lambda s: None)
     info = {"changed": {k: [a, b] for k, (a, b) in res.changed.items()}, "nll": [res.before.nll, res.after.nll],
             "evaluations": res.evaluations, "wall_s": res.wall_s}

@@ -50,7 +50,6 @@ FAILED_NLL = 1e30  # a candidate whose filter faulted
 # what chance gives one more free parameter (a likelihood-ratio test at ~5 %), and the
 # default stays where the recording does not tell
 MIN_GAIN = 2.0
-DEFAULT_SECONDS = 2.5  # [s] of the recording tuned on by default (the whole if shorter)
 DELAY_STEPS = (0.0, 0.5, 1.0, 1.5, 2.0)  # [periods] of the command-delay scan
 
 
