@@ -108,3 +108,27 @@ def test_knobs_leave_explicit_sensor_noise_alone() -> None:
     assert {"imu.stddev", "encoders.position_stddev", "process.disturbance_bandwidth[1]"} <= names
     names = {k.label for k in tuning.knobs(cfg, {"imu.stddev"})}
     assert "imu.stddev" not in names and "encoders.position_stddev" in names
+
+
+def test_live_node_reads_the_tuned_file(tmp_path) -> None:
+    """The plant node in mode observer takes a tuned file with --params-file, types intact."""
+    from ros_harness import RosHarness, domain_id, require
+    require("rclpy")
+    from elastic_pm_dyn.ros.plant_node import PlantNode
+    base = CONFIG / "plant_observer.yaml"
+    params = dict(load_config(base).parameters)
+    params.update({"process.disturbance_stddev": 0.3, "imu.stddev": [0.005], "command_delay": 1e-3,
+                   "process.disturbance_bandwidth": [0.2, 66.7]})
+    out = tuning.write_parameters(params, tmp_path / "tuned.yaml", base)
+    h = RosHarness(domain_id(61), args=["test", "--ros-args", "--params-file", str(out)])
+    try:
+        node = h.add(PlantNode(context=h.context))
+        assert node.get_parameter("mode").value == "observer"
+        assert node.get_parameter("observer.process.disturbance_stddev").value == 0.3
+        assert list(node.get_parameter("observer.imu.stddev").value) == [0.005]
+        assert list(node.get_parameter("observer.process.disturbance_bandwidth").value) == [0.2, 66.7]
+        assert list(node.get_parameter("observer.imu.axes").value) == ["x", "y"]
+        assert node.get_parameter("observer.command_delay").value == 1e-3
+        node.close()
+    finally:
+        h.close()

@@ -311,6 +311,9 @@ class _QuotingDumper(yaml.SafeDumper):
 _YAML11_WORDS = {"y", "n", "yes", "no", "on", "off", "true", "false", "null", "~"}
 _QuotingDumper.add_representer(str, lambda d, v: d.represent_scalar(
     "tag:yaml.org,2002:str", v, style='"' if v.lower() in _YAML11_WORDS else None))
+# as the shipped files: nested maps in block style, lists in flow style ([a, b])
+_QuotingDumper.add_representer(dict, lambda d, v: d.represent_mapping("tag:yaml.org,2002:map", v, flow_style=False))
+_QuotingDumper.add_representer(list, lambda d, v: d.represent_sequence("tag:yaml.org,2002:seq", v, flow_style=True))
 
 
 def write_parameters(params: Mapping[str, Any], out: str | Path, base_path: str | Path | None = None) -> Path:
@@ -337,7 +340,7 @@ def write_parameters(params: Mapping[str, Any], out: str | Path, base_path: str 
              for k, v in params.items()}
     section["observer"] = nest(typed)
     text = ("# Observer parameters tuned by `elastic-pm-dyn tune` (maximum innovation likelihood)\n"
-            + yaml.dump(data, Dumper=_QuotingDumper, sort_keys=False, default_flow_style=None))
+            + yaml.dump(data, Dumper=_QuotingDumper, sort_keys=False))
     out = Path(out)
     out.write_text(text)
     return out
