@@ -35,17 +35,8 @@ def register_cli(subparsers) -> argparse.ArgumentParser:
         "observe", help="run the state observer (EKF) over a recorded bag -> CSV + bag of estimates",
         description="Estimate every joint (incl. elastic deflections), branch forces and their standard "
                     "deviations from a bag's torque commands and sensor topics.")
-    p.add_argument("--model", required=True, help="model YAML")
-    p.add_argument("--bag", required=True, help="input rosbag2 directory (mcap or sqlite3)")
-    p.add_argument("--out", required=True, help="output directory (estimates.csv, estimates/, summary.json)")
-    p.add_argument("--config", default=None,
-                   help="observer parameter YAML (default: config/observer.yaml of the package if present)")
-    p.add_argument("--sensors", nargs="+", choices=("encoders", "imu", "branch_forces"),
-                   help="sensor set (overrides the file's observer.sensors)")
-    p.add_argument("--torque-topic", help="torque commands (default /torque_command)")
-    p.add_argument("--joint-topic", help="measured joint states (default /measured_joint_states)")
-    p.add_argument("--imu-topic", help="accelerometer (default /ee_imu)")
-    p.add_argument("--branch-topic", help="measured branch forces (default /measured_branch_forces)")
+    _add_inputs(p, "output directory (estimates.csv, estimates/, summary.json)",
+                "observer parameter YAML (default: config/observer.yaml of the package if present)")
     p.add_argument("--order", choices=("stamp", "arrival"), default="stamp",
                    help="process by header stamp (default) or in the bag's order (as a live node saw it)")
     p.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap", help="output bag storage")
@@ -65,18 +56,9 @@ def _register_tune(subparsers) -> argparse.ArgumentParser:
         "tune", help="tune the observer's noise model to a recorded bag (maximum innovation likelihood)",
         description="Fit the process noise, disturbance spectrum, default sensor noise and the command delay "
                     "to a bag without truth (prediction-error method); write a ros__parameters YAML file.")
-    p.add_argument("--model", required=True, help="model YAML")
-    p.add_argument("--bag", required=True, help="input rosbag2 directory (mcap or sqlite3)")
-    p.add_argument("--out", required=True, help="tuned parameter YAML to write")
-    p.add_argument("--config", default=None,
-                   help="base observer parameter YAML (default: config/observer.yaml of the package if present); "
-                        "its sensor noise levels are kept, its other keys copied")
-    p.add_argument("--sensors", nargs="+", choices=("encoders", "imu", "branch_forces"),
-                   help="sensor set (overrides the file's observer.sensors)")
-    p.add_argument("--torque-topic", help="torque commands (default /torque_command)")
-    p.add_argument("--joint-topic", help="measured joint states (default /measured_joint_states)")
-    p.add_argument("--imu-topic", help="accelerometer (default /ee_imu)")
-    p.add_argument("--branch-topic", help="measured branch forces (default /measured_branch_forces)")
+    _add_inputs(p, "tuned parameter YAML to write",
+                "base observer parameter YAML (default: config/observer.yaml of the package if present); "
+                "its sensor noise levels are kept, its other keys copied")
     p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                    help="override an observer parameter (kept fixed if it is a sensor noise level)")
     p.add_argument("--seconds", type=float, default=None, help="tune on the first S seconds only (default: all)")
@@ -85,6 +67,20 @@ def _register_tune(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--threads", type=int, default=2, help="filter passes at once (default 2)")
     p.set_defaults(func=cmd_tune)
     return p
+
+
+def _add_inputs(p: argparse.ArgumentParser, out_help: str, config_help: str) -> None:
+    """The model, bag, output, base config, sensor set and topics: what observe and tune read."""
+    p.add_argument("--model", required=True, help="model YAML")
+    p.add_argument("--bag", required=True, help="input rosbag2 directory (mcap or sqlite3)")
+    p.add_argument("--out", required=True, help=out_help)
+    p.add_argument("--config", default=None, help=config_help)
+    p.add_argument("--sensors", nargs="+", choices=("encoders", "imu", "branch_forces"),
+                   help="sensor set (overrides the file's observer.sensors)")
+    p.add_argument("--torque-topic", help="torque commands (default /torque_command)")
+    p.add_argument("--joint-topic", help="measured joint states (default /measured_joint_states)")
+    p.add_argument("--imu-topic", help="accelerometer (default /ee_imu)")
+    p.add_argument("--branch-topic", help="measured branch forces (default /measured_branch_forces)")
 
 
 def _config(args: argparse.Namespace):
