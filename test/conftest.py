@@ -29,3 +29,20 @@ def without_damping(model: Model) -> Model:
     chains = tuple(replace(c, joints=tuple(replace(j, damping=0.0, friction=0.0) for j in c.joints))
                    for c in model.chains)
     return replace(model, chains=chains)
+
+
+@pytest.fixture
+def count_fast(monkeypatch) -> list[int]:
+    """Periods done per call of the observer's compiled fast path (kernels.run_periods)."""
+    from elastic_pm_dyn.observer import kernels
+
+    calls: list[int] = []
+    inner = kernels.run_periods
+
+    def wrapped(*args):
+        done = inner(*args)
+        calls.append(done)
+        return done
+
+    monkeypatch.setattr(kernels, "run_periods", wrapped)
+    return calls

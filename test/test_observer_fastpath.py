@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from elastic_pm_dyn.observer import Observer, ObserverConfig, kernels
+from elastic_pm_dyn.observer import Observer, ObserverConfig
 from elastic_pm_dyn.observer.bag_input import Event
 from elastic_pm_dyn.observer.event_filter import run_events
 from elastic_pm_dyn.observer.scenarios import manoeuvre_recording
@@ -83,20 +83,6 @@ def _compare(mech, params, events, order="stamp", min_fast=1):
     assert (o1.t, o1.t_command, o1._lin_age, o1._lin_T) == (o2.t, o2.t_command, o2._lin_age, o2._lin_T)
     assert o1.diagnostics() == o2.diagnostics()
     return o2, r2
-
-
-@pytest.fixture
-def count_fast(monkeypatch):
-    calls = []
-    inner = kernels.run_periods
-
-    def wrapped(*args):
-        done = inner(*args)
-        calls.append(done)
-        return done
-
-    monkeypatch.setattr(kernels, "run_periods", wrapped)
-    return calls
 
 
 def test_fast_path_equals_per_message_api_with_glitches(five_bar, rec, count_fast) -> None:

@@ -169,21 +169,6 @@ def _compare(mech, params, events, order="stamp"):
     return o2
 
 
-@pytest.fixture
-def count_fast(monkeypatch):
-    from elastic_pm_dyn.observer import kernels
-    calls = []
-    inner = kernels.run_periods
-
-    def wrapped(*args):
-        done = inner(*args)
-        calls.append(done)
-        return done
-
-    monkeypatch.setattr(kernels, "run_periods", wrapped)
-    return calls
-
-
 @pytest.fixture(scope="module")
 def short_after(five_bar):
     """0.2 s with a(t_k+) (or a(t_k-)), commands acting at their stamp (0) or 1 or 2 periods later."""
