@@ -93,7 +93,7 @@ def test_command_and_samples_at_one_stamp_commute(five_bar, rec) -> None:
 
 
 def test_divergence_is_reported_and_reset_recovers(five_bar, rec) -> None:
-    obs = make(five_bar, sensors=["encoders"], gating__max_consecutive_rejections=10)
+    obs = make(five_bar, sensors=["encoders"], gating__max_consecutive_rejections=10, gating__recover_after=0)
     stream = ObserverStream(obs)
     names = rec.active_names
     for k in range(40):

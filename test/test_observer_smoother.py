@@ -124,7 +124,9 @@ class _Spy(Observer):
             self.priors.append((self.t, self.x(), self.P.copy()))
 
 
-@pytest.mark.parametrize("params", [{}, {"command_delay": 5e-4}, {"imu.sample_timing": "after_command"}])
+# (the half-period delay the recording does not have makes the filter recover: test_observer_recovery)
+@pytest.mark.parametrize("params", [{}, {"command_delay": 5e-4, "gating.recover_after": 0},
+                                    {"imu.sample_timing": "after_command"}])
 def test_replay_is_the_filters_prediction(five_bar, tmp_path, params) -> None:
     """x_k+1|k and P_k+1|k recomputed from the rows are the filter's own (a delay of half a
     period: two prediction pieces per period; the linearisation reused as the filter did)."""
@@ -147,6 +149,26 @@ def test_replay_is_the_filters_prediction(five_bar, tmp_path, params) -> None:
                                  origin_ns=min(e.stamp_ns for e in events))
     fast = predictions(five_bar, cfg, events, "stamp", fast_rows)
     np.testing.assert_allclose(fast.x_pred, pred.x_pred, rtol=0, atol=1e-13)
+
+
+def test_replay_after_recoveries(five_bar, tmp_path) -> None:
+    """A recovery (Observer._recover) ends a segment; after it the replay predicts with the
+    grown process noise, as the filter did."""
+    rec = generate(five_bar, RecordingSpec(duration=0.06, disturbance_rms=0.02, spectrum="pink", seed=9411))
+    bag = write_bag(rec, tmp_path / "bag", use=("encoders", "imu"))
+    cfg = _cfg(**{"command_delay": 5e-4, "gating.recover_after": 5})
+    events, _ = read_events(bag, Topics.from_config(cfg), cfg)
+    spy = _Spy(five_bar, cfg, t0=0.0)
+    rows, _, fault = run_events(spy, events, "stamp", fast=False, origin_ns=min(e.stamp_ns for e in events))
+    assert not fault and spy.recoveries
+    pred = predictions(five_bar, cfg, events, "stamp", rows, spy.recoveries)
+    breaks = {k for k in range(len(rows.t) - 1) if not pred.joined[k]}
+    assert breaks == {k - 1 for k in range(1, len(rows.t))
+                      if any(abs(r.t - rows.flat[k][0]) < 1e-9 for r in spy.recoveries)}
+    for k, (_, x, P) in enumerate(spy.priors):
+        if pred.joined[k]:
+            np.testing.assert_allclose(pred.x_pred[k], x, rtol=0, atol=1e-13)
+            np.testing.assert_allclose(pred.P_pred[k], P, rtol=1e-10, atol=1e-30)
 
 
 # ---------------------------------------------------------------- recordings

@@ -253,7 +253,7 @@ def test_fault_and_divergence_are_errors_reset_recovers(ros: RosHarness, rec: An
     from elastic_pm_dyn_msgs.srv import SetJointState
     from sensor_msgs.msg import JointState
     from std_srvs.srv import Trigger
-    plant = make_observer(ros, observer__gating__max_consecutive_rejections=5)
+    plant = make_observer(ros, observer__gating__max_consecutive_rejections=5, observer__gating__recover_after=0)
     feeder = Feeder(ros, plant, rec)
     session = plant.observer.session
     reset = feeder.node.create_client(Trigger, "/plant/reset")

@@ -78,6 +78,8 @@ DEFAULT_PARAMETERS: dict[str, Any] = {
     # --- robustness
     "gating.probability": 0.9999,  # chi-square quantile of the NIS gate
     "gating.max_consecutive_rejections": 50,  # then the filter reports divergence
+    "gating.recover_after": 10,  # encoder samples gated in a row, then the motors are re-initialised from
+    # them (Observer._recover; 0: never, divergence is reported after max_consecutive_rejections)
     "gating.nis_window": 200,  # samples in the windowed NIS consistency check
     "gating.nis_warn_factor": 2.0,  # health WARN when the windowed mean NIS / dof leaves [1/f, f]
     "timing.stamp_tolerance": 1.0e-6,  # [s] stamps this close count as simultaneous
@@ -151,6 +153,7 @@ class GatingConfig:
     max_consecutive_rejections: int
     nis_window: int
     nis_warn_factor: float
+    recover_after: int = 10
 
 
 @dataclass
@@ -221,7 +224,7 @@ class ObserverConfig:
                                   p["initial.elastic_velocity_stddev"], p["initial.disturbance_stddev"],
                                   p["initial.disturbance_rate_stddev"]),
             gating=GatingConfig(p["gating.probability"], p["gating.max_consecutive_rejections"],
-                                p["gating.nis_window"], p["gating.nis_warn_factor"]),
+                                p["gating.nis_window"], p["gating.nis_warn_factor"], p["gating.recover_after"]),
             timing=TimingConfig(p["timing.stamp_tolerance"], p["timing.command_timeout"],
                                 max_future=p["timing.max_future"]),
             topics=Topics(p["topics.torque_command"], p["topics.measured_joint_states"], p["topics.ee_imu"],
@@ -308,6 +311,8 @@ class ObserverConfig:
             raise bad("process.relinearize_every", f"must be >= 1, got {self.process.relinearize_every}")
         if not self.gating.nis_warn_factor > 1.0:
             raise bad("gating.nis_warn_factor", f"must be > 1, got {self.gating.nis_warn_factor!r}")
+        if self.gating.recover_after < 0:
+            raise bad("gating.recover_after", f"must be >= 0, got {self.gating.recover_after!r}")
         if self.gating.max_consecutive_rejections < 1 or self.gating.nis_window < 1:
             raise bad("gating", "max_consecutive_rejections and nis_window must be >= 1")
 

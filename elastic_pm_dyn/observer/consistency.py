@@ -7,8 +7,8 @@ timing evidence of ``imu.sample_timing: auto`` (``Observer.evidence``, ``timing_
 names one cause per sensor whose windowed mean NIS leaves [dof / f, dof f]
 (f = ``gating.nis_warn_factor``; judged after half a window of samples, when the start-up's
 wide covariance has faded, and :data:`MIN_SAMPLES` accepted) or that is gated out
-(``gating.max_consecutive_rejections`` in a row, or most of its samples; its window then
-holds the samples accepted before):
+(``gating.max_consecutive_rejections`` in a row, or most of its samples, or runs of them the
+filter recovered from, ``gating.recover_after``; its window then holds the samples accepted before):
 
 - NIS >> dof or gated out, and the other accelerometer sample timing fits the same samples
   better by more than the margin ``auto`` needs to switch: ``timing`` (``imu.sample_timing``);
@@ -98,6 +98,8 @@ def _gated(st: Any, limit: int) -> str:
         return f"{st.consecutive_rejections} consecutive samples gated out"
     if st.rejected >= MIN_GATED and st.rejected > st.accepted:
         return f"{100.0 * st.rejected / (st.rejected + st.accepted):.0f} % of samples gated out"
+    if getattr(st, "recoveries", 0):  # runs of gated samples the filter fell back from (Observer._recover)
+        return f"gated out in a run {st.recoveries} times, recovered from it each time"
     return ""
 
 

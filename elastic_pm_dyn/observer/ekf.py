@@ -57,6 +57,19 @@ on the command), so a live node and the offline pass give the same estimates whi
 message arrives first. Strain gauges have no feed-through in this model: a branch force
 F = c (u - u_rest) + d du/dt is a function of the state, continuous where the torque jumps.
 
+Recovery (``gating.recover_after``, default 10): the encoders are the ground truth of the
+motor angles. When they have been gated out that many times in a row, the estimate has followed
+another sensor or a mis-modelled input (a disturbance far stronger than the model's, a wrong
+command delay or sample timing) away from them; instead of gating them out wholesale the
+filter falls back (:meth:`Observer._recover`): motors re-initialised from the sample (rates by a
+finite difference of the last two), the motor/elastic blocks of P back to the initial prior,
+the disturbance states kept, and the process-noise intensities multiplied by
+:data:`RECOVERY_PSD_GROWTH` (up to :data:`RECOVERY_PSD_MAX` in all: the model's noise was too
+small for the data). Each recovery is counted (``stats``, summary.json, /diagnostics, the
+sensor's NIS finding and so health WARN) and logged with its time. The offline fast path
+(``kernels.run_periods``) stops at a gated sample, so the per-message API takes every gated
+period and the recovery is the same on both.
+
 Typical use (live node or offline)::
 
     obs = Observer(mech, load_config("config/observer.yaml"))
@@ -89,6 +102,8 @@ TIMING_TRIAL = 0.1  # [s] auto: samples weighed before the first choice (about 1
 TIMING_MIN_SAMPLES = 20  # auto: the first choice waits for at least this many accelerometer samples
 TIMING_RECHECK = 1.0  # [s] auto: evidence window of each later check
 TIMING_SWITCH_EVIDENCE = 20.0  # auto: log-likelihood margin (nats) the other hypothesis needs to take over
+RECOVERY_PSD_GROWTH = 4.0  # each recovery multiplies the process noise intensities by this ...
+RECOVERY_PSD_MAX = 256.0  # ... up to this factor in all (the model's noise was too small for the data)
 MAX_PENDING_COMMANDS = 10_000  # delayed commands kept before the filter runs (the oldest then act)
 
 
@@ -126,6 +141,7 @@ class SensorStats:
     # gated one counted at the gate): sum of (NIS + log det S + dof log 2 pi) / 2
     nll: float = 0.0
     nis_sum: float = 0.0  # NIS of the accepted samples, summed
+    recoveries: int = 0  # re-initialisations from this sensor after a run of gated samples (Observer._recover)
 
 
 LOG_2PI = float(np.log(2.0 * np.pi))
@@ -153,6 +169,24 @@ class TimingDecision:
         return (f"accelerometer sample timing: {what} {self.choice} at t = {self.t:.6f} s (log-likelihood of "
                 f"{self.samples} samples: before_command {self.loglik_before:.6g}, after_command "
                 f"{self.loglik_after:.6g})")
+
+
+@dataclass
+class Recovery:
+    """A fall-back (:meth:`Observer._recover`): at time t the encoders had been gated out
+    ``rejections`` times in a row (motor error ``motor_error`` [rad], the largest) and the
+    motors were re-initialised from them."""
+
+    t: float
+    sensor: str
+    rejections: int
+    motor_error: float
+    psd_scale: float = 1.0  # the process noise intensities' factor from here on
+
+    def text(self) -> str:
+        return (f"recovered from divergence at t = {self.t:.6f} s: {self.sensor} gated out {self.rejections} times "
+                f"in a row (motor error {self.motor_error:.3g} rad); motors re-initialised from {self.sensor}, "
+                f"disturbance estimates kept")
 
 
 @dataclass
@@ -298,6 +332,12 @@ class Observer:
         self.fault: str | None = None
         self.initialised = initialised
         self.stats = {s: SensorStats() for s in ("encoders", "imu", "branch_forces", "command")}
+        self.recoveries: list[Recovery] = []  # fall-backs since the last reset (_recover)
+        if getattr(self, "_psd_scale", 1.0) != 1.0:  # a reset forgets what the recoveries learned
+            self.psd_ae /= self._psd_scale
+            self.psd_z /= self._psd_scale
+        self._psd_scale = 1.0
+        self._gated_enc: tuple[float, np.ndarray] | None = None  # the last gated encoder sample (t, motor positions)
         self.Phi = np.eye(self.nx)
         self.Qd = np.zeros((self.nx, self.nx))
         self._lin_age, self._lin_T = 1 << 30, -1.0  # intervals since the last linearisation, its length
@@ -547,6 +587,8 @@ class Observer:
                 s = self.encoders.sample(list(names), position, velocity, self.q, self.qd, W, self.nx)
                 if s is not None:
                     out.append(self._correct(s, t))
+            if out and out[-1].reason == "gate" and position is not None:
+                self._on_gated_encoders(t, names, position)
         if (self.branch is not None and self.branch.source == "joint_state_effort" and effort is not None
                 and len(effort)):
             if len(effort) != len(names):
@@ -556,6 +598,90 @@ class Observer:
             if pairs:
                 out.append(self._branch_update(t, [p[0] for p in pairs], [p[1] for p in pairs]))
         return out
+
+    def _motor_positions(self, names, position) -> np.ndarray | None:
+        """Measured positions of every active joint (tree order of ``mech.active``), or None."""
+        lookup = {n: k for k, n in enumerate(names)}
+        out = np.empty(len(self.mech.active))
+        for i, j in enumerate(self.mech.active):
+            k = lookup.get(self.mech.joint_names[j])
+            if k is None or k >= len(position) or not np.isfinite(position[k]):
+                return None
+            out[i] = float(position[k])
+        return out
+
+    def _on_gated_encoders(self, t: float, names, position) -> None:
+        """An encoder sample gated out: remember it; after ``gating.recover_after`` in a row
+        (0: never) fall back (:meth:`_recover`)."""
+        st = self.stats["encoders"]
+        motors = self._motor_positions(names, position)
+        prev, self._gated_enc = self._gated_enc, None if motors is None else (t, motors)
+        after = self.cfg.gating.recover_after
+        if after > 0 and self.gating and motors is not None and st.consecutive_rejections >= after:
+            self._recover(t, motors, prev)
+
+    def _recover(self, t: float, motors: np.ndarray, prev: tuple[float, np.ndarray] | None) -> None:
+        """Fall back after a run of gated encoder samples: the estimate has followed another
+        sensor (or a mis-modelled input) away from the encoders, which are the ground truth of
+        the motor angles. The motor positions are re-initialised from this sample, their rates
+        from it and the previous gated one (a finite difference), the elastic coordinates and
+        rates kept (the passive joints from the closure); the motor/elastic blocks of P go back
+        to the initial prior (the motor rates' to the finite difference's spread), their
+        cross-covariance with the disturbance states is dropped, the disturbance states and
+        their covariance are kept (each at least its prior). So the next samples are accepted
+        again; counted in ``stats['encoders'].recoveries`` and :attr:`recoveries`."""
+        mech, nae = self.mech, self.nae
+        act = np.asarray(mech.active, dtype=np.int64)
+        error = float(np.max(np.abs(self.q[act] - motors)))
+        q, qd = self.q.copy(), self.qd.copy()
+        q[act] = motors
+        P0 = self.P0
+        na = len(act)
+        vel_var = np.full(na, np.nan)
+        if prev is not None and t - prev[0] > self.cfg.timing.stamp_tolerance:
+            dt = t - prev[0]
+            qd[act] = (motors - prev[1]) / dt
+            enc = self.encoders
+            var = dict(zip(enc.pos, enc.pos_var, strict=True))
+            noise = np.array([var.get(int(j), float(np.max(enc.pos_var, initial=0.0))) for j in act])
+            vel_var = 2.0 * noise / dt ** 2
+        try:
+            q = solve_pose(mech, q, mech.passive)
+        except ElasticPmDynError:
+            return  # no closure there: keep reporting the divergence
+        qd_ae = qd[self.ae].copy()
+        qd = np.zeros(mech.n)
+        qd[self.ae] = qd_ae
+        gap, ratio = kernels.apply_correction(mech.arrays, q, qd, np.zeros(self.nz), np.zeros(self.nx))
+        if not (gap <= 1e-9 and ratio >= kernels.SINGULAR_TOL):
+            return
+        P = np.zeros_like(self.P)
+        n2 = 2 * nae
+        P[:n2, :n2] = P0[:n2, :n2]
+        for i, j in enumerate(act):
+            if np.isfinite(vel_var[i]):
+                k = nae + self.x_of_ae[int(j)]
+                P[k, k] = max(P0[k, k], vel_var[i])
+        Pz = self.P[n2:, n2:]
+        P[n2:, n2:] = Pz
+        for i in range(self.nz):
+            P[n2 + i, n2:] = Pz[i]
+            P[n2 + i, n2 + i] = max(Pz[i, i], P0[n2 + i, n2 + i])
+        self.q, self.qd, self.P = q, qd, P
+        if RECOVERY_PSD_GROWTH > 1.0 and self._psd_scale * RECOVERY_PSD_GROWTH <= RECOVERY_PSD_MAX:
+            # the model's process noise was too small for what the data did: grow it (in place:
+            # the offline fast path holds these arrays)
+            self._psd_scale *= RECOVERY_PSD_GROWTH
+            self.psd_ae *= RECOVERY_PSD_GROWTH
+            self.psd_z *= RECOVERY_PSD_GROWTH
+        self._lin_age = 1 << 30  # linearise again at the next prediction (Qd with the new noise)
+        if self.with_point:
+            self._linearize_here()
+        st = self.stats["encoders"]
+        self.recoveries.append(Recovery(t, "encoders", st.consecutive_rejections, error, self._psd_scale))
+        st.recoveries += 1
+        st.consecutive_rejections = 0
+        self._gated_enc = None
 
     def update_imu(self, t: float, linear_acceleration, frame_id: str = "") -> UpdateResult | None:
         """Accelerometer sample (x, y, z of sensor_msgs/Imu linear_acceleration). None if there is
@@ -880,6 +1006,8 @@ class Observer:
             out[f"{name}.late"] = str(st.late)
             out[f"{name}.future"] = str(st.future)
             out[f"{name}.nan_entries"] = str(st.nan)
+            if st.recoveries:
+                out[f"{name}.recoveries"] = str(st.recoveries)
             if st.window:
                 lo, hi, mean = self.nis_band(name)
                 out[f"{name}.nis_last"] = f"{st.last_nis:.4g}"
@@ -894,6 +1022,8 @@ class Observer:
             d = self.timing_last
             if d is not None:
                 out["imu.sample_timing_check"] = d.text()
+        if self.recoveries:
+            out["recovery_last"] = self.recoveries[-1].text()
         out["command_delay"] = f"{self.delay:g}"
         return out
 

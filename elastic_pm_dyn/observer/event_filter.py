@@ -295,4 +295,6 @@ def filter_all(mech: Mechanism, cfg: ObserverConfig, events: list[Event], order:
     rows, stream, fault = run_events(obs, events, order, origin_ns=min(e.stamp_ns for e in events))
     for decision in obs.timing_decisions:  # imu.sample_timing auto: what it chose (and any switch)
         log(decision.text())
+    for recovery in obs.recoveries:  # fall-backs after runs of gated encoder samples
+        log(recovery.text())
     return FilterPass(obs, report, rows, stream, fault, time.perf_counter() - wall)

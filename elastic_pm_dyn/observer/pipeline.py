@@ -280,6 +280,8 @@ def _observe_pipelined(mech: Mechanism, cfg: ObserverConfig, bag: Path, out, top
             log(run.report.text())
             for decision in run.obs.timing_decisions:  # as event_filter.filter_all logs them
                 log(decision.text())
+            for recovery in run.obs.recoveries:
+                log(recovery.text())
         obs, rows = run.obs, run.rows
         summary = results.summary(bag, topics, counts, order, events, run, wall_read)
         if out is not None:

@@ -85,10 +85,12 @@ def summary(bag: str | Path, topics: Any, counts: dict, order: str, events: list
         "joint_states_rejected": {r: stream.joint_state_rejections[r] for r in NAME_PROBLEMS},
         "last_joint_state_problem": stream.last_joint_state_problem,
         "sensors": {s: {"accepted": st.accepted, "rejected": st.rejected, "late": st.late, "future": st.future,
-                        "nan_entries": st.nan, "mean_nis": obs.nis_band(s)[2], "last_rejection": st.last_reason,
+                        "nan_entries": st.nan, "recoveries": st.recoveries, "mean_nis": obs.nis_band(s)[2],
+                        "last_rejection": st.last_reason,
                         "diagnosis": findings.get(s, "")}
                     for s, st in obs.stats.items()},
         "sample_timing": obs.timing_summary(),
+        "recoveries": [vars(r) | {"text": r.text()} for r in obs.recoveries],  # Observer._recover
         "duration_s": duration,
         "wall_read_s": wall_read, "wall_filter_s": run.wall,
         "observability": report.text(),

@@ -30,8 +30,9 @@ a smoothed x goes back to the tree state by the closure (``kernels.apply_correct
 filter's partitioning) and to the outputs (every joint, branch forces, deflections, the end
 effector and their standard deviations) by ``kernels.estimate_flat``, as the filter's.
 
-Rows not joined by one prediction (the filter faulted, the replay could not predict) end a
-segment; each is smoothed on its own.
+Rows not joined by one prediction (the filter faulted, the replay could not predict, the
+filter fell back at a recovery: ``Observer.recoveries``, whose grown process noise the replay
+then takes on) end a segment; each is smoothed on its own.
 """
 
 from __future__ import annotations
@@ -115,9 +116,13 @@ def _in_filter_order(events: list[Event], order: str) -> list[Event]:
     return events
 
 
-def predictions(mech: Mechanism, cfg: ObserverConfig, events: list[Event], order: str, rows: Rows) -> Predictions:
-    """The filter's prediction between consecutive rows of a pass over ``events`` (module docstring)."""
+def predictions(mech: Mechanism, cfg: ObserverConfig, events: list[Event], order: str, rows: Rows,
+                recoveries: list | None = None) -> Predictions:
+    """The filter's prediction between consecutive rows of a pass over ``events`` (module
+    docstring); ``recoveries``: the filter's (``Observer.recoveries``), each ends a segment."""
     rep = Replay(mech, cfg, t0=0.0)
+    base_ae, base_z = rep.psd_ae.copy(), rep.psd_z.copy()
+    recovered = [(r.t, r.psd_scale) for r in recoveries or ()]
     lay = rep.flat_layout()
     nx, n_rows = rep.nx, len(rows.t)
     stream = ObserverStream(rep, origin_ns=rows.origin_ns)
@@ -132,10 +137,15 @@ def predictions(mech: Mechanism, cfg: ObserverConfig, events: list[Event], order
         j = row_at.get(int(ev.stamp_ns))
         if j is not None and j > k:
             t_j = stream.seconds(ev.stamp_ns)
-            if k < 0 or j != k + 1:  # the first row, or rows not joined: the filter (re)started here
-                tau_hold, t_command = rep.tau_hold, rep.t_command
+            scale = next((s for t_r, s in recovered if abs(t_r - rows.flat[j][0]) <= cfg.timing.stamp_tolerance),
+                         None)
+            if k < 0 or j != k + 1 or scale is not None:  # the first row, rows not joined, a recovery:
+                tau_hold, t_command = rep.tau_hold, rep.t_command  # the filter (re)started here
                 flat = rows.flat[j]
+                psd_scale = rep._psd_scale if scale is None else scale
                 rep.reset(t_j, flat[lay["q"]], flat[lay["qd"]], flat[lay["P"]].reshape(nx, nx))
+                rep.psd_ae[:], rep.psd_z[:] = base_ae * psd_scale, base_z * psd_scale
+                rep._psd_scale = psd_scale
                 rep.tau_hold, rep.tau_last, rep.t_command = tau_hold, tau_hold.copy(), t_command
             else:
                 rep.restart_from(rows.flat[k])
@@ -214,7 +224,7 @@ def smooth(mech: Mechanism, cfg: ObserverConfig, obs: Observer, events: list[Eve
     wall = time.perf_counter()
     if not rows.t:
         return SmoothedPass(Rows(obs, origin_ns=rows.origin_ns), {"rows": 0})
-    pred = predictions(mech, cfg, events, order, rows)
+    pred = predictions(mech, cfg, events, order, rows, obs.recoveries)
     wall_pred = time.perf_counter() - wall
     lay = obs.flat_layout()
     nx = obs.nx

@@ -182,6 +182,11 @@ class ObserverMode:
         for decision in decisions[self.timing_logged:]:
             log.info(decision.text())
         self.timing_logged = len(decisions)
+        recoveries = obs.recoveries
+        logged = getattr(self, "recoveries_logged", 0)
+        for recovery in recoveries[logged if logged <= len(recoveries) else 0:]:  # a reset clears the list
+            log.warning(recovery.text())
+        self.recoveries_logged = len(recoveries)
         findings = obs.nis_findings()
         if findings:
             log.warning("; ".join(findings.values()), throttle_duration_sec=FINDINGS_EVERY)
