@@ -365,11 +365,10 @@ class Observer:
         q = initial_state(mech)
         qd = np.zeros(mech.n)
         vel = [] if velocity is None else velocity
-        for j in mech.active:
-            k = lookup.get(mech.joint_names[j])
-            if k is None or k >= len(position) or not np.isfinite(position[k]):
-                return False
-            q[j] = float(position[k])
+        motors = self._motor_positions(names, position)
+        if motors is None:
+            return False
+        q[np.asarray(mech.active, dtype=np.int64)] = motors
         measured_elastic = False
         for j in mech.ae:
             k = lookup.get(mech.joint_names[j])
