@@ -73,22 +73,25 @@ def test_late_and_missing_samples(five_bar, rec, clean) -> None:
     assert np.abs(e.q - clean.q[-1]).max() < 3e-5
 
 
+def feed_in_order(obs: Observer, rec, command_first: bool, n: int | None = None) -> Observer:
+    """The first ``n`` stamps of ``rec`` (encoders, accelerometer, command) into ``obs`` through
+    an ObserverStream, the command of t_k before or after the samples of t_k."""
+    stream = ObserverStream(obs)
+    names = rec.active_names
+    for k, ns in enumerate(rec.stamp_ns[:n]):
+        ns = int(ns)
+        if command_first:
+            stream.on_torque_command(ns, names, rec.tau_cmd[k])
+        stream.on_joint_state(ns, names, rec.encoder[k])
+        stream.on_imu(ns, rec.accel[k])
+        if not command_first:
+            stream.on_torque_command(ns, names, rec.tau_cmd[k])
+    return obs
+
+
 def test_command_and_samples_at_one_stamp_commute(five_bar, rec) -> None:
     """A live node gets the command of t_k before or after the samples of t_k: same estimates."""
-    runs = []
-    for command_first in (False, True):
-        obs = make(five_bar)
-        stream = ObserverStream(obs)
-        names = rec.active_names
-        for k, ns in enumerate(rec.stamp_ns[:60]):
-            ns = int(ns)
-            if command_first:
-                stream.on_torque_command(ns, names, rec.tau_cmd[k])
-            stream.on_joint_state(ns, names, rec.encoder[k])
-            stream.on_imu(ns, rec.accel[k])
-            if not command_first:
-                stream.on_torque_command(ns, names, rec.tau_cmd[k])
-        runs.append(obs.estimate())
+    runs = [feed_in_order(make(five_bar), rec, command_first, 60).estimate() for command_first in (False, True)]
     assert np.array_equal(runs[0].x, runs[1].x) and np.array_equal(runs[0].P, runs[1].P)
 
 

@@ -15,6 +15,7 @@ import math
 import numpy as np
 import pytest
 from test_observer_fastpath import _events
+from test_observer_robustness import feed_in_order
 
 from elastic_pm_dyn.errors import InputError
 from elastic_pm_dyn.observer import Observer, ObserverConfig
@@ -101,22 +102,8 @@ def test_command_and_samples_at_one_stamp_commute(five_bar, recorded, timing, de
     """The command of t_k before or after the samples of t_k: the same estimates (an
     after_command sample waits for its command; auto under before_command weighs it then)."""
     rec = manoeuvre_recording(five_bar, duration=0.15, seed=3, accel_timing=recorded, command_delay=delay)
-    runs = []
     cfg = ObserverConfig.from_parameters({"imu.sample_timing": timing, "command_delay": delay * 1e-3})
-    for command_first in (False, True):
-        obs = Observer(five_bar, cfg)
-        stream = ObserverStream(obs)
-        names = rec.active_names
-        for k, ns in enumerate(rec.stamp_ns):
-            ns = int(ns)
-            if command_first:
-                stream.on_torque_command(ns, names, rec.tau_cmd[k])
-            stream.on_joint_state(ns, names, rec.encoder[k])
-            stream.on_imu(ns, rec.accel[k])
-            if not command_first:
-                stream.on_torque_command(ns, names, rec.tau_cmd[k])
-        runs.append(obs)
-    a, b = runs
+    a, b = (feed_in_order(Observer(five_bar, cfg), rec, command_first) for command_first in (False, True))
     assert np.array_equal(a.x(), b.x()) and np.array_equal(a.P, b.P)
     assert a.stats["imu"].accepted == b.stats["imu"].accepted > 140
     assert np.array_equal(a.evidence, b.evidence) and a.sample_timing() == b.sample_timing()
