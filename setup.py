@@ -28,8 +28,9 @@ setup(
         "matplotlib>=3.8",
         "rosbags>=0.11,<0.12",
     ],
-    # pin: the Pinocchio cross-check test (and the benchmark); mujoco: the benchmark only.
-    extras_require={"test": ["pytest>=8", "ruff", "pin"], "bench": ["pin", "mujoco"]},
+    # pin: the Pinocchio cross-check test (and the benchmark); mujoco: the benchmark only;
+    # hypothesis: the property-based fuzz suite (test/test_fuzz_*.py).
+    extras_require={"test": ["pytest>=8", "ruff", "pin", "hypothesis>=6.100"], "bench": ["pin", "mujoco"]},
     zip_safe=False,
     entry_points={
         "console_scripts": [
