@@ -5,20 +5,39 @@ sqlite3, with or without the message definitions stored (our ``BranchForces`` an
 types stand in where the bag has none, or only some), and turns whatever rosbags or a
 broken storage file raises into a one-line :class:`~elastic_pm_dyn.bags.errors.BagError`
 naming the bag, when opening as when reading messages.
+
+A recording whose writer was killed (``metadata.yaml`` still marked unfinished, or an
+mcap without its footer) is read as far as it is complete: an mcap's complete chunks
+(:mod:`~elastic_pm_dyn.bags.mcap_scan`), a sqlite3 file's committed rows (a journal the
+kill left behind rolled back on a copy). One warning line says that it was cut off,
+where, and what was recovered (also in :attr:`Bag.cut`). A *finished* bag whose mcap
+lost its end was damaged afterwards: that is an error, and ``bag-repair`` recovers it.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Sequence
-from contextlib import contextmanager
+import logging
+import shutil
+import sqlite3
+import tempfile
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import ExitStack, contextmanager
 from pathlib import Path
 from typing import Any
 
 from rosbags.highlevel import AnyReader
+from rosbags.interfaces import MessageDefinitionFormat
+from rosbags.typesys import Stores, get_types_from_idl, get_types_from_msg, get_typestore
+from rosbags.typesys.store import Typestore
 
 from elastic_pm_dyn.bags.decode import Decoder
 from elastic_pm_dyn.bags.errors import READ_ERRORS, BagError, one_line
+from elastic_pm_dyn.bags.mcap_scan import McapScan, McapScanError, has_footer, scan_mcap
+from elastic_pm_dyn.bags.metadata import UNFINISHED, recording_state
 from elastic_pm_dyn.bags.typestore import make_typestore
+
+log = logging.getLogger("elastic_pm_dyn.bags")
+Messages = Callable[[Sequence[Any]], Iterator[tuple[Any, int, bytes]]]
 
 
 def storage_of(path: Path) -> str:
@@ -26,6 +45,10 @@ def storage_of(path: Path) -> str:
     files = [path] if path.is_file() else list(path.iterdir())
     suffixes = {p.suffix for p in files}
     return "mcap" if ".mcap" in suffixes else "sqlite3" if ".db3" in suffixes else "?"
+
+
+def _storage_files(path: Path) -> list[Path]:
+    return [path] if path.is_file() else sorted(p for p in path.iterdir() if p.suffix in (".mcap", ".db3"))
 
 
 @contextmanager
@@ -38,57 +61,178 @@ def open_bag(path: str | Path) -> Iterator[Bag]:
         files = sorted(p.name for p in path.iterdir() if p.suffix in (".mcap", ".db3"))
         hint = f"; to read a storage file without it, pass {path / files[0]}" if files else ""
         raise BagError(f"{path}: not a rosbag2 bag (no metadata.yaml{hint})")
+    meta_dir = path if path.is_dir() else path.parent
+    state = recording_state(meta_dir) if (meta_dir / "metadata.yaml").is_file() else None
+    files = _storage_files(path)
+    storage = storage_of(path)
+    with ExitStack() as stack:
+        if storage == "mcap" and len(files) == 1 and not has_footer(files[0]):
+            if state is not None and state != UNFINISHED:
+                raise BagError(f"{path}: bag is truncated or corrupt: {files[0].name} has lost its end (no mcap "
+                               "footer) although metadata.yaml says the bag was finished; `elastic-pm-dyn "
+                               f"bag-repair {path}` copies what is complete")
+            bag = _recovered_mcap(path, files[0])
+        elif state == UNFINISHED and len(files) == 1:
+            # metadata.yaml lists no messages yet: the storage file alone says what is there.
+            bag = _from_reader(path, _open_reader(stack, [_committed_sqlite(stack, files[0])]))
+            if storage == "sqlite3":
+                bag.cut = _cut_text(path, "its writer never closed it: metadata.yaml still says unfinished", bag)
+        else:
+            bag = _from_reader(path, _open_reader(stack, [path]))
+        if bag.cut:
+            log.warning(f"warning: {bag.cut}")
+        yield bag
+
+
+def _open_reader(stack: ExitStack, paths: list[Path]) -> AnyReader:
     try:
-        reader = AnyReader([path], default_typestore=make_typestore())
+        reader = AnyReader(paths, default_typestore=make_typestore())
         reader.open()
     except READ_ERRORS as err:
-        hint = ("; an mcap whose recorder was killed lacks its footer: repair it with `mcap recover`"
+        hint = ("; an mcap whose writer was killed lacks its footer: `elastic-pm-dyn bag-repair` recovers it"
                 if "end magic" in str(err) else "")
-        raise BagError(f"{path}: cannot open the bag (truncated or corrupt?): {one_line(err)}{hint}") from None
+        raise BagError(f"{paths[0]}: cannot open the bag (truncated or corrupt?): {one_line(err)}{hint}") from None
+    stack.callback(reader.close)
     try:
-        _complete_typestore(reader)
-        yield Bag(path, reader)
-    finally:
-        reader.close()
+        _complete_typestore(reader.typestore, reader.connections)
+    except READ_ERRORS as err:
+        raise BagError(f"{paths[0]}: cannot use the message definitions of the bag: {one_line(err)}") from None
+    return reader
 
 
-def _complete_typestore(reader: AnyReader) -> None:
+def _from_reader(path: Path, reader: AnyReader) -> Bag:
+    count = int(reader.message_count)
+    return Bag(path, storage_of(path), list(reader.connections), reader.typestore,
+               lambda conns: reader.messages(connections=conns), count,
+               int(reader.start_time) if count else 0, int(reader.end_time) if count else 0)
+
+
+def _committed_sqlite(stack: ExitStack, db: Path) -> Path:
+    """``db``, or a copy with the transaction a kill interrupted rolled back (rosbags reads
+    a database as immutable and would take a half-written commit as it is)."""
+    side = [p for p in (db.with_name(db.name + "-journal"), db.with_name(db.name + "-wal"))
+            if p.is_file() and p.stat().st_size]
+    if db.suffix != ".db3" or not side:
+        return db
+    tmp = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="bag_recovery_")))
+    for p in (db, *side):
+        shutil.copyfile(p, tmp / p.name)
+    try:
+        con = sqlite3.connect(tmp / db.name)
+        try:
+            con.execute("SELECT count(*) FROM sqlite_master").fetchone()  # rolls a hot journal back
+            con.execute("PRAGMA wal_checkpoint(TRUNCATE)")
+        finally:
+            con.close()
+    except sqlite3.Error as err:
+        raise BagError(f"{db}: cannot recover the database its writer left: {one_line(err)}") from None
+    return tmp / db.name
+
+
+def _recovered_mcap(path: Path, file: Path) -> Bag:
+    try:
+        scan = scan_mcap(file)
+    except McapScanError as err:
+        raise BagError(f"{path}: bag is truncated or corrupt: nothing to recover: {err}") from None
+    except OSError as err:
+        raise BagError(f"{path}: cannot read the bag: {err.strerror or one_line(err)}") from None
+    try:
+        typestore = _typestore_of(scan)
+    except READ_ERRORS as err:
+        raise BagError(f"{path}: cannot use the message definitions of the bag: {one_line(err)}") from None
+    bag = Bag(path, "mcap", scan.connections, typestore, scan.messages, scan.message_count,
+              scan.start_ns, scan.end_ns + 1 if scan.message_count else 0)
+    bag.cut = _cut_text(path, f"no mcap footer: {scan.stop_reason}", bag)
+    return bag
+
+
+def _typestore_of(scan: McapScan) -> Typestore:
+    """The types of the bag's own definitions (as rosbags' AnyReader builds them), ours for the rest."""
+    typs: dict[str, Any] = {}
+    for c in scan.connections:
+        if c.msgdef.format == MessageDefinitionFormat.MSG:
+            typs.update(get_types_from_msg(c.msgdef.data, c.msgtype))
+        elif c.msgdef.format == MessageDefinitionFormat.IDL:
+            sep = "=" * 80 + "\n"
+            parts = c.msgdef.data.split(sep)[1:] if c.msgdef.data.startswith(f"{sep}IDL: ") else [None]
+            for part in parts:
+                typs.update(get_types_from_idl(c.msgdef.data if part is None else part.split("\n", 1)[1]))
+    if not typs:
+        return make_typestore()
+    store = get_typestore(Stores.EMPTY)
+    store.register(typs)
+    _complete_typestore(store, scan.connections)
+    return store
+
+
+def _cut_text(path: Path, why: str, bag: Bag) -> str:
+    """One line: cut off, why, where (the last receive time) and what was recovered."""
+    if not bag.message_count:
+        return f"{path}: the recording was cut off ({why}); no message was recovered"
+    per_topic = ", ".join(f"{t} {n}" for t, (_, n) in bag.topics().items() if n)
+    last = (bag.end_ns - 1) * 1e-9
+    return (f"{path}: the recording was cut off ({why}); recovered {bag.message_count} messages ({per_topic}) "
+            f"up to bag time {last:.6f} s, {last - bag.start_ns * 1e-9:.3f} s after the first; "
+            f"`elastic-pm-dyn bag-repair {path}` writes a finished copy")
+
+
+def _complete_typestore(store: Typestore, connections: Sequence[Any]) -> None:
     """Add our types (and Jazzy's) for connections whose bag carries no definition.
 
     AnyReader uses its default typestore only when *no* connection has a definition; a
     bag with definitions for some types and not for others would leave those undecodable.
     """
-    have = reader.typestore.fielddefs
-    missing = {c.msgtype for c in reader.connections if c.msgtype not in have}
+    have = store.fielddefs
+    missing = {c.msgtype for c in connections if c.msgtype not in have}
     if missing:
         defaults = make_typestore().fielddefs
-        reader.typestore.register({k: v for k, v in defaults.items() if k not in have})
+        store.register({k: v for k, v in defaults.items() if k not in have})
 
 
 class Bag:
     """An open bag: its connections (rosbags ``Connection``: ``topic``, ``msgtype``, ``id``),
-    topics and messages; errors of the bag become :class:`BagError`."""
+    topics and messages; errors of the bag become :class:`BagError`.
 
-    def __init__(self, path: Path, reader: AnyReader):
+    ``start_ns``/``end_ns``: the first receive time and the last + 1 [ns] (both 0 in a bag
+    without messages: its duration is 0). ``cut``: None, or the line saying that the
+    recording was cut off and what was recovered."""
+
+    def __init__(self, path: Path, storage: str, connections: list[Any], typestore: Typestore,
+                 messages: Messages, message_count: int, start_ns: int, end_ns: int):
         self.path = path
-        self.storage = storage_of(path)
-        self._reader = reader
-        self.connections: list[Any] = list(reader.connections)
-        self.typestore = reader.typestore
-        self.start_ns = int(reader.start_time)
-        self.end_ns = int(reader.end_time)
+        self.storage = storage
+        self.connections = connections
+        self.typestore = typestore
+        self._messages = messages
+        self.message_count = message_count
+        self.start_ns = start_ns
+        self.end_ns = end_ns
+        self.cut: str | None = None
 
     def topics(self) -> dict[str, tuple[str, int]]:
         """Every topic: name -> (message type, message count)."""
-        return {name: (info.msgtype or "?", int(info.msgcount)) for name, info in self._reader.topics.items()}
+        out: dict[str, tuple[str, int]] = {}
+        for c in self.connections:
+            msgtype, n = out.get(c.topic, (c.msgtype, 0))
+            out[c.topic] = (msgtype if msgtype == c.msgtype else "?", n + int(c.msgcount))
+        return out
+
+    def require_messages(self) -> None:
+        """:class:`BagError` if the bag holds no message at all."""
+        if not self.message_count:
+            cut = f" ({self.cut})" if self.cut else ""
+            raise BagError(f"{self.path}: the bag is empty: no messages{cut}")
 
     def can_decode(self, msgtype: str) -> bool:
         return msgtype in self.typestore.fielddefs
 
     def messages(self, connections: Sequence[Any]) -> Iterator[tuple[Any, int, bytes]]:
         """(connection, receive time [ns], raw CDR) of the given connections, in bag order."""
-        it = self._reader.messages(connections=connections)
         n, t_last = 0, 0  # messages read so far, the receive time of the last: for the error
+        try:
+            it = self._messages(connections)
+        except READ_ERRORS as err:
+            raise self._corrupt(err, n, t_last) from None
         while True:
             try:
                 conn, t_ns, raw = next(it)
