@@ -71,7 +71,7 @@ def open_bag(path: str | Path) -> Iterator[Bag]:
                 raise BagError(f"{path}: bag is truncated or corrupt: {files[0].name} has lost its end (no mcap "
                                "footer) although metadata.yaml says the bag was finished; `elastic-pm-dyn "
                                f"bag-repair {path}` copies what is complete")
-            bag = _recovered_mcap(path, files[0])
+            bag = recover_mcap(path, files[0])
         elif state == UNFINISHED and len(files) == 1:
             # metadata.yaml lists no messages yet: the storage file alone says what is there.
             bag = _from_reader(path, _open_reader(stack, [_committed_sqlite(stack, files[0])]))
@@ -129,7 +129,8 @@ def _committed_sqlite(stack: ExitStack, db: Path) -> Path:
     return tmp / db.name
 
 
-def _recovered_mcap(path: Path, file: Path) -> Bag:
+def recover_mcap(path: Path, file: Path) -> Bag:
+    """The bag of an mcap without footer: its complete chunks (``cut`` says what was recovered)."""
     try:
         scan = scan_mcap(file)
     except McapScanError as err:

@@ -12,6 +12,12 @@ the subscription QoS follows the publishers: transient local when all of them of
 (so samples published before the recorder matched are still recorded), best effort
 when any of them is best effort. Bag time stamps are receive times on the node clock
 (simulated time with use_sim_time).
+
+Killed at any moment (even SIGKILL), the node leaves a bag that ``analyze``, ``export``
+and ``observe`` read up to at most ~1 s before the kill: the writer flushes (an mcap chunk,
+a sqlite3 commit) every :data:`FLUSH_PERIOD` of wall-clock time, from the message stream
+and from a timer when messages stop. "recording <topic>" is logged once the topic's first
+message is in the file, not when it is subscribed.
 """
 
 from __future__ import annotations
@@ -34,6 +40,7 @@ from elastic_pm_dyn.ros.params import Param, ParameterError, read_parameters, re
 DEMO_TOPICS = ["/joint_states", "/branch_forces", "/ee_pose", "/torque_command", "/reference_joint_states"]
 DISCOVERY_PERIOD = 0.1  # [s] wall-clock poll of the ROS graph for the wanted topics
 DEPTH = 1000  # a recorder must not drop samples in bursts
+FLUSH_PERIOD = 0.5  # [s] wall clock: at most this much of the recording is lost to a kill (plus a callback)
 
 PARAMS = [
     Param("output", "bag", "bag directory to create (must not exist)"),
@@ -54,13 +61,16 @@ class RecorderNode(ManagedNode):
             raise ParameterError("parameter 'topics' is empty: nothing to record")
         self.path = Path(p["output"])
         try:
-            self.writer = BagWriter(self.path, p["storage"])
+            self.writer = BagWriter(self.path, p["storage"], flush_period=FLUSH_PERIOD)
         except BagError as err:
             raise ParameterError(f"parameter 'output': {err}") from None
         self.connections: dict[str, Any] = {}  # topic -> bag connection
+        self.on_disk: set[str] = set()  # topics whose first message is in the file (logged once)
         self.skipped: set[str] = set()  # topics whose type cannot be recorded (warned once)
-        self.create_timer(DISCOVERY_PERIOD, self._discover, clock=Clock(clock_type=ClockType.STEADY_TIME))
-        self.get_logger().info(f"recording {', '.join(self.wanted)} -> {self.path} ({p['storage']})")
+        steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self.create_timer(DISCOVERY_PERIOD, self._discover, clock=steady)
+        self.create_timer(FLUSH_PERIOD / 2, self._flush, clock=steady)  # when messages stop coming
+        self.get_logger().info(f"waiting for {', '.join(self.wanted)} -> {self.path} ({p['storage']})")
 
     def _discover(self) -> None:
         types = dict(self.get_topic_names_and_types())
@@ -84,7 +94,7 @@ class RecorderNode(ManagedNode):
         self.connections[topic] = self.writer.add_connection(topic, msgtype)
         self.create_subscription(msg_class, topic, lambda raw, t=topic: self._write(t, raw),
                                  self._qos(topic), raw=True)
-        self.get_logger().info(f"recording {topic} [{msgtype}]")
+        self.get_logger().info(f"subscribed to {topic} [{msgtype}]")
 
     def _qos(self, topic: str) -> QoSProfile:
         offered = [info.qos_profile for info in self.get_publishers_info_by_topic(topic)]
@@ -95,7 +105,19 @@ class RecorderNode(ManagedNode):
                           reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT)
 
     def _write(self, topic: str, raw: bytes) -> None:
-        self.writer.write(self.connections[topic], self.get_clock().now().nanoseconds, raw)
+        if self.writer.write(self.connections[topic], self.get_clock().now().nanoseconds, raw):
+            self._announce()
+
+    def _flush(self) -> None:
+        if self.writer.flush():
+            self._announce()
+
+    def _announce(self) -> None:
+        """Log "recording <topic>" for each topic whose first message just reached the file."""
+        for topic, conn in self.connections.items():
+            if topic not in self.on_disk and self.writer.durable(conn):
+                self.on_disk.add(topic)
+                self.get_logger().info(f"recording {topic} [{conn.msgtype}]: first message in {self.path}")
 
     def close(self) -> None:
         counts = {c.topic: self.writer.count(c) for c in self.connections.values()}
