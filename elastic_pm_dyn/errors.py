@@ -45,3 +45,9 @@ class SingularConfigurationError(ElasticPmDynError):
         self.residual = residual
         self.partial = None
         super().__init__(message)
+
+
+class DivergedStateError(SingularConfigurationError):
+    """The integration blew up (a step too large for the motion, or a torque too high):
+    not a singular configuration, though handled as one (the run stops, the partial result
+    is kept, a plant keeps its last good state)."""

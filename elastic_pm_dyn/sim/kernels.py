@@ -30,9 +30,15 @@ STAB_PROJECTION = 2
 # longer determined by q_ae (a parallel singularity of the rigid machine is near).
 NEWTON_FAILED = 1e-9
 
+# A step that moves a joint by more than this [rad or m] (or a non-finite state or
+# acceleration) has diverged: no configuration of the machine explains it, the step is too
+# large for the motion or the torque too high. Told apart from a singular configuration,
+# whose conditioning check a blown-up state also fails.
+MAX_STEP_MOTION = 1.0
+
 OK = 0
 SINGULAR = 1
-NOT_FINITE = 2
+DIVERGED = 2
 
 
 @njit(cache=True)
@@ -126,13 +132,45 @@ def project(ma, q, qd, tol, max_iter):
 
 
 @njit(cache=True)
+def _step_motion(qd, qdd, dt):
+    """Largest joint motion dt |qd| + dt^2 |qdd| / 2 of one step (inf or nan if not finite)."""
+    vmax = 0.0
+    amax = 0.0
+    for i in range(qd.shape[0]):
+        if not (np.isfinite(qd[i]) and np.isfinite(qdd[i])):
+            return np.inf, np.inf
+        vmax = max(vmax, abs(qd[i]))
+        amax = max(amax, abs(qdd[i]))
+    return dt * vmax + 0.5 * dt * dt * amax, amax
+
+
+@njit(cache=True)
+def _sane(q, qd, limit):
+    """q finite, qd finite and within +-limit (a sum: one branch, no allocation)."""
+    total = 0.0
+    vmax = 0.0
+    for i in range(q.shape[0]):
+        total += q[i] + qd[i]
+        vmax = max(vmax, abs(qd[i]))
+    return np.isfinite(total) and vmax <= limit
+
+
+@njit(cache=True)
 def rk4_steps(form, ma, q, qd, tau_coef, dt, n_steps, stab, alpha, beta, tol, singular_tol,
               qdd_prev, lam, info):
     """Advance (q, qd) in place by n_steps RK4 steps of dt.
 
     tau_coef (3, n_t): tree torque polynomial in the time since this call's start.
     info receives [steps done, worst conditioning, last gap]. Returns OK, SINGULAR (the
-    conditioning fell below singular_tol; the state is the last good one) or NOT_FINITE.
+    conditioning fell below singular_tol; L-D'A: below sqrt(singular_tol), see below) or
+    DIVERGED (a step would move a joint by more than MAX_STEP_MOTION, or the state or the
+    acceleration is not finite; info[1] is then max |qdd|); in both cases (q, qd) is the
+    state after the last good step. Divergence is checked before singularity: a blown-up
+    state ruins the conditioning too, and must not be reported as a singular configuration.
+
+    L-D'A solves q_p from h(q_ae, q_p) = 0 by Newton: near a fold of the closure (a parallel
+    singularity) a residual r leaves q_p uncertain by ~sqrt(r), so its threshold on the
+    pivot ratio of dh/dq_p is the square root of the linear solves' singular_tol.
     """
     n = q.shape[0]
     a = alpha if stab & STAB_BAUMGARTE else 0.0
@@ -145,6 +183,8 @@ def rk4_steps(form, ma, q, qd, tau_coef, dt, n_steps, stab, alpha, beta, tol, si
     worst = 1.0
     gap = 0.0
     info[0] = 0.0
+    lda_tol = np.sqrt(singular_tol)
+    limit = MAX_STEP_MOTION / dt  # [rad/s or m/s] a faster joint moves more than that in one step
     for step in range(n_steps):
         s0 = step * dt
         for stage in range(4):
@@ -170,7 +210,9 @@ def rk4_steps(form, ma, q, qd, tau_coef, dt, n_steps, stab, alpha, beta, tol, si
                 qs, vs, acc = q4, v4, a4
             if form == LDA:
                 g, cond = partition(ma, qs, vs, tol, 4)
-                if cond < singular_tol or not g <= NEWTON_FAILED:
+                if cond < lda_tol or not g <= NEWTON_FAILED:
+                    if not _sane(qs, vs, limit):
+                        return _diverged(ma, qs, vs, tau, a, b, qdd_prev, acc, lam, ws, form, info)
                     info[1] = cond
                     info[2] = g
                     return SINGULAR
@@ -178,31 +220,57 @@ def rk4_steps(form, ma, q, qd, tau_coef, dt, n_steps, stab, alpha, beta, tol, si
             qdd_prev[:] = acc
             if stage == 0:
                 gap = g
+                motion, amax = _step_motion(vs, acc, dt)
+                if not motion <= MAX_STEP_MOTION:
+                    info[1] = amax
+                    info[2] = g
+                    return DIVERGED
             worst = min(worst, cond)
             if cond < singular_tol:
+                motion, amax = _step_motion(vs, acc, dt)
+                if not (_sane(qs, vs, limit) and motion <= MAX_STEP_MOTION):
+                    info[1] = amax
+                    info[2] = g
+                    return DIVERGED
                 info[1] = cond
                 info[2] = g
                 return SINGULAR
+        # the new state goes to q4, v4 first: a step that diverges leaves (q, qd) as they were
         for i in range(n):
-            q[i] += dt / 6.0 * (qd[i] + 2.0 * v2[i] + 2.0 * v3[i] + v4[i])
-            qd[i] += dt / 6.0 * (a1[i] + 2.0 * a2[i] + 2.0 * a3[i] + a4[i])
+            q4[i] = q[i] + dt / 6.0 * (qd[i] + 2.0 * v2[i] + 2.0 * v3[i] + v4[i])
+            v4[i] = qd[i] + dt / 6.0 * (a1[i] + 2.0 * a2[i] + 2.0 * a3[i] + a4[i])
+        if not _sane(q4, v4, limit):
+            info[1] = max(np.max(np.abs(a1)), np.max(np.abs(a4)))
+            info[2] = gap
+            return DIVERGED
+        q[:] = q4
+        qd[:] = v4
         if form == LDA:
             gap, cond = partition(ma, q, qd, tol, 4)
-            if cond < singular_tol or not gap <= NEWTON_FAILED:
+            if cond < lda_tol or not gap <= NEWTON_FAILED:
                 info[1] = cond
                 info[2] = gap
                 return SINGULAR
         elif stab & STAB_PROJECTION:
             project(ma, q, qd, tol, 3)
-        for i in range(n):
-            if not (np.isfinite(q[i]) and np.isfinite(qd[i])):
-                info[1] = worst
-                info[2] = gap
-                return NOT_FINITE
         info[0] = step + 1
     info[1] = worst
     info[2] = gap
     return OK
+
+
+@njit(cache=True)
+def _diverged(ma, qs, vs, tau, a, b, qdd_prev, acc, lam, ws, form, info):
+    """DIVERGED with info[1] = max |qdd| at the stage state (as far as it can be evaluated)."""
+    for i in range(qs.shape[0]):
+        if not (np.isfinite(qs[i]) and np.isfinite(vs[i])):
+            info[1] = np.inf
+            info[2] = np.nan
+            return DIVERGED
+    _, g = accelerations_into(form, ma, qs, vs, tau, a, b, qdd_prev, acc, lam, ws)
+    info[1] = np.max(np.abs(acc))
+    info[2] = g
+    return DIVERGED
 
 
 @njit(cache=True)

@@ -3,6 +3,10 @@
 The node validates messages and calls these methods, so the stepping, the reset and the
 set-state logic run (and are tested) without ROS. Time is an integer count of control
 periods, t = k * period, so it never drifts and equals offline sample times.
+
+A fault (a singular configuration, or a state that diverged) never leaves garbage: the
+state stays the last good one, at the start of the period that failed, until
+:meth:`Plant.reset` or :meth:`Plant.set_state`, which recover from any fault.
 """
 
 from __future__ import annotations
@@ -15,8 +19,13 @@ import numpy as np
 from elastic_pm_dyn.errors import AssemblyError, InputError, SingularConfigurationError
 from elastic_pm_dyn.kinematics.assembly import initial_state, solve_pose, solve_velocity
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
+from elastic_pm_dyn.sim import kernels
 from elastic_pm_dyn.sim.simulator import SimulationOptions, Simulator
+from elastic_pm_dyn.sim.stopped import integration_error
 from elastic_pm_dyn.sim.torque import ConstantTorque
+
+# [rad or m] a requested position beyond this is a mistake: float spacing there exceeds 1e-10
+MAX_POSITION = 1.0e6
 
 
 @dataclass
@@ -44,8 +53,11 @@ class Plant:
         self.qd = np.zeros(mech.n)
         self.k = 0  # control periods done
         self.tau = np.zeros(len(mech.active))  # torque applied over the last period
-        self.fault: str | None = None  # why integration stopped (singular configuration)
+        self.fault: str | None = None  # why integration stopped (singular configuration, diverged state)
+        self.fault_error: SingularConfigurationError | None = None
         self._sim = Simulator(mech, options)
+        self._coef = np.zeros((3, mech.n))  # the held torque as RK4's polynomial (constant)
+        self._info = np.zeros(3)
         # Compile (or load) the integrator now, not inside the first control period; a
         # throwaway simulator keeps the real one's state as offline runs start it.
         Simulator(mech, options).advance(self.q0.copy(), np.zeros(mech.n), ConstantTorque(self.tau), 0.0, period)
@@ -60,19 +72,45 @@ class Plant:
     def step(self, tau: np.ndarray) -> None:
         """Advance one period with ``tau`` (active order) held constant (ZOH).
 
-        On a singular configuration ``fault`` is set, the state stays at the last good
-        RK4 step and the time does not advance; :meth:`reset` or :meth:`set_state` recover.
+        On a singular configuration or a diverged state (SingularConfigurationError, or its
+        DivergedStateError) ``fault`` is set, the state stays the one at the start of the
+        period (the last good one) and the time does not advance; :meth:`reset` or
+        :meth:`set_state` recover. A torque that is not n_a finite numbers: InputError.
         """
-        if self.fault is not None:
-            raise SingularConfigurationError(self.fault)
+        if self.fault_error is not None:
+            raise self.fault_error
+        tau = np.asarray(tau, dtype=float)
+        if tau.shape != self.tau.shape or not np.isfinite(tau.sum()):  # one check: NaN, Inf or overflow
+            raise InputError(f"torque must be {len(self.tau)} finite numbers, got {tau!r}")
         t0 = self.t
+        t1 = t0 + self.period
+        q, qd = self.q.copy(), self.qd.copy()  # the stepping works on copies: a fault keeps the last good state
         try:
-            self._sim.advance(self.q, self.qd, ConstantTorque(tau), t0, t0 + self.period)
+            if self.options.integrator == "rk4":
+                self._rk4(q, qd, tau, t0, t1)
+            else:
+                self._sim.advance(q, qd, ConstantTorque(tau), t0, t1)
+            if not (np.isfinite(q.sum()) and np.isfinite(qd.sum())):  # the adaptive path has no check of its own
+                raise integration_error(kernels.DIVERGED, self.options.formulation, t0, np.array([0.0, np.inf, np.nan]))
         except SingularConfigurationError as err:
-            self.fault = str(err)
+            self.fault, self.fault_error = str(err), err
             raise
-        self.tau = np.array(tau, dtype=float)
+        self.q, self.qd = q, qd
+        self.tau = tau.copy()
         self.k += 1
+
+    def _rk4(self, q: np.ndarray, qd: np.ndarray, tau: np.ndarray, t0: float, t1: float) -> None:
+        """The simulator's RK4 over one torque piece (the same steps, so the same arithmetic as
+        offline ``simulate``), with the kernel's status turned into the error that says why."""
+        o, sim, info = self.options, self._sim, self._info
+        n_steps = max(1, int(np.ceil((t1 - t0) / o.dt - 1e-9)))
+        h = (t1 - t0) / n_steps
+        self._coef[0, self.mech.active] = tau
+        status = kernels.rk4_steps_flat(sim.code, *self.mech.arrays, q, qd, self._coef, h, n_steps, sim.stab,
+                                        o.baumgarte_alpha, o.baumgarte_beta, o.closure_tol, o.singular_tol,
+                                        sim.qdd_prev, sim.lam, info)
+        if status != kernels.OK:
+            raise integration_error(status, o.formulation, t0 + info[0] * h, info)
 
     def reset(self) -> None:
         """Back to the model's initial state at rest (see :meth:`_restart` for the time)."""
@@ -81,13 +119,14 @@ class Plant:
     def set_state(self, names: Sequence[str], position: Sequence[float], velocity: Sequence[float]) -> str:
         """Set named joints; the closure fixes the passive ones. Returns a one-line summary.
 
-        Unnamed active/elastic joints keep their current position; passive positions
-        (named ones are the Newton guess) come from assembly. Velocity: empty = at rest,
-        else given for the named joints, zero for the other active/elastic ones, passive
-        from the closure. Raises InputError (state unchanged) when it cannot be done.
+        Unnamed active/elastic joints keep their current position (after a fault: the
+        elastic ones go back to rest, as the last good state led to the fault); passive
+        positions (named ones are the Newton guess) come from assembly. Velocity: empty =
+        at rest, else given for the named joints, zero for the other active/elastic ones,
+        passive from the closure. Raises InputError (state unchanged) when it cannot be done.
         """
         mech = self.mech
-        names = list(names)
+        names = [str(n) for n in names]
         unknown = [n for n in names if n not in mech.joint_names]
         if unknown:
             raise InputError(f"unknown joint(s) {', '.join(unknown)} (joints: {', '.join(mech.joint_names)})")
@@ -99,20 +138,42 @@ class Plant:
         pos, vel = np.asarray(position, dtype=float), np.asarray(velocity, dtype=float)
         if not (np.all(np.isfinite(pos)) and np.all(np.isfinite(vel))):
             raise InputError("NaN or Inf in the requested state")
+        max_rate = kernels.MAX_STEP_MOTION / self.options.dt  # faster diverges in the first step
+        if np.any(np.abs(pos) > MAX_POSITION) or np.any(np.abs(vel) > max_rate):
+            raise InputError(f"positions must lie within +-{MAX_POSITION:g} (rad or m) and velocities within "
+                             f"+-{max_rate:g} (rad/s or m/s, one RK4 step of dt = {self.options.dt:g} s)")
         idx = np.array([mech.joint_names.index(n) for n in names], dtype=int)
         q = self.q.copy()
+        if self.fault is not None:
+            q[mech.elastic] = mech.rest[mech.elastic]
         q[idx] = pos
         qd = np.zeros(mech.n)
         if len(vel):
             qd[idx] = vel
-        try:
-            if mech.m:
-                q = solve_pose(mech, q, mech.passive)
-                qd = solve_velocity(mech, q, mech.passive, qd)
-        except (AssemblyError, SingularConfigurationError) as err:
-            raise InputError(f"state not reachable: {err}") from None
+        q, qd = self._assemble(q, qd, idx)
         self._restart(q, qd)
         return f"state set at t = {self.t:.6g} s (closure gap {mech.gap(q):.3g} m)"
+
+    def _assemble(self, q: np.ndarray, qd: np.ndarray, named: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Passive positions and velocities from the closure; from the start pose's passive
+        joints as a second guess (the current ones may lie in another assembly branch)."""
+        mech = self.mech
+        if not mech.m:
+            return q, qd
+        guesses = [q]
+        unnamed_passive = np.setdiff1d(mech.passive, named)
+        if len(unnamed_passive):
+            second = q.copy()
+            second[unnamed_passive] = self.q0[unnamed_passive]
+            guesses.append(second)
+        reason = ""
+        for guess in guesses:
+            try:
+                pose = solve_pose(mech, guess, mech.passive)
+                return pose, solve_velocity(mech, pose, mech.passive, qd)
+            except (AssemblyError, SingularConfigurationError, np.linalg.LinAlgError, FloatingPointError) as err:
+                reason = reason or str(err)
+        raise InputError(f"state not reachable: {reason}")
 
     def _restart(self, q: np.ndarray, qd: np.ndarray) -> None:
         """Continue from (q, qd) one period later: time never runs back, and the new state gets a
@@ -120,7 +181,7 @@ class Plant:
         self.q, self.qd = q, qd
         self.k += 1
         self.tau = np.zeros(len(self.mech.active))
-        self.fault = None
+        self.fault = self.fault_error = None
         # A fresh simulator: the one-pass SCDD variant keeps the last accelerations.
         self._sim = Simulator(self.mech, self.options)
 
