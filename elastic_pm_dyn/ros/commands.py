@@ -5,7 +5,8 @@ Two wire forms, as ros2_control users know them:
   must be named once, other names are an error (a typo must not pass as zero torque).
 - std_msgs/Float64MultiArray: ``data`` in a configured joint order (the forward command
   controller convention).
-Every rejection raises :class:`InputError` with a one-line reason.
+Every rejection raises :class:`CommandError` (an :class:`InputError`) with a one-line
+reason and its ``kind``, so that warnings can be throttled per kind.
 """
 
 from __future__ import annotations
@@ -15,6 +16,15 @@ from collections.abc import Sequence
 import numpy as np
 
 from elastic_pm_dyn.errors import InputError
+
+
+class CommandError(InputError):
+    """A rejected command; ``kind`` names the reason (``length``, ``unknown name``, ``duplicate name``,
+    ``missing joint``, ``not finite``)."""
+
+    def __init__(self, kind: str, message: str):
+        self.kind = kind
+        super().__init__(message)
 
 
 class CommandDecoder:
@@ -33,16 +43,16 @@ class CommandDecoder:
     def from_joint_state(self, names: Sequence[str], efforts: Sequence[float]) -> np.ndarray:
         names = list(names)
         if len(names) != len(efforts):
-            raise InputError(f"JointState command has {len(names)} names but {len(efforts)} efforts")
+            raise CommandError("length", f"JointState command has {len(names)} names but {len(efforts)} efforts")
         unknown = [n for n in names if n not in self.active_names]
         if unknown:
-            raise InputError(f"JointState command names unknown joint(s) {', '.join(unknown)} "
+            raise CommandError("unknown name", f"JointState command names unknown joint(s) {', '.join(unknown)} "
                              f"(active joints: {', '.join(self.active_names)})")
         if len(set(names)) != len(names):
-            raise InputError("JointState command names a joint twice")
+            raise CommandError("duplicate name", "JointState command names a joint twice")
         missing = [n for n in self.active_names if n not in names]
         if missing:
-            raise InputError(f"JointState command lacks active joint(s) {', '.join(missing)}")
+            raise CommandError("missing joint", f"JointState command lacks active joint(s) {', '.join(missing)}")
         values = _finite(efforts, "JointState command")
         tau = np.empty(len(self.active_names))
         tau[[self.active_names.index(n) for n in names]] = values
@@ -50,7 +60,7 @@ class CommandDecoder:
 
     def from_array(self, data: Sequence[float]) -> np.ndarray:
         if len(data) != len(self.array_order):
-            raise InputError(f"Float64MultiArray command has {len(data)} values, expected "
+            raise CommandError("length", f"Float64MultiArray command has {len(data)} values, expected "
                              f"{len(self.array_order)} ({', '.join(self.array_order)})")
         tau = np.empty(len(self.active_names))
         tau[self._array_index] = _finite(data, "Float64MultiArray command")
@@ -58,7 +68,10 @@ class CommandDecoder:
 
 
 def _finite(values: Sequence[float], what: str) -> np.ndarray:
-    out = np.asarray(values, dtype=float)
+    try:
+        out = np.asarray(values, dtype=float)
+    except (TypeError, ValueError):
+        raise CommandError("not finite", f"{what} holds values that are not numbers") from None
     if not np.all(np.isfinite(out)):
-        raise InputError(f"{what} contains NaN or Inf")
+        raise CommandError("not finite", f"{what} contains NaN or Inf")
     return out

@@ -129,10 +129,15 @@ class FeedforwardNode(ManagedNode):
     def _on_start(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         if self.source != "line":
             response.success, response.message = False, "source is 'trajectory': publish a JointTrajectory"
-        else:
-            self.want_start = True
-            response.success, response.message = True, "line starts at the next control period"
+            return response
+        self.want_start = True
+        response.success, response.message = True, "line starts at the next control period"
+        try:
             self._respond()
+        except Exception as err:  # never die on a service call: answer why
+            self.reference = None
+            response.success, response.message = False, f"start failed: {type(err).__name__}: {err}"
+            self.get_logger().error(response.message)
         return response
 
     def _on_trajectory(self, msg: JointTrajectory) -> None:

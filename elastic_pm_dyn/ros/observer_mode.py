@@ -62,8 +62,9 @@ from elastic_pm_dyn.ros.messages import EstimateMessages, stamp
 from elastic_pm_dyn.ros.observer_session import ObserverSession, Outcome, observer_config, parameter_message
 from elastic_pm_dyn.ros.params import COMMAND_JOINTS, Param, ParameterError, read_parameters
 from elastic_pm_dyn.ros.qos import DIAGNOSTICS_QOS, OBSERVER_INPUT_QOS, STATE_QOS, VIEWER_QOS
+from elastic_pm_dyn.ros.throttle import KindThrottle
 
-WARN_EVERY = 1.0  # [s] throttle of repeated warnings
+WARN_EVERY = 1.0  # [s] throttle of repeated warnings, per kind
 FINDINGS_EVERY = 10.0  # [s] throttle of the NIS findings (they describe a window of samples, not one)
 LEVELS = {0: DiagnosticStatus.OK, 1: DiagnosticStatus.WARN, 2: DiagnosticStatus.ERROR}
 
@@ -92,6 +93,7 @@ class ObserverMode:
         self.markers = MechanismMarkers(mech, p["frames.base"])
         self.last_stamp = 0  # [ns] of the latest published estimate
         self.timing_logged = 0  # sample timing decisions logged so far
+        self.warn = KindThrottle(node.get_logger(), WARN_EVERY)
 
         self.pub_joint_states = node.create_publisher(JointState, p["topics.joint_states"], STATE_QOS)
         self.pub_branch_forces = node.create_publisher(BranchForces, p["topics.branch_forces"], STATE_QOS)
@@ -155,8 +157,8 @@ class ObserverMode:
         log = self.node.get_logger()
         if out.stopped:
             log.error(out.stopped)
-        if out.problems:
-            log.warning("; ".join(out.problems), throttle_duration_sec=WARN_EVERY)
+        for kind, text in zip(out.kinds, out.problems, strict=True):
+            self.warn.warning(kind, text)
         if out.publish:
             self._publish(ns)
         self.session.cycle_times.append(time.perf_counter() - t0)
@@ -199,9 +201,14 @@ class ObserverMode:
 
     # ---------------------------------------------------------------- services
     def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
-        response.message = self.session.reset()
-        response.success = True
-        self.node.get_logger().info(response.message)
+        try:
+            response.message = self.session.reset()
+            response.success = True
+            self.node.get_logger().info(response.message)
+        except Exception as err:  # never die on a service call: answer why
+            response.success = False
+            response.message = f"reset failed: {type(err).__name__}: {err}"
+            self.node.get_logger().error(response.message)
         return response
 
     def _on_set_state(self, request: SetJointState.Request,
@@ -215,4 +222,8 @@ class ObserverMode:
             response.success = False
             response.message = f"set_state rejected: {err}"
             self.node.get_logger().warning(response.message)
+        except Exception as err:  # never die on a service call: answer why
+            response.success = False
+            response.message = f"set_state failed: {type(err).__name__}: {err}"
+            self.node.get_logger().error(response.message)
         return response

@@ -51,6 +51,8 @@ KINDS = ("torque_command", "joint_state", "imu", "branch_forces")
 SOURCE = "node parameters"  # the config's error prefix, replaced by "parameter '...'"
 MAX_DIFFERENCE_INTERVAL = 0.1  # [s] reset: difference motor rates over at most this
 DIFFERENCE_MARGIN = 3.0  # reset: std of differenced rates = this x the encoder-noise part
+MAX_POSITION = 1.0e6  # [rad or m] set_state: beyond, float spacing exceeds 1e-10 (a mistake, not a pose)
+MAX_RATE = 1.0e4  # [rad/s or m/s] set_state: faster than any machine the observer's RK4 substep can follow
 
 
 def observer_config(flat: Mapping[str, Any]) -> ObserverConfig:
@@ -91,7 +93,12 @@ class Outcome:
 
     publish: bool = False
     problems: list[str] = field(default_factory=list)  # samples or commands not used, one line each
+    kinds: list[str] = field(default_factory=list)  # the kind of each problem (warnings are throttled per kind)
     stopped: str = ""  # the filter stopped on this message: why
+
+    def add(self, kind: str, text: str) -> None:
+        self.kinds.append(kind)
+        self.problems.append(text)
 
 
 @dataclass
@@ -133,16 +140,16 @@ class ObserverSession:
         done, out = self._run("torque_command", ns, lambda: self.stream.on_torque_command(ns, names, effort))
         if self.stream.bad_commands != bad:
             self._window["torque commands rejected"] += 1
-            out.problems.append(f"torque command rejected: {self.stream.last_error}")
+            out.add("torque command rejected", f"torque command rejected: {self.stream.last_error}")
         elif done or self.obs.fault is not None:
             self._command = (int(ns), list(names), np.array(effort, dtype=float))
         elif self.obs.stats["command"].future != future:
             self._window["torque commands stamped too far ahead"] += 1
-            out.problems.append(f"torque command not used: {self.obs.stats['command'].last_reason}")
+            out.add("torque command ahead", f"torque command not used: {self.obs.stats['command'].last_reason}")
         elif done is False:
             self._window["torque commands late"] += 1
-            out.problems.append(f"torque command stamped {self.stream.seconds(ns):.6f} s, before the previous one: "
-                                "ignored")
+            out.add("torque command late", f"torque command stamped {self.stream.seconds(ns):.6f} s, "
+                    "before the previous one: ignored")
         self._account(self._released, out)
         return out
 
@@ -180,13 +187,13 @@ class ObserverSession:
         except ObserverFault as err:
             if stopped:
                 self.refused += 1
-                out.problems.append(f"{kind} message refused: the observer stopped ({err}); call ~/reset")
+                out.add(f"{kind} refused", f"{kind} message refused: the observer stopped ({err}); call ~/reset")
             else:
                 self.faults += 1
                 out.stopped = f"observer stopped: {err}; call ~/reset"
         except InputError as err:
             self._window[f"{kind} messages rejected"] += 1
-            out.problems.append(f"{kind} message rejected: {err}")
+            out.add(f"{kind} rejected", f"{kind} message rejected: {err}")
         except Exception as err:  # never die on a message: stop the filter and say why
             obs.fault = f"internal error on a {kind} message: {type(err).__name__}: {err}"
             self.faults += 1
@@ -209,19 +216,19 @@ class ObserverSession:
                 self._window[f"{r.sensor} NaN entries"] += len(r.dropped)
             if r.accepted:
                 if r.dropped:
-                    out.problems.append(f"{r.sensor} at t = {r.t:.6f} s: NaN entries dropped "
+                    out.add(f"{r.sensor} NaN", f"{r.sensor} at t = {r.t:.6f} s: NaN entries dropped "
                                         f"({', '.join(r.dropped)})")
                 continue
             if r.reason == "uninitialised":  # expected until the first joint state; health says so
                 continue
             if r.reason in NAME_PROBLEMS:  # the stream's, not the observer's
                 self._window[f"joint states with {r.reason} names"] += 1
-                out.problems.append(self.stream.last_joint_state_problem)
+                out.add(f"joint state {r.reason} names", self.stream.last_joint_state_problem)
                 continue
             if r.reason != "nan":
                 self._window[f"{r.sensor} samples {_REASONS.get(r.reason, r.reason)}"] += 1
             why = self.obs.stats[r.sensor].last_reason if r.reason != "empty" else "no configured branch in it"
-            out.problems.append(f"{r.sensor} sample at t = {r.t:.6f} s not used ({r.reason}): {why}")
+            out.add(f"{r.sensor} {r.reason}", f"{r.sensor} sample at t = {r.t:.6f} s not used ({r.reason}): {why}")
 
     def _remember(self, ns: int, names: Sequence[str], position: Sequence[float], velocity: Sequence[float]) -> None:
         """Keep the latest two joint states that give every motor position (for :meth:`reset`);
@@ -331,16 +338,28 @@ class ObserverSession:
     def set_state(self, names: Sequence[str], position: Sequence[float], velocity: Sequence[float] = ()) -> str:
         """Restart the filter at its current time from the given joint positions (every motor)
         and rates (optional); InputError with the reason if that is not possible."""
+        names = [str(n) for n in names]
         unknown = [n for n in names if n not in self.mech.joint_names]
         if unknown:
             raise InputError(f"unknown joint(s) {', '.join(unknown)}")
+        if len(set(names)) != len(names):
+            raise InputError("a joint is named twice")
         if len(position) != len(names) or (len(velocity) and len(velocity) != len(names)):
             raise InputError(f"{len(names)} names but {len(position)} positions and {len(velocity)} velocities")
+        pos, vel = np.asarray(position, dtype=float), np.asarray(velocity, dtype=float)
+        if not (np.all(np.isfinite(pos)) and np.all(np.isfinite(vel))):
+            raise InputError("NaN or Inf in the requested state")
+        if np.any(np.abs(pos) > MAX_POSITION) or np.any(np.abs(vel) > MAX_RATE):
+            raise InputError(f"positions must lie within +-{MAX_POSITION:g} (rad or m), "
+                             f"velocities within +-{MAX_RATE:g} (rad/s or m/s)")
         obs = self.obs
         if not obs.initialised:
             raise InputError("the filter is not running yet (its time is unknown until a first sample)")
-        if not obs.initialise_from_joint_state(obs.t, list(names), np.asarray(position, dtype=float),
-                                               np.asarray(velocity, dtype=float) if len(velocity) else None):
+        try:
+            ok = obs.initialise_from_joint_state(obs.t, names, pos, vel if len(vel) else None)
+        except (ElasticPmDynError, np.linalg.LinAlgError, FloatingPointError) as err:
+            raise InputError(f"state not reachable: {err}") from None
+        if not ok:
             raise InputError(f"needs a finite position of every motor ({', '.join(self.mech.active_names)}) "
                              "at a pose where the closure can be solved")
         self._started = True

@@ -4,14 +4,20 @@ Sync modes (parameter ``sync_mode``):
 - ``realtime``: a steady-clock timer at ``publish_rate`` advances one control period per
   tick (catching up a few periods after a late tick) and stamps with wall time.
 - ``fast``: as fast as possible; stamps are simulated time, published on ``/clock``.
-- ``lockstep``: each valid command advances exactly one period, then the state at the
-  end of that period is published (stamp = simulated time, also on ``/clock``). The
-  state at t = 0 is published at start-up (transient local, see :mod:`.qos`), so a
-  controller that answers every state with the next command drives the plant
-  deterministically: the same torques give the same states as offline ``simulate``.
+- ``lockstep``: each command advances exactly one period, then the state at the end of
+  that period is published (stamp = simulated time, also on ``/clock``); a rejected
+  command holds the last valid one (zero torque if none) for its period, and while
+  integration is stopped the last good state is published again, so every command is
+  answered and a controller never waits. The state at t = 0 is published at start-up
+  (transient local, see :mod:`.qos`), so a controller that answers every state with the
+  next command drives the plant deterministically: the same torques give the same states
+  as offline ``simulate``.
 
 Callbacks only validate and store; the timers and the lockstep handler (a guard
-condition) advance the :class:`~elastic_pm_dyn.sim.plant.Plant`. With ``mode: observer``
+condition) advance the :class:`~elastic_pm_dyn.sim.plant.Plant`. Nothing a message or a
+service request holds makes the node die: a fault stops integration at the last good
+state, ``~/reset`` and ``~/set_state`` recover, and a request that cannot be served is
+answered ``success: false`` with the reason. Warnings are throttled per kind. With ``mode: observer``
 the node does not simulate: :class:`~elastic_pm_dyn.ros.observer_mode.ObserverMode`
 subscribes to commands and measurements and publishes the state observer's estimates on
 the same output topics (the sync parameters then do not apply): the observer node
@@ -50,6 +56,7 @@ from elastic_pm_dyn.ros.messages import PlantMessages, stamp
 from elastic_pm_dyn.ros.node_main import ManagedNode, run_node
 from elastic_pm_dyn.ros.params import COMMAND_JOINTS, Param, read_parameters, reject_unknown
 from elastic_pm_dyn.ros.qos import CLOCK_QOS, COMMAND_QOS, DIAGNOSTICS_QOS, STATE_QOS, VIEWER_QOS
+from elastic_pm_dyn.ros.throttle import KindThrottle
 from elastic_pm_dyn.sim.plant import Plant
 from elastic_pm_dyn.sim.simulator import INTEGRATORS, STABILIZATIONS, SimulationOptions
 
@@ -57,7 +64,7 @@ MODES = ("plant", "observer")
 SYNC_MODES = ("realtime", "fast", "lockstep")
 MAX_CATCH_UP = 5  # realtime: periods advanced in one late tick before the schedule slips
 FAST_SLICE = 0.005  # [s] fast mode: wall time per executor turn (amortises its ~0.2 ms, stays responsive)
-WARN_EVERY = 1.0  # [s] throttle of repeated warnings
+WARN_EVERY = 1.0  # [s] throttle of repeated warnings, per kind
 
 PARAMS = [
     Param("mode", "plant", "plant: simulate the machine; observer: estimate its state from commands and measurements",
@@ -123,6 +130,7 @@ class PlantNode(ManagedNode):
         self.messages = PlantMessages(self.plant, p["frames.base"])
         self.markers = MechanismMarkers(mech, p["frames.base"])
         self.stamp_base = 0  # [ns] stamp = stamp_base + k * period_ns
+        self.warn = KindThrottle(self.get_logger(), WARN_EVERY)
 
         self.pub_joint_states = self.create_publisher(JointState, p["topics.joint_states"], STATE_QOS)
         self.pub_branch_forces = self.create_publisher(BranchForces, p["topics.branch_forces"], STATE_QOS)
@@ -167,16 +175,22 @@ class PlantNode(ManagedNode):
                    else self.decoder.from_array(msg.data))
         except InputError as err:
             self.stats.rejected += 1
-            self.get_logger().warning(f"command rejected: {err}", throttle_duration_sec=WARN_EVERY)
+            if self.sync_mode == "lockstep":  # answered all the same: the last valid command holds
+                self.warn.warning(getattr(err, "kind", "rejected"),
+                                  f"command rejected: {err}; holding the last valid one for the period")
+                self.queue.append(self.command if self.command is not None else np.zeros(len(self.plant.tau)))
+                self.lockstep_trigger.trigger()
+            else:
+                self.warn.warning(getattr(err, "kind", "rejected"), f"command rejected: {err}")
             return
         self.stats.accepted += 1
+        if self.command is None:
+            self.get_logger().info("first torque command received")
+        self.command = tau
         if self.sync_mode == "lockstep":
             self.queue.append(tau)
             self.lockstep_trigger.trigger()
         else:
-            if self.command is None:
-                self.get_logger().info("first torque command received")
-            self.command = tau
             self.command_time = self._command_clock()
 
     def _command_clock(self) -> float:
@@ -188,17 +202,22 @@ class PlantNode(ManagedNode):
             age = self._command_clock() - self.command_time
             if age <= self.timeout:
                 return self.command
-            self.get_logger().warning(f"last torque command is {age:.3g} s old (timeout {self.timeout:g} s): "
-                                      "applying zero torque", throttle_duration_sec=WARN_EVERY)
+            self.warn.warning("stale", f"last torque command is {age:.3g} s old (timeout {self.timeout:g} s): "
+                              "applying zero torque")
         self.stats.stale += 1
         return np.zeros(len(self.plant.tau))
 
     def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
-        self.plant.reset()
-        self._restarted()
-        response.success = True
-        response.message = f"reset to the initial state at t = {self.plant.t:.6g} s"
-        self.get_logger().info(response.message)
+        try:
+            self.plant.reset()
+            self._restarted()
+            response.success = True
+            response.message = f"reset to the initial state at t = {self.plant.t:.6g} s"
+            self.get_logger().info(response.message)
+        except Exception as err:  # never die on a service call: answer why
+            response.success = False
+            response.message = f"reset failed: {type(err).__name__}: {err}"
+            self.get_logger().error(response.message)
         return response
 
     def _on_set_state(self, request: SetJointState.Request,
@@ -213,6 +232,10 @@ class PlantNode(ManagedNode):
             response.success = False
             response.message = f"set_state rejected: {err}"
             self.get_logger().warning(response.message)
+        except Exception as err:  # never die on a service call: answer why (the state is unchanged)
+            response.success = False
+            response.message = f"set_state failed: {type(err).__name__}: {err}"
+            self.get_logger().error(response.message)
         return response
 
     def _restarted(self) -> None:
@@ -232,10 +255,14 @@ class PlantNode(ManagedNode):
         t0 = time.perf_counter()
         try:
             self.plant.step(tau)
-        except SingularConfigurationError as err:
+        except SingularConfigurationError as err:  # also a diverged state; the plant keeps the last good one
             self.get_logger().error(f"integration stopped: {err}; call ~/reset or ~/set_state to recover")
             if self.step_timer is not None:
                 self.step_timer.cancel()
+            return False
+        except Exception as err:  # never die in a step: the state is unchanged, say why
+            self.stats.rejected += 1
+            self.warn.warning("step failed", f"period not advanced: {type(err).__name__}: {err}")
             return False
         t1 = time.perf_counter()
         self._publish_state()
@@ -268,14 +295,17 @@ class PlantNode(ManagedNode):
                 return
 
     def _on_lockstep(self) -> None:
+        """One period per command; a command that cannot advance the plant is answered with
+        the last good state, again (time stands still while integration is stopped)."""
         while self.queue:
             tau = self.queue.popleft()
             if self.plant.fault is not None:
                 self.stats.rejected += 1
-                self.get_logger().warning(f"command ignored, integration stopped: {self.plant.fault}",
-                                          throttle_duration_sec=WARN_EVERY)
+                self.warn.warning("stopped", f"command not applied, integration stopped: {self.plant.fault}; "
+                                  "call ~/reset or ~/set_state")
+                self._publish_state()
             elif not self._step(tau):
-                self.queue.clear()
+                self._publish_state()
 
     # ----------------------------------------------------------------- outputs
     def _stamp_ns(self) -> int:
