@@ -158,7 +158,7 @@ class Model:
 
     @property
     def active_names(self) -> list[str]:
-        return [self.joints[i].name for i in self.indices(ACTIVE)]
+        return [j.name for j in self.joints if j.role == ACTIVE]  # one pass: joints is rebuilt per call
 
     @property
     def ae_indices(self) -> np.ndarray:

@@ -24,7 +24,7 @@ from elastic_pm_dyn.model.description import (
     Joint,
     Model,
 )
-from elastic_pm_dyn.model.yaml_source import KeyPath, YamlSource
+from elastic_pm_dyn.model.yaml_source import KeyPath, YamlSource, format_path
 
 _TOP_KEYS = {"name", "gravity", "chains", "closure", "end_effector", "initial_state",
              "branches", "planar", "elastic_dof_per_chain"}
@@ -47,6 +47,12 @@ class _Reader:
             data = data[part]
         return data
 
+    def require(self, path: KeyPath, what: str) -> Any:
+        """The value at ``path``; an error naming the key if it is missing."""
+        if not self.has(path):
+            raise self.src.error(path, f"missing required {what}")
+        return self.node(path)
+
     def has(self, path: KeyPath) -> bool:
         try:
             self.node(path)
@@ -55,17 +61,17 @@ class _Reader:
         return True
 
     def mapping(self, path: KeyPath, allowed: set[str] | None = None) -> dict:
-        value = self.node(path)
+        value = self.require(path, "mapping")
         if not isinstance(value, dict):
             raise self.src.error(path, f"expected a mapping, got {_kind(value)}")
         if allowed is not None:
             for key in value:
                 if key not in allowed:
-                    raise self.src.error(path + (key,), f"unknown key (allowed: {', '.join(sorted(allowed))})")
+                    raise self.src.error(path + (key,), f"unknown key (allowed: {_names(sorted(allowed))})")
         return value
 
     def sequence(self, path: KeyPath, min_len: int = 0) -> list:
-        value = self.node(path)
+        value = self.require(path, "list")
         if not isinstance(value, list):
             raise self.src.error(path, f"expected a list, got {_kind(value)}")
         if len(value) < min_len:
@@ -79,12 +85,14 @@ class _Reader:
                 raise self.src.error(path, "missing required number")
             return default
         value = self.node(path)
-        if isinstance(value, bool) or not isinstance(value, (int, float, str)):
+        # Strictly typed: a quoted "0.6" or a YAML 1.1 spelling such as 1_000 is a string
+        # in YAML 1.2, and true is no number.
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise self.src.error(path, f"expected a number, got {_kind(value)}")
         try:
-            x = float(value)  # YAML 1.1 reads 5.464e6 as a string
-        except ValueError:
-            raise self.src.error(path, f"expected a number, got {value!r}") from None
+            x = float(value)
+        except OverflowError:
+            raise self.src.error(path, f"must be finite, got an integer of {len(str(value))} digits") from None
         if not math.isfinite(x):
             raise self.src.error(path, f"must be finite, got {value!r}")
         if positive and x <= 0:
@@ -92,6 +100,26 @@ class _Reader:
         if nonnegative and x < 0:
             raise self.src.error(path, f"must be >= 0, got {x:g}")
         return x
+
+    def integer(self, path: KeyPath, default: int, low: int, high: int) -> int:
+        """A whole number in [low, high]: 1.5, "2" or true are errors, not rounded or cast."""
+        if not self.has(path):
+            return default
+        value = self.node(path)
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise self.src.error(path, f"expected a whole number from {low} to {high}, got {_kind(value)}")
+        if not low <= value <= high:
+            raise self.src.error(path, f"must be a whole number from {low} to {high}, got {value}")
+        return value
+
+    def boolean(self, path: KeyPath, default: bool) -> bool:
+        """true or false (YAML 1.2: "no", "off", 0 are not booleans)."""
+        if not self.has(path):
+            return default
+        value = self.node(path)
+        if not isinstance(value, bool):
+            raise self.src.error(path, f"expected true or false, got {_kind(value)}")
+        return value
 
     def vector(self, path: KeyPath, n: int, default: list[float] | None = None) -> np.ndarray:
         if not self.has(path):
@@ -112,14 +140,29 @@ class _Reader:
         if not isinstance(value, str) or not value:
             raise self.src.error(path, f"expected a non-empty string, got {_kind(value)}")
         if choices is not None and value not in choices:
-            raise self.src.error(path, f"unknown value {value!r} (expected one of: {', '.join(choices)})")
+            raise self.src.error(path, f"unknown value {_short(value)} (expected one of: {', '.join(choices)})")
         return value
 
 
 def _kind(value: Any) -> str:
     if value is None:
         return "nothing"
-    return {dict: "a mapping", list: "a list", str: f"the string {value!r}"}.get(type(value), repr(value))
+    if isinstance(value, str):
+        return f"the string {_short(value)}"
+    if isinstance(value, int) and not isinstance(value, bool) and abs(value) >= 10**20:
+        return f"an integer of {len(str(abs(value)))} digits"
+    return {dict: "a mapping", list: "a list"}.get(type(value), repr(value))
+
+
+def _short(text: str, limit: int = 40) -> str:
+    """``repr`` of a user's string, cut: a message stays one short line."""
+    return repr(text if len(text) <= limit else text[:limit] + "...")
+
+
+def _names(names: list[str], limit: int = 12) -> str:
+    """A comma-separated list of names, cut after ``limit``."""
+    shown = ", ".join(_short(n, 30)[1:-1] for n in names[:limit])
+    return shown if len(names) <= limit else f"{shown}, ... ({len(names)} in all)"
 
 
 def load_model(path: str | Path, elastic_dof_per_chain: int | None = None) -> Model:
@@ -133,26 +176,32 @@ def load_model(path: str | Path, elastic_dof_per_chain: int | None = None) -> Mo
 
 def parse_model(src: YamlSource, elastic_dof_per_chain: int | None = None) -> Model:
     r = _Reader(src)
+    if src.data is None or src.data == {}:
+        raise src.error((), "the model file is empty (a model needs 'chains')")
     if not isinstance(src.data, dict):
         raise src.error((), "a model file must be a mapping with 'chains' and 'closure'")
     r.mapping((), _TOP_KEYS)
     n_flex = elastic_dof_per_chain
     if n_flex is None:
-        n_flex = int(r.number(("elastic_dof_per_chain",), default=1.0, nonnegative=True))
-    if not 0 <= n_flex <= MAX_ELASTIC_DOF_PER_CHAIN or n_flex != int(n_flex):
+        n_flex = r.integer(("elastic_dof_per_chain",), 1, 0, MAX_ELASTIC_DOF_PER_CHAIN)
+    elif isinstance(n_flex, bool) or not isinstance(n_flex, int | np.integer) \
+            or not 0 <= n_flex <= MAX_ELASTIC_DOF_PER_CHAIN:
         raise src.error(("elastic_dof_per_chain",),
-                        f"must be a whole number from 0 to {MAX_ELASTIC_DOF_PER_CHAIN}, got {n_flex}")
+                        f"must be a whole number from 0 to {MAX_ELASTIC_DOF_PER_CHAIN}, got {n_flex!r}")
     name = r.string(("name",), default=Path(src.file).stem)
     gravity = r.vector(("gravity",), 3, default=[0.0, 0.0, 0.0])
-    planar = bool(src.data.get("planar", False))
+    planar = r.boolean(("planar",), default=False)
 
     chains: list[Chain] = []
     seen: dict[str, KeyPath] = {}
+    chain_seen: dict[str, int] = {}
     for ci, _ in enumerate(r.sequence(("chains",), min_len=1)):
-        chains.append(_parse_chain(r, ("chains", ci), seen, int(n_flex)))
-    chain_names = [c.name for c in chains]
-    if len(set(chain_names)) != len(chain_names):
-        raise src.error(("chains",), f"chain names must be unique, got {chain_names}")
+        chain = _parse_chain(r, ("chains", ci), seen, int(n_flex))
+        if chain.name in chain_seen:
+            raise src.error(("chains", ci, "name"), f"chain name {_short(chain.name)} is used twice "
+                            f"(first at chains[{chain_seen[chain.name]}])")
+        chain_seen[chain.name] = ci
+        chains.append(chain)
 
     closure = _parse_closure(r, chains) if r.has(("closure",)) else None
     if closure is None and len(chains) > 1:
@@ -169,7 +218,7 @@ def parse_model(src: YamlSource, elastic_dof_per_chain: int | None = None) -> Mo
     if ee_mass > 0:
         chains = _lump_end_effector(chains, ee_mass, closure)
 
-    joint_names = [j.name for c in chains for j in c.joints]
+    joint_names = {j.name for c in chains for j in c.joints}
     branches = _parse_branches(r, chains, joint_names)
     initial = _parse_initial(r, chains, joint_names)
     model = Model(name=name, chains=tuple(chains), closure=closure, gravity=gravity,
@@ -195,7 +244,8 @@ def _parse_chain(r: _Reader, path: KeyPath, seen: dict[str, KeyPath], n_flex: in
             carry = np.zeros(3)
         for joint in new:
             if joint.name in seen:
-                raise r.src.error(jp, f"joint name {joint.name!r} is used twice")
+                raise r.src.error(jp, f"joint name {_short(joint.name)} is used twice "
+                                  f"(first at {format_path(seen[joint.name])})")
             seen[joint.name] = jp
         joints.extend(new)
     if not joints:
@@ -325,20 +375,21 @@ def _parse_closure(r: _Reader, chains: list[Chain]) -> Closure:
     end coincides with a named point of the platform chain)."""
     path: KeyPath = ("closure",)
     chain_names = [c.name for c in chains]
+    chain_at = {name: i for i, name in enumerate(chain_names)}
     r.mapping(path, {"type", "chains", "components", "platform", "legs"})
     kind = r.string(path + ("type",), default="point", choices=("point", "platform"))
 
     def chain_index(p: KeyPath) -> int:
         name = r.string(p)
-        if name not in chain_names:
-            raise r.src.error(p, f"closure names a missing chain {name!r} (chains: {', '.join(chain_names)})")
-        return chain_names.index(name)
+        if name not in chain_at:
+            raise r.src.error(p, f"closure names a missing chain {_short(name)} (chains: {_names(chain_names)})")
+        return chain_at[name]
 
     comps = r.sequence(path + ("components",)) if r.has(path + ("components",)) else list(AXIS_NAMES)
     cidx = []
     for i, c in enumerate(comps):
         if c not in AXIS_NAMES:
-            raise r.src.error(path + ("components", i), f"unknown component {c!r} (x, y or z)")
+            raise r.src.error(path + ("components", i), f"unknown component {_kind(c)} (x, y or z)")
         cidx.append(AXIS_NAMES.index(c))
     components = tuple(sorted(set(cidx)))
 
@@ -364,15 +415,16 @@ def _parse_closure(r: _Reader, chains: list[Chain]) -> Closure:
     pairs, legs = [], []
     for leg_name in r.mapping(path + ("legs",)):
         lp = path + ("legs", leg_name)
-        if leg_name not in chain_names:
-            raise r.src.error(lp, f"closure names a missing chain {leg_name!r} (chains: {', '.join(chain_names)})")
-        leg = chain_names.index(leg_name)
+        if leg_name not in chain_at:
+            raise r.src.error(lp, f"closure names a missing chain {_short(leg_name)} (chains: {_names(chain_names)})")
+        leg = chain_at[leg_name]
         if leg == hub:
             raise r.src.error(lp, "the platform cannot be its own leg")
         pname = r.string(lp)
         if (hub, pname) not in point_index:
             names = [n for n, _ in chains[hub].points]
-            raise r.src.error(lp, f"platform {chain_names[hub]!r} has no point {pname!r} (points: {', '.join(names)})")
+            raise r.src.error(lp, f"platform {_short(chain_names[hub])} has no point {_short(pname)} "
+                              f"(points: {_names(names)})")
         pairs.append((leg, point_index[(hub, pname)]))
         legs.append(leg)
     if not pairs:
@@ -404,40 +456,47 @@ def _lump_end_effector(chains: list[Chain], mass: float, closure: Closure | None
     return out
 
 
-def _parse_branches(r: _Reader, chains: list[Chain], joint_names: list[str]) -> tuple[Branch, ...]:
+def _parse_branches(r: _Reader, chains: list[Chain], joint_names: set[str]) -> tuple[Branch, ...]:
     elastic = [j.name for c in chains for j in c.joints if j.role == ELASTIC]
     if not r.has(("branches",)):
         return tuple(Branch(n, n) for n in elastic)
+    elastic_set = set(elastic)
     out = []
+    first: dict[str, int] = {}  # branch name -> index: two columns F_<name> would be ambiguous
     for i, _ in enumerate(r.sequence(("branches",))):
         p = ("branches", i)
         r.mapping(p, {"name", "joint"})
         bname = r.string(p + ("name",))
+        if bname in first:
+            raise r.src.error(p + ("name",), f"branch name {_short(bname)} is used twice "
+                              f"(first at branches[{first[bname]}])")
+        first[bname] = i
         joint = r.string(p + ("joint",))
         if joint not in joint_names:
-            raise r.src.error(p + ("joint",), f"unknown joint {joint!r}")
-        if joint not in elastic:
-            raise r.src.error(p + ("joint",), f"branch joint {joint!r} is not elastic")
+            raise r.src.error(p + ("joint",), f"unknown joint {_short(joint)}")
+        if joint not in elastic_set:
+            raise r.src.error(p + ("joint",), f"branch joint {_short(joint)} is not elastic")
         out.append(Branch(bname, joint))
     return tuple(out)
 
 
-def _parse_initial(r: _Reader, chains: list[Chain], joint_names: list[str]) -> InitialState:
+def _parse_initial(r: _Reader, chains: list[Chain], joint_names: set[str]) -> InitialState:
     path: KeyPath = ("initial_state",)
     if not r.has(path):
         return InitialState()
     r.mapping(path, {"active", "end_effector", "guess", "assembly_mode"})
     active_names = [j.name for c in chains for j in c.joints if j.role == ACTIVE]
+    active_set = set(active_names)
     active = None
     if r.has(path + ("active",)):
         active = {}
         for key in r.mapping(path + ("active",)):
-            if key not in active_names:
-                raise r.src.error(path + ("active", key), f"not an active joint (active: {', '.join(active_names)})")
+            if key not in active_set:
+                raise r.src.error(path + ("active", key), f"not an active joint (active: {_names(active_names)})")
             active[key] = r.number(path + ("active", key))
         missing = [n for n in active_names if n not in active]
         if missing:
-            raise r.src.error(path + ("active",), f"missing active joints: {', '.join(missing)}")
+            raise r.src.error(path + ("active",), f"missing active joints: {_names(missing)}")
     ee = None
     if r.has(path + ("end_effector",)):
         n = len(r.sequence(path + ("end_effector",)))
@@ -450,13 +509,13 @@ def _parse_initial(r: _Reader, chains: list[Chain], joint_names: list[str]) -> I
     if r.has(path + ("guess",)):
         for key in r.mapping(path + ("guess",)):
             if key not in joint_names:
-                raise r.src.error(path + ("guess", key), f"unknown joint {key!r}")
+                raise r.src.error(path + ("guess", key), f"unknown joint {_short(key)}")
             guess[key] = r.number(path + ("guess", key))
     signs: dict[str, int] = {}
     if r.has(path + ("assembly_mode",)):
         for key in r.mapping(path + ("assembly_mode",)):
             if key not in joint_names:
-                raise r.src.error(path + ("assembly_mode", key), f"unknown joint {key!r}")
+                raise r.src.error(path + ("assembly_mode", key), f"unknown joint {_short(key)}")
             sign = r.string(path + ("assembly_mode", key), choices=("positive", "negative"))
             signs[key] = 1 if sign == "positive" else -1
     return InitialState(active=active, end_effector=ee, guess=guess, signs=signs)

@@ -1,16 +1,23 @@
-"""The one YAML loader of the package: PyYAML's safe loader with YAML 1.2 numbers.
+"""The YAML dialects of the package, on PyYAML.
 
-PyYAML implements YAML 1.1, where a float needs a dot: ``5e-5``, ``1e3`` and ``-2E+4`` are
-strings there, floats in YAML 1.2 (and in every other YAML library a user writes files
-with). :class:`Yaml12Loader` resolves them as floats; everything else is SafeLoader's
-(``.inf``, ``.nan``, ints, booleans, null; quoted scalars stay strings). Every YAML the
-package reads goes through it: model files (with line numbers, via :func:`compose`),
-observer parameter files and ``observe --set`` values (:func:`load`).
+Parameter files (observer, ``observe --set``; :func:`load`): PyYAML's safe loader with
+YAML 1.2 numbers. PyYAML implements YAML 1.1, where a float needs a dot: ``5e-5``, ``1e3``
+and ``-2E+4`` are strings there, floats in YAML 1.2 (and in every other YAML library a
+user writes files with). :class:`Yaml12Loader` resolves them as floats; everything else is
+SafeLoader's (``.inf``, ``.nan``, ints, booleans such as ``yes``/``off``, null; quoted
+scalars stay strings), as ROS reads the same parameter files.
+
+Model files (:func:`events`, :func:`core_scalar`): strictly the YAML 1.2 core schema.
+``no``, ``on``, ``1_000``, ``017`` and dates are strings there, booleans are only
+true/false, and the only tags are the core ones, so a mistyped value is reported instead
+of silently read as something else.
 """
 
 from __future__ import annotations
 
+import math
 import re
+from collections.abc import Iterator
 from typing import Any, ClassVar
 
 import yaml
@@ -42,14 +49,93 @@ def load(text: str) -> Any:
     return yaml.load(text, Loader=Yaml12Loader)  # a SafeLoader subclass: no arbitrary objects
 
 
-def compose(text: str) -> yaml.Node | None:
-    """The node graph of one YAML document (with line marks), scalars tagged as :func:`load` does."""
-    return yaml.compose(text, Loader=Yaml12Loader)
+# ---------------------------------------------------------------- model files: YAML 1.2 core schema
+TAG = "tag:yaml.org,2002:"
+NULL, BOOL, INT, FLOAT, STR = (TAG + k for k in ("null", "bool", "int", "float", "str"))
+MAP, SEQ = TAG + "map", TAG + "seq"
+
+_CORE_NULL = re.compile(r"^(?:~|null|Null|NULL|)$")
+_CORE_BOOL = {"true": True, "True": True, "TRUE": True, "false": False, "False": False, "FALSE": False}
+_CORE_INT = re.compile(r"^(?:[-+]?[0-9]+|0o[0-7]+|0x[0-9a-fA-F]+)$")
+_CORE_FLOAT = re.compile(r"^(?:[-+]?(?:\.[0-9]+|[0-9]+(?:\.[0-9]*)?)(?:[eE][-+]?[0-9]+)?"
+                         r"|[-+]?\.(?:inf|Inf|INF)|\.(?:nan|NaN|NAN))$")
+MAX_INT_DIGITS = 100  # no model number needs more; Python refuses > 4300 anyway
 
 
-def construct_scalar(node: yaml.ScalarNode) -> Any:
-    """The value of a scalar node from :func:`compose` (int/float/bool/str/null)."""
-    return _SCALARS.construct_object(node, deep=True)
+def core_scalar(value: str, tag: str | None, plain: bool) -> Any:
+    """The value of a scalar under the YAML 1.2 core schema.
+
+    ``tag``: the explicit (expanded) tag or None; ``plain``: unquoted and untagged, so
+    resolved by its form. Raises ValueError with a short reason for a value that does not
+    fit its explicit tag, or a tag outside the core schema.
+    """
+    if tag is None or tag == "!":
+        if not plain or tag == "!":
+            return value
+        tag = _resolve(value)
+    if tag == STR:
+        return value
+    if tag == NULL and _CORE_NULL.match(value):
+        return None
+    if tag == BOOL and value in _CORE_BOOL:
+        return _CORE_BOOL[value]
+    if tag == INT and _CORE_INT.match(value):
+        if len(value) > MAX_INT_DIGITS:
+            raise ValueError(f"integer with more than {MAX_INT_DIGITS} digits")
+        if value.startswith(("0o", "0x")):
+            return int(value[2:], 8 if value[1] == "o" else 16)
+        return int(value)
+    if tag == FLOAT and (_CORE_FLOAT.match(value) or _CORE_INT.match(value)):
+        low = value.lower()
+        if low.endswith(".inf"):
+            return -math.inf if low.startswith("-") else math.inf
+        if low == ".nan":
+            return math.nan
+        return float(int(value, 0) if value.startswith(("0o", "0x")) else value)
+    if tag in (NULL, BOOL, INT, FLOAT):
+        return _misfit(value, tag)
+    raise ValueError(f"unsupported tag {_short(tag)} (model files use plain YAML values: "
+                     "numbers, true/false, strings, lists, mappings)")
 
 
-_SCALARS = Yaml12Loader("")
+def _resolve(value: str) -> str:
+    if _CORE_NULL.match(value):
+        return NULL
+    if value in _CORE_BOOL:
+        return BOOL
+    if _CORE_INT.match(value):
+        return INT
+    if _CORE_FLOAT.match(value):
+        return FLOAT
+    return STR
+
+
+def _misfit(value: str, tag: str) -> Any:
+    raise ValueError(f"{_short(value)} is not a valid !!{tag.removeprefix(TAG)}")
+
+
+def _short(text: str, limit: int = 40) -> str:
+    return repr(text if len(text) <= limit else text[:limit] + "...")
+
+
+def events(text: str) -> Iterator[yaml.Event]:
+    """The parser events of ``text`` (with line marks), from libyaml where PyYAML has it.
+
+    Both parsers are iterative state machines: arbitrarily deep nesting costs no stack.
+    Raises ``yaml.YAMLError`` for malformed YAML.
+    """
+    try:
+        from yaml._yaml import CParser  # ~5x faster than the pure-Python parser
+        parser: Any = CParser(text)
+    except ImportError:  # PyYAML built without libyaml
+        parser = yaml.SafeLoader(text)
+    try:
+        while True:
+            event = parser.get_event()
+            if event is None:
+                return
+            yield event
+            if isinstance(event, yaml.StreamEndEvent):
+                return
+    finally:
+        parser.dispose()

@@ -8,7 +8,8 @@ a step (``coefficients``).
 from __future__ import annotations
 
 import csv
-from collections.abc import Callable
+import io
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import numpy as np
@@ -106,43 +107,91 @@ def _finite(values: np.ndarray, what: str) -> np.ndarray:
 
 
 def load_torque_csv(path: str | Path, active_names: list[str], hold: str = "zoh") -> TorqueTable:
-    """Read ``t,<active joint names>`` (any column order); every active joint is required."""
+    """Read ``t,<active joint names>`` (any column order); every active joint is required.
+
+    Errors name the file and its line (blank and ``#`` comment lines count): a column
+    named twice, times that do not increase, a cell that is no number, bytes that are no
+    UTF-8 text.
+    """
     p = Path(path)
     try:
-        with p.open(newline="") as fh:
-            rows = list(csv.reader(fh))
+        raw = p.read_bytes()
     except OSError as exc:
-        raise InputError(f"{p}: cannot read torque file: {exc.strerror}") from None
-    rows = [r for r in rows if r and not r[0].lstrip().startswith("#")]
-    if not rows:
+        raise InputError(f"{p}: cannot read torque file: {exc.strerror or exc}") from None
+    try:
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        line = raw.count(b"\n", 0, exc.start) + 1
+        raise InputError(f"{p}: line {line}: not UTF-8 text (byte 0x{raw[exc.start]:02x}); "
+                         "a torque file is a CSV table") from None
+    del raw
+    return _read_table(p, csv.reader(io.StringIO(text, newline="")), active_names, hold)
+
+
+def _read_table(p: Path, reader: Iterator[list[str]], active_names: list[str], hold: str) -> TorqueTable:
+    header: list[str] | None = None
+    order: list[int] = []
+    times: list[float] = []
+    values: list[list[float]] = []
+    line = 0
+    try:
+        for row in reader:
+            line = reader.line_num  # type: ignore[attr-defined]
+            if not row or row[0].lstrip().startswith("#"):
+                continue
+            if header is None:
+                header = [h.strip() for h in row]
+                order = _columns(p, line, header, active_names)
+                continue
+            if len(row) != len(header):
+                raise InputError(f"{p}: line {line}: expected {len(header)} values, got {len(row)}")
+            nums = []
+            for i, cell in enumerate(row):
+                try:
+                    nums.append(float(cell))
+                except ValueError:
+                    raise InputError(f"{p}: line {line}: column {_short(header[i])}: not a number: {_short(cell)}") \
+                        from None
+            bad = [header[i] for i, x in enumerate(nums) if not np.isfinite(x)]
+            if bad:
+                raise InputError(f"{p}: line {line}: NaN or Inf in column(s) {', '.join(bad)}")
+            if times and not nums[0] > times[-1]:
+                raise InputError(f"{p}: line {line}: t = {nums[0]:g} does not come after the previous "
+                                 f"sample's {times[-1]:g} (torque table times must increase strictly)")
+            times.append(nums[0])
+            values.append([nums[i] for i in order])
+    except csv.Error as exc:
+        raise InputError(f"{p}: line {line + 1}: not a CSV table ({_short(str(exc))})") from None
+    if header is None:
         raise InputError(f"{p}: empty torque file")
-    header = [h.strip() for h in rows[0]]
-    if header[0] != "t":
-        raise InputError(f"{p}: line 1: the first column must be 't', got {header[0]!r}")
-    unknown = [h for h in header[1:] if h not in active_names]
-    if unknown:
-        raise InputError(f"{p}: line 1: unknown joint(s) {', '.join(unknown)} "
-                         f"(active joints: {', '.join(active_names)})")
-    missing = [n for n in active_names if n not in header]
-    if missing:
-        raise InputError(f"{p}: line 1: missing column(s) for active joint(s) {', '.join(missing)}")
-    order = [header.index(n) for n in active_names]
-    times, values = [], []
-    for line, row in enumerate(rows[1:], start=2):
-        if len(row) != len(header):
-            raise InputError(f"{p}: line {line}: expected {len(header)} values, got {len(row)}")
-        try:
-            nums = [float(x) for x in row]
-        except ValueError as exc:
-            raise InputError(f"{p}: line {line}: {exc}") from None
-        bad = [header[i] for i, x in enumerate(nums) if not np.isfinite(x)]
-        if bad:
-            raise InputError(f"{p}: line {line}: NaN or Inf in column(s) {', '.join(bad)}")
-        times.append(nums[0])
-        values.append([nums[i] for i in order])
     if not times:
         raise InputError(f"{p}: no torque samples after the header")
     return TorqueTable(np.array(times), np.array(values), hold)
+
+
+def _columns(p: Path, line: int, header: list[str], active_names: list[str]) -> list[int]:
+    """Column of each active joint in ``header``; errors for a wrong, unknown, repeated or missing column."""
+    if header[0] != "t":
+        raise InputError(f"{p}: line {line}: the first column must be 't', got {_short(header[0])}")
+    first: dict[str, int] = {}
+    for i, name in enumerate(header):
+        if name in first:  # which of the two would drive the motor is a guess: refuse
+            raise InputError(f"{p}: line {line}: column {_short(name)} appears twice "
+                             f"(columns {first[name] + 1} and {i + 1})")
+        first[name] = i
+    unknown = [h for h in header[1:] if h not in active_names]
+    if unknown:
+        raise InputError(f"{p}: line {line}: unknown joint(s) {', '.join(_short(h)[1:-1] for h in unknown[:8])} "
+                         f"(active joints: {', '.join(active_names)})")
+    missing = [n for n in active_names if n not in first]
+    if missing:
+        raise InputError(f"{p}: line {line}: missing column(s) for active joint(s) {', '.join(missing)}")
+    return [first[n] for n in active_names]
+
+
+def _short(text: str, limit: int = 60) -> str:
+    """``repr`` of a user's text, cut: a message stays one short line."""
+    return repr(text if len(text) <= limit else text[:limit] + "...")
 
 
 def write_torque_csv(path: str | Path, times: np.ndarray, values: np.ndarray, names: list[str]) -> None:
