@@ -150,6 +150,12 @@ def discover_topics(topics: Mapping[str, tuple[str, int]], given: Mapping[str, s
         roles[role] = topic
         taken.add(topic)
 
+    for role, (types, default, _) in ROLES.items():  # a known topic name with another type: a wrong recording
+        if role not in given and default in topics and topics[default][0] not in types:
+            found = f"{default} is {topics[default][0]}, but {role} needs {' or '.join(types)}"
+            if role not in OPTIONAL:
+                raise BagError(f"topic {found} (or name another topic with --{role.replace('_', '-')})")
+            notes.append(f"{role}: topic {found}: not used")
     for role, name in given.items():
         if role not in ROLES:
             raise BagError(f"unknown topic role {role!r}")
@@ -365,8 +371,14 @@ def read_bag(path: str | Path, given: Mapping[str, str | None] | None = None, ho
     """
     path = Path(path)
     with open_bag(path) as bag:
+        bag.require_messages()
         topics = bag.topics()
-        roles, notes = discover_topics(topics, given)
+        try:
+            roles, notes = discover_topics(topics, given)
+        except BagError as err:
+            raise BagError(f"{path}: {err}") from None
+        if bag.cut:
+            notes.append(bag.cut)
         by_topic: dict[str, list[str]] = {}
         for role, topic in roles.items():
             if topic is not None and topics[topic][1] > 0:

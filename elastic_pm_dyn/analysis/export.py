@@ -119,6 +119,7 @@ def export_bag(bag: str | Path, out: str | Path, topics: Sequence[str] | None = 
     """Write ``out/<topic>.csv`` for every topic of ``bag`` (or the named ones); see module doc."""
     bag, out = Path(bag), Path(out)
     with open_bag(bag) as reader:
+        reader.require_messages()
         table = reader.topics()
         wanted = list(table) if not topics else [t if t in table or t.startswith("/") else "/" + t for t in topics]
         unknown = [t for t in wanted if t not in table]

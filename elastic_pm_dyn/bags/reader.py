@@ -229,6 +229,8 @@ class Bag:
 
     def messages(self, connections: Sequence[Any]) -> Iterator[tuple[Any, int, bytes]]:
         """(connection, receive time [ns], raw CDR) of the given connections, in bag order."""
+        if not connections:  # rosbags would take an empty list for "every connection"
+            return
         n, t_last = 0, 0  # messages read so far, the receive time of the last: for the error
         try:
             it = self._messages(connections)

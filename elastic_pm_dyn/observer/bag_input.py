@@ -103,6 +103,7 @@ def iter_events(bag: Path, topics: Topics, cfg: ObserverConfig, counts: dict, ch
     events: list[Event] = []
     counts.update({k: 0 for k in wanted.values()})
     with open_bag(bag) as reader:
+        reader.require_messages()
         conns = [c for c in reader.connections if c.topic in wanted]
         found = {c.topic for c in conns}
         for topic in (topics.torque_command, topics.measured_joint_states):
