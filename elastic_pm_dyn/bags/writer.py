@@ -75,6 +75,7 @@ class BagWriter:
                 # rosbags writes CRC 0 ("none"); ours lets a reader reject a torn or damaged chunk.
                 st = self._w.storage
                 st.close_chunk = lambda: _close_chunk_with_crc(st)
+                st.bio.flush()  # magic and header in the file: a kill before any chunk leaves an mcap, if empty
             else:
                 self._w.storage.conn.commit()  # the tables, before any message
             write_unfinished(self._w)
