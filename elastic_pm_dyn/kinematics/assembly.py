@@ -13,6 +13,10 @@ from elastic_pm_dyn.errors import AssemblyError
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 
 TOLERANCE = 1e-13  # [m]: a few ulps of the link lengths
+# Newton that ends this close (residual [m]) with a Jacobian this ill-conditioned (smallest over
+# largest singular value) stalled beside a singular configuration, not short of an unreachable pose.
+NEAR_RESIDUAL = 1e-6
+SINGULAR_RATIO = 1e-4
 
 
 def _residual(mech: Mechanism, q: np.ndarray, target: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
@@ -54,6 +58,13 @@ def solve_pose(mech: Mechanism, q_guess: np.ndarray, free: np.ndarray,
     if norm <= TOLERANCE:
         return q
     what = "end-effector target" if target is not None else "closure"
+    sv = np.linalg.svd(jac[:, free], compute_uv=False)
+    ratio = sv[-1] / sv[0] if len(sv) and sv[0] > 0 else 0.0
+    if norm <= NEAR_RESIDUAL and not ratio >= SINGULAR_RATIO:
+        # Newton stalls beside a fold of the closure: the pose is there, its free joints are not determined
+        raise AssemblyError(f"singular configuration (a parallel singularity): the closure Jacobian in the "
+                            f"free joints has condition number {1 / max(ratio, 1e-300):.3g} here, so the "
+                            f"{what} is solved only to a residual of {norm:.3g} m")
     raise AssemblyError(f"cannot assemble the {what}: residual {norm:.3g} m after Newton "
                         "(out of reach, or a singular configuration)")
 

@@ -6,9 +6,8 @@ Sync modes (parameter ``sync_mode``):
 - ``fast``: as fast as possible; stamps are simulated time, published on ``/clock``.
 - ``lockstep``: each command advances exactly one period, then the state at the end of
   that period is published (stamp = simulated time, also on ``/clock``); a rejected
-  command holds the last valid one (zero torque if none) for its period, and while
-  integration is stopped the last good state is published again, so every command is
-  answered and a controller never waits. The state at t = 0 is published at start-up
+  command holds the last valid one (zero torque if none) for its period, so every command
+  is answered within one period while the plant runs. The state at t = 0 is published at start-up
   (transient local, see :mod:`.qos`), so a controller that answers every state with the
   next command drives the plant deterministically: the same torques give the same states
   as offline ``simulate``.
@@ -295,17 +294,17 @@ class PlantNode(ManagedNode):
                 return
 
     def _on_lockstep(self) -> None:
-        """One period per command; a command that cannot advance the plant is answered with
-        the last good state, again (time stands still while integration is stopped)."""
+        """One period per command (a rejected one holds the last valid command). While
+        integration is stopped nothing advances and nothing is published: ERROR in
+        /diagnostics, until ~/reset or ~/set_state publish the restarted state."""
         while self.queue:
             tau = self.queue.popleft()
             if self.plant.fault is not None:
                 self.stats.rejected += 1
-                self.warn.warning("stopped", f"command not applied, integration stopped: {self.plant.fault}; "
+                self.warn.warning("stopped", f"command ignored, integration stopped: {self.plant.fault}; "
                                   "call ~/reset or ~/set_state")
-                self._publish_state()
             elif not self._step(tau):
-                self._publish_state()
+                self.queue.clear()
 
     # ----------------------------------------------------------------- outputs
     def _stamp_ns(self) -> int:
