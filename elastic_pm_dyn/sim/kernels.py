@@ -35,6 +35,10 @@ NEWTON_FAILED = 1e-9
 # large for the motion or the torque too high. Told apart from a singular configuration,
 # whose conditioning check a blown-up state also fails.
 MAX_STEP_MOTION = 1.0
+# A blow-up where the matrix the formulation inverts has lost two decades of conditioning
+# (pivot ratio below this) comes from the singular configuration it approaches (L-D'A's
+# passive rates W qd_ae grow as 1 / ratio there): it is reported as that.
+NEAR_SINGULAR = 1e-2
 
 OK = 0
 SINGULAR = 1
@@ -164,7 +168,8 @@ def rk4_steps(form, ma, q, qd, tau_coef, dt, n_steps, stab, alpha, beta, tol, si
     info receives [steps done, worst conditioning, last gap]. Returns OK, SINGULAR (the
     conditioning fell below singular_tol; L-D'A: below sqrt(singular_tol), see below) or
     DIVERGED (a step would move a joint by more than MAX_STEP_MOTION, or the state or the
-    acceleration is not finite; info[1] is then max |qdd|); in both cases (q, qd) is the
+    acceleration is not finite, with a pivot ratio above NEAR_SINGULAR; info[1] is then
+    max |qdd|); in both cases (q, qd) is the
     state after the last good step. Divergence is checked before singularity: a blown-up
     state ruins the conditioning too, and must not be reported as a singular configuration.
 
@@ -222,9 +227,9 @@ def rk4_steps(form, ma, q, qd, tau_coef, dt, n_steps, stab, alpha, beta, tol, si
                 gap = g
                 motion, amax = _step_motion(vs, acc, dt)
                 if not motion <= MAX_STEP_MOTION:
-                    info[1] = amax
+                    info[1] = cond if cond < NEAR_SINGULAR else amax
                     info[2] = g
-                    return DIVERGED
+                    return SINGULAR if cond < NEAR_SINGULAR else DIVERGED
             worst = min(worst, cond)
             if cond < singular_tol:
                 motion, amax = _step_motion(vs, acc, dt)
@@ -240,9 +245,9 @@ def rk4_steps(form, ma, q, qd, tau_coef, dt, n_steps, stab, alpha, beta, tol, si
             q4[i] = q[i] + dt / 6.0 * (qd[i] + 2.0 * v2[i] + 2.0 * v3[i] + v4[i])
             v4[i] = qd[i] + dt / 6.0 * (a1[i] + 2.0 * a2[i] + 2.0 * a3[i] + a4[i])
         if not _sane(q4, v4, limit):
-            info[1] = max(np.max(np.abs(a1)), np.max(np.abs(a4)))
+            info[1] = worst if worst < NEAR_SINGULAR else max(np.max(np.abs(a1)), np.max(np.abs(a4)))
             info[2] = gap
-            return DIVERGED
+            return SINGULAR if worst < NEAR_SINGULAR else DIVERGED
         q[:] = q4
         qd[:] = v4
         if form == LDA:
