@@ -39,15 +39,13 @@ def _joint_states(n: int = N) -> tuple[np.ndarray, np.ndarray]:
                                              np.zeros((n, 2)), np.zeros((n, 2)))
 
 
-def write_states(path: Path, storage: str, flush_every: int = 100) -> Path:
-    """A finished bag of N joint states, flushed every ``flush_every`` (several mcap chunks)."""
+def write_states(path: Path, storage: str) -> Path:
+    """A finished bag of N joint states."""
     ns, msgs = _joint_states()
     with BagWriter(path, storage) as w:
         c = w.add_connection("/joint_states", JOINT_STATE)
         for k in range(N):
             w.write(c, int(ns[k]), msgs[k].tobytes())
-            if (k + 1) % flush_every == 0:
-                w.flush()
     return path
 
 
@@ -89,8 +87,7 @@ def storage_file(bag: Path) -> Path:
     return next(p for p in bag.iterdir() if p.suffix in (".mcap", ".db3"))
 
 
-@pytest.mark.parametrize("command", ["analyze", "export"])
-@pytest.mark.parametrize("single_file", [False, True])
+@pytest.mark.parametrize(("command", "single_file"), [("analyze", False), ("export", True)])
 def test_mcap_cut_to_its_magic_bytes(tmp_path, capsys, command, single_file):
     bag = write_states(tmp_path / "bag", "mcap")
     f = storage_file(bag)

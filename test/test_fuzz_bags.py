@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from test_bag_errors import _joint_states
+from test_bag_errors import N, _joint_states, write_states
 
 from elastic_pm_dyn.bags.decode import Decoder
 from elastic_pm_dyn.bags.errors import BagError
@@ -23,31 +23,27 @@ from elastic_pm_dyn.bags.msgtypes import JOINT_STATE
 from elastic_pm_dyn.bags.reader import open_bag
 from elastic_pm_dyn.bags.writer import BagWriter
 
-N = 300
-EXAMPLES = int(os.environ.get("BAG_FUZZ_EXAMPLES", "150"))
+EXAMPLES = int(os.environ.get("BAG_FUZZ_EXAMPLES", "100"))
 SOURCES = [(s, finished) for s in ("mcap", "sqlite3") for finished in (True, False)]
 
 
 @pytest.fixture(scope="module")
 def sources(tmp_path_factory) -> dict[tuple[str, bool], Path]:
-    """Each storage, finished and left open (flushed every 60 messages: several mcap chunks)."""
+    """Each storage finished, and left open as a kill leaves it (flushed every 60 messages)."""
     root = tmp_path_factory.mktemp("fuzz_sources")
-    ns, msgs = _joint_states(N)
     out = {}
-    for storage, finished in SOURCES:
-        path = root / f"{storage}_{finished}"
+    for storage in ("mcap", "sqlite3"):
+        out[storage, True] = write_states(root / f"{storage}_finished", storage)
+        path = root / f"{storage}_open"
+        ns, msgs = _joint_states(N)
         w = BagWriter(path, storage)
         c = w.add_connection("/joint_states", JOINT_STATE)
         for k in range(N):
             w.write(c, int(ns[k]), msgs[k].tobytes())
             if (k + 1) % 60 == 0:
                 w.flush()
-        if finished:
-            w.close()
-        else:
-            w.flush()
-            w.abort()  # what a kill leaves: the unfinished metadata.yaml, the flushed data
-        out[storage, finished] = path
+        w.abort()  # what a kill leaves: the unfinished metadata.yaml, the flushed data
+        out[storage, False] = path
     return out
 
 
