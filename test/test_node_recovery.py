@@ -269,3 +269,54 @@ def test_plant_process_answers_nan_within_a_period_and_recovers(tmp_path: Path) 
     finally:
         h.close()
         plant.stop()
+
+
+# ---------------------------------------------------------------- the observer node's logic
+def test_observer_services_answer_every_request_and_warnings_are_per_kind(capfd: pytest.CaptureFixture) -> None:
+    from elastic_pm_dyn_msgs.srv import SetJointState
+    from rclpy.parameter import Parameter
+    from sensor_msgs.msg import JointState
+    from std_srvs.srv import Trigger
+
+    from elastic_pm_dyn.ros.messages import stamp
+    from elastic_pm_dyn.ros.observer_node import ObserverNode
+    h = RosHarness(domain_id(29))
+    try:
+        node = h.add(ObserverNode(context=h.context,
+                                  parameter_overrides=[Parameter("observer.sensors", value=["encoders"])]))
+        mode = node.observer
+        q0 = initial_state(Mechanism(load_model(FIVE_BAR)))
+        names = ["left_motor", "right_motor"]
+
+        def joint_state(ns: int, position: list[float]) -> JointState:
+            msg = JointState(name=names, position=position)
+            msg.header.stamp = stamp(ns)
+            return msg
+
+        def torque(ns: int) -> JointState:
+            msg = command(MOTORS, TAU)
+            msg.header.stamp = stamp(ns)
+            return msg
+
+        for k in range(3):
+            mode._on_command(torque(k * 1_000_000))
+            mode._on_joint_state(joint_state(k * 1_000_000, [q0[0], q0[3]]))
+        capfd.readouterr()
+        for _ in range(3):
+            mode._on_command(torque(0))  # a steady stream of late commands...
+        mode._on_command(command(MOTORS, [np.nan, 0.0]))  # ...must not hide a NaN one
+        err = capfd.readouterr().err
+        assert err.count("before the previous one") == 1 and "NaN or Inf" in err, err
+
+        for names_, position, velocity in ((["left_motor"], [np.nan], []), (["left_motor"], [1e300], []),
+                                           (["left_motor", "left_motor"], [1.0, 1.0], []), (["x"], [0.0], []),
+                                           ([], [], []), (["left_motor"], [1.0], [np.inf]),
+                                           (["left_motor"], [], [])):
+            request = SetJointState.Request(state=JointState(name=names_, position=[float(p) for p in position],
+                                                             velocity=[float(v) for v in velocity]))
+            response = mode._on_set_state(request, SetJointState.Response())
+            assert not response.success and response.message, (names_, position, velocity)
+        response = mode._on_reset(Trigger.Request(), Trigger.Response())
+        assert response.success, response.message
+    finally:
+        h.close()

@@ -93,7 +93,7 @@ class ObserverMode:
         self.markers = MechanismMarkers(mech, p["frames.base"])
         self.last_stamp = 0  # [ns] of the latest published estimate
         self.timing_logged = 0  # sample timing decisions logged so far
-        self.warn = KindThrottle(node.get_logger(), WARN_EVERY)
+        self.warn = KindThrottle(node, WARN_EVERY)
 
         self.pub_joint_states = node.create_publisher(JointState, p["topics.joint_states"], STATE_QOS)
         self.pub_branch_forces = node.create_publisher(BranchForces, p["topics.branch_forces"], STATE_QOS)

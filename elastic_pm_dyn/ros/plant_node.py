@@ -129,7 +129,7 @@ class PlantNode(ManagedNode):
         self.messages = PlantMessages(self.plant, p["frames.base"])
         self.markers = MechanismMarkers(mech, p["frames.base"])
         self.stamp_base = 0  # [ns] stamp = stamp_base + k * period_ns
-        self.warn = KindThrottle(self.get_logger(), WARN_EVERY)
+        self.warn = KindThrottle(self, WARN_EVERY)
 
         self.pub_joint_states = self.create_publisher(JointState, p["topics.joint_states"], STATE_QOS)
         self.pub_branch_forces = self.create_publisher(BranchForces, p["topics.branch_forces"], STATE_QOS)

@@ -10,8 +10,8 @@ from typing import Any
 class KindThrottle:
     """At most one warning per ``every`` seconds (steady clock) for each kind."""
 
-    def __init__(self, logger: Any, every: float):
-        self.logger = logger
+    def __init__(self, node: Any, every: float):
+        self.node = node  # its logger is looked up at each line (tests replace get_logger)
         self.every = every
         self._last: dict[str, float] = {}
         self.suppressed: dict[str, int] = {}  # per kind, since its last line
@@ -25,5 +25,5 @@ class KindThrottle:
             return False
         self._last[kind] = now
         hidden = self.suppressed.pop(kind, 0)
-        self.logger.warning(f"{text} ({hidden} more like it since the last)" if hidden else text)
+        self.node.get_logger().warning(f"{text} ({hidden} more like it since the last)" if hidden else text)
         return True
