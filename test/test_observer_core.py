@@ -105,9 +105,8 @@ def test_transition_matches_the_nonlinear_map(five_bar) -> None:
         sim_kernels.partition(mech.arrays, qq, vv, 1e-14, 6)
         z = x[8:].copy()
         P, Phi, Qd, H = np.eye(obs.nx), np.empty((obs.nx, obs.nx)), np.empty((obs.nx, obs.nx)), np.empty((3, obs.nx))
-        status = kernels.predict(mech.arrays, qq, vv, tau, obs.dist_idx, z, obs.dist_col, obs.Lz, obs.Fz,
-                                 obs.psd_ae, obs.rel_ae, obs.psd_z, obs.eps_q, obs.eps_v, obs.point, True, True,
-                                 1e-3, 10, P, Phi, Qd, H, np.zeros(2))
+        status = kernels.predict(mech.arrays, obs.model.fixed, obs._proc, (qq, vv, z, P, Phi, Qd, H, np.zeros(2)),
+                                 tau, True, 1e-3, 10)
         assert status == 0
         return np.concatenate([qq[mech.ae], vv[mech.ae], z]), Phi
 

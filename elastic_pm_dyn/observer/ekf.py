@@ -89,12 +89,13 @@ from scipy.stats import chi2
 
 from elastic_pm_dyn.dynamics.statics import static_deflection
 from elastic_pm_dyn.errors import ElasticPmDynError, InputError
-from elastic_pm_dyn.kinematics.assembly import initial_state, solve_pose
+from elastic_pm_dyn.kinematics.assembly import solve_pose
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
-from elastic_pm_dyn.model.description import ACTIVE, ELASTIC
+from elastic_pm_dyn.model.description import ACTIVE
 from elastic_pm_dyn.observer import consistency, disturbance, kernels
 from elastic_pm_dyn.observer.config import ObserverConfig
-from elastic_pm_dyn.observer.sensors import Accelerometer, BranchForces, Encoders, Sample, resolve_joints
+from elastic_pm_dyn.observer.observer_model import ObserverModel
+from elastic_pm_dyn.observer.sensors import Sample
 
 OK, WARN, ERROR = 0, 1, 2  # diagnostic levels (as diagnostic_msgs/DiagnosticStatus)
 TIMING_MODES = {"before_command": 0, "after_command": 1, "auto": 2}  # kernels.run_periods' codes
@@ -215,47 +216,49 @@ class Estimate:
 
 
 class Observer:
-    """EKF of an elastic parallel manipulator; see the module docstring."""
+    """EKF of an elastic parallel manipulator; see the module docstring.
 
-    def __init__(self, mech: Mechanism, config: ObserverConfig | None = None, t0: float = 0.0,
+    ``mech``: the mechanism, or an :class:`~elastic_pm_dyn.observer.observer_model.ObserverModel`
+    built for it (the fixed part, shared by many observers with configurations of one
+    :func:`~elastic_pm_dyn.observer.observer_model.model_key`); the observer holds the rest of
+    its configuration (disturbance model, noise levels, gates, timing) and the filter's state."""
+
+    def __init__(self, mech: Mechanism | ObserverModel, config: ObserverConfig | None = None, t0: float = 0.0,
                  q0: np.ndarray | None = None, qd0: np.ndarray | None = None):
         cfg = config or ObserverConfig.from_parameters()
-        self.mech = mech
+        if isinstance(mech, ObserverModel):
+            if not mech.serves(cfg):
+                raise InputError("observer: the configuration's sensors or disturbance joints are not its model's")
+            model = mech
+        else:
+            model = ObserverModel.build(mech, cfg)
+        self.model = model
+        self.mech = model.mech
         self.cfg = cfg
-        model = mech.model
-        self.ae = np.asarray(mech.ae, dtype=np.int64)
-        self.nae = nae = len(self.ae)
-        self.x_of_ae = {int(j): k for k, j in enumerate(self.ae)}
+        self.ae, self.x_of_ae, self.eps_q, self.eps_v = model.ae, model.x_of_ae, model.eps_q, model.eps_v
+        self.nae = nae = model.nae
+        self.dist_idx, self.dist_col = model.dist_idx, model.dist_col
+        self.nd = len(model.dist_idx)
         pc = cfg.process
-        dist = [] if pc.disturbance == "none" else resolve_joints(
-            mech, pc.disturbance_joints, "process.disturbance_joints", roles=(ACTIVE, ELASTIC))
-        self.dist_idx = np.array(dist, dtype=np.int64)
-        self.dist_col = np.array([self.x_of_ae[j] for j in dist], dtype=np.int64)
-        self.nd = len(dist)
-        self.disturbance_model = dm = disturbance.build(pc, cfg.initial, [mech.joint_names[j] for j in dist])
+        self.disturbance_model = dm = disturbance.build(pc, cfg.initial, model.dist_names)
         self.Lz, self.Fz, self.psd_z = dm.Lz, dm.Fz, dm.psd
         self.nz = dm.nz
         self._z_names = dm.names
         self.nx = 2 * nae + self.nz
-        roles = [model.joints[j].role for j in self.ae]
+        roles = model.roles
         self.psd_ae = np.array([pc.torque_noise_psd if r == ACTIVE else pc.elastic_force_psd for r in roles])
         self.rel_ae = np.array([0.0 if r == ACTIVE else pc.vibration_noise for r in roles])
-        # Difference steps: 1 urad for motors; for springs a step that changes the spring
-        # force by ~10 mN (1.8 nm on the reference springs), so its effect sits far above
-        # round-off and far below the nonlinearity.
-        eps_q = []
-        for j in self.ae:
-            joint = model.joints[j]
-            eps_q.append(1e-6 if joint.role == ACTIVE or joint.stiffness <= 0 else min(1e-6, 1e-2 / joint.stiffness))
-        self.eps_q = np.array(eps_q)
-        self.eps_v = 100.0 * self.eps_q
+        # the kernels' bundle of this configuration (psd_ae and psd_z grow in place at a recovery)
+        self._proc = tuple(kernels.Process(self.dist_idx, self.dist_col, self.Lz, self.Fz, self.psd_ae, self.rel_ae,
+                                           self.psd_z))
         self.period = pc.max_interval
-        # Sensors
-        self.encoders = Encoders(mech, cfg, self.x_of_ae, nae) if "encoders" in cfg.sensors else None
-        self.imu = Accelerometer(mech, cfg) if "imu" in cfg.sensors else None
-        self.branch = BranchForces(mech, cfg, self.x_of_ae, nae) if "branch_forces" in cfg.sensors else None
-        self.point = self.imu.point if self.imu is not None else int(model.end_effector_chain)
-        self.with_point = self.imu is not None
+        # Sensors: the model's geometry with this configuration's noise levels
+        self.encoders = model.encoders.with_noise(cfg) if model.encoders is not None else None
+        self.imu = model.imu.with_noise(cfg) if model.imu is not None else None
+        self.branch = model.branch.with_noise(cfg) if model.branch is not None else None
+        self._imu = None if self.imu is None else tuple(kernels.ImuModel(self.imu.S, self.imu.g, self.imu.var))
+        self.point = model.point
+        self.with_point = model.with_point
         # Sample timing and actuation latency (module docstring)
         self.delay = cfg.command_delay
         self.imu_mode = TIMING_MODES[cfg.imu.sample_timing] if self.imu is not None else 0
@@ -268,32 +271,26 @@ class Observer:
         self.timing_last: TimingDecision | None = None  # the latest choice or check
         self._pending: deque = deque()  # (time it acts from, torque) of delayed commands
         self._held: tuple[float, np.ndarray] | None = None  # an accelerometer sample waiting for its command
-        self._deferred: tuple | None = None  # (t, the sample's prior) to weigh when its command comes (auto)
+        self._deferred: tuple | None = None  # (t, sample, its prior state, tau before) to weigh when its command comes
         self.released: list[UpdateResult] = []  # held samples the last call corrected
         self._gates: dict[int, float] = {}
         # False: no sample is gated (gate = inf), so that a likelihood cannot be won by gating
         # (observer.tuning sets it before the first sample)
         self.gating = True
-        self.branch_names = [b.name for b in model.branches]
-        self._branch_joint = np.array([mech.joint_names.index(b.joint) for b in model.branches], dtype=np.int64)
-        self._stiff = np.array([model.joints[j].stiffness for j in self._branch_joint])
-        self._damp = np.array([model.joints[j].damping for j in self._branch_joint])
-        self._rest = np.array([model.joints[j].rest for j in self._branch_joint])
-        self._HF = np.zeros((len(self._branch_joint), self.nx))
-        for i, j in enumerate(self._branch_joint):
-            self._HF[i, self.x_of_ae[int(j)]] = self._stiff[i]
-            self._HF[i, nae + self.x_of_ae[int(j)]] = self._damp[i]
-        self._ee = np.asarray(mech.ee_components, dtype=np.int64)
-        self._ee_point = int(model.end_effector_chain)
-        self.state_names = ([mech.joint_names[j] for j in self.ae] + [f"{mech.joint_names[j]}_vel" for j in self.ae]
-                            + self._z_names)
+        self.branch_names = model.branch_names
+        self.state_names = ([self.mech.joint_names[j] for j in self.ae]
+                            + [f"{self.mech.joint_names[j]}_vel" for j in self.ae] + self._z_names)
         self.P0 = np.diag(self._initial_variances())
         self.reset(t0, q0, qd0, initialised=q0 is not None or cfg.initial.source == "model")
+
+    def _state(self) -> tuple:
+        """The kernels' :class:`~elastic_pm_dyn.observer.kernels.State` bundle (the arrays: changed in place)."""
+        return self.q, self.qd, self.z, self.P, self.Phi, self.Qd, self.Hpt, self.info
 
     # ------------------------------------------------------------------ set-up
     def _initial_variances(self) -> np.ndarray:
         i = self.cfg.initial
-        roles = [self.mech.model.joints[j].role for j in self.ae]
+        roles = self.model.roles
         pos = [i.active_position_stddev if r == ACTIVE else i.elastic_position_stddev for r in roles]
         vel = [i.active_velocity_stddev if r == ACTIVE else i.elastic_velocity_stddev for r in roles]
         return np.concatenate([pos, vel, self.disturbance_model.initial_stddev]) ** 2
@@ -311,7 +308,7 @@ class Observer:
         mech = self.mech
         self.t = float(getattr(self, "t", 0.0) if t is None else t)
         self.time_pending = t is None  # the next stamp sets the time
-        q = initial_state(mech) if q is None else np.array(q, dtype=float)
+        q = self.model.q_initial.copy() if q is None else np.array(q, dtype=float)
         qd = np.zeros(mech.n) if qd is None else np.array(qd, dtype=float)
         if q.shape != (mech.n,) or qd.shape != (mech.n,):
             raise InputError(f"observer reset: a state needs {mech.n} tree coordinates")
@@ -362,7 +359,7 @@ class Observer:
         """
         mech = self.mech
         lookup = {n: k for k, n in enumerate(names)}
-        q = initial_state(mech)
+        q = self.model.q_initial.copy()
         qd = np.zeros(mech.n)
         vel = [] if velocity is None else velocity
         motors = self._motor_positions(names, position)
@@ -385,8 +382,8 @@ class Observer:
             return False
         P0 = self.P0.copy()
         if velocity_stddev is not None:
-            for i, j in enumerate(self.ae):
-                if mech.model.joints[j].role == ACTIVE:
+            for i, r in enumerate(self.model.roles):
+                if r == ACTIVE:
                     P0[self.nae + i, self.nae + i] = velocity_stddev ** 2
         tau_hold, t_cmd = self.tau_hold, self.t_command
         self.reset(t, q, qd, P0)
@@ -438,10 +435,8 @@ class Observer:
             tau = self._torque_at(self.t)
             n_sub = max(1, int(np.ceil(T / pc.dt - 1e-9)))
             relin = self._lin_age >= pc.relinearize_every or abs(T - self._lin_T) > 1e-12
-            status = kernels.predict_checked(self.mech.arrays, self.q, self.qd, self._tree_tau(tau), self.dist_idx,
-                                             self.z, self.dist_col, self.Lz, self.Fz, self.psd_ae, self.rel_ae,
-                                             self.psd_z, self.eps_q, self.eps_v, self.point, self.with_point, relin, T,
-                                             n_sub, self.P, self.Phi, self.Qd, self.Hpt, self.info)
+            status = kernels.predict_checked(self.mech.arrays, self.model.fixed, self._proc, self._state(),
+                                             self._tree_tau(tau), relin, T, n_sub)
             if relin:
                 self._lin_age, self._lin_T = 0, T
             self._lin_age += 1
@@ -575,9 +570,8 @@ class Observer:
                 # positions of state joints only: one compiled call (the same numbers as below)
                 idx, H, var, js, wrap, _ = fast
                 gate = self.gate(len(idx))
-                nis, status, logdet = kernels.encoder_correct(self.mech.arrays, self.q, self.qd, self.z, self.P, H,
-                                                              var, js, wrap, np.asarray(position, dtype=float)[idx],
-                                                              gate)
+                nis, status, logdet = kernels.encoder_correct(self.mech.arrays, self._state(), (H, var, js, wrap),
+                                                              np.asarray(position, dtype=float)[idx], gate)
                 if status >= 0:
                     out.append(self._after("encoders", t, nis, status, len(idx), gate, [], logdet))
                     fast = True
@@ -722,12 +716,10 @@ class Observer:
         """What waited for the command of its stamp: a deferred weighing (``auto``: the sample's
         prior under both hypotheses, the torque acting now as the after one) and a held sample."""
         if self._deferred is not None:
-            _, meas, q, qd, z, P, Hpt, tau_before = self._deferred
+            _, meas, prior, tau_before = self._deferred
             self._deferred = None
-            imu = self.imu
-            kernels.imu_innovations(self.mech.arrays, q, qd, z, P, tau_before, self._tree_tau(self._torque_at(self.t)),
-                                    self.dist_idx, self.Lz, self.point, imu.S, imu.g, meas, imu.var, Hpt,
-                                    self.gate(len(meas)), self.evidence)
+            kernels.imu_innovations(self.mech.arrays, self.model.fixed, self._proc, prior, self._imu, tau_before,
+                                    self._tree_tau(self._torque_at(self.t)), meas, self.gate(len(meas)), self.evidence)
         if self._held is not None:
             t, acc = self._held
             self._held = None
@@ -749,18 +741,18 @@ class Observer:
             return self._correct(imu.sample(acc, a, self.Hpt), t)
         gate = self.gate(len(meas))
         if self.imu_mode == 2 and not defer:
-            nis, status, logdet = kernels.imu_correct_auto(self.mech.arrays, self.q, self.qd, self.z, self.P,
-                                                           tau_before, tau_after, after, self.dist_idx, self.Lz,
-                                                           self.point, imu.S, imu.g, meas, imu.var, self.Hpt, gate,
-                                                           self.evidence)
+            nis, status, logdet = kernels.imu_correct_auto(self.mech.arrays, self.model.fixed, self._proc,
+                                                           self._state(), self._imu, tau_before, tau_after, after,
+                                                           meas, gate, self.evidence)
         else:
             if defer:
                 self._settle()
-                self._deferred = (t, meas.copy(), self.q.copy(), self.qd.copy(), self.z.copy(), self.P.copy(),
-                                  self.Hpt.copy(), tau_before)
-            nis, status, logdet = kernels.imu_correct(self.mech.arrays, self.q, self.qd, self.z, self.P,
-                                                      tau_after if after else tau_before, self.dist_idx, self.Lz,
-                                                      self.point, imu.S, imu.g, meas, imu.var, self.Hpt, gate)
+                # the sample's prior (the kernels' State bundle; Phi, Qd and info are not read)
+                prior = (self.q.copy(), self.qd.copy(), self.z.copy(), self.P.copy(), self.Phi, self.Qd,
+                         self.Hpt.copy(), self.info)
+                self._deferred = (t, meas.copy(), prior, tau_before)
+            nis, status, logdet = kernels.imu_correct(self.mech.arrays, self.model.fixed, self._proc, self._state(),
+                                                      self._imu, tau_after if after else tau_before, meas, gate)
         return self._after("imu", t, nis, status, len(meas), gate, [], logdet)
 
     # ------------------------------------------------------------------ sample timing (auto)
@@ -860,8 +852,8 @@ class Observer:
             st.last_reason = "NaN: " + ", ".join(s.dropped)
             return UpdateResult(s.sensor, t, False, reason="nan", dropped=s.dropped)
         gate = self.gate(s.r.size)
-        nis, status, logdet = kernels.correct(self.mech.arrays, self.q, self.qd, self.z, self.P,
-                                              np.ascontiguousarray(s.H), s.R, s.r, gate)
+        nis, status, logdet = kernels.correct(self.mech.arrays, self._state(), np.ascontiguousarray(s.H), s.R, s.r,
+                                              gate)
         return self._after(s.sensor, t, nis, status, s.r.size, gate, s.dropped, logdet)
 
     def _after(self, sensor: str, t: float, nis: float, status: int, dof: int, gate: float,
@@ -930,7 +922,8 @@ class Observer:
         """Where each :class:`Estimate` field sits in :meth:`estimate_flat`'s array (and its width)."""
         layout = getattr(self, "_flat_layout", None)
         if layout is None:
-            n, nb, ne, nd, nx = self.mech.n, len(self._branch_joint), len(self._ee), len(self.dist_idx), self.nx
+            m = self.model
+            n, nb, ne, nd, nx = self.mech.n, len(m.branch_joint), len(m.ee_comp), len(m.dist_idx), self.nx
             layout, o = {}, 0
             for key, width in (("t", 1), ("q", n), ("qd", n), ("q_std", n), ("qd_std", n), ("effort", n),
                                ("branch_force", nb), ("branch_force_std", nb), ("deflection", nb),
@@ -940,17 +933,13 @@ class Observer:
                 o += width
             self._flat_layout = layout
             self._flat_width = o
-            self._active_idx = np.asarray(self.mech.active, dtype=np.int64)
-            self._dist_names = [self.mech.joint_names[i] for i in self.dist_idx]
         return layout
 
     def estimate_flat(self) -> np.ndarray:
         """:meth:`estimate` as one float array (layout: :meth:`flat_layout`), in one compiled call."""
         self.flat_layout()
         out = np.empty(self._flat_width)
-        kernels.estimate_flat(self.mech.arrays, self.q, self.qd, self.z, self.P, self.tau_last, self._active_idx,
-                              self.dist_idx, self.Lz, self._ee_point, self._ee, self._branch_joint, self._stiff,
-                              self._damp, self._rest, self.t, out)
+        kernels.estimate_flat(self.mech.arrays, self.model.fixed, self._proc, self._state(), self.tau_last, self.t, out)
         return out
 
     def unpack_estimate(self, flat: np.ndarray, initialised: bool | None = None) -> Estimate:
@@ -960,7 +949,7 @@ class Observer:
         return Estimate(float(flat[0]), *(flat[lay[k]] for k in ("q", "qd", "q_std", "qd_std", "effort")),
                         self.branch_names, *(flat[lay[k]] for k in ("branch_force", "branch_force_std",
                                                                     "deflection", "deflection_rate", "ee", "ee_std")),
-                        self._dist_names, flat[lay["disturbance"]], flat[lay["disturbance_std"]], flat[lay["x"]],
+                        self.model.dist_names, flat[lay["disturbance"]], flat[lay["disturbance_std"]], flat[lay["x"]],
                         flat[lay["P"]].reshape(nx, nx), self.initialised if initialised is None else initialised)
 
     # ------------------------------------------------------------------ diagnostics

@@ -23,7 +23,9 @@ import numpy as np
 from scipy.stats import chi2
 
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
+from elastic_pm_dyn.model.layout import JF_REST, JF_STIFFNESS
 from elastic_pm_dyn.observer.ekf import Observer
+from elastic_pm_dyn.observer.observer_model import branch_arrays
 from elastic_pm_dyn.observer.results import Rows
 from elastic_pm_dyn.observer.scenarios import Recording
 from elastic_pm_dyn.observer.stream import ObserverStream
@@ -39,8 +41,7 @@ def quasi_static_branch_forces(mech: Mechanism, q: np.ndarray, qd: np.ndarray, t
     qd_ae[len(mech.active):] = 0.0
     qd_r = mech.tree_velocity(q, qd_ae)
     t = mech.terms(q, qd_r)
-    stiff = np.array([mech.model.joints[j].stiffness for j in el])
-    rest = np.array([mech.model.joints[j].rest for j in el])
+    stiff, rest = mech.arrays.jf[el, JF_STIFFNESS], mech.arrays.jf[el, JF_REST]
     h = t.h.copy()
     h[el] -= stiff * (q[el] - rest)  # the spring is replaced by the lock
     ne = len(el)
@@ -55,7 +56,7 @@ def quasi_static_branch_forces(mech: Mechanism, q: np.ndarray, qd: np.ndarray, t
     rhs = np.concatenate([mech.split_tau(tau_active) - h, t.gamma, np.zeros(ne)])
     mu = np.linalg.solve(K, rhs)[n + m:]
     lock = {int(j): -mu[k] for k, j in enumerate(el)}
-    return np.array([lock[mech.joint_names.index(b.joint)] for b in mech.model.branches])
+    return np.array([lock[int(j)] for j in branch_arrays(mech)[0]])
 
 
 def quasi_static_series(rec: Recording) -> np.ndarray:

@@ -28,22 +28,40 @@ from elastic_pm_dyn.observer.stream import ObserverStream
 
 
 class _Run:
-    """Consecutive ordinary stamp groups with one encoder plan (the offline fast path's input)."""
+    """Consecutive ordinary stamp groups with one encoder plan (the offline fast path's input;
+    read only once closed, so that filters of other noise levels can share it: the plan's H and
+    variances are looked up by ``names`` in each filter's encoders)."""
 
-    def __init__(self, g0: int, plan: tuple, has_imu: bool):
-        self.g0, self.g1, self.plan, self.has_imu = g0, g0, plan, has_imu
+    def __init__(self, g0: int, names: tuple, plan: tuple, has_imu: bool):
+        self.g0, self.g1, self.names, self.plan, self.has_imu = g0, g0, names, plan, has_imu
         self.ns: list[int] = []
         self.enc: list = []
         self.imu: list = []
         self.tau: list = []
-        self.flat: np.ndarray | None = None
-        self.nis: np.ndarray | None = None
 
     def close(self, origin_ns: int) -> None:
         self.ts = np.array([(int(ns) - origin_ns) * 1e-9 for ns in self.ns])  # as ObserverStream.seconds
         self.enc = np.array(self.enc, dtype=float).reshape(len(self.ns), len(self.plan[0]))
         self.imu = np.array(self.imu, dtype=float).reshape(len(self.ns), -1 if self.imu else 0)
         self.tau = np.array(self.tau, dtype=float).reshape(len(self.ns), -1)
+        # kernels.run_periods' inputs: (ts, taus, enc_meas, has_imu, imu_meas)
+        self.inputs = (self.ts, self.tau, self.enc, self.has_imu, self.imu)
+
+
+class FastRuns:
+    """The stamp groups of a list of events and the :class:`_Run` of each (None: the per-message
+    API's), for one observer model, ``timing.max_future`` and time origin: made once
+    (:func:`fast_runs`), fed to many filters over the same events (``EventFilter.feed``)."""
+
+    def __init__(self, groups: list[tuple[int, int]], run_of: list):
+        self.groups, self.run_of = groups, run_of
+
+
+def fast_runs(obs: Observer, events: list[Event], origin_ns: int) -> FastRuns:
+    """The :class:`FastRuns` of ``events`` (in the order they will be fed) for observers with
+    ``obs``'s model and ``timing.max_future``, time origin ``origin_ns``."""
+    groups = _groups(events)
+    return FastRuns(groups, _fast_runs(obs, ObserverStream(obs, origin_ns=origin_ns), events, groups))
 
 
 def _groups(events: list[Event]) -> list[tuple[int, int]]:
@@ -71,7 +89,7 @@ def _fast_runs(obs: Observer, stream: ObserverStream, events: list[Event], group
     branch_effort = obs.branch is not None and obs.branch.source == "joint_state_effort"
     axes = imu.axes if imu is not None else None
     cur: _Run | None = None
-    last_names, last_plan = None, None
+    last_names, last_key, last_plan = None, None, None
     for gi, (i0, i1) in enumerate(groups):
         spec = None
         size = i1 - i0
@@ -81,8 +99,8 @@ def _fast_runs(obs: Observer, stream: ObserverStream, events: list[Event], group
             if ej.kind == "joint_state" and ec.kind == "command" and (ei is None or ei.kind == "imu"):
                 names, pos, vel, eff = ej.data
                 if names is not last_names and names != last_names:  # decoded messages repeat them
-                    last_names = names
-                    last_plan = None if stream.name_problem(names)[0] else enc.fast_plan(names, obs.nx)
+                    last_names, last_key = names, tuple(names)
+                    last_plan = None if stream.name_problem(names)[0] else enc.fast_plan(last_key, obs.nx)
                 plan = last_plan if len(pos) == len(names) else None
                 if plan is not None and not (plan[5] and len(vel)) and not (branch_effort and len(eff)):
                     spec = plan
@@ -105,7 +123,7 @@ def _fast_runs(obs: Observer, stream: ObserverStream, events: list[Event], group
                 (ej.stamp_ns - origin) * 1e-9 - (cur.ns[-1] - origin) * 1e-9 > max_future:
             if cur is not None:
                 cur.close(origin)
-            cur = _Run(gi, spec, has_imu)
+            cur = _Run(gi, last_key, spec, has_imu)
         cur.g1 = gi + 1
         cur.ns.append(ej.stamp_ns)
         cur.enc.append(np.asarray(pos, dtype=float)[spec[0]])
@@ -135,28 +153,34 @@ class EventFilter:
         self.last_row_ns = None
         self.fixed = None
 
-    def feed(self, events: list[Event]) -> None:
+    def feed(self, events: list[Event], runs: FastRuns | None = None) -> None:
+        """``runs``: the :class:`FastRuns` of exactly these events (:func:`fast_runs` with this
+        observer's model, ``timing.max_future`` and the stream's origin), else made here."""
         if self.fault:
             return
         if self.gate is None:
-            self._feed(events, None)
+            self._feed(events, None, runs)
             return
         self.gate.clear()
         try:
-            self._feed(events, self.gate)
+            self._feed(events, self.gate, runs)
         finally:
             self.gate.set()
 
-    def _feed(self, events: list[Event], gate: threading.Event | None) -> None:
+    def _feed(self, events: list[Event], gate: threading.Event | None, runs: FastRuns | None) -> None:
         obs, stream, rows, sensors = self.obs, self.stream, self.rows, SENSORS
         nis, fault, last_row_ns, fixed = self.nis, self.fault, self.last_row_ns, self.fixed
         if events and stream.origin_ns is None:
             stream.seconds(events[0].stamp_ns)  # sets the origin
         rows.origin_ns = stream.origin_ns or 0
         seconds, max_future = stream.seconds, obs.cfg.timing.max_future
-        groups = _groups(events)
-        run_of = _fast_runs(obs, stream, events, groups) if self.fast else [None] * len(groups)
+        if runs is None:
+            groups = _groups(events)
+            run_of = _fast_runs(obs, stream, events, groups) if self.fast else [None] * len(groups)
+        else:
+            groups, run_of = runs.groups, runs.run_of if self.fast else [None] * len(runs.groups)
         skip = -1  # a group the fast path stopped at: the per-message API's
+        outs: dict[_Run, tuple[np.ndarray, np.ndarray]] = {}  # a run's rows and NIS (this pass's)
 
         def record(ns: int) -> None:
             rows.t.append(ns)
@@ -172,54 +196,49 @@ class EventFilter:
                 if fixed is None:
                     obs.flat_layout()
                     imu = obs.imu
-                    fixed = (obs.mech.arrays, obs.dist_idx, obs.dist_col, obs.Lz, obs.Fz, obs.psd_ae, obs.rel_ae,
-                             obs.psd_z, obs.eps_q, obs.eps_v, obs.point, obs.with_point, obs._active_idx,
-                             obs.fast_timing(),
-                             imu.S if imu is not None else np.zeros((0, 3)), imu.g if imu is not None else np.zeros(3),
-                             imu.var if imu is not None else np.zeros(0),
+                    # the accelerometer's bundle (kernels.ImuModel) and gate, placeholders without one
+                    fixed = (obs.fast_timing(), obs._imu or (np.zeros((0, 3)), np.zeros(3), np.zeros(0)),
                              obs.gate(len(imu.axes)) if imu is not None else np.inf)
-                (ma, dist_idx, dist_col, Lz, Fz, psd_ae, rel_ae, psd_z, eps_q, eps_v, point, with_point, active_idx,
-                 timing, S, g, imu_R, imu_gate) = fixed
-                idx, H, var, js, wrap, _ = run.plan
+                timing, imu_model, imu_gate = fixed
+                idx, H, var, js, wrap, _ = obs.encoders.fast_plan(run.names, obs.nx)
                 a, b = gi - run.g0, run.g1 - run.g0
                 hold, last = obs.tau_hold.copy(), obs.tau_last.copy()
                 ctl, pend_t, pend_tau = obs.fast_state(b - a)
-                if run.flat is None:  # the run's rows (views of it become rows.flat)
-                    # run.nis: NIS and log det S per sensor (encoders, imu), kernels.run_periods'
-                    run.flat, run.nis = np.empty((b, obs._flat_width)), np.empty((b, 4))
+                out = outs.get(run)
+                if out is None:  # the run's rows (views of it become rows.flat) and, per sensor
+                    # (encoders, imu), NIS and log det S: kernels.run_periods'
+                    out = outs[run] = (np.empty((b, obs._flat_width)), np.empty((b, 4)))
+                run_flat, run_nis = out
                 if gate is not None:  # the compiled call leaves the GIL to the other threads
                     gate.set()
                 done = kernels.run_periods(
-                    ma, obs.q, obs.qd, obs.z, obs.P, obs.Phi, obs.Qd, obs.Hpt, obs.info, dist_idx, dist_col, Lz,
-                    Fz, psd_ae, rel_ae, psd_z, eps_q, eps_v, point, with_point, active_idx, hold, last, ctl, timing,
-                    pend_t, pend_tau, obs.evidence, H, var, js, wrap, obs.gate(len(idx)), run.enc, run.has_imu, S, g,
-                    imu_R, imu_gate, run.imu, run.ts,
-                    run.tau, obs._ee_point, obs._ee, obs._branch_joint, obs._stiff, obs._damp, obs._rest, a, b,
-                    run.flat, run.nis)
+                    obs.mech.arrays, obs.model.fixed, obs._proc, obs._state(), (hold, last, pend_t, pend_tau), ctl,
+                    timing, obs.evidence, (H, var, js, wrap), obs.gate(len(idx)), imu_model, imu_gate, run.inputs, a,
+                    b, run_flat, run_nis)
                 if gate is not None:
                     gate.clear()
                 if done:
                     obs.set_fast_state(ctl, pend_t, pend_tau)
                     obs.tau_hold, obs.tau_last = hold, last
                     ns = run.ns[a:a + done]
-                    enc_nis = run.nis[a:a + done, 0].tolist()
-                    obs._accepted_many("encoders", enc_nis, len(idx), run.nis[a:a + done, 2].tolist())
+                    enc_nis = run_nis[a:a + done, 0].tolist()
+                    obs._accepted_many("encoders", enc_nis, len(idx), run_nis[a:a + done, 2].tolist())
                     obs.stats["command"].accepted += done
                     obs.stats["command"].consecutive_rejections = 0
                     first = dict(nis, encoders=enc_nis[0])
                     if run.has_imu:
-                        imu_nis = run.nis[a:a + done, 1].tolist()
-                        obs._accepted_many("imu", imu_nis, run.imu.shape[1], run.nis[a:a + done, 3].tolist())
+                        imu_nis = run_nis[a:a + done, 1].tolist()
+                        obs._accepted_many("imu", imu_nis, run.imu.shape[1], run_nis[a:a + done, 3].tolist())
                         first["imu"] = imu_nis[0]
                         stream.results = [UpdateResult("imu", seconds(ns[-1]), True, imu_nis[-1], run.imu.shape[1],
-                                                       logdet=float(run.nis[a + done - 1, 3]))]
+                                                       logdet=float(run_nis[a + done - 1, 3]))]
                         tail = [[e, i, np.nan] for e, i in zip(enc_nis[1:], imu_nis[1:], strict=True)]
                     else:
                         stream.results = [UpdateResult("encoders", seconds(ns[-1]), True, enc_nis[-1], len(idx),
-                                                       logdet=float(run.nis[a + done - 1, 2]))]
+                                                       logdet=float(run_nis[a + done - 1, 2]))]
                         tail = [[e, np.nan, np.nan] for e in enc_nis[1:]]
                     rows.t.extend(ns)
-                    rows.flat.extend(run.flat[a:a + done])
+                    rows.flat.extend(run_flat[a:a + done])
                     rows.nis.append([first[s] for s in sensors])
                     rows.nis.extend(tail)
                     nis = dict.fromkeys(sensors, np.nan)
@@ -261,10 +280,12 @@ class EventFilter:
 
 
 def run_events(obs: Observer, events: list[Event], order: str = "stamp", fast: bool = True,
-               origin_ns: int | None = None) -> tuple[Rows, ObserverStream, str]:
+               origin_ns: int | None = None, runs: FastRuns | None = None) -> tuple[Rows, ObserverStream, str]:
     """Feed events through a stream; one estimate per distinct stamp. Returns (rows, stream, fault).
 
     ``origin_ns``: the stream's time origin (default: the first stamp, at the observer's time).
+    ``runs``: the :class:`FastRuns` of the events in the order fed (:func:`fast_runs`), made
+    here if None.
 
     ``fast``: ordinary stamp groups (a joint state, an accelerometer sample, the command)
     go through ``kernels.run_periods``, many in one compiled call, with the same numbers,
@@ -275,7 +296,7 @@ def run_events(obs: Observer, events: list[Event], order: str = "stamp", fast: b
     elif order != "arrival":
         raise InputError(f"unknown message order {order!r} (expected stamp or arrival)")
     f = EventFilter(obs, fast, origin_ns=origin_ns)
-    f.feed(events)
+    f.feed(events, runs)
     return f.rows, f.stream, f.fault
 
 

@@ -18,7 +18,18 @@ One prediction interval [t, t + T] (T <= 1 ms) costs, for the five-bar:
   end, which is exactly the q_ae -> q_t map of the state definition).
 The end-effector acceleration columns (for an accelerometer) come with the same
 perturbed evaluations.
+
+The observer-level kernels take their arrays in a few bundles (plain tuples, unpacked in the
+kernel in the order of the NamedTuple that documents them): :class:`Fixed` (built once per
+:class:`~elastic_pm_dyn.observer.observer_model.ObserverModel`), :class:`Process` (the
+disturbance model and noise intensities of one configuration), :class:`State` (the filter's
+state, changed in place), :class:`ImuModel` and :class:`EncoderPlan` (a sensor's arrays). Plain
+tuples because numba types a namedtuple argument on its slow path (about 1 us a bundle and
+call, against 0.2 us for a tuple); ``ma`` (the mechanism's ``ModelArrays``) stays an argument
+of its own for the same reason (a tuple holding it would take the slow path too).
 """
+
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -33,6 +44,70 @@ SINGULAR_TOL = 1e-8  # conditioning below which an evaluation counts as singular
 CLOSURE_TOL = 1e-14  # [m] partitioning target after a prediction or a correction
 PERTURBED_TOL = 1e-10  # [m] accepted gap of a first-order perturbed pose (see linearize)
 COVARIANCE_LOST = 10  # predict_checked: the prediction went through but P is no longer positive definite
+
+
+class Fixed(NamedTuple):
+    """What the kernels need of the fixed observer model (the mechanism and the sensor geometry)."""
+
+    eps_q: np.ndarray  # (n_ae,) difference steps of the positions (linearize)
+    eps_v: np.ndarray  # (n_ae,) ... and of the rates
+    point: int  # the accelerometer's point (the end effector's without one)
+    with_point: bool  # an accelerometer is used: its Jacobian Hpt is linearised too
+    active_idx: np.ndarray  # (n_a,) tree indices of the motors (command order)
+    ee_point: int  # the end-effector point (its position in the estimates)
+    ee_comp: np.ndarray  # its components in the estimates (0 x, 1 y, 2 z)
+    branch_joint: np.ndarray  # (n_b,) tree index of each branch's elastic joint
+    stiff: np.ndarray  # (n_b,) its stiffness c
+    damp: np.ndarray  # (n_b,) its damping d
+    rest: np.ndarray  # (n_b,) its rest position
+
+
+class Process(NamedTuple):
+    """The process model of one configuration: disturbance states z (d = Lz z on tree joints
+    ``dist_idx``, q_ae columns ``dist_col``; z' = Fz z + w) and the white-noise intensities
+    (``psd_ae`` generalised forces on q_ae, ``rel_ae`` vibration-relative, ``psd_z`` on z;
+    grown in place by a recovery)."""
+
+    dist_idx: np.ndarray
+    dist_col: np.ndarray
+    Lz: np.ndarray
+    Fz: np.ndarray
+    psd_ae: np.ndarray
+    rel_ae: np.ndarray
+    psd_z: np.ndarray
+
+
+class State(NamedTuple):
+    """The filter's state, changed in place: the consistent tree state (q, qd), the disturbance
+    states z, the covariance P, the last linearisation (Phi, Qd over its interval, the point
+    acceleration's Jacobian Hpt) and info = [worst conditioning, closure gap]."""
+
+    q: np.ndarray
+    qd: np.ndarray
+    z: np.ndarray
+    P: np.ndarray
+    Phi: np.ndarray
+    Qd: np.ndarray
+    Hpt: np.ndarray
+    info: np.ndarray
+
+
+class ImuModel(NamedTuple):
+    """An accelerometer: y = S (a - g) with noise variances R."""
+
+    S: np.ndarray  # (m, 3) measured axes in world coordinates
+    g: np.ndarray  # (3,) gravity for a specific-force sensor, else 0
+    R: np.ndarray  # (m,)
+
+
+class EncoderPlan(NamedTuple):
+    """Encoder positions of state joints ``js`` (H their constant rows, R the variances;
+    ``wrap``: revolute, the innovation wrapped to (-pi, pi])."""
+
+    H: np.ndarray
+    R: np.ndarray
+    js: np.ndarray
+    wrap: np.ndarray
 
 
 @njit(cache=True)
@@ -162,11 +237,13 @@ def outputs(ma, q, qd, P, point, ee_comp, branch_joint, stiff, damp, rest, q_std
 
 
 @njit(cache=True)
-def estimate_flat(ma, q, qd, z, P, tau_last, active_idx, dist_idx, Lz, point, ee_comp, branch_joint, stiff, damp,
-                  rest, t, out):
+def estimate_flat(ma, fixed, proc, state, tau_last, t, out):
     """Every output of ``Observer.estimate`` into one flat array ``out``:
     [t, q, qd, q_std, qd_std, effort (n_t each), F, F_std, deflection, deflection rate (n_b each),
     ee, ee_std, d, d_std, x, P (row-major)]."""
+    _, _, _, _, active_idx, point, ee_comp, branch_joint, stiff, damp, rest = fixed
+    dist_idx, _, Lz, _, _, _, _ = proc
+    q, qd, z, P, _, _, _, _ = state
     n = q.shape[0]
     nb = branch_joint.shape[0]
     ne = ee_comp.shape[0]
@@ -403,9 +480,8 @@ def discretize(Ac, Qc, T, Phi, Qd):
 
 
 @njit(cache=True)
-def predict(ma, q, qd, tau, dist_idx, z, dist_col, Lz, Fz, psd_ae, rel_ae, psd_z, eps_q, eps_v,
-            point, with_point, relinearize, T, n_sub, P, Phi, Qd, Hpt, info):
-    """Propagate state and covariance over [t, t + T] with tree forces ``tau`` held.
+def predict(ma, fixed, proc, state, tau, relinearize, T, n_sub):
+    """Propagate ``state`` (:class:`State`) over [t, t + T] with tree forces ``tau`` held.
 
     tau (n_t): commanded generalised forces; the disturbance torques d = Lz z (on tree
     joints dist_idx) are added. With ``relinearize`` the model is linearised at the
@@ -420,6 +496,9 @@ def predict(ma, q, qd, tau, dist_idx, z, dist_col, Lz, Fz, psd_ae, rel_ae, psd_z
     block), P. info: [worst conditioning, closure gap after partitioning]. Returns
     ``sim.kernels`` status codes.
     """
+    eps_q, eps_v, point, with_point, _, _, _, _, _, _, _ = fixed
+    dist_idx, dist_col, Lz, Fz, psd_ae, rel_ae, psd_z = proc
+    q, qd, z, P, Phi, Qd, Hpt, info = state
     n = q.shape[0]
     nae = ma.ae_index.shape[0]
     nd = dist_idx.shape[0]
@@ -494,14 +573,12 @@ def predict(ma, q, qd, tau, dist_idx, z, dist_col, Lz, Fz, psd_ae, rel_ae, psd_z
 
 
 @njit(cache=True)
-def predict_checked(ma, q, qd, tau, dist_idx, z, dist_col, Lz, Fz, psd_ae, rel_ae, psd_z, eps_q, eps_v,
-                    point, with_point, relinearize, T, n_sub, P, Phi, Qd, Hpt, info):
+def predict_checked(ma, fixed, proc, state, tau, relinearize, T, n_sub):
     """:func:`predict`, then :func:`covariance_ok` (status COVARIANCE_LOST if not): one call per interval."""
-    status = predict(ma, q, qd, tau, dist_idx, z, dist_col, Lz, Fz, psd_ae, rel_ae, psd_z, eps_q, eps_v,
-                     point, with_point, relinearize, T, n_sub, P, Phi, Qd, Hpt, info)
+    status = predict(ma, fixed, proc, state, tau, relinearize, T, n_sub)
     if status != OK:
         return status
-    return OK if covariance_ok(P) else COVARIANCE_LOST
+    return OK if covariance_ok(state[3]) else COVARIANCE_LOST
 
 
 @njit(cache=True)
@@ -607,10 +684,12 @@ def apply_correction(ma, q, qd, z, dx):
 
 
 @njit(cache=True)
-def correct(ma, q, qd, z, P, H, R, r, gate):
-    """One correction: :func:`kalman_update`, then x <- x + dx on the tree state (closure
-    re-solved) and a covariance check. Returns (NIS, status, log det S): status 0 applied,
-    1 gated out, 2 the closure could not be re-solved, 3 P no longer positive definite."""
+def correct(ma, state, H, R, r, gate):
+    """One correction of ``state`` (:class:`State`): :func:`kalman_update`, then x <- x + dx on
+    the tree state (closure re-solved) and a covariance check. Returns (NIS, status, log det S):
+    status 0 applied, 1 gated out, 2 the closure could not be re-solved, 3 P no longer positive
+    definite."""
+    q, qd, z, P, _, _, _, _ = state
     dx = np.zeros(P.shape[0])
     nis, logdet = kalman_update_ld(P, H, R, r, gate, dx)
     if not nis <= gate:
@@ -624,11 +703,13 @@ def correct(ma, q, qd, z, P, H, R, r, gate):
 
 
 @njit(cache=True)
-def encoder_correct(ma, q, qd, z, P, H, R, js, wrap, meas, gate):
-    """Encoder positions of state joints ``js`` (H: their constant rows): innovation
+def encoder_correct(ma, state, enc, meas, gate):
+    """Encoder positions of state joints (``enc``: :class:`EncoderPlan`): innovation
     meas - q[js], wrapped to (-pi, pi] where ``wrap`` (revolute), then :func:`correct`.
     Returns (NIS, status, log det S) as :func:`correct`, or (nan, -1, nan) untouched if a value
     is not finite."""
+    H, R, js, wrap = enc
+    q = state[0]
     k = js.shape[0]
     r = np.empty(k)
     for i in range(k):
@@ -637,13 +718,18 @@ def encoder_correct(ma, q, qd, z, P, H, R, js, wrap, meas, gate):
         r[i] = meas[i] - q[js[i]]
         if wrap[i]:
             r[i] = (r[i] + np.pi) % (2 * np.pi) - np.pi
-    return correct(ma, q, qd, z, P, H, R, r, gate)
+    return correct(ma, state, H, R, r, gate)
 
 
 @njit(cache=True)
-def imu_correct(ma, q, qd, z, P, tau, dist_idx, Lz, point, S, g, meas, R, Hpt, gate):
-    """Accelerometer correction: y = S (J qdd + Jdot qd - g) at the state under tau + Lz z;
-    H = S Hpt. Returns (NIS, status, log det S) as :func:`correct`, status 4 if the model is singular."""
+def imu_correct(ma, fixed, proc, state, imu, tau, meas, gate):
+    """Accelerometer correction (``imu``: :class:`ImuModel`): y = S (J qdd + Jdot qd - g) at the
+    state under tau + Lz z; H = S Hpt. Returns (NIS, status, log det S) as :func:`correct`,
+    status 4 if the model is singular."""
+    point = fixed[2]
+    dist_idx, _, Lz, _, _, _, _ = proc
+    q, qd, z, _, _, _, Hpt, _ = state
+    S, g, R = imu
     nd = dist_idx.shape[0]
     d = np.zeros(nd)
     for k in range(nd):
@@ -660,7 +746,7 @@ def imu_correct(ma, q, qd, z, P, tau, dist_idx, Lz, point, S, g, meas, R, Hpt, g
             h += S[i, c] * (a[c] - g[c])
         r[i] = meas[i] - h
     H = S @ Hpt
-    return correct(ma, q, qd, z, P, H, R, r, gate)
+    return correct(ma, state, H, R, r, gate)
 
 
 @njit(cache=True)
@@ -694,7 +780,7 @@ def innovation_nis(P, H, R, r):
 
 
 @njit(cache=True)
-def imu_innovations(ma, q, qd, z, P, tau_before, tau_after, dist_idx, Lz, point, S, g, meas, R, Hpt, gate, evidence):
+def imu_innovations(ma, fixed, proc, state, imu, tau_before, tau_after, meas, gate, evidence):
     """The accelerometer sample predicted under both timing hypotheses at the same state (for
     ``imu.sample_timing: auto``): y_b under ``tau_before`` (the torque of the interval that ended
     at the sample, a(t_k-)) and y_a under ``tau_after`` (the torque acting from it on, a(t_k+));
@@ -703,6 +789,10 @@ def imu_innovations(ma, q, qd, z, P, tau_before, tau_after, dist_idx, Lz, point,
     -(evidence[0 or 1] + evidence[2]) / 2: Gaussian, the NIS capped at the gate so that an
     outlier (beyond it under both) weighs nothing and a sample weighs at most gate / 2 nats for
     one hypothesis. Returns (r_b, r_a, H, False if the model is singular there)."""
+    point = fixed[2]
+    dist_idx, _, Lz, _, _, _, _ = proc
+    q, qd, z, P, _, _, Hpt, _ = state
+    S, g, R = imu
     nd = dist_idx.shape[0]
     d = np.zeros(nd)
     for k in range(nd):
@@ -742,16 +832,14 @@ def imu_innovations(ma, q, qd, z, P, tau_before, tau_after, dist_idx, Lz, point,
 
 
 @njit(cache=True)
-def imu_correct_auto(ma, q, qd, z, P, tau_before, tau_after, use_after, dist_idx, Lz, point, S, g, meas, R, Hpt,
-                     gate, evidence):
+def imu_correct_auto(ma, fixed, proc, state, imu, tau_before, tau_after, use_after, meas, gate, evidence):
     """:func:`imu_innovations` (the evidence), then the correction under the after hypothesis if
     ``use_after``, else the before one (the same numbers as :func:`imu_correct` with that torque).
     Returns (NIS, status, log det S) as :func:`imu_correct`."""
-    r_b, r_a, H, ok = imu_innovations(ma, q, qd, z, P, tau_before, tau_after, dist_idx, Lz, point, S, g, meas, R,
-                                      Hpt, gate, evidence)
+    r_b, r_a, H, ok = imu_innovations(ma, fixed, proc, state, imu, tau_before, tau_after, meas, gate, evidence)
     if not ok:
         return np.inf, 4, np.nan
-    return correct(ma, q, qd, z, P, H, R, r_a if use_after else r_b, gate)
+    return correct(ma, state, H, imu[2], r_a if use_after else r_b, gate)
 
 
 @njit(cache=True)
@@ -799,10 +887,8 @@ def _activate(pend_t, pend_tau, head, tail, t, tol, tau_hold):
 
 
 @njit(cache=True, nogil=True)
-def run_periods(ma, q, qd, z, P, Phi, Qd, Hpt, info, dist_idx, dist_col, Lz, Fz, psd_ae, rel_ae, psd_z, eps_q, eps_v,
-                point, with_point, active_idx, tau_hold, tau_last, ctl, timing, pend_t, pend_tau, evidence, enc_H,
-                enc_R, enc_js, enc_wrap, enc_gate, enc_meas, has_imu, S, g, imu_R, imu_gate, imu_meas, ts, taus,
-                ee_point, ee_comp, branch_joint, stiff, damp, rest, start, stop, out, nis_out):
+def run_periods(ma, fixed, proc, state, cmd, ctl, timing, evidence, enc, enc_gate, imu, imu_gate, inputs, start, stop,
+                out, nis_out):
     """Ordinary periods ``start``..``stop``-1 (offline fast path), each what the per-message API
     does for a joint state (state-joint positions), an optional accelerometer sample and the
     torque command at one stamp ``ts[k]``, in that order: ``Observer._advance`` (its
@@ -812,13 +898,17 @@ def run_periods(ma, q, qd, z, P, Phi, Qd, Hpt, info, dist_idx, dist_col, Lz, Fz,
     command of its stamp after the command), the command (acting from ``ts[k]`` + delay) and
     :func:`estimate_flat` into ``out[k]`` -- the same kernels on the same numbers in the same order.
 
+    ``state`` (:class:`State`) in place; ``cmd`` = (tau_hold, tau_last (active order, in place), pend_t,
+    pend_tau (the delayed commands)); ``enc`` (:class:`EncoderPlan`), ``imu`` (:class:`ImuModel`) with
+    their gates; ``inputs`` = (ts (the stamps), taus (the commands), enc_meas (the encoder
+    positions), has_imu, imu_meas (the accelerometer samples)), one row per period.
     ctl = [t, intervals since the linearisation, its length, activation time of the held command,
     first and end index of the delayed commands in ``pend_t``/``pend_tau`` (room for one more per
     period), t_stop, timing trial (0/1), after-command hypothesis in use (0/1)] (in place);
     timing = [max_interval, dt, stamp tolerance, relinearize_every, command_timeout, command_delay,
     accelerometer timing (0 before, 1 after, 2 auto), no delay (0/1: a sample stamped with the
     command that starts to act waits for it, under the after hypothesis)];
-    tau_hold, tau_last (active order), ``evidence`` (:func:`imu_innovations`) in place;
+    ``evidence`` (:func:`imu_innovations`) in place;
     nis_out[k] = (encoder NIS, imu NIS, encoder log det S, imu log det S): each sample's
     log-likelihood is -(NIS + log det S + dof log 2 pi) / 2.
     A period stops the run, the filter state restored as it was before it, when it is not
@@ -827,6 +917,10 @@ def run_periods(ma, q, qd, z, P, Phi, Qd, Hpt, info, dist_idx, dist_col, Lz, Fz,
     sample, a failure. Returns the number of periods done; the caller runs the next one through
     the per-message API.
     """
+    q, qd, z, P, Phi, Qd, Hpt, info = state
+    active_idx = fixed[4]
+    tau_hold, tau_last, pend_t, pend_tau = cmd
+    ts, taus, enc_meas, has_imu, imu_meas = inputs
     n = q.shape[0]
     na = active_idx.shape[0]
     max_interval, dt, tol, every, timeout, delay = timing[0], timing[1], timing[2], timing[3], timing[4], timing[5]
@@ -888,8 +982,7 @@ def run_periods(ma, q, qd, z, P, Phi, Qd, Hpt, info, dist_idx, dist_col, Lz, Fz,
             tree[:] = 0.0
             for i in range(na):
                 tree[active_idx[i]] = tau_hold[i]
-            status = predict_checked(ma, q, qd, tree, dist_idx, z, dist_col, Lz, Fz, psd_ae, rel_ae, psd_z, eps_q,
-                                     eps_v, point, with_point, relin, T, n_sub, P, Phi, Qd, Hpt, info)
+            status = predict_checked(ma, fixed, proc, state, tree, relin, T, n_sub)
             if status != OK:
                 ok = False
                 break
@@ -902,7 +995,7 @@ def run_periods(ma, q, qd, z, P, Phi, Qd, Hpt, info, dist_idx, dist_col, Lz, Fz,
             t_command = t_act if t_act > -np.inf else t_command
         nis_e, nis_i, ld_e, ld_i = np.nan, np.nan, np.nan, np.nan
         if ok:
-            nis_e, st_e, ld_e = encoder_correct(ma, q, qd, z, P, enc_H, enc_R, enc_js, enc_wrap, enc_m, enc_gate)
+            nis_e, st_e, ld_e = encoder_correct(ma, state, enc, enc_m, enc_gate)
             ok = st_e == 0
         # The hypothesis in use: auto's likelier so far (this sample not yet weighed). With no
         # delay a sample under the after hypothesis waits for the command of its stamp; under
@@ -932,12 +1025,12 @@ def run_periods(ma, q, qd, z, P, Phi, Qd, Hpt, info, dist_idx, dist_col, Lz, Fz,
                 tree_k[active_idx[i]] = taus[k, i]
             if imu_mode == 2:
                 # before the command with no delay: the torque after the stamp is that command's
-                nis_i, st_i, ld_i = imu_correct_auto(ma, q, qd, z, P, tree_b,
-                                                     tree_k if no_delay and not after else tree, after, dist_idx, Lz,
-                                                     point, S, g, imu_m, imu_R, Hpt, imu_gate, evidence)
+                nis_i, st_i, ld_i = imu_correct_auto(ma, fixed, proc, state, imu, tree_b,
+                                                     tree_k if no_delay and not after else tree, after, imu_m,
+                                                     imu_gate, evidence)
             else:
-                nis_i, st_i, ld_i = imu_correct(ma, q, qd, z, P, tree if after else tree_b, dist_idx, Lz, point, S,
-                                                g, imu_m, imu_R, Hpt, imu_gate)
+                nis_i, st_i, ld_i = imu_correct(ma, fixed, proc, state, imu, tree if after else tree_b, imu_m,
+                                                imu_gate)
             ok = st_i == 0
         if not ok:
             q[:] = q0
@@ -953,8 +1046,7 @@ def run_periods(ma, q, qd, z, P, Phi, Qd, Hpt, info, dist_idx, dist_col, Lz, Fz,
             evidence[:] = ev0
             return k - start
         ctl[0], ctl[1], ctl[2], ctl[3], ctl[4], ctl[5] = t, lin_age, lin_T, t_command, float(head), float(tail)
-        estimate_flat(ma, q, qd, z, P, tau_last, active_idx, dist_idx, Lz, ee_point, ee_comp, branch_joint, stiff,
-                      damp, rest, t, out[k])
+        estimate_flat(ma, fixed, proc, state, tau_last, t, out[k])
         nis_out[k, 0] = nis_e
         nis_out[k, 1] = nis_i
         nis_out[k, 2] = ld_e

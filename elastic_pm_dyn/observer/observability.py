@@ -180,7 +180,9 @@ def analyse(obs, horizon: float | None = None, q: np.ndarray | None = None, qd: 
             Pu = Pp - Pp @ C.T @ np.linalg.solve(S, C @ Pp)
             if np.all(np.isfinite(Pu)) and np.all(np.diag(Pu) >= 0):
                 steady = np.sqrt(np.diag(Pu))
-                steady_F = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", obs._HF, Pu, obs._HF), 0.0))
+                HF = np.zeros((len(obs.branch_names), obs.nx))  # the branch forces' rows of H
+                HF[:, :2 * obs.nae] = obs.model.H_F
+                steady_F = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", HF, Pu, HF), 0.0))
         except (np.linalg.LinAlgError, ValueError) as exc:
             note = f"no steady-state filter: the pair (Phi, C) is not detectable ({exc})"
     units = []

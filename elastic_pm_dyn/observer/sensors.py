@@ -23,10 +23,16 @@ variances R) at the filter's current state; the filter does the correction and g
   effort of the elastic joint): F = c (u - u_rest) + d du/dt, linear in x. No feed-through:
   u and du/dt are states, continuous where the torque jumps, so a gauge sample reads the
   same on either side of a command.
+
+A sensor object holds its geometry (built once, in the fixed
+:class:`~elastic_pm_dyn.observer.observer_model.ObserverModel`) and its noise levels;
+``with_noise`` gives a copy with the noise levels of another configuration (an
+:class:`~elastic_pm_dyn.observer.ekf.Observer`'s own), the geometry shared.
 """
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 
 import numpy as np
@@ -102,6 +108,15 @@ class Encoders:
         self._plans: dict[tuple, list] = {}
         self._fast: dict[tuple, tuple | None] = {}
         self._nx = 2 * nae
+
+    def with_noise(self, cfg: ObserverConfig) -> Encoders:
+        """This geometry with the noise levels of ``cfg`` (the plans, which hold them, afresh)."""
+        e = cfg.encoders
+        out = copy.copy(self)
+        out.pos_var = broadcast(e.position_stddev, len(self.pos), "encoders.position_stddev") ** 2
+        out.vel_var = broadcast(e.velocity_stddev, len(self.vel), "encoders.velocity_stddev") ** 2
+        out._plans, out._fast, out._nx = {}, {}, 2 * self.nae
+        return out
 
     def rows(self, joints: list[int], W: np.ndarray | None, nx: int, offset: int) -> np.ndarray:
         H = np.zeros((len(joints), nx))
@@ -210,6 +225,12 @@ class Accelerometer:
         self.frame_id = c.frame_id
         self.labels = [f"imu.{a}" for a in c.axes]
 
+    def with_noise(self, cfg: ObserverConfig) -> Accelerometer:
+        """This geometry with the noise levels of ``cfg``."""
+        out = copy.copy(self)
+        out.var = broadcast(cfg.imu.stddev, len(self.axes), "imu.stddev") ** 2
+        return out
+
     def predicted(self, a_world: np.ndarray) -> np.ndarray:
         return self.S @ (a_world - self.g)
 
@@ -223,11 +244,14 @@ class Accelerometer:
 
 
 class BranchForces:
-    """Axial branch forces F = c (u - u_rest) + d du/dt (strain gauges)."""
+    """Axial branch forces F = c (u - u_rest) + d du/dt (strain gauges).
+
+    ``rows``: per branch of the model, its row of H on [q_ae, qd_ae] and its offset c u_rest
+    (``ObserverModel.H_F``)."""
 
     name = "branch_forces"
 
-    def __init__(self, mech: Mechanism, cfg: ObserverConfig, x_of_ae: dict[int, int], nae: int):
+    def __init__(self, mech: Mechanism, cfg: ObserverConfig, nae: int, rows: dict[str, tuple[np.ndarray, float]]):
         c = cfg.branch_forces
         model = mech.model
         all_names = [b.name for b in model.branches]
@@ -244,16 +268,15 @@ class BranchForces:
         self.joint_of = {}
         for b in model.branches:
             self.joint_of[b.name] = mech.joint_names.index(b.joint)
-        self.rows = {}
-        for b in self.names:
-            j = self.joint_of[b]
-            joint = model.joints[j]
-            row = np.zeros(2 * nae)
-            row[x_of_ae[j]] = joint.stiffness
-            row[nae + x_of_ae[j]] = joint.damping
-            self.rows[b] = (row, joint.stiffness * joint.rest)
+        self.rows = {b: rows[b] for b in self.names}
         self.by_joint = {mech.joint_names[self.joint_of[b]]: b for b in self.names}
         self.nae = nae
+
+    def with_noise(self, cfg: ObserverConfig) -> BranchForces:
+        """This geometry with the noise levels of ``cfg``."""
+        out = copy.copy(self)
+        out.var = broadcast(cfg.branch_forces.stddev, len(self.names), "branch_forces.stddev") ** 2
+        return out
 
     def sample(self, names, force, x: np.ndarray, nx: int) -> Sample | None:
         if len(names) != len(force):

@@ -201,9 +201,7 @@ def smoothed_rows(obs: Observer, rows: Rows, xs: np.ndarray, Ps: np.ndarray, tau
     filtered one), then every output with ``kernels.estimate_flat`` (as the filter's rows)."""
     lay = obs.flat_layout()
     nae = obs.nae
-    obs_args = (obs._active_idx, obs.dist_idx, obs.Lz, obs._ee_point, obs._ee, obs._branch_joint, obs._stiff,
-                obs._damp, obs._rest)
-    ma = obs.mech.arrays
+    ma, fixed, proc = obs.mech.arrays, obs.model.fixed, obs._proc
     out = Rows(obs, list(rows.t), [], [list(v) for v in rows.nis], rows.origin_ns)
     for k, flat in enumerate(rows.flat):
         q, qd = flat[lay["q"]].copy(), flat[lay["qd"]].copy()
@@ -213,7 +211,9 @@ def smoothed_rows(obs: Observer, rows: Rows, xs: np.ndarray, Ps: np.ndarray, tau
         if np.any(dx):
             kernels.apply_correction(ma, q, qd, z, dx)
         new = np.empty_like(flat)
-        kernels.estimate_flat(ma, q, qd, z, np.ascontiguousarray(Ps[k]), tau_last[k], *obs_args, float(flat[0]), new)
+        # the smoothed state as the kernels' State bundle (Phi, Qd, Hpt and info are not read)
+        state = (q, qd, z, np.ascontiguousarray(Ps[k]), obs.Phi, obs.Qd, obs.Hpt, obs.info)
+        kernels.estimate_flat(ma, fixed, proc, state, tau_last[k], float(flat[0]), new)
         out.flat.append(new)
     return out
 

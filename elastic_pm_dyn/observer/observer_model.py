@@ -1,0 +1,128 @@
+"""The fixed observer model: what the filter needs of the mechanism and the sensor geometry.
+
+Built once (:meth:`ObserverModel.build`) from a :class:`~elastic_pm_dyn.kinematics.mechanism.Mechanism`
+and the configuration parts that do not change while filtering or between the candidate
+configurations of ``tune`` (:func:`model_key`: which sensors, on which joints, chain and axes,
+which joints carry disturbance states); everything else of a configuration (the disturbance
+model, noise levels, gates, timing) is the :class:`~elastic_pm_dyn.observer.ekf.Observer`'s own,
+cheap to set up, and the filter's state changes as it runs. So many filters over one recording
+share one model (``tuning.evaluate``), and every stiffness, damping and rest array of the
+branches is derived here only.
+
+State x = [q_ae, qd_ae, z] (:mod:`~elastic_pm_dyn.observer.ekf`); the branch force of the
+elastic joint u of a branch is F = c (u - u_rest) + d du/dt, so its row of H is ``H_F``
+(c at u, d at du/dt) and its offset c u_rest.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from elastic_pm_dyn.kinematics.assembly import initial_state
+from elastic_pm_dyn.kinematics.mechanism import Mechanism
+from elastic_pm_dyn.model.description import ACTIVE, ELASTIC
+from elastic_pm_dyn.observer import kernels
+from elastic_pm_dyn.observer.config import ObserverConfig
+from elastic_pm_dyn.observer.sensors import Accelerometer, BranchForces, Encoders, resolve_joints
+
+
+def model_key(cfg: ObserverConfig) -> tuple:
+    """The configuration parts an :class:`ObserverModel` is built from (equal keys: one model serves both)."""
+    e, i, b, p = cfg.encoders, cfg.imu, cfg.branch_forces, cfg.process
+    return (tuple(cfg.sensors), tuple(e.position_joints), tuple(e.velocity_joints), i.chain, i.frame_id,
+            tuple(i.rpy), tuple(i.axes), i.specific_force, b.source, tuple(b.branches), p.disturbance == "none",
+            tuple(p.disturbance_joints))
+
+
+def branch_arrays(mech: Mechanism) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per branch of the model (its order): the tree index of its elastic joint, stiffness c,
+    damping d and rest position."""
+    model = mech.model
+    joint = np.array([mech.joint_names.index(b.joint) for b in model.branches], dtype=np.int64)
+    return (joint, np.array([model.joints[j].stiffness for j in joint]),
+            np.array([model.joints[j].damping for j in joint]), np.array([model.joints[j].rest for j in joint]))
+
+
+@dataclass(frozen=True, eq=False)
+class ObserverModel:
+    """The observer's fixed part (module docstring). Arrays are shared, never changed."""
+
+    mech: Mechanism
+    key: tuple  # model_key of the configurations it serves
+    ae: np.ndarray  # (n_ae,) tree indices of the state joints [q_a, q_e]
+    x_of_ae: dict[int, int]  # tree index -> column in q_ae
+    roles: tuple[str, ...]  # role of each state joint (ACTIVE or ELASTIC)
+    eps_q: np.ndarray  # (n_ae,) difference steps of the linearisation (positions)
+    eps_v: np.ndarray  # (n_ae,) ... rates
+    dist_idx: np.ndarray  # (n_d,) tree indices of the joints with a disturbance torque
+    dist_col: np.ndarray  # (n_d,) their q_ae columns
+    dist_names: list[str]
+    branch_names: list[str]
+    branch_joint: np.ndarray  # (n_b,) tree index of each branch's elastic joint
+    stiff: np.ndarray  # (n_b,)
+    damp: np.ndarray  # (n_b,)
+    rest: np.ndarray  # (n_b,)
+    H_F: np.ndarray  # (n_b, 2 n_ae) the branch forces' rows on [q_ae, qd_ae]
+    active_idx: np.ndarray  # (n_a,) tree indices of the motors
+    ee_comp: np.ndarray  # end-effector components in the estimates
+    ee_point: int  # the end-effector point
+    point: int  # the accelerometer's point (the end effector's without one)
+    encoders: Encoders | None  # sensor geometry (noise levels: Observer's copies, ``with_noise``)
+    imu: Accelerometer | None
+    branch: BranchForces | None
+    q_initial: np.ndarray  # (n_t,) the model's initial pose (closure solved)
+    fixed: tuple  # kernels.Fixed as a plain tuple (the kernels' bundle)
+
+    @property
+    def nae(self) -> int:
+        return len(self.ae)
+
+    @property
+    def with_point(self) -> bool:
+        return self.imu is not None
+
+    @classmethod
+    def build(cls, mech: Mechanism, cfg: ObserverConfig) -> ObserverModel:
+        model = mech.model
+        ae = np.asarray(mech.ae, dtype=np.int64)
+        nae = len(ae)
+        x_of_ae = {int(j): k for k, j in enumerate(ae)}
+        pc = cfg.process
+        dist = [] if pc.disturbance == "none" else resolve_joints(
+            mech, pc.disturbance_joints, "process.disturbance_joints", roles=(ACTIVE, ELASTIC))
+        # Difference steps: 1 urad for motors; for springs a step that changes the spring
+        # force by ~10 mN (1.8 nm on the reference springs), so its effect sits far above
+        # round-off and far below the nonlinearity.
+        eps_q = []
+        for j in ae:
+            joint = model.joints[j]
+            eps_q.append(1e-6 if joint.role == ACTIVE or joint.stiffness <= 0 else min(1e-6, 1e-2 / joint.stiffness))
+        eps_q = np.array(eps_q)
+        eps_v = 100.0 * eps_q
+        branch_joint, stiff, damp, rest = branch_arrays(mech)
+        H_F = np.zeros((len(branch_joint), 2 * nae))
+        for i, j in enumerate(branch_joint):
+            H_F[i, x_of_ae[int(j)]] = stiff[i]
+            H_F[i, nae + x_of_ae[int(j)]] = damp[i]
+        branch_names = [b.name for b in model.branches]
+        encoders = Encoders(mech, cfg, x_of_ae, nae) if "encoders" in cfg.sensors else None
+        imu = Accelerometer(mech, cfg) if "imu" in cfg.sensors else None
+        branch = (BranchForces(mech, cfg, nae, dict(zip(branch_names, zip(H_F, stiff * rest, strict=True),
+                                                        strict=True)))
+                  if "branch_forces" in cfg.sensors else None)
+        ee_point = int(model.end_effector_chain)
+        point = imu.point if imu is not None else ee_point
+        active_idx = np.asarray(mech.active, dtype=np.int64)
+        ee_comp = np.asarray(mech.ee_components, dtype=np.int64)
+        fixed = tuple(kernels.Fixed(eps_q, eps_v, point, imu is not None, active_idx, ee_point, ee_comp, branch_joint,
+                                    stiff, damp, rest))
+        return cls(mech, model_key(cfg), ae, x_of_ae, tuple(model.joints[j].role for j in ae), eps_q, eps_v,
+                   np.array(dist, dtype=np.int64), np.array([x_of_ae[j] for j in dist], dtype=np.int64),
+                   [mech.joint_names[j] for j in dist], branch_names, branch_joint, stiff, damp, rest, H_F,
+                   active_idx, ee_comp, ee_point, point, encoders, imu, branch, initial_state(mech), fixed)
+
+    def serves(self, cfg: ObserverConfig) -> bool:
+        """Was this model built from the same fixed parts as ``cfg`` has?"""
+        return self.key == model_key(cfg)
