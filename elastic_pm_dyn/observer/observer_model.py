@@ -17,6 +17,7 @@ elastic joint u of a branch is F = c (u - u_rest) + d du/dt, so its row of H is 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -72,7 +73,6 @@ class ObserverModel:
     encoders: Encoders | None  # sensor geometry (noise levels: Observer's copies, ``with_noise``)
     imu: Accelerometer | None
     branch: BranchForces | None
-    q_initial: np.ndarray  # (n_t,) the model's initial pose (closure solved)
     fixed: tuple  # kernels.Fixed as a plain tuple (the kernels' bundle)
 
     @property
@@ -82,6 +82,12 @@ class ObserverModel:
     @property
     def with_point(self) -> bool:
         return self.imu is not None
+
+    @cached_property
+    def q_initial(self) -> np.ndarray:
+        """(n_t,) the model's initial pose (closure solved; once, when first asked: an observer
+        started from a given pose never needs it)."""
+        return initial_state(self.mech)
 
     @classmethod
     def build(cls, mech: Mechanism, cfg: ObserverConfig) -> ObserverModel:
@@ -109,8 +115,8 @@ class ObserverModel:
         branch_names = [b.name for b in model.branches]
         encoders = Encoders(mech, cfg, x_of_ae, nae) if "encoders" in cfg.sensors else None
         imu = Accelerometer(mech, cfg) if "imu" in cfg.sensors else None
-        branch = (BranchForces(mech, cfg, nae, dict(zip(branch_names, zip(H_F, stiff * rest, strict=True),
-                                                        strict=True)))
+        branch = (BranchForces(mech, cfg, nae, {b: int(j) for b, j in zip(branch_names, branch_joint, strict=True)},
+                               dict(zip(branch_names, zip(H_F, stiff * rest, strict=True), strict=True)))
                   if "branch_forces" in cfg.sensors else None)
         ee_point = int(model.end_effector_chain)
         point = imu.point if imu is not None else ee_point
@@ -121,7 +127,7 @@ class ObserverModel:
         return cls(mech, model_key(cfg), ae, x_of_ae, tuple(model.joints[j].role for j in ae), eps_q, eps_v,
                    np.array(dist, dtype=np.int64), np.array([x_of_ae[j] for j in dist], dtype=np.int64),
                    [mech.joint_names[j] for j in dist], branch_names, branch_joint, stiff, damp, rest, H_F,
-                   active_idx, ee_comp, ee_point, point, encoders, imu, branch, initial_state(mech), fixed)
+                   active_idx, ee_comp, ee_point, point, encoders, imu, branch, fixed)
 
     def serves(self, cfg: ObserverConfig) -> bool:
         """Was this model built from the same fixed parts as ``cfg`` has?"""

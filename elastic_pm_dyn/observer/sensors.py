@@ -246,15 +246,15 @@ class Accelerometer:
 class BranchForces:
     """Axial branch forces F = c (u - u_rest) + d du/dt (strain gauges).
 
-    ``rows``: per branch of the model, its row of H on [q_ae, qd_ae] and its offset c u_rest
-    (``ObserverModel.H_F``)."""
+    Per branch of the model (``ObserverModel``'s arrays): ``joint_of`` its elastic joint's tree
+    index, ``rows`` its row of H on [q_ae, qd_ae] and its offset c u_rest."""
 
     name = "branch_forces"
 
-    def __init__(self, mech: Mechanism, cfg: ObserverConfig, nae: int, rows: dict[str, tuple[np.ndarray, float]]):
+    def __init__(self, mech: Mechanism, cfg: ObserverConfig, nae: int, joint_of: dict[str, int],
+                 rows: dict[str, tuple[np.ndarray, float]]):
         c = cfg.branch_forces
-        model = mech.model
-        all_names = [b.name for b in model.branches]
+        all_names = list(joint_of)
         if not all_names:
             raise InputError("observer.branch_forces: the model has no branches")
         wanted = all_names if c.branches == ["all"] else c.branches
@@ -265,9 +265,7 @@ class BranchForces:
         self.names = list(wanted)
         self.source = c.source
         self.var = broadcast(c.stddev, len(self.names), "branch_forces.stddev") ** 2
-        self.joint_of = {}
-        for b in model.branches:
-            self.joint_of[b.name] = mech.joint_names.index(b.joint)
+        self.joint_of = joint_of
         self.rows = {b: rows[b] for b in self.names}
         self.by_joint = {mech.joint_names[self.joint_of[b]]: b for b in self.names}
         self.nae = nae
