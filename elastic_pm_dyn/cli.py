@@ -9,13 +9,33 @@ import argparse
 import sys
 from collections.abc import Callable
 from pathlib import Path
+from typing import NoReturn
 
 import numpy as np
 
-from elastic_pm_dyn.errors import ElasticPmDynError, SingularConfigurationError
+from elastic_pm_dyn.errors import ElasticPmDynError, RunInterrupted, SingularConfigurationError
 
 EXIT_USER_ERROR = 2
 EXIT_RUN_FAILED = 1
+EXIT_INTERRUPTED = 130  # 128 + SIGINT, as a shell reports a program stopped by Ctrl-C
+MAX_MESSAGE = 400  # characters of one error line
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """argparse whose usage errors are one line (``prog: error: ...``) and exit 2, like ours."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(EXIT_USER_ERROR, f"{self.prog}: error: {_one_line(message)} (see {self.prog} --help)\n")
+
+
+def _one_line(text: object) -> str:
+    """A message as one line of at most MAX_MESSAGE characters, whatever it holds."""
+    line = " ".join(str(text).split())
+    return line if len(line) <= MAX_MESSAGE else line[:MAX_MESSAGE - 3] + "..."
+
+
+def _error(err: object) -> None:
+    print(f"elastic-pm-dyn: error: {_one_line(err)}", file=sys.stderr)
 
 
 def _add_simulation_options(p: argparse.ArgumentParser) -> None:
@@ -42,10 +62,16 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     from elastic_pm_dyn.sim.simulator import Simulator
     from elastic_pm_dyn.sim.torque import load_torque_csv
     mech = Mechanism(load_model(args.model))
-    torque = load_torque_csv(args.torques, mech.active_names, args.hold)
     sim = Simulator(mech, _options(args))
+    sim.check_run_size(args.duration, prefix="--")  # before anything is read or allocated
+    torque = load_torque_csv(args.torques, mech.active_names, args.hold)
     try:
         result = sim.run(torque, args.duration)
+    except RunInterrupted as stop:
+        stop.partial.to_csv(args.out)
+        print(f"elastic-pm-dyn: {stop} (Ctrl-C): the {len(stop.partial.t)} samples so far written to {args.out}",
+              file=sys.stderr)
+        return EXIT_INTERRUPTED
     except SingularConfigurationError as err:
         if err.partial is not None:
             err.partial.to_csv(args.out)
@@ -157,7 +183,7 @@ def cmd_ros_demo(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="elastic-pm-dyn", description="Dynamics of elastic parallel manipulators")
+    parser = OneLineParser(prog="elastic-pm-dyn", description="Dynamics of elastic parallel manipulators")
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("simulate", help="simulate a model under a torque table")
@@ -235,7 +261,8 @@ def _validate(args: argparse.Namespace) -> None:
     from elastic_pm_dyn.errors import InputError
     if args.command == "feedforward" and args.line is not None and len(args.line) not in (4, 6):
         raise InputError("--line takes 4 numbers (planar) or 6 (spatial)")
-    for name in ("duration", "rate"):
+    names = ("duration", "rate") + (("dt", "sample", "rtol", "atol") if args.command == "simulate" else ())
+    for name in names:
         value = getattr(args, name, None)
         if value is not None and not (np.isfinite(value) and value > 0):
             raise InputError(f"--{name} must be a positive number, got {value}")
@@ -249,14 +276,17 @@ def main(argv: list[str] | None = None) -> int:
         _validate(args)
         return func(args)
     except SingularConfigurationError as err:
-        print(f"elastic-pm-dyn: error: {err}", file=sys.stderr)
+        _error(err)
         return EXIT_RUN_FAILED
     except ElasticPmDynError as err:
-        print(f"elastic-pm-dyn: error: {err}", file=sys.stderr)
+        _error(err)
         return EXIT_USER_ERROR
     except OSError as err:
-        print(f"elastic-pm-dyn: error: {err}", file=sys.stderr)
+        _error(err)
         return EXIT_USER_ERROR
+    except KeyboardInterrupt:  # outside a run (which writes what it has): nothing to save
+        print("elastic-pm-dyn: interrupted (Ctrl-C)", file=sys.stderr)
+        return EXIT_INTERRUPTED
 
 
 if __name__ == "__main__":

@@ -51,3 +51,13 @@ class DivergedStateError(SingularConfigurationError):
     """The integration blew up (a step too large for the motion, or a torque too high):
     not a singular configuration, though handled as one (the run stops, the partial result
     is kept, a plant keeps its last good state)."""
+
+
+class RunInterrupted(KeyboardInterrupt):
+    """Ctrl-C during a run: still a KeyboardInterrupt (the program stops), but it carries
+    the samples computed so far as ``partial`` and the time of the last one as ``time``."""
+
+    def __init__(self, message: str, time: float, partial: object):
+        self.time = time
+        self.partial = partial
+        super().__init__(message)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -44,8 +45,19 @@ class SimulationResult:
         return np.column_stack([self.t, self.q, self.qd, self.ee, self.branch_forces, self.gap, self.tau])
 
     def to_csv(self, path: str | Path) -> None:
-        np.savetxt(path, self.table(), delimiter=",", header=",".join(self.header()), comments="",
-                   fmt="%.17g")
+        """Write the table; through a temporary file renamed at the end, so an interrupted
+        write never leaves a cut CSV (or destroys the one that was there)."""
+        path = Path(path)
+        if path.exists() and not path.is_file():  # a device or pipe (/dev/stdout): no rename
+            np.savetxt(path, self.table(), delimiter=",", header=",".join(self.header()), comments="", fmt="%.17g")
+            return
+        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+        try:
+            np.savetxt(tmp, self.table(), delimiter=",", header=",".join(self.header()), comments="",
+                       fmt="%.17g")
+            os.replace(tmp, path)
+        finally:
+            tmp.unlink(missing_ok=True)
 
     def column(self, name: str) -> np.ndarray:
         return self.table()[:, self.header().index(name)]

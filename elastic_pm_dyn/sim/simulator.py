@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.integrate import solve_ivp
 
 from elastic_pm_dyn.dynamics.evaluate import FORMULATION_CODES, LDA, accelerations_flat
-from elastic_pm_dyn.errors import InputError, SingularConfigurationError
+from elastic_pm_dyn.errors import InputError, RunInterrupted, SingularConfigurationError
 from elastic_pm_dyn.kinematics.assembly import initial_state
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.sim import kernels
@@ -18,6 +19,16 @@ from elastic_pm_dyn.sim.torque import TorqueSource
 INTEGRATORS = ("rk4", "dop853")
 STABILIZATIONS = {"none": 0, "baumgarte": kernels.STAB_BAUMGARTE, "projection": kernels.STAB_PROJECTION,
                   "both": kernels.STAB_BAUMGARTE | kernels.STAB_PROJECTION}
+
+# Bounds of one run, checked before anything is allocated: the samples kept in memory
+# (about 3 copies of each output row on the way to the CSV) and the RK4 steps (at tens of
+# microseconds each, 1e9 steps are days of computing).
+MEMORY_BUDGET = 2 * 2**30  # [bytes]
+MAX_STEPS = 1e9
+MAX_DURATION = 1e6  # [s] of simulated time, also for DOP853, whose steps are not known ahead
+# RK4 steps per compiled call: a Ctrl-C is seen between calls (within ~0.1 s of simulated
+# time at the default dt), and the call overhead stays far below 1 %.
+STEPS_PER_CALL = 1000
 
 # What breaks down at a singular configuration, per formulation.
 SINGULAR_MATRIX = {
@@ -89,7 +100,8 @@ class Simulator:
         info, coef = self._info, self._coef
         # A table's piece is one polynomial over the whole call; a function is refitted
         # through the stage times of every step.
-        calls = [(t0 + k * h, 1) for k in range(n_steps)] if torque.smooth else [(t0, n_steps)]
+        calls = ([(t0 + k * h, 1) for k in range(n_steps)] if torque.smooth else
+                 [(t0 + k * h, min(STEPS_PER_CALL, n_steps - k)) for k in range(0, n_steps, STEPS_PER_CALL)])
         for start, steps in calls:
             coef[:, self.mech.active] = torque.coefficients(start, steps * h)
             status = kernels.rk4_steps_flat(self.code, *self._args, q, qd, coef, h, steps, self.stab,
@@ -135,15 +147,49 @@ class Simulator:
             kernels.project(mech.arrays, q, qd, o.closure_tol, 3)
 
     # ------------------------------------------------------------------ runs
+    def run_size(self, duration: float) -> tuple[float, float]:
+        """(output rows, RK4 steps) a run of ``duration`` takes, as floats (they may be
+        astronomical); steps 0 with DOP853."""
+        o = self.options
+        rows = math.floor(duration / o.sample + 1e-9) + 2.0 if duration / o.sample < 2**52 else duration / o.sample
+        steps = 0.0 if o.integrator != "rk4" else duration / o.dt
+        return rows, steps
+
+    def max_rows(self) -> int:
+        """Output rows that fit in :data:`MEMORY_BUDGET`."""
+        columns = 1 + 2 * self.mech.n + len(self.mech.ee_components) + len(self.mech.model.branches) + 1 \
+            + len(self.mech.active)
+        per_row = 3 * 112 + 4 * 8 * columns + 25 * columns  # arrays kept per sample, numbers, CSV text
+        return MEMORY_BUDGET // per_row
+
+    def check_run_size(self, duration: float, prefix: str = "") -> None:
+        """InputError naming the settings (``prefix`` + option name, e.g. ``--sample``) if a
+        run of ``duration`` would keep more rows than fit in memory or take more than
+        :data:`MAX_STEPS` steps."""
+        o = self.options
+        if not (math.isfinite(duration) and duration > 0):
+            raise InputError(f"{prefix}duration must be a positive number of seconds, got {duration!r}")
+        if duration > MAX_DURATION:
+            raise InputError(f"{prefix}duration {duration:g} s is more than the {MAX_DURATION:g} s a run may simulate")
+        rows, steps = self.run_size(duration)
+        limit = self.max_rows()
+        if rows > limit:
+            raise InputError(f"{prefix}duration {duration:g} s at {prefix}sample {o.sample:g} s means {rows:.4g} "
+                             f"output rows, more than the limit of {limit} (the rows of a run must fit in "
+                             f"{MEMORY_BUDGET / 2**30:g} GiB): raise {prefix}sample or shorten {prefix}duration")
+        if steps > MAX_STEPS:
+            raise InputError(f"{prefix}duration {duration:g} s at {prefix}dt {o.dt:g} s means {steps:.4g} RK4 steps, "
+                             f"more than the limit of {MAX_STEPS:.0e}: raise {prefix}dt or shorten {prefix}duration")
+
     def run(self, torque: TorqueSource, duration: float, q0: np.ndarray | None = None,
             qd0: np.ndarray | None = None, t0: float = 0.0) -> SimulationResult:
         """Simulate ``duration`` seconds; samples every ``options.sample`` from t0.
 
         Starts from the model's initial state at rest unless q0/qd0 are given. On a
-        singular configuration the error carries the samples so far as ``partial``.
+        singular configuration the error carries the samples so far as ``partial``; on
+        Ctrl-C (KeyboardInterrupt) a :class:`RunInterrupted` does.
         """
-        if not (np.isfinite(duration) and duration > 0):
-            raise InputError(f"duration must be a positive number of seconds, got {duration!r}")
+        self.check_run_size(duration)
         mech = self.mech
         q = initial_state(mech) if q0 is None else np.array(q0, dtype=float)
         qd = np.zeros(mech.n) if qd0 is None else np.array(qd0, dtype=float)
@@ -159,29 +205,33 @@ class Simulator:
         grid = grid[np.concatenate([[True], np.diff(grid) > 1e-12])]
         is_out = np.isin(np.round(grid / 1e-12), np.round(out_times / 1e-12))
 
-        ts, qs, qds, taus = [], [], [], []
+        samples: list[tuple[float, np.ndarray, np.ndarray, np.ndarray]] = []
 
         def record(t: float) -> None:
-            ts.append(t)
-            qs.append(q.copy())
-            qds.append(qd.copy())
-            taus.append(torque.value(t))
+            # one append: an interrupt never leaves a half-recorded sample
+            samples.append((t, q.copy(), qd.copy(), torque.value(t)))
 
-        record(grid[0])
         try:
+            record(grid[0])
             for a, b, out in zip(grid[:-1], grid[1:], is_out[1:], strict=True):
                 self.advance(q, qd, torque, a, b)
                 if out:
                     record(b)
         except SingularConfigurationError as err:
-            err.partial = self._result(ts, qs, qds, taus)
+            err.partial = self._result(samples)
             raise
-        return self._result(ts, qs, qds, taus)
+        except KeyboardInterrupt:
+            partial = self._result(samples)
+            t_last = float(partial.t[-1]) if len(partial.t) else t0
+            raise RunInterrupted(f"interrupted at t = {t_last:.6g} s of {t_end:.6g} s", t_last, partial) from None
+        return self._result(samples)
 
-    def _result(self, ts, qs, qds, taus) -> SimulationResult:
-        n_a = len(self.mech.active)
-        return SimulationResult(self.mech, np.array(ts), np.array(qs).reshape(-1, self.mech.n),
-                                np.array(qds).reshape(-1, self.mech.n), np.array(taus).reshape(-1, n_a),
+    def _result(self, samples: list[tuple[float, np.ndarray, np.ndarray, np.ndarray]]) -> SimulationResult:
+        n, n_a = self.mech.n, len(self.mech.active)
+        return SimulationResult(self.mech, np.array([s[0] for s in samples]),
+                                np.array([s[1] for s in samples]).reshape(-1, n),
+                                np.array([s[2] for s in samples]).reshape(-1, n),
+                                np.array([s[3] for s in samples]).reshape(-1, n_a),
                                 self.options.formulation,
                                 {"integrator": self.options.integrator, "dt": self.options.dt,
                                  "stabilization": self.options.stabilization})
