@@ -171,6 +171,13 @@ def cmd_record(args: argparse.Namespace) -> int:
     return recorder_main(_ros_argv(args.params_file, overrides, args.ros_args))
 
 
+def cmd_bag_repair(args: argparse.Namespace) -> int:
+    from elastic_pm_dyn.bags.repair import repair_bag
+    report = repair_bag(args.bag, args.out)
+    print("\n".join(report.lines()))
+    return 0
+
+
 def cmd_ros_demo(args: argparse.Namespace) -> int:
     from elastic_pm_dyn.ros.demo import run_ros_demo
     from elastic_pm_dyn.ros.processes import NodeProcessError
@@ -239,6 +246,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--params-file", help="ROS parameter YAML (e.g. config/recorder.yaml)")
     _add_ros_args(p)
     p.set_defaults(func=cmd_record)
+
+    p = sub.add_parser("bag-repair", help="a finished copy of a bag cut off or damaged (a killed recorder): "
+                       "every message that can be read, same storage, topics and types")
+    p.add_argument("bag", help="bag directory (or its .mcap/.db3 file)")
+    p.add_argument("--out", help="bag directory to create (default: <bag>_repaired next to it)")
+    p.set_defaults(func=cmd_bag_repair)
 
     p = sub.add_parser("ros-demo", help="the reference manoeuvre through ROS 2: plant + feedforward + recorder "
                        "processes -> bag, plots, summary")
