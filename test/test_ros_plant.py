@@ -227,22 +227,27 @@ def test_singular_configuration_stops_and_reset_recovers(ros: RosHarness) -> Non
     plant.plant.options.singular_tol = 1e300  # every configuration now counts as singular
     driver.send(TAU)
     ros.wait_until(lambda: plant.plant.fault is not None, 5.0, "the singular configuration")
+    # every command is answered: the last good state again, time not advanced
+    ros.wait_until(lambda: len(driver.states) == 3, 5.0, "the answer to the failing command")
+    assert driver.states[2][0] == driver.states[1][0]
+    np.testing.assert_array_equal(driver.states[2][1], driver.states[1][1])
     ros.wait_until(lambda: diags and diags[-1].status[0].level == DiagnosticStatus.ERROR, 5.0, "ERROR diagnostics")
     assert "integration stopped" in diags[-1].status[0].message
     rejected = plant.stats.rejected
-    driver.send(TAU)  # ignored while stopped; the node stays up
+    driver.send(TAU)  # ignored while stopped; the node stays up and answers
     ros.wait_until(lambda: plant.stats.rejected == rejected + 1, 5.0, "command ignored while stopped")
-    assert len(driver.states) == 2
+    ros.wait_until(lambda: len(driver.states) == 4, 5.0, "the answer while stopped")
+    assert driver.states[3][0] == driver.states[1][0]
 
     plant.plant.options.singular_tol = 1e-8
     response = ros.call(reset, Trigger.Request())
     assert response.success, response.message
-    ros.wait_until(lambda: len(driver.states) == 3, 5.0, "the reset state")
+    ros.wait_until(lambda: len(driver.states) == 5, 5.0, "the reset state")
     np.testing.assert_array_equal(driver.states[-1][1], plant.plant.q0)
     assert driver.states[-1][0] == driver.states[1][0] + 1_000_000  # a new stamp; time never runs back
     driver.send(TAU)
-    ros.wait_until(lambda: len(driver.states) == 4, 5.0, "stepping after reset")
-    assert driver.states[-1][0] == driver.states[2][0] + 1_000_000
+    ros.wait_until(lambda: len(driver.states) == 6, 5.0, "stepping after reset")
+    assert driver.states[-1][0] == driver.states[4][0] + 1_000_000
 
 
 def test_set_state_service(ros: RosHarness, reference: dict) -> None:

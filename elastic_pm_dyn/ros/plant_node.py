@@ -294,17 +294,19 @@ class PlantNode(ManagedNode):
                 return
 
     def _on_lockstep(self) -> None:
-        """One period per command (a rejected one holds the last valid command). While
-        integration is stopped nothing advances and nothing is published: ERROR in
-        /diagnostics, until ~/reset or ~/set_state publish the restarted state."""
+        """One period per command (a rejected one holds the last valid command). Every command
+        is answered, so a controller that waits for the state never waits more than one period:
+        while integration is stopped (ERROR in /diagnostics until ~/reset or ~/set_state) the
+        last good state is published again, with its own stamp (time does not advance)."""
         while self.queue:
             tau = self.queue.popleft()
             if self.plant.fault is not None:
                 self.stats.rejected += 1
                 self.warn.warning("stopped", f"command ignored, integration stopped: {self.plant.fault}; "
                                   "call ~/reset or ~/set_state")
+                self._publish_state()
             elif not self._step(tau):
-                self.queue.clear()
+                self._publish_state()  # the last good state: the plant keeps it on a fault
 
     # ----------------------------------------------------------------- outputs
     def _stamp_ns(self) -> int:
