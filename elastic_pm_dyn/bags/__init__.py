@@ -10,7 +10,11 @@
 - :mod:`.cdr` and :mod:`.decode`: straight from CDR bytes to numpy arrays for the types
   read or written in bulk (several times faster than rosbags), rosbags as the fallback;
 - :mod:`.series`: every numeric topic of a small bag as arrays;
-- :mod:`.writer`: write a bag (raw CDR, message objects, or rows of a batch at once).
+- :mod:`.writer`: write a bag (raw CDR, message objects, or rows of a batch at once), readable
+  up to its last flush if the writing process is killed;
+- :mod:`.metadata`: ``metadata.yaml`` from the moment a bag opens, marked unfinished until it closes;
+- :mod:`.mcap_scan`: the complete chunks of an mcap without footer (a killed writer's);
+- :mod:`.repair`: a finished copy of a cut or damaged bag (``elastic-pm-dyn bag-repair``).
 
 The modules import one another by their own names (this ``__init__`` re-exports nothing),
 so that the light ones (message type names) never pull in rosbags.
