@@ -46,7 +46,7 @@ class RepairReport:
             out.append("  left out (do not deserialise): "
                        + ", ".join(f"{t} {n}" for t, n in self.undecodable.items()))
         if self.cut:
-            out.append(f"  source: {self.cut}")
+            out.append(f"  source: {self.cut.split('; `elastic-pm-dyn bag-repair')[0]}")  # not its own advice
         if self.stopped:
             out.append(f"  reading stopped early: {self.stopped}")
         return out
