@@ -19,6 +19,7 @@ EXIT_USER_ERROR = 2
 EXIT_RUN_FAILED = 1
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, as a shell reports a program stopped by Ctrl-C
 MAX_MESSAGE = 400  # characters of one error line
+RTOL_MIN = 100 * float(np.finfo(float).eps)  # scipy's DOP853 raises a smaller rtol to this, with a warning
 
 
 class OneLineParser(argparse.ArgumentParser):
@@ -277,8 +278,11 @@ def _validate(args: argparse.Namespace) -> None:
     names = ("duration", "rate") + (("dt", "sample", "rtol", "atol") if args.command == "simulate" else ())
     for name in names:
         value = getattr(args, name, None)
-        if value is not None and not (np.isfinite(value) and value > 0):
-            raise InputError(f"--{name} must be a positive number, got {value}")
+        # not a number at all: argparse turns "--duration=--" into []
+        if value is not None and not (isinstance(value, int | float) and np.isfinite(value) and value > 0):
+            raise InputError(f"--{name} must be a positive number, got {value!r}")
+    if args.command == "simulate" and args.rtol < RTOL_MIN:
+        raise InputError(f"--rtol {args.rtol:g} is below the {RTOL_MIN:.3g} DOP853 can honour in double precision")
 
 
 def main(argv: list[str] | None = None) -> int:

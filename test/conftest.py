@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import os
 from dataclasses import replace
 from pathlib import Path
 
 import pytest
+from hypothesis import HealthCheck, settings
 
 from elastic_pm_dyn.kinematics.assembly import random_consistent_state as random_state  # noqa: F401 (tests import it from here)
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
@@ -46,3 +48,33 @@ def count_fast(monkeypatch) -> list[int]:
 
     monkeypatch.setattr(kernels, "run_periods", wrapped)
     return calls
+
+
+# ---------------------------------------------------------------- fuzz budgets
+# The input fuzz suites run a fixed, derandomised example budget by default (the same
+# examples every run, seconds in all); `pytest --fuzz-long` (or ELASTIC_PM_DYN_FUZZ=long)
+# runs 50x as many new examples each time, for an on-demand hunt.
+FUZZ_LONG_FACTOR = 50
+_fuzz = {"long": os.environ.get("ELASTIC_PM_DYN_FUZZ") == "long"}
+settings.register_profile("fuzz", deadline=None, derandomize=True, database=None,
+                          suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
+settings.register_profile("fuzz-long", deadline=None, derandomize=False, database=None,
+                          suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
+
+
+def pytest_addoption(parser: pytest.Parser) -> None:
+    parser.addoption("--fuzz-long", action="store_true", default=False,
+                     help=f"input fuzz suites: {FUZZ_LONG_FACTOR}x the examples, new ones each run")
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    if config.getoption("--fuzz-long"):
+        _fuzz["long"] = True
+
+
+def fuzz_settings(examples: int) -> settings:
+    """Hypothesis settings of a fuzz test: ``examples`` derandomised examples, or
+    FUZZ_LONG_FACTOR times as many random ones with --fuzz-long."""
+    if _fuzz["long"]:
+        return settings(settings.get_profile("fuzz-long"), max_examples=examples * FUZZ_LONG_FACTOR)
+    return settings(settings.get_profile("fuzz"), max_examples=examples)

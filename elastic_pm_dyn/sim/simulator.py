@@ -169,8 +169,6 @@ class Simulator:
         o = self.options
         if not (math.isfinite(duration) and duration > 0):
             raise InputError(f"{prefix}duration must be a positive number of seconds, got {duration!r}")
-        if duration > MAX_DURATION:
-            raise InputError(f"{prefix}duration {duration:g} s is more than the {MAX_DURATION:g} s a run may simulate")
         rows, steps = self.run_size(duration)
         limit = self.max_rows()
         if rows > limit:
@@ -180,6 +178,8 @@ class Simulator:
         if steps > MAX_STEPS:
             raise InputError(f"{prefix}duration {duration:g} s at {prefix}dt {o.dt:g} s means {steps:.4g} RK4 steps, "
                              f"more than the limit of {MAX_STEPS:.0e}: raise {prefix}dt or shorten {prefix}duration")
+        if duration > MAX_DURATION:
+            raise InputError(f"{prefix}duration {duration:g} s is more than the {MAX_DURATION:g} s a run may simulate")
 
     def run(self, torque: TorqueSource, duration: float, q0: np.ndarray | None = None,
             qd0: np.ndarray | None = None, t0: float = 0.0) -> SimulationResult:
