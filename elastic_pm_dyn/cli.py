@@ -19,6 +19,7 @@ EXIT_USER_ERROR = 2
 EXIT_RUN_FAILED = 1
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, as a shell reports a program stopped by Ctrl-C
 MAX_MESSAGE = 400  # characters of one error line
+MAX_TORQUE_SAMPLES = 1e7  # feedforward rows: ~3 h at 1 kHz, a few minutes of computing per million
 RTOL_MIN = 100 * float(np.finfo(float).eps)  # scipy's DOP853 raises a smaller rtol to this, with a warning
 
 
@@ -84,6 +85,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def cmd_feedforward(args: argparse.Namespace) -> int:
+    from elastic_pm_dyn.errors import InputError
     from elastic_pm_dyn.model.loader import load_model
     from elastic_pm_dyn.motion.feedforward import line_torques
     from elastic_pm_dyn.motion.manoeuvre import REFERENCE_MANOEUVRE as ref
@@ -94,6 +96,10 @@ def cmd_feedforward(args: argparse.Namespace) -> int:
     a, b = np.array(points[:len(points) // 2]), np.array(points[len(points) // 2:])
     rate = ref.control_rate if args.rate is None else args.rate
     line = QuinticLine(a, b, ref.move if args.move is None else args.move, ref.hold if args.hold is None else args.hold)
+    samples = line.duration * rate
+    if not samples <= MAX_TORQUE_SAMPLES:  # before allocating the table
+        raise InputError(f"--move {line.move:g} s + --hold {line.hold:g} s at --rate {rate:g} Hz means {samples:.4g} "
+                         f"samples, more than the limit of {MAX_TORQUE_SAMPLES:.0e}")
     times, torques, names = line_torques(model, line, rate)
     write_torque_csv(args.out, times, torques, names)
     print(f"{len(times)} samples at {rate:g} Hz -> {args.out}  (peak |tau| "
