@@ -153,9 +153,12 @@ class EventFilter:
         self.last_row_ns = None
         self.fixed = None
 
-    def feed(self, events: list[Event], runs: FastRuns | None = None) -> None:
-        """``runs``: the :class:`FastRuns` of exactly these events (:func:`fast_runs` with this
-        observer's model, ``timing.max_future`` and the stream's origin), else made here."""
+    def feed(self, events: list[Event]) -> None:
+        self.feed_runs(events, None)
+
+    def feed_runs(self, events: list[Event], runs: FastRuns | None) -> None:
+        """:meth:`feed` with ``runs``, the :class:`FastRuns` of exactly these events (:func:`fast_runs`
+        with this observer's model, ``timing.max_future`` and the stream's origin; None: made here)."""
         if self.fault:
             return
         if self.gate is None:
@@ -296,7 +299,10 @@ def run_events(obs: Observer, events: list[Event], order: str = "stamp", fast: b
     elif order != "arrival":
         raise InputError(f"unknown message order {order!r} (expected stamp or arrival)")
     f = EventFilter(obs, fast, origin_ns=origin_ns)
-    f.feed(events, runs)
+    if runs is None:
+        f.feed(events)
+    else:
+        f.feed_runs(events, runs)
     return f.rows, f.stream, f.fault
 
 
