@@ -114,3 +114,20 @@ def test_cli_singular_run_writes_partial_csv(tmp_path: Path, capsys: pytest.Capt
     assert "singular configuration" in capsys.readouterr().err
     rows = out.read_text().splitlines()
     assert rows[0].startswith("t,left_motor,left_spring") and len(rows) > 100
+
+
+def test_cli_blow_up_is_named_as_such_not_as_a_singularity(tmp_path) -> None:
+    """1e6 N m on the reference five-bar: the CLI says the state diverged (|qdd|, step or torque),
+    never 'singular configuration', keeps the rows before it and exits 1 (a failed run)."""
+    import subprocess
+    import sys
+    csv = tmp_path / "big.csv"
+    csv.write_text("t,left_motor,right_motor\n0,1e6,-1e6\n1,1e6,-1e6\n")
+    out = tmp_path / "run.csv"
+    p = subprocess.run([sys.executable, "-m", "elastic_pm_dyn", "simulate", "--model", str(CONFIG / "five_bar.yaml"),
+                        "--torques", str(csv), "--duration", "0.2", "--out", str(out)],
+                       capture_output=True, text=True, timeout=120)
+    assert p.returncode == 1, p.stderr
+    assert "state diverged at t = " in p.stderr and "step too large or torque too high" in p.stderr
+    assert "singular" not in p.stderr and "Traceback" not in p.stderr
+    assert out.exists()

@@ -14,6 +14,7 @@ from elastic_pm_dyn.kinematics.assembly import initial_state
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.sim import kernels
 from elastic_pm_dyn.sim.result import SimulationResult
+from elastic_pm_dyn.sim.stopped import integration_error
 from elastic_pm_dyn.sim.torque import TorqueSource
 
 INTEGRATORS = ("rk4", "dop853")
@@ -29,16 +30,6 @@ MAX_DURATION = 1e6  # [s] of simulated time, also for DOP853, whose steps are no
 # RK4 steps per compiled call: a Ctrl-C is seen between calls (within ~0.1 s of simulated
 # time at the default dt), and the call overhead stays far below 1 %.
 STEPS_PER_CALL = 1000
-
-# What breaks down at a singular configuration, per formulation.
-SINGULAR_MATRIX = {
-    "lda": "dh/dq_p is singular or Newton cannot solve the passive joints: a parallel singularity",
-    "scdd_one_pass": "dh/dq_p is singular: a parallel singularity",
-    "scdd": "the cut-force Schur complement (or a leg's end-point inertia) is singular",
-    "scdd_stacked": "the cut-force Schur complement is singular",
-    "multipliers": "the KKT matrix is singular",
-}
-
 
 @dataclass
 class SimulationOptions:
@@ -107,13 +98,8 @@ class Simulator:
             status = kernels.rk4_steps_flat(self.code, *self._args, q, qd, coef, h, steps, self.stab,
                                        o.baumgarte_alpha, o.baumgarte_beta, o.closure_tol, o.singular_tol,
                                        self.qdd_prev, self.lam, info)
-            if status != kernels.OK:
-                t_fail = start + info[0] * h
-                what = (f"singular configuration ({SINGULAR_MATRIX[o.formulation]})"
-                        if status == kernels.SINGULAR else "the state became NaN/Inf")
-                raise SingularConfigurationError(
-                    f"{what} at t = {t_fail:.6g} s (conditioning {info[1]:.3g}, "
-                    f"closure residual {info[2]:.3g} m)", time=t_fail, residual=float(info[2]))
+            if status != kernels.OK:  # a singular configuration or a blow-up, told apart
+                raise integration_error(status, o.formulation, start + info[0] * h, info)
 
     def _advance_adaptive(self, q: np.ndarray, qd: np.ndarray, torque: TorqueSource, t0: float, t1: float) -> None:
         o, mech, n = self.options, self.mech, self.mech.n

@@ -11,7 +11,15 @@ import numpy as np
 
 from elastic_pm_dyn.errors import DivergedStateError, SingularConfigurationError
 from elastic_pm_dyn.sim import kernels
-from elastic_pm_dyn.sim.simulator import SINGULAR_MATRIX
+
+# What breaks down at a singular configuration, per formulation.
+SINGULAR_MATRIX = {
+    "lda": "dh/dq_p is singular or Newton cannot solve the passive joints: a parallel singularity",
+    "scdd_one_pass": "dh/dq_p is singular: a parallel singularity",
+    "scdd": "the cut-force Schur complement (or a leg's end-point inertia) is singular",
+    "scdd_stacked": "the cut-force Schur complement is singular",
+    "multipliers": "the KKT matrix is singular",
+}
 
 
 def integration_error(status: int, formulation: str, t_fail: float, info: np.ndarray) -> SingularConfigurationError:
