@@ -235,3 +235,23 @@ def test_feedforward_refuses_an_impossible_table_at_once(tmp_path, capsys, extra
     err = _one_error_line(capsys)
     assert extra[0] in err and "samples" in err and "limit" in err
     assert not out.exists()
+
+
+@pytest.mark.parametrize("content, words", [
+    (b"/**:\n  ros__parameters:\n    observer:\n      sensors: [\xe9ncoders]\n", [":4: not UTF-8 text"]),
+    (b"\x00\xff\xfe garbage \x81", ["not UTF-8 text"]),
+    (b"/**:\n  ros__parameters:\n    observer:\n      sensors: &a [*a]\n", ["recursive alias"]),
+    (b"a: [1, 2\n", [":2: not valid YAML"]),
+])
+@pytest.mark.parametrize("command", ["observe", "tune"])
+def test_observer_parameter_file_mistake_is_one_line(tmp_path, capsys, content, words, command) -> None:
+    """The observer's parameter files (observe/tune --config) get the model files' treatment:
+    bad bytes, recursive aliases and malformed YAML are one line naming the file, exit 2."""
+    cfg = tmp_path / "observer.yaml"
+    cfg.write_bytes(content)
+    out = ["--out", str(tmp_path / ("out" if command == "observe" else "tuned.yaml"))]
+    code = main([command, "--model", str(FIVE_BAR), "--bag", str(tmp_path / "no_bag"), *out, "--config", str(cfg)])
+    assert code == 2
+    line = _one_error_line(capsys)
+    assert str(cfg) in line and all(w in line for w in words), line
+    assert not (tmp_path / "out").exists() and not (tmp_path / "tuned.yaml").exists()

@@ -18,9 +18,12 @@ from __future__ import annotations
 import math
 import re
 from collections.abc import Iterator
+from pathlib import Path
 from typing import Any, ClassVar
 
 import yaml
+
+from elastic_pm_dyn.errors import InputError
 
 _FLOAT_TAG = "tag:yaml.org,2002:float"
 
@@ -47,6 +50,51 @@ class Yaml12Loader(yaml.SafeLoader):
 def load(text: str) -> Any:
     """The data of one YAML document (None if empty); ``yaml.YAMLError`` if malformed."""
     return yaml.load(text, Loader=Yaml12Loader)  # a SafeLoader subclass: no arbitrary objects
+
+
+MAX_PARAMETER_BYTES = 4 * 2**20  # a parameter file has a few kB; refused before reading
+
+
+def load_file(path: str | Path, what: str = "parameter file") -> Any:
+    """:func:`load` of a file, every problem one ``InputError`` line naming the file (and the line
+    where known): unreadable, larger than MAX_PARAMETER_BYTES, not UTF-8, malformed, or holding a
+    recursive alias (``&a [*a]``), which would make every later walk over the data recurse forever."""
+    p = Path(path)
+    try:
+        size = p.stat().st_size
+        if size > MAX_PARAMETER_BYTES:
+            raise InputError(f"{p}: {size} bytes, more than the {MAX_PARAMETER_BYTES} bytes a {what} may have")
+        raw = p.read_bytes()
+    except OSError as exc:
+        raise InputError(f"{p}: cannot read {what}: {exc.strerror or exc}") from None
+    try:
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        line = raw.count(b"\n", 0, exc.start) + 1
+        raise InputError(f"{p}:{line}: not UTF-8 text: byte 0x{raw[exc.start]:02x} at byte {exc.start}") from None
+    try:
+        data = load(text)
+    except yaml.MarkedYAMLError as exc:
+        mark = exc.problem_mark or exc.context_mark
+        where = f":{mark.line + 1}" if mark is not None else ""
+        raise InputError(f"{p}{where}: not valid YAML: {exc.problem or exc.context}") from None
+    except (yaml.YAMLError, RecursionError, ValueError) as exc:
+        raise InputError(f"{p}: not valid YAML: {' '.join(str(exc).split())[:200]}") from None
+    _refuse_cycles(data, p)
+    return data
+
+
+def _refuse_cycles(data: Any, path: Path) -> None:
+    """InputError if a list or map contains itself (a recursive alias); iterative, so any depth is fine."""
+    stack: list[tuple[Any, frozenset]] = [(data, frozenset())]
+    while stack:
+        node, above = stack.pop()
+        if not isinstance(node, (list, dict)):
+            continue
+        if id(node) in above:
+            raise InputError(f"{path}: a recursive alias (a list or map that contains itself)")
+        inner = above | {id(node)}
+        stack.extend((child, inner) for child in (node.values() if isinstance(node, dict) else node))
 
 
 # ---------------------------------------------------------------- model files: YAML 1.2 core schema

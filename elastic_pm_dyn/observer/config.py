@@ -20,8 +20,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from elastic_pm_dyn.errors import InputError
 from elastic_pm_dyn.model import yaml12
 
@@ -378,12 +376,7 @@ def load_config(path: str | Path | None = None, node: str | None = None) -> Obse
     if path is None:
         return ObserverConfig.from_parameters({}, "<defaults>")
     p = Path(path)
-    try:
-        data = yaml12.load(p.read_text())
-    except OSError as exc:
-        raise InputError(f"{p}: cannot read observer configuration: {exc.strerror}") from None
-    except yaml.YAMLError as exc:
-        raise InputError(f"{p}: not valid YAML: {exc}") from None
+    data = yaml12.load_file(p, "observer configuration")
     if not isinstance(data, dict):
         raise InputError(f"{p}: expected a map of node names to ros__parameters")
     sections = []

@@ -301,7 +301,7 @@ def explicit_names(path: str | Path | None) -> set[str]:
     """Flat observer names (without the prefix) a parameter file sets."""
     if path is None:
         return set()
-    data = yaml12.load(Path(path).read_text())
+    data = yaml12.load_file(path)
     names = set()
     if isinstance(data, dict):
         for body in data.values():
@@ -341,7 +341,7 @@ def write_parameters(params: Mapping[str, Any], out: str | Path, base_path: str 
     floats); the base file's other sections and keys kept (its observer block replaced)."""
     data: dict = {}
     if base_path is not None:
-        loaded = yaml12.load(Path(base_path).read_text())
+        loaded = yaml12.load_file(base_path)
         data = loaded if isinstance(loaded, dict) else {}
     section = None
     for body in data.values():
