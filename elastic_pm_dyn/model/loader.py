@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 
+from elastic_pm_dyn.errors import ModelError
 from elastic_pm_dyn.model.description import (
     ACTIVE,
     AXIS_NAMES,
@@ -165,13 +166,23 @@ def _names(names: list[str], limit: int = 12) -> str:
     return shown if len(names) <= limit else f"{shown}, ... ({len(names)} in all)"
 
 
-def load_model(path: str | Path, elastic_dof_per_chain: int | None = None) -> Model:
-    """Read and validate a model file.
+def load_model(path: str | Path, elastic_dof_per_chain: int | None = None,
+               closures: str | Path | None = None) -> Model:
+    """Read and validate a model file: a model YAML, a URDF or an MJCF.
 
-    ``elastic_dof_per_chain`` overrides the file's value: how many lumped elastic joints
-    each ``flexible_link`` is discretised into.
+    The format follows from the suffix (.yaml/.yml, .urdf, .xml/.mjcf) and, for any other,
+    from the content (an XML root ``<robot>`` or ``<mujoco>``). A URDF takes its loop
+    closures from a sidecar: ``closures``, else ``robot.yaml`` next to it.
+    ``elastic_dof_per_chain`` overrides a YAML's value: how many lumped elastic joints
+    each ``flexible_link`` is discretised into (URDF and MJCF have none).
     """
-    return parse_model(YamlSource.from_file(path), elastic_dof_per_chain)
+    from elastic_pm_dyn.model.formats import model_format, read_robot_file
+    kind = model_format(path)
+    if kind == "yaml":
+        if closures is not None:
+            raise ModelError(str(closures), "", f"a closure sidecar belongs to a URDF, {path} is a model YAML")
+        return parse_model(YamlSource.from_file(path), elastic_dof_per_chain)
+    return read_robot_file(path, kind, closures)
 
 
 def parse_model(src: YamlSource, elastic_dof_per_chain: int | None = None) -> Model:
