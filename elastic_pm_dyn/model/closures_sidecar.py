@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from elastic_pm_dyn.model.kinematic_tree import ClosureSpec, Where
-from elastic_pm_dyn.model.loader import _Reader
+from elastic_pm_dyn.model.yaml_reader import _Reader
 from elastic_pm_dyn.model.yaml_source import KeyPath, YamlSource, format_path
 
 SIDECAR_NAME = "robot.yaml"

@@ -38,7 +38,7 @@ from elastic_pm_dyn.model.kinematic_tree import (
     TreeJoint,
     Where,
 )
-from elastic_pm_dyn.model.loader import _parse_branches, _parse_initial
+from elastic_pm_dyn.model.yaml_reader import _parse_branches, _parse_initial
 
 DEFAULT_GRAVITY = (0.0, 0.0, -9.81)  # a URDF has none; Pinocchio's and Gazebo's default
 PARALLEL_TOL = 1e-9  # |sin| between axes taken as parallel (exported axes carry ~1e-12 noise)
