@@ -28,9 +28,10 @@ setup(
         "matplotlib>=3.8",
         "rosbags>=0.11,<0.12",
     ],
-    # pin: the Pinocchio cross-check test (and the benchmark); mujoco: the benchmark only;
-    # hypothesis: the property-based fuzz suite (test/test_fuzz_*.py).
-    extras_require={"test": ["pytest>=8", "ruff", "pin", "hypothesis>=6.100"], "bench": ["pin", "mujoco"]},
+    # pin: the Pinocchio cross-checks (and the benchmark); mujoco: reading MJCF models and
+    # their cross-check (and the benchmark); hypothesis: the property-based fuzz suite.
+    extras_require={"test": ["pytest>=8", "ruff", "pin", "mujoco", "hypothesis>=6.100"], "bench": ["pin", "mujoco"],
+                    "mjcf": ["mujoco"]},
     zip_safe=False,
     entry_points={
         "console_scripts": [

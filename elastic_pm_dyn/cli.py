@@ -123,6 +123,9 @@ def cmd_check(args: argparse.Namespace) -> int:
     for name, value in zip(mech.joint_names, q, strict=True):
         print(f"  {name:20s} {value: .9f}")
     print(f"  end effector {np.array2string(mech.end_effector(q), precision=6)} m")
+    # The assembly mode as initial_state.assembly_mode spells it: keep it to pin the mode.
+    print("  assembly mode: " + (", ".join(f"{mech.joint_names[i]} {'positive' if np.sin(q[i]) >= 0 else 'negative'}"
+                                           for i in mech.passive if model.joints[i].type == "revolute") or "-"))
     print(f"  closure residual {mech.gap(q):.3g} m")
     if len(mech.elastic):
         modes = elastic_modes(mech, q, clamp_motors=True)

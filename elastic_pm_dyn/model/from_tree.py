@@ -1,0 +1,384 @@
+"""A robot file's kinematic tree (+ closure sidecar) -> :class:`Model`.
+
+The Model is a set of legs from the fixed base, each a path of 1-DOF joints, and closures
+between points on the legs' last bodies. So: fixed joints are merged into their parent
+body (mass properties combined), ball and universal joints become revolute triples and
+pairs, each moving joint from the base starts a leg, and a tree the Model cannot express
+(a branch inside a leg, a closure frame on a leg's inner body or on the base, a weld) is
+one line "not supported yet: <what>, <where>".
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from elastic_pm_dyn.model.closures_sidecar import Sidecar
+from elastic_pm_dyn.model.description import (
+    ACTIVE,
+    ELASTIC,
+    PASSIVE,
+    Body,
+    Branch,
+    Chain,
+    Closure,
+    InitialState,
+    Joint,
+    Model,
+    matrix_to_rpy,
+)
+from elastic_pm_dyn.model.kinematic_tree import (
+    BALL,
+    FIXED,
+    PRISMATIC,
+    REVOLUTE,
+    UNIVERSAL,
+    KinematicTree,
+    TreeJoint,
+    Where,
+)
+from elastic_pm_dyn.model.yaml_reader import _parse_branches, _parse_initial
+
+DEFAULT_GRAVITY = (0.0, 0.0, -9.81)  # a URDF has none; Pinocchio's and Gazebo's default
+PARALLEL_TOL = 1e-9  # |sin| between axes taken as parallel (exported axes carry ~1e-12 noise)
+
+
+@dataclass
+class _Leg:
+    joints: list[Joint] = field(default_factory=list)
+    bodies: list[Body | None] = field(default_factory=list)
+    sources: list[TreeJoint] = field(default_factory=list)
+    name: str = ""
+
+
+@dataclass(frozen=True)
+class _Frame:
+    leg: int  # -1: the fixed base
+    joint: int  # index in the leg, -1 on the base
+    R: np.ndarray  # frame in the carrying joint's child frame
+    p: np.ndarray
+    link: str
+
+
+def build_model(tree: KinematicTree, sidecar: Sidecar | None = None) -> Model:
+    joints = _retyped(tree, sidecar)
+    motors, elastic, rotor = _roles(tree, joints, sidecar)
+    legs, frames = _legs(tree, joints, motors, elastic, rotor)
+    closures = list(tree.closures) + (sidecar.closures if sidecar else [])
+    gravity = np.asarray(sidecar.gravity if sidecar is not None and sidecar.gravity is not None
+                         else tree.gravity if tree.gravity is not None else DEFAULT_GRAVITY, dtype=float)
+    planar = _planar(tree, legs, closures, sidecar)
+    chains, closure = _closure(tree, legs, frames, closures, planar)
+    ee_mass = sidecar.end_effector_mass if sidecar is not None else 0.0
+    if ee_mass > 0:
+        chains = _lump_end_effector(chains, ee_mass, closure)
+    names = {j.name for c in chains for j in c.joints}
+    if sidecar is not None:
+        r = sidecar.reader()
+        branches = _parse_branches(r, chains, names)
+        initial = _parse_initial(r, chains, names)
+    else:
+        branches = tuple(Branch(j.name, j.name) for c in chains for j in c.joints if j.role == ELASTIC)
+        initial = InitialState(guess={k: v for k, v in tree.start.items() if k in names})
+    model = Model(name=tree.name, chains=tuple(chains), closure=closure, gravity=gravity,
+                  end_effector_mass=ee_mass, initial=initial, branches=branches, source=tree.file, planar=planar)
+    _check_counts(tree, model, sidecar)
+    return model
+
+
+# ------------------------------------------------------------------------ joints
+def _retyped(tree: KinematicTree, sidecar: Sidecar | None) -> list[TreeJoint]:
+    """The tree's joints with the sidecar's re-typing (SPHERICAL, FIXED, UNIVERSAL) applied."""
+    if sidecar is None:
+        return list(tree.joints)
+    by_name = {j.name: j for j in tree.joints}
+    for name, (_, where) in sidecar.retype.items():
+        if name not in by_name:
+            raise where.error(f"no joint {name!r} in {tree.file}")
+    for name, (_, where) in sidecar.universal.items():
+        if sidecar.retype.get(name, ("",))[0] != "UNIVERSAL":
+            raise where.error(f"joint {name!r} has a second axis but is not typed UNIVERSAL in joint_type")
+    out = []
+    for j in tree.joints:
+        kind = sidecar.retype.get(j.name, (None,))[0]
+        if kind == "SPHERICAL":
+            j = replace(j, type=BALL)
+        elif kind == "FIXED":
+            j = replace(j, type=FIXED)
+        elif kind == "UNIVERSAL":
+            if j.name not in sidecar.universal:
+                raise sidecar.retype[j.name][1].error(f"UNIVERSAL joint {j.name!r} needs its second axis "
+                                                      f"under 'universal: {{{j.name}: [x, y, z]}}'")
+            j = replace(j, type=UNIVERSAL, axis2=sidecar.universal[j.name][0])
+        out.append(j)
+    return out
+
+
+def _roles(tree: KinematicTree, joints: list[TreeJoint], sidecar: Sidecar | None
+           ) -> tuple[set[str], dict[str, tuple[float, float, float]], dict[str, float]]:
+    """Active joint names, elastic joints (stiffness, damping, rest) and rotor inertias."""
+    by_name = {j.name: j for j in joints}
+    motors = {j.name for j in joints if j.actuated}
+    elastic = {j.name: (j.stiffness, j.damping, j.rest) for j in joints if j.stiffness > 0}
+    rotor = {j.name: j.armature for j in joints if j.armature > 0}
+    if sidecar is None:
+        both = motors & set(elastic)
+        if both:
+            name = sorted(both)[0]
+            raise by_name[name].where.error("a joint with a spring cannot also be driven by a motor")
+        return motors, elastic, rotor
+
+    def single_dof(name: str, where: Where, what: str) -> TreeJoint:
+        if name not in by_name:
+            raise where.error(f"no joint {name!r} in {tree.file}")
+        j = by_name[name]
+        if j.type not in (REVOLUTE, PRISMATIC):
+            raise where.error(f"joint {name!r} is {j.type}: only a revolute or prismatic joint can be {what}")
+        return j
+
+    for name, where in sidecar.motors.items():
+        single_dof(name, where, "a motor")
+        motors.add(name)
+    for name, spec in sidecar.elastic.items():
+        j = single_dof(name, spec.where, "elastic")
+        if name in sidecar.motors:
+            raise spec.where.error(f"joint {name!r} is a motor (name_mot) and elastic at once")
+        elastic[name] = (spec.stiffness, j.damping if spec.damping is None else spec.damping, spec.rest)
+    for name, (value, where) in sidecar.rotor_inertia.items():
+        single_dof(name, where, "given a rotor inertia")
+        rotor[name] = value
+    return motors, elastic, rotor
+
+
+def _expand(j: TreeJoint, R: np.ndarray, p: np.ndarray, motors: set[str],
+            elastic: dict[str, tuple[float, float, float]], rotor: dict[str, float]) -> list[Joint]:
+    """Our 1-DOF joints for one file joint whose frame is (R, p) in the carrier's frame."""
+    rpy = matrix_to_rpy(R)
+    if j.type in (REVOLUTE, PRISMATIC):
+        role = ACTIVE if j.name in motors else ELASTIC if j.name in elastic else PASSIVE
+        c, d, rest = elastic.get(j.name, (0.0, 0.0, 0.0))
+        return [Joint(name=j.name, type=j.type, role=role, axis=j.axis, origin_xyz=p, origin_rpy=rpy,
+                      stiffness=c, damping=d, rest=rest, friction=0.0 if role == ELASTIC else j.damping,
+                      rotor_inertia=rotor.get(j.name, 0.0))]
+    if j.type == BALL:
+        # Three revolutes about the joint frame's x, y, z (singular where the middle one
+        # reaches +-90 degrees: a start pose away from that is the user's to choose).
+        axes = [("x", np.array([1.0, 0, 0])), ("y", np.array([0, 1.0, 0])), ("z", np.array([0, 0, 1.0]))]
+    else:
+        axes = [("1", j.axis), ("2", j.axis2)]
+    out = []
+    for k, (suffix, axis) in enumerate(axes):
+        out.append(Joint(name=f"{j.name}_{suffix}", type=REVOLUTE, role=PASSIVE, axis=np.asarray(axis, dtype=float),
+                         origin_xyz=p if k == 0 else np.zeros(3), origin_rpy=rpy if k == 0 else np.zeros(3),
+                         friction=j.damping))
+    return out
+
+
+# -------------------------------------------------------------------------- legs
+def _legs(tree: KinematicTree, joints: list[TreeJoint], motors: set[str],
+          elastic: dict[str, tuple[float, float, float]], rotor: dict[str, float]
+          ) -> tuple[list[_Leg], dict[str, _Frame]]:
+    """Walk the tree from its root: legs of 1-DOF joints, every link as a frame on a leg."""
+    children: dict[str, list[TreeJoint]] = {name: [] for name in tree.links}
+    parent_of: dict[str, TreeJoint] = {}
+    for j in joints:
+        if j.child in parent_of:
+            raise j.where.error(f"link {j.child!r} already has a parent joint ({parent_of[j.child].name!r}): "
+                                "a robot file is a tree; name loop closures in the closure sidecar")
+        parent_of[j.child] = j
+        children[j.parent].append(j)
+    roots = [name for name in tree.links if name not in parent_of]
+    if len(roots) != 1:
+        where = tree.links[roots[1]].where if len(roots) > 1 else tree.joints[0].where
+        raise where.error(f"the links form {len(roots)} trees (roots: {', '.join(roots[:6]) or 'none'}); "
+                          "a robot file has one root link")
+    legs: list[_Leg] = []
+    frames: dict[str, _Frame] = {}
+    base_children: list[str] = []
+    # Depth first, in file order: (link, leg, joint index, R, p of the link in the carrier frame)
+    stack = [(roots[0], -1, -1, np.eye(3), np.zeros(3))]
+    while stack:
+        link, leg, ji, R, p = stack.pop()
+        frames[link] = _Frame(leg, ji, R, p, link)
+        body = tree.links[link].body
+        if body is not None and leg >= 0:
+            moved = body.moved(R, p)
+            old = legs[leg].bodies[ji]
+            legs[leg].bodies[ji] = moved if old is None else old.combined(moved)
+        moving = [c for c in children[link] if c.type != FIXED]
+        if leg >= 0 and len(moving) > 1:
+            raise moving[1].where.error(
+                f"not supported yet: a branch inside a leg (joints {moving[0].name!r} and {moving[1].name!r} "
+                f"both move link {link!r}), {tree.file}")
+        todo = []
+        for c in children[link]:
+            Rj, pj = R @ c.origin_R, R @ c.origin_p + p
+            if c.type == FIXED:
+                todo.append((c.child, leg, ji, Rj, pj))
+                continue
+            if leg < 0:
+                legs.append(_Leg(name=c.child))
+                base_children.append(c.child)
+                target = len(legs) - 1
+            else:
+                target = leg
+            new = _expand(c, Rj, pj, motors, elastic, rotor)
+            legs[target].joints.extend(new)
+            legs[target].bodies.extend([None] * len(new))
+            legs[target].sources.extend([c] * len(new))
+            todo.append((c.child, target, len(legs[target].joints) - 1, np.eye(3), np.zeros(3)))
+        stack.extend(reversed(todo))  # depth first in file order
+    unreached = [name for name in tree.links if name not in frames]
+    if unreached:
+        raise tree.links[unreached[0]].where.error("link is not reachable from the root (a cycle of joints)")
+    for leg in legs:
+        leg.joints = [replace(j, body=b) for j, b in zip(leg.joints, leg.bodies, strict=True)]
+    return legs, frames
+
+
+def _frame(tree: KinematicTree, frames: dict[str, _Frame], name: str, where: Where) -> _Frame:
+    """A closure frame: a link, or a joint (its child link's frame, as in Pinocchio)."""
+    if name in frames:
+        return frames[name]
+    for j in tree.joints:
+        if j.name == name:
+            return frames[j.child]
+    raise where.error(f"no frame (link or joint) {name!r} in {tree.file}")
+
+
+# ------------------------------------------------------------------------ planar
+def _world_axes(legs: list[_Leg]) -> list[tuple[Joint, np.ndarray]]:
+    """Each joint's axis in the world at the zero configuration."""
+    out = []
+    for leg in legs:
+        R = np.eye(3)
+        for j in leg.joints:
+            R = R @ j.origin_rotation()
+            out.append((j, R @ j.axis))
+    return out
+
+
+def _planar(tree: KinematicTree, legs: list[_Leg], closures: list, sidecar: Sidecar | None) -> bool:
+    """A point closure of a mechanism that moves in the x-y plane has an all-zero z row:
+    such a machine is planar (closes in x and y). Found from the axes unless the sidecar says."""
+    axes = _world_axes(legs)
+    if not closures or not axes:
+        return bool(sidecar is not None and sidecar.planar)
+
+    def planar_about(n: np.ndarray) -> bool:
+        return all(np.linalg.norm(np.cross(a, n)) < PARALLEL_TOL if j.type == REVOLUTE else abs(a @ n) < PARALLEL_TOL
+                   for j, a in axes)
+
+    ez = np.array([0.0, 0.0, 1.0])
+    in_xy = planar_about(ez)
+    said = sidecar.planar if sidecar is not None else None
+    if said is True and not in_xy:
+        bad = next(j for j, a in axes if (np.linalg.norm(np.cross(a, ez)) >= PARALLEL_TOL if j.type == REVOLUTE
+                                          else abs(a @ ez) >= PARALLEL_TOL))
+        raise sidecar.where(("planar",)).error(f"planar: true, but joint {bad.name!r} does not move in the x-y plane")
+    if said is not None:
+        return said
+    if in_xy:
+        return True
+    revolute = [a for j, a in axes if j.type == REVOLUTE]
+    if revolute and planar_about(revolute[0]):
+        where = closures[0].where
+        raise where.error(f"not supported yet: a planar mechanism moving in a plane other than x-y "
+                          f"(joint axes along {np.round(revolute[0], 6).tolist()}), {tree.file}")
+    return False
+
+
+# ----------------------------------------------------------------------- closure
+def _closure(tree: KinematicTree, legs: list[_Leg], frames: dict[str, _Frame], closures: list,
+             planar: bool) -> tuple[list[Chain], Closure | None]:
+    points: list[list[tuple[str, np.ndarray]]] = [[] for _ in legs]  # per leg: (frame name, xyz)
+    pair_refs: list[tuple[tuple[int, int], tuple[int, int]]] = []
+    for spec in closures:
+        if spec.kind != "3d":
+            raise spec.where.error(f"not supported yet: a {spec.kind} closure (a weld: position and orientation) "
+                                   f"between {spec.frame_a!r} and {spec.frame_b!r}; only 3d point closures")
+        refs = []
+        for name, offset in ((spec.frame_a, spec.offset_a), (spec.frame_b, spec.offset_b)):
+            f = _frame(tree, frames, name, spec.where)
+            if f.leg < 0:
+                raise spec.where.error(f"not supported yet: a closure on the fixed base (frame {name!r})")
+            leg = legs[f.leg]
+            if f.joint != len(leg.joints) - 1:
+                after = leg.sources[f.joint + 1].name
+                raise spec.where.error(f"not supported yet: closure frame {name!r} on an inner body of leg "
+                                       f"{leg.name!r} (joint {after!r} follows it); closures join legs' last bodies")
+            xyz = f.R @ np.asarray(offset, dtype=float) + f.p
+            key = f"{name}" if not np.any(offset) else f"{name}@{len(points[f.leg])}"
+            for k, (_, pxyz) in enumerate(points[f.leg]):
+                if np.allclose(pxyz, xyz, rtol=0.0, atol=1e-15):
+                    refs.append((f.leg, k))
+                    break
+            else:
+                points[f.leg].append((key, xyz))
+                refs.append((f.leg, len(points[f.leg]) - 1))
+        if refs[0][0] == refs[1][0]:
+            raise spec.where.error(f"frames {spec.frame_a!r} and {spec.frame_b!r} are on the same leg "
+                                   f"{legs[refs[0][0]].name!r}: a closure joins two legs")
+        pair_refs.append((refs[0], refs[1]))
+    chains = []
+    for leg, pts in zip(legs, points, strict=True):
+        end = pts[0][1] if pts else np.zeros(3)
+        chains.append(Chain(name=leg.name, joints=tuple(leg.joints), end_xyz=end,
+                            points=tuple((n, x) for n, x in pts[1:])))
+    if not pair_refs:
+        return chains, None
+    # Model.point_list: every chain's end first, then each chain's further points in order.
+    index: dict[tuple[int, int], int] = {(ci, 0): ci for ci in range(len(legs))}
+    k = len(legs)
+    for ci, pts in enumerate(points):
+        for pi in range(1, len(pts)):
+            index[(ci, pi)] = k
+            k += 1
+    pairs = tuple((index[a], index[b]) for a, b in pair_refs)
+    order: list[int] = []
+    for a, b in pair_refs:
+        for ci, _ in (a, b):
+            if ci not in order:
+                order.append(ci)
+    return chains, Closure(pairs=pairs, components=(0, 1) if planar else (0, 1, 2), chains=tuple(order))
+
+
+def _lump_end_effector(chains: list[Chain], mass: float, closure: Closure | None) -> list[Chain]:
+    """The end-effector point mass at the first closure's first point: split equally over the
+    chains that meet there (exact for a point mass, as in a model YAML)."""
+    if closure is None:
+        owners = [(0, chains[0].end_xyz)]
+    else:
+        first = closure.pairs[0][0]
+        meet = {first} | {b for a, b in closure.pairs if a == first} | {a for a, b in closure.pairs if b == first}
+        plist = [(ci, c.end_xyz) for ci, c in enumerate(chains)]
+        for ci, c in enumerate(chains):
+            plist.extend((ci, xyz) for _, xyz in c.points)
+        owners = [plist[i] for i in sorted(meet)]
+    out = list(chains)
+    share = mass / len(owners)
+    for ci, xyz in owners:
+        c = out[ci]
+        last = c.joints[-1]
+        point = Body(share, np.array(xyz, dtype=float), np.zeros((3, 3)))
+        out[ci] = replace(c, joints=c.joints[:-1] + (replace(last, body=point if last.body is None
+                                                               else last.body.combined(point)),))
+    return out
+
+
+def _check_counts(tree: KinematicTree, model: Model, sidecar: Sidecar | None) -> None:
+    n_active = len(model.indices(ACTIVE))
+    n_passive = len(model.indices(PASSIVE))
+    m = model.closure.size if model.closure is not None else 0
+    where = Where(sidecar.src.file, "name_mot", sidecar.src.line(("name_mot",))) if sidecar is not None \
+        else Where(tree.file, "actuator")
+    if n_active == 0:
+        raise where.error("the machine has no active joint (name the motors)")
+    if n_passive != m:
+        passive = [j.name for j in model.joints if j.role == PASSIVE]
+        where = Where(sidecar.src.file, "closed_loop", sidecar.src.line(("closed_loop",))) if sidecar is not None \
+            else Where(tree.file, "equality")
+        raise where.error(f"the closures give {m} equations but the legs have {n_passive} passive joints "
+                          f"({', '.join(passive[:8])}{', ...' if len(passive) > 8 else ''}): every joint that is "
+                          "neither a motor nor elastic must be fixed by the closures")

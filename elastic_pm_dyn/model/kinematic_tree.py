@@ -1,0 +1,84 @@
+"""A robot file's kinematic tree, format-neutral: what the URDF and MJCF readers produce.
+
+Conventions are URDF's: a joint's origin places its frame in the parent link's frame, the
+child link's frame is the joint's child frame, a link's body is given in its own frame.
+Each item keeps where it came from (file, element, line) so that a later error, e.g. a
+tree the Model cannot express, can still point at the file.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from elastic_pm_dyn.errors import ModelError
+from elastic_pm_dyn.model.description import Body
+
+FIXED = "fixed"
+REVOLUTE = "revolute"  # continuous joints too: limits do not enter the dynamics
+PRISMATIC = "prismatic"
+BALL = "ball"  # three revolutes about the joint frame's x, y, z
+UNIVERSAL = "universal"  # two revolutes: axis, then axis2
+
+
+@dataclass(frozen=True)
+class Where:
+    """Where an item was written: an error there is one line naming file, element, line."""
+
+    file: str
+    element: str
+    line: int | None = None
+
+    def error(self, message: str) -> ModelError:
+        return ModelError(self.file, self.element, message, self.line)
+
+
+@dataclass(frozen=True)
+class TreeLink:
+    name: str
+    body: Body | None  # None or zero mass: a frame
+    where: Where
+
+
+@dataclass(frozen=True)
+class TreeJoint:
+    name: str
+    type: str
+    parent: str
+    child: str
+    origin_R: np.ndarray
+    origin_p: np.ndarray
+    axis: np.ndarray  # unit vector in the joint frame
+    where: Where
+    axis2: np.ndarray | None = None  # universal joints: the second axis, after the first
+    damping: float = 0.0  # viscous [N m s/rad or N s/m]
+    stiffness: float = 0.0  # a spring in the joint (MJCF)
+    rest: float = 0.0  # the spring's unloaded position
+    armature: float = 0.0  # rotor inertia
+    actuated: bool = False  # driven by a motor (MJCF <motor>)
+
+
+@dataclass(frozen=True)
+class ClosureSpec:
+    """Two frames (links) that coincide: ``kind`` '3d' (a point) or '6d' (a weld).
+
+    ``offset_a``/``offset_b`` shift the point inside the frame (MJCF connect anchors)."""
+
+    frame_a: str
+    frame_b: str
+    kind: str
+    where: Where
+    offset_a: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    offset_b: np.ndarray = field(default_factory=lambda: np.zeros(3))
+
+
+@dataclass
+class KinematicTree:
+    name: str
+    file: str
+    links: dict[str, TreeLink]
+    joints: list[TreeJoint]  # in file order
+    closures: list[ClosureSpec] = field(default_factory=list)  # from the file itself (MJCF)
+    gravity: np.ndarray | None = None  # the file's, where it has one (MJCF)
+    start: dict[str, float] = field(default_factory=dict)  # a start pose in the file (MJCF keyframe)

@@ -1,0 +1,155 @@
+"""URDF -> :class:`KinematicTree`, with errors that name file, element and line.
+
+Read with the standard library's :mod:`xml.etree` (through :mod:`xml_source`, which keeps
+lines): a URDF is plain XML, and the dynamics need only links' inertials and joints'
+frames, so no URDF library is a dependency. Visuals, collisions, meshes (``package://``
+references are never opened), materials, transmissions and ``<gazebo>`` are ignored.
+"""
+
+from __future__ import annotations
+
+import math
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import numpy as np
+
+from elastic_pm_dyn.model.description import Body, rpy_to_matrix
+from elastic_pm_dyn.model.kinematic_tree import (
+    FIXED,
+    PRISMATIC,
+    REVOLUTE,
+    KinematicTree,
+    TreeJoint,
+    TreeLink,
+    Where,
+)
+from elastic_pm_dyn.model.xml_source import XmlSource, describe
+
+_JOINT_TYPES = {"revolute": REVOLUTE, "continuous": REVOLUTE, "prismatic": PRISMATIC, "fixed": FIXED}
+
+
+def read_urdf(path: str | Path) -> KinematicTree:
+    src = XmlSource.from_file(path)
+    root = src.root
+    if root.tag != "robot":
+        raise src.error(root, f"a URDF's root element is <robot>, this file's is <{root.tag}>")
+    links: dict[str, TreeLink] = {}
+    for el in root.findall("link"):
+        name = _name(src, el)
+        if name in links:
+            raise src.error(el, f"link name is used twice (first at line {links[name].where.line})")
+        links[name] = TreeLink(name, _inertial(src, el), _where(src, el))
+    if not links:
+        raise src.error(root, "a URDF needs at least one <link>")
+    joints: list[TreeJoint] = []
+    seen: dict[str, int | None] = {}
+    for el in root.findall("joint"):
+        joint = _joint(src, el, links)
+        if joint.name in seen:
+            raise src.error(el, f"joint name is used twice (first at line {seen[joint.name]})")
+        seen[joint.name] = joint.where.line
+        joints.append(joint)
+    return KinematicTree(name=root.get("name") or Path(path).stem, file=src.file, links=links, joints=joints)
+
+
+def _where(src: XmlSource, el: ET.Element) -> Where:
+    return Where(src.file, describe(el), src.line(el))
+
+
+def _name(src: XmlSource, el: ET.Element) -> str:
+    name = el.get("name")
+    if not name:
+        raise src.error(el, f"<{el.tag}> needs a name")
+    return name
+
+
+def numbers(src: XmlSource, el: ET.Element, attr: str, n: int, default: list[float] | None = None,
+            what: str | None = None) -> np.ndarray:
+    """``attr`` of ``el`` as n finite numbers; errors name the element and the attribute."""
+    text = el.get(attr)
+    if text is None:
+        if default is None:
+            raise src.error(el, f"missing attribute {attr}", what)
+        return np.array(default, dtype=float)
+    try:
+        values = [float(x) for x in text.split()]
+    except ValueError:
+        raise src.error(el, f"{attr}: expected {n} numbers, got {text[:40]!r}", what) from None
+    if len(values) != n:
+        raise src.error(el, f"{attr}: expected {n} numbers, got {len(values)}", what)
+    if not all(math.isfinite(v) for v in values):
+        raise src.error(el, f"{attr}: numbers must be finite, got {text[:40]!r}", what)
+    return np.array(values)
+
+
+def _origin(src: XmlSource, parent: ET.Element, what: str) -> tuple[np.ndarray, np.ndarray]:
+    el = parent.find("origin")
+    if el is None:
+        return np.eye(3), np.zeros(3)
+    return (rpy_to_matrix(numbers(src, el, "rpy", 3, [0.0, 0.0, 0.0], what)),
+            numbers(src, el, "xyz", 3, [0.0, 0.0, 0.0], what))
+
+
+def _inertial(src: XmlSource, link: ET.Element) -> Body | None:
+    el = link.find("inertial")
+    if el is None:
+        return None
+    what = f"{describe(link)} inertial"
+    mass_el = el.find("mass")
+    if mass_el is None:
+        raise src.error(el, "an <inertial> needs a <mass>", what)
+    mass = float(numbers(src, mass_el, "value", 1, what=what)[0])
+    if mass < 0:
+        raise src.error(mass_el, f"mass must be >= 0, got {mass:g}", what)
+    R, com = _origin(src, el, what)
+    inertia = np.zeros((3, 3))
+    in_el = el.find("inertia")
+    if in_el is not None:
+        index = {"ixx": (0, 0), "iyy": (1, 1), "izz": (2, 2), "ixy": (0, 1), "ixz": (0, 2), "iyz": (1, 2)}
+        for key, (a, b) in index.items():
+            inertia[a, b] = inertia[b, a] = float(numbers(src, in_el, key, 1, [0.0], what)[0])
+        eig = np.linalg.eigvalsh(inertia)
+        scale = max(1e-300, float(np.max(np.abs(eig))))
+        if eig[0] < -1e-9 * scale:
+            raise src.error(in_el, f"inertia tensor is not positive semi-definite (eigenvalues {eig})", what)
+    if mass == 0:
+        return None  # a frame; its inertia (if any) cannot belong to a massless body
+    return Body(mass, com, R @ inertia @ R.T)
+
+
+def _joint(src: XmlSource, el: ET.Element, links: dict[str, TreeLink]) -> TreeJoint:
+    name = _name(src, el)
+    kind = el.get("type")
+    what = describe(el)
+    if kind in ("floating", "planar"):
+        raise src.error(el, f"a {kind} joint is not supported (a floating base or a free body): "
+                        "this package's machines stand on a fixed base")
+    if kind not in _JOINT_TYPES:
+        raise src.error(el, f"unknown joint type {kind!r} (URDF: revolute, continuous, prismatic, fixed)")
+    if el.find("mimic") is not None:
+        raise src.error(el.find("mimic"), "not supported yet: <mimic> (a coupled joint)", what)
+    ends = []
+    for tag in ("parent", "child"):
+        ref = el.find(tag)
+        if ref is None or not ref.get("link"):
+            raise src.error(el, f"a joint needs <{tag} link=...>")
+        if ref.get("link") not in links:
+            raise src.error(ref, f"<{tag}> names a missing link {ref.get('link')!r}", what)
+        ends.append(ref.get("link"))
+    R, p = _origin(src, el, what)
+    axis = np.array([1.0, 0.0, 0.0])  # URDF's default
+    axis_el = el.find("axis")
+    if axis_el is not None:
+        axis = numbers(src, axis_el, "xyz", 3, [1.0, 0.0, 0.0], what)
+    norm = float(np.linalg.norm(axis))
+    if _JOINT_TYPES[kind] != FIXED and norm < 1e-12:
+        raise src.error(axis_el, "axis must not be zero", what)
+    damping = 0.0
+    dyn = el.find("dynamics")
+    if dyn is not None:
+        damping = float(numbers(src, dyn, "damping", 1, [0.0], what)[0])
+        if damping < 0:
+            raise src.error(dyn, f"damping must be >= 0, got {damping:g}", what)
+    return TreeJoint(name=name, type=_JOINT_TYPES[kind], parent=ends[0], child=ends[1], origin_R=R, origin_p=p,
+                     axis=axis / norm if norm > 0 else axis, where=_where(src, el), damping=damping)

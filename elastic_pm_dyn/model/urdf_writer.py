@@ -1,0 +1,128 @@
+"""Any :class:`Model` -> URDF text (for ``robot_description`` and RViz), plus its closure sidecar.
+
+A machine read from a URDF passes through as its own file. Any other gets one link per
+joint with its body's inertial and simple geometry: a cylinder from the link's origin to
+each next joint origin or attachment point, a sphere where there is none. Chain ends and
+named points become fixed frame links (``<chain>_end``, ``<chain>_<point>``), so that
+:func:`closure_sidecar` can name them in ``closed_loop``; with both files the machine
+loads again as the same Model (up to the end-effector mass, which is already in the bodies).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from xml.sax.saxutils import quoteattr
+
+import numpy as np
+import yaml
+
+from elastic_pm_dyn.model.description import ACTIVE, ELASTIC, PRISMATIC, Model, matrix_to_rpy
+
+BASE = "world"
+_INERTIA = {"ixx": (0, 0), "ixy": (0, 1), "ixz": (0, 2), "iyy": (1, 1), "iyz": (1, 2), "izz": (2, 2)}
+
+
+def model_to_urdf(model: Model) -> str:
+    """The machine as URDF text; a URDF machine's own file unchanged."""
+    src = Path(model.source)
+    if src.suffix.lower() == ".urdf" and src.is_file():
+        return src.read_text(encoding="utf-8")
+    size = max([float(np.linalg.norm(j.origin_xyz)) for j in model.joints] + [0.1])
+    radius = 0.02 * size
+    out = ['<?xml version="1.0"?>', f"<robot name={quoteattr(model.name)}>", f"  <link name={quoteattr(BASE)}/>"]
+    for chain in model.chains:
+        parent = BASE
+        for k, j in enumerate(chain.joints):
+            link = _link_name(j.name)
+            kind = "prismatic" if j.type == PRISMATIC else "continuous"
+            out.append(f"  <joint name={quoteattr(j.name)} type=\"{kind}\">")
+            out.append(f"    <parent link={quoteattr(parent)}/>\n    <child link={quoteattr(link)}/>")
+            out.append(f"    {_origin(j.origin_xyz, j.origin_rpy)}\n    <axis xyz=\"{_fmt(j.axis)}\"/>")
+            if j.type == PRISMATIC:
+                out.append('    <limit lower="-1" upper="1" effort="1e6" velocity="1e3"/>')
+            if j.friction > 0 and j.role != ELASTIC:
+                out.append(f'    <dynamics damping="{float(j.friction)!r}"/>')
+            out.append("  </joint>")
+            if k + 1 < len(chain.joints):
+                ends = [chain.joints[k + 1].origin_xyz]
+            else:
+                ends = [chain.end_xyz] + [xyz for _, xyz in chain.points]
+            out.append(f"  <link name={quoteattr(link)}>")
+            if j.body is not None:
+                b = j.body
+                i = b.inertia
+                moments = " ".join(f'{key}="{float(i[a, c])!r}"' for key, (a, c) in _INERTIA.items())
+                out.append(f"    <inertial>\n      {_origin(b.com, np.zeros(3))}\n"
+                           f"      <mass value=\"{float(b.mass)!r}\"/>\n      <inertia {moments}/>\n    </inertial>")
+            out.extend(_visuals(ends, radius))
+            out.append("  </link>")
+            parent = link
+        for name, xyz in [("end", chain.end_xyz), *chain.points]:
+            frame = f"{chain.name}_{name}"
+            out.append(f"  <joint name={quoteattr(frame + '_frame')} type=\"fixed\">\n"
+                       f"    <parent link={quoteattr(parent)}/>\n    <child link={quoteattr(frame)}/>\n"
+                       f"    {_origin(xyz, np.zeros(3))}\n  </joint>\n  <link name={quoteattr(frame)}/>")
+    out.append("</robot>")
+    return "\n".join(out) + "\n"
+
+
+def closure_sidecar(model: Model) -> str:
+    """The ``robot.yaml`` that goes with :func:`model_to_urdf`'s file."""
+    labels = [label.replace(".", "_") for _, _, label in model.point_list()]
+    data: dict = {}
+    if model.closure is not None:
+        data["closed_loop"] = [[labels[a], labels[b]] for a, b in model.closure.pairs]
+        data["type"] = ["3d"] * len(model.closure.pairs)
+    data["name_mot"] = [j.name for j in model.joints if j.role == ACTIVE]
+    elastic = {j.name: {"stiffness": j.stiffness, "damping": j.damping, "rest": j.rest}
+               for j in model.joints if j.role == ELASTIC}
+    if elastic:
+        data["elastic"] = elastic
+    rotor = {j.name: j.rotor_inertia for j in model.joints if j.rotor_inertia > 0}
+    if rotor:
+        data["rotor_inertia"] = rotor
+    data["gravity"] = [float(g) for g in model.gravity]
+    data["planar"] = bool(model.planar)
+    data["branches"] = [{"name": b.name, "joint": b.joint} for b in model.branches]
+    init = model.initial
+    state: dict = {}
+    if init.active is not None:
+        state["active"] = dict(init.active)
+    if init.end_effector is not None:
+        state["end_effector"] = [float(x) for x in init.end_effector]
+    if init.guess:
+        state["guess"] = dict(init.guess)
+    if init.signs:
+        state["assembly_mode"] = {k: "positive" if v > 0 else "negative" for k, v in init.signs.items()}
+    if state:
+        data["initial_state"] = state
+    return yaml.safe_dump(data, sort_keys=False)
+
+
+def _link_name(joint: str) -> str:
+    return f"{joint}_link"
+
+
+def _fmt(v) -> str:
+    return " ".join(repr(float(x)) for x in np.ravel(v))
+
+
+def _origin(xyz, rpy) -> str:
+    return f'<origin xyz="{_fmt(xyz)}" rpy="{_fmt(rpy)}"/>'
+
+
+def _visuals(ends: list[np.ndarray], radius: float) -> list[str]:
+    """A cylinder from the origin to each end (URDF cylinders lie along their z axis)."""
+    out = []
+    for end in ends:
+        length = float(np.linalg.norm(end))
+        if length < 1e-9:
+            out.append(f'    <visual><geometry><sphere radius="{float(radius)!r}"/></geometry></visual>')
+            continue
+        z = np.asarray(end, dtype=float) / length
+        x = np.cross([0.0, 1.0, 0.0], z) if abs(z[1]) < 0.9 else np.cross(z, [1.0, 0.0, 0.0])
+        x /= np.linalg.norm(x)
+        R = np.column_stack([x, np.cross(z, x), z])
+        out.append(f"    <visual>{_origin(np.asarray(end) / 2, matrix_to_rpy(R))}<geometry>"
+                   f'<cylinder radius="{float(radius)!r}" length="{float(length)!r}"/></geometry></visual>')
+    return out

@@ -1,0 +1,110 @@
+"""XML model files (URDF, MJCF) read into :mod:`xml.etree` elements that know their line.
+
+ElementTree drops line numbers; an error in a hand-edited or exported file must point at
+the element. So the elements are built from expat's events here, with a map from element
+to its line. Document type declarations are refused: a robot file needs no entities, and
+refusing them rules out entity expansion ("billion laughs") whatever the expat version.
+"""
+
+from __future__ import annotations
+
+import xml.etree.ElementTree as ET
+from pathlib import Path
+from xml.parsers import expat
+
+from elastic_pm_dyn.errors import ModelError
+
+MAX_XML_BYTES = 32 * 2**20  # exporters inline long visual lists; geometry stays in mesh files
+
+
+class XmlSource:
+    """The element tree of one XML file and the 1-based line of every element."""
+
+    def __init__(self, text: str, file: str):
+        self.file = file
+        self.lines: dict[ET.Element, int] = {}
+        builder = ET.TreeBuilder()
+        parser = expat.ParserCreate()
+
+        def start(tag: str, attrs: dict[str, str]) -> None:
+            self.lines[builder.start(tag, attrs)] = parser.CurrentLineNumber
+
+        def doctype(*_args) -> None:
+            raise ModelError(file, "", "a DOCTYPE declaration is not accepted in a robot file",
+                             parser.CurrentLineNumber)
+
+        parser.StartElementHandler = start
+        parser.EndElementHandler = builder.end
+        parser.StartDoctypeDeclHandler = doctype
+        try:
+            parser.Parse(text, True)
+        except expat.ExpatError as exc:
+            raise ModelError(file, "", f"malformed XML: {expat.ErrorString(exc.code)}", exc.lineno) from None
+        self.root: ET.Element = builder.close()
+
+    @classmethod
+    def from_file(cls, path: str | Path) -> XmlSource:
+        p = Path(path)
+        try:
+            size = p.stat().st_size
+            if size > MAX_XML_BYTES:
+                raise ModelError(str(p), "", f"{size} bytes, more than the {MAX_XML_BYTES // 2**20} MiB "
+                                 "a robot file may have")
+            raw = p.read_bytes()
+        except OSError as exc:
+            raise ModelError(str(p), "", f"cannot read file: {exc.strerror or exc}") from None
+        try:
+            text = raw.decode("utf-8-sig")
+        except UnicodeDecodeError as exc:
+            raise ModelError(str(p), "", f"not UTF-8 text: byte 0x{raw[exc.start]:02x} at byte {exc.start}",
+                             raw.count(b"\n", 0, exc.start) + 1) from None
+        return cls(text, str(p))
+
+    def line(self, element: ET.Element | None) -> int | None:
+        return None if element is None else self.lines.get(element)
+
+    def error(self, element: ET.Element | None, message: str, what: str | None = None) -> ModelError:
+        """One line: ``file:line: <joint name="x">: message``."""
+        return ModelError(self.file, what if what is not None else describe(element), message, self.line(element))
+
+
+def describe(element: ET.Element | None) -> str:
+    """``joint 'left_elbow'`` or ``inertial``: how a message names an element."""
+    if element is None:
+        return ""
+    name = element.get("name")
+    return f"{element.tag} {_short(name)}" if name is not None else element.tag
+
+
+def _short(text: str, limit: int = 40) -> str:
+    return repr(text if len(text) <= limit else text[:limit] + "...")
+
+
+def is_xml(path: str | Path) -> str | None:
+    """The root tag of an XML file (``robot``, ``mujoco``), or None for anything else."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(4096)
+    except OSError:
+        return None
+    text = head.decode("utf-8-sig", errors="replace").lstrip()
+    if not text.startswith("<"):
+        return None
+    # skip the declaration and comments to the first element's name
+    pos = 0
+    while True:
+        i = text.find("<", pos)
+        if i < 0 or i + 1 >= len(text):
+            return None
+        if text.startswith("<?", i) or text.startswith("<!", i):
+            end = text.find("-->", i) + 3 if text.startswith("<!--", i) else text.find(">", i) + 1
+            if end <= 0:
+                return None
+            pos = end
+            continue
+        name = ""
+        for ch in text[i + 1:]:
+            if ch.isspace() or ch in "/>":
+                break
+            name += ch
+        return name or None

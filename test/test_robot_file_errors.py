@@ -1,0 +1,126 @@
+"""Bad URDF, sidecar and MJCF files: each mistake is one ModelError line naming file, element and line."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from elastic_pm_dyn.errors import ModelError
+from elastic_pm_dyn.model.loader import load_model
+
+ROBOTS = Path(__file__).resolve().parent / "robots"
+URDF = (ROBOTS / "five_bar_urdf" / "robot.urdf").read_text()
+SIDECAR = (ROBOTS / "five_bar_urdf" / "robot.yaml").read_text()
+MJCF = (ROBOTS / "five_bar.xml").read_text()
+
+
+def _line_of(text: str, needle: str) -> int:
+    return text[:text.index(needle)].count("\n") + 1
+
+
+def _error(tmp_path: Path, urdf: str = URDF, sidecar: str | None = SIDECAR, name: str = "robot.urdf") -> str:
+    (tmp_path / name).write_text(urdf)
+    if sidecar is not None:
+        (tmp_path / "robot.yaml").write_text(sidecar)
+    with pytest.raises(ModelError) as exc:
+        load_model(tmp_path / name)
+    message = str(exc.value)
+    assert "\n" not in message and message.startswith(str(tmp_path))
+    return message
+
+
+URDF_CASES = [
+    ("floating", URDF.replace('name="left_motor" type="revolute"', 'name="left_motor" type="floating"'),
+     'name="left_motor" type="floating"', "floating joint is not supported"),
+    ("unknown type", URDF.replace('name="left_elbow" type="continuous"', 'name="left_elbow" type="screw"'),
+     'name="left_elbow" type="screw"', "unknown joint type 'screw'"),
+    ("missing link", URDF.replace('<child link="left_forearm"/>', '<child link="left_forarm"/>'),
+     '<child link="left_forarm"/>', "missing link 'left_forarm'"),
+    ("bad number", URDF.replace('<origin xyz="-0.10 0 0" rpy="0 0 0"/>', '<origin xyz="-0.10 0" rpy="0 0 0"/>'),
+     '<origin xyz="-0.10 0"', "xyz: expected 3 numbers, got 2"),
+    ("negative mass", URDF.replace('<mass value="0.6"/>', '<mass value="-0.6"/>', 1),
+     '<mass value="-0.6"/>', "mass must be >= 0"),
+    ("bad inertia", URDF.replace('iyy="3.125e-3" iyz="0" izz="3.125e-3"', 'iyy="-3.125e-3" iyz="0" izz="3.125e-3"', 1),
+     'iyy="-3.125e-3"', "not positive semi-definite"),
+    ("mimic", URDF.replace('<axis xyz="0 0 1"/>\n  </joint>', '<axis xyz="0 0 1"/>\n    <mimic joint="right_elbow"/>\n'
+                           '  </joint>', 1), '<mimic joint=', "not supported yet: <mimic>"),
+    ("malformed", URDF.replace("</robot>", "</robt>"), "</robt>", "malformed XML"),
+    ("doctype", '<?xml version="1.0"?>\n<!DOCTYPE robot [<!ENTITY a "aaaa">]>\n' + URDF.split("?>", 1)[1],
+     "<!DOCTYPE", "DOCTYPE"),
+    ("branch in a leg", URDF.replace("</robot>", '  <joint name="tool" type="revolute"><parent link="left_upper_arm"/>'
+                                     '<child link="tool_link"/><axis xyz="0 0 1"/></joint>\n'
+                                     '  <link name="tool_link"/>\n</robot>'),
+     '<joint name="tool"', "not supported yet: a branch inside a leg"),
+    ("two parents", URDF.replace("</robot>", '  <joint name="extra" type="fixed"><parent link="base_link"/>'
+                                 '<child link="closure_right"/></joint>\n</robot>'),
+     '<joint name="extra"', "already has a parent joint"),
+]
+
+
+@pytest.mark.parametrize("urdf, needle, expected", [c[1:] for c in URDF_CASES], ids=[c[0] for c in URDF_CASES])
+def test_bad_urdf_is_one_line_with_file_and_line(tmp_path, urdf, needle, expected):
+    message = _error(tmp_path, urdf)
+    assert expected in message
+    assert message.startswith(f"{tmp_path / 'robot.urdf'}:{_line_of(urdf, needle)}:"), message
+
+
+SIDECAR_CASES = [
+    ("unknown frame", SIDECAR.replace("['closure_left', 'closure_right']", "['closure_left', 'closure_rigth']"),
+     "closed_loop:", "no frame (link or joint) 'closure_rigth'"),
+    ("6d", SIDECAR.replace("type: ['3d']", "type: ['6d']"), "closed_loop:", "not supported yet: a 6d closure"),
+    ("unknown motor", SIDECAR.replace("name_mot: ['left_motor', 'right_motor']", "name_mot: ['left_motor', 'rmotor']"),
+     "name_mot:", "no joint 'rmotor'"),
+    ("inner body", SIDECAR.replace("['closure_left', 'closure_right']", "['left_elbow_housing', 'closure_right']"),
+     "closed_loop:", "not supported yet: closure frame 'left_elbow_housing' on an inner body"),
+    ("on the base", SIDECAR.replace("['closure_left', 'closure_right']", "['base_link', 'closure_right']"),
+     "closed_loop:", "not supported yet: a closure on the fixed base"),
+    ("same leg", SIDECAR.replace("['closure_left', 'closure_right']", "['closure_left', 'left_forearm']"),
+     "closed_loop:", "are on the same leg"),
+    ("unknown key", SIDECAR + "stifness: 3\n", "stifness", "unknown key"),
+    ("counts", SIDECAR.replace("name_mot: ['left_motor', 'right_motor']", "name_mot: ['left_motor']"),
+     "closed_loop:", "the closures give 2 equations but the legs have 3 passive joints"),
+    ("motor and spring", SIDECAR.replace("name_mot: ['left_motor', 'right_motor']",
+                                         "name_mot: ['left_motor', 'right_motor', 'left_spring']"),
+     "  left_spring:", "is a motor (name_mot) and elastic at once"),
+]
+
+
+@pytest.mark.parametrize("sidecar, needle, expected", [c[1:] for c in SIDECAR_CASES], ids=[c[0] for c in SIDECAR_CASES])
+def test_bad_sidecar_is_one_line_with_its_line(tmp_path, sidecar, needle, expected):
+    message = _error(tmp_path, sidecar=sidecar)
+    assert expected in message
+    assert message.startswith(f"{tmp_path / 'robot.yaml'}:{_line_of(sidecar, needle)}:"), message
+
+
+def test_urdf_without_sidecar(tmp_path):
+    message = _error(tmp_path, sidecar=None)
+    assert "robot.yaml next to it" in message
+
+
+def test_planar_outside_the_xy_plane_is_not_supported_yet(tmp_path):
+    urdf = URDF.replace('<axis xyz="0 0 1"/>', '<axis xyz="0 1 0"/>').replace('<axis xyz="1 0 0"/>',
+                                                                            '<axis xyz="1 0 0"/>')
+    message = _error(tmp_path, urdf)
+    assert "not supported yet: a planar mechanism moving in a plane other than x-y" in message
+
+
+MJCF_CASES = [
+    ("free joint", MJCF.replace('<joint name="left_motor" type="hinge"', '<joint name="left_motor" type="free"')
+     .replace(' axis="0 0 1" armature="1e-4"/>', ' armature="1e-4"/>', 1).replace(
+         '<motor name="left" joint="left_motor"/>', ''), '<joint name="left_motor" type="free"', "free joint"),
+    ("weld", MJCF.replace('<connect site1="closure_left" site2="closure_right"',
+                          '<weld name="w" site1="closure_left" site2="closure_right"'),
+     '<weld name="w"', "not supported yet: a 6d closure"),
+    ("compiler", MJCF.replace('stiffness="5.464e6"', 'stifness="5.464e6"', 1), 'stifness=', "MuJoCo:"),
+    ("servo", MJCF.replace('<motor name="right" joint="right_motor"/>', '<position name="right" joint="right_motor"/>'),
+     '<position name="right"', "not supported yet: an actuator other than a <motor>"),
+]
+
+
+@pytest.mark.parametrize("mjcf, needle, expected", [c[1:] for c in MJCF_CASES], ids=[c[0] for c in MJCF_CASES])
+def test_bad_mjcf_is_one_line_with_file_and_line(tmp_path, mjcf, needle, expected):
+    pytest.importorskip("mujoco")
+    message = _error(tmp_path, mjcf, sidecar=None, name="robot.xml")
+    assert expected in message
+    assert message.startswith(f"{tmp_path / 'robot.xml'}:{_line_of(mjcf, needle)}:"), message
