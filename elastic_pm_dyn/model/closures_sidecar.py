@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from elastic_pm_dyn.model.kinematic_tree import ClosureSpec, Where
-from elastic_pm_dyn.model.yaml_reader import _Reader
+from elastic_pm_dyn.model.yaml_reader import YamlReader
 from elastic_pm_dyn.model.yaml_source import KeyPath, YamlSource, format_path
 
 SIDECAR_NAME = "robot.yaml"
@@ -65,8 +65,8 @@ class Sidecar:
     def where(self, path: KeyPath) -> Where:
         return Where(self.src.file, format_path(path), self.src.line(path))
 
-    def reader(self) -> _Reader:
-        return _Reader(self.src)
+    def reader(self) -> YamlReader:
+        return YamlReader(self.src)
 
 
 def find_sidecar(urdf: str | Path) -> Path | None:
@@ -81,7 +81,7 @@ def read_sidecar(path: str | Path) -> Sidecar:
         src.data = {}
     if not isinstance(src.data, dict):
         raise src.error((), "a closure sidecar must be a mapping (closed_loop, type, name_mot, ...)")
-    r = _Reader(src)
+    r = YamlReader(src)
     r.mapping((), _KEYS)
     out = Sidecar(src)
     loops = r.sequence(("closed_loop",)) if r.has(("closed_loop",)) else []

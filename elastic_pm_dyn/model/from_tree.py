@@ -38,7 +38,7 @@ from elastic_pm_dyn.model.kinematic_tree import (
     TreeJoint,
     Where,
 )
-from elastic_pm_dyn.model.yaml_reader import _parse_branches, _parse_initial
+from elastic_pm_dyn.model.yaml_reader import parse_branches, parse_initial
 
 DEFAULT_GRAVITY = (0.0, 0.0, -9.81)  # a URDF has none; Pinocchio's and Gazebo's default
 PARALLEL_TOL = 1e-9  # |sin| between axes taken as parallel (exported axes carry ~1e-12 noise)
@@ -76,8 +76,8 @@ def build_model(tree: KinematicTree, sidecar: Sidecar | None = None) -> Model:
     names = {j.name for c in chains for j in c.joints}
     if sidecar is not None:
         r = sidecar.reader()
-        branches = _parse_branches(r, chains, names)
-        initial = _parse_initial(r, chains, names)
+        branches = parse_branches(r, chains, names)
+        initial = parse_initial(r, chains, names)
     else:
         branches = tuple(Branch(j.name, j.name) for c in chains for j in c.joints if j.role == ELASTIC)
         initial = InitialState(guess={k: v for k, v in tree.start.items() if k in names})

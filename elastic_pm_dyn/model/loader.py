@@ -21,7 +21,7 @@ from elastic_pm_dyn.model.description import (
     Joint,
     Model,
 )
-from elastic_pm_dyn.model.yaml_reader import _kind, _names, _parse_branches, _parse_initial, _Reader, _short
+from elastic_pm_dyn.model.yaml_reader import YamlReader, kind_of, name_list, parse_branches, parse_initial, shortened
 from elastic_pm_dyn.model.yaml_source import KeyPath, YamlSource, format_path
 
 _TOP_KEYS = {"name", "gravity", "chains", "closure", "end_effector", "initial_state",
@@ -53,7 +53,7 @@ def load_model(path: str | Path, elastic_dof_per_chain: int | None = None,
 
 
 def parse_model(src: YamlSource, elastic_dof_per_chain: int | None = None) -> Model:
-    r = _Reader(src)
+    r = YamlReader(src)
     if src.data is None or src.data == {}:
         raise src.error((), "the model file is empty (a model needs 'chains')")
     if not isinstance(src.data, dict):
@@ -76,7 +76,7 @@ def parse_model(src: YamlSource, elastic_dof_per_chain: int | None = None) -> Mo
     for ci, _ in enumerate(r.sequence(("chains",), min_len=1)):
         chain = _parse_chain(r, ("chains", ci), seen, int(n_flex))
         if chain.name in chain_seen:
-            raise src.error(("chains", ci, "name"), f"chain name {_short(chain.name)} is used twice "
+            raise src.error(("chains", ci, "name"), f"chain name {shortened(chain.name)} is used twice "
                             f"(first at chains[{chain_seen[chain.name]}])")
         chain_seen[chain.name] = ci
         chains.append(chain)
@@ -97,8 +97,8 @@ def parse_model(src: YamlSource, elastic_dof_per_chain: int | None = None) -> Mo
         chains = _lump_end_effector(chains, ee_mass, closure)
 
     joint_names = {j.name for c in chains for j in c.joints}
-    branches = _parse_branches(r, chains, joint_names)
-    initial = _parse_initial(r, chains, joint_names)
+    branches = parse_branches(r, chains, joint_names)
+    initial = parse_initial(r, chains, joint_names)
     model = Model(name=name, chains=tuple(chains), closure=closure, gravity=gravity,
                   end_effector_mass=ee_mass, initial=initial, branches=branches,
                   source=src.file, planar=planar)
@@ -106,7 +106,7 @@ def parse_model(src: YamlSource, elastic_dof_per_chain: int | None = None) -> Mo
     return model
 
 
-def _parse_chain(r: _Reader, path: KeyPath, seen: dict[str, KeyPath], n_flex: int) -> Chain:
+def _parse_chain(r: YamlReader, path: KeyPath, seen: dict[str, KeyPath], n_flex: int) -> Chain:
     r.mapping(path, {"name", "joints", "end", "points"})
     name = r.string(path + ("name",))
     joints: list[Joint] = []
@@ -122,7 +122,7 @@ def _parse_chain(r: _Reader, path: KeyPath, seen: dict[str, KeyPath], n_flex: in
             carry = np.zeros(3)
         for joint in new:
             if joint.name in seen:
-                raise r.src.error(jp, f"joint name {_short(joint.name)} is used twice "
+                raise r.src.error(jp, f"joint name {shortened(joint.name)} is used twice "
                                   f"(first at {format_path(seen[joint.name])})")
             seen[joint.name] = jp
         joints.extend(new)
@@ -142,7 +142,7 @@ def _parse_chain(r: _Reader, path: KeyPath, seen: dict[str, KeyPath], n_flex: in
     return Chain(name=name, joints=tuple(joints), end_xyz=end, points=tuple(points))
 
 
-def _parse_joint(r: _Reader, path: KeyPath) -> Joint:
+def _parse_joint(r: YamlReader, path: KeyPath) -> Joint:
     r.mapping(path, _JOINT_KEYS)
     name = r.string(path + ("name",))
     jtype = r.string(path + ("type",), choices=JOINT_TYPES)
@@ -172,7 +172,7 @@ def _parse_joint(r: _Reader, path: KeyPath) -> Joint:
     )
 
 
-def _expand_flexible_link(r: _Reader, path: KeyPath, joints: list[Joint], carry: np.ndarray,
+def _expand_flexible_link(r: YamlReader, path: KeyPath, joints: list[Joint], carry: np.ndarray,
                           n: int) -> tuple[list[Joint], np.ndarray]:
     """A slender link discretised into n + 1 rigid segments joined by n lumped elastic joints.
 
@@ -226,7 +226,7 @@ def _expand_flexible_link(r: _Reader, path: KeyPath, joints: list[Joint], carry:
     return out, d * seg
 
 
-def _parse_body(r: _Reader, path: KeyPath) -> Body:
+def _parse_body(r: YamlReader, path: KeyPath) -> Body:
     r.mapping(path, {"mass", "com", "inertia"})
     mass = r.number(path + ("mass",), positive=True)
     com = r.vector(path + ("com",), 3, default=[0.0, 0.0, 0.0])
@@ -248,7 +248,7 @@ def _parse_body(r: _Reader, path: KeyPath) -> Body:
     return Body(mass, com, inertia)
 
 
-def _parse_closure(r: _Reader, chains: list[Chain]) -> Closure:
+def _parse_closure(r: YamlReader, chains: list[Chain]) -> Closure:
     """``type: point`` (the ends of ``chains`` coincide) or ``type: platform`` (each leg's
     end coincides with a named point of the platform chain)."""
     path: KeyPath = ("closure",)
@@ -260,14 +260,14 @@ def _parse_closure(r: _Reader, chains: list[Chain]) -> Closure:
     def chain_index(p: KeyPath) -> int:
         name = r.string(p)
         if name not in chain_at:
-            raise r.src.error(p, f"closure names a missing chain {_short(name)} (chains: {_names(chain_names)})")
+            raise r.src.error(p, f"closure names a missing chain {shortened(name)} (chains: {name_list(chain_names)})")
         return chain_at[name]
 
     comps = r.sequence(path + ("components",)) if r.has(path + ("components",)) else list(AXIS_NAMES)
     cidx = []
     for i, c in enumerate(comps):
         if c not in AXIS_NAMES:
-            raise r.src.error(path + ("components", i), f"unknown component {_kind(c)} (x, y or z)")
+            raise r.src.error(path + ("components", i), f"unknown component {kind_of(c)} (x, y or z)")
         cidx.append(AXIS_NAMES.index(c))
     components = tuple(sorted(set(cidx)))
 
@@ -294,15 +294,16 @@ def _parse_closure(r: _Reader, chains: list[Chain]) -> Closure:
     for leg_name in r.mapping(path + ("legs",)):
         lp = path + ("legs", leg_name)
         if leg_name not in chain_at:
-            raise r.src.error(lp, f"closure names a missing chain {_short(leg_name)} (chains: {_names(chain_names)})")
+            raise r.src.error(lp, f"closure names a missing chain {shortened(leg_name)} "
+                              f"(chains: {name_list(chain_names)})")
         leg = chain_at[leg_name]
         if leg == hub:
             raise r.src.error(lp, "the platform cannot be its own leg")
         pname = r.string(lp)
         if (hub, pname) not in point_index:
             names = [n for n, _ in chains[hub].points]
-            raise r.src.error(lp, f"platform {_short(chain_names[hub])} has no point {_short(pname)} "
-                              f"(points: {_names(names)})")
+            raise r.src.error(lp, f"platform {shortened(chain_names[hub])} has no point {shortened(pname)} "
+                              f"(points: {name_list(names)})")
         pairs.append((leg, point_index[(hub, pname)]))
         legs.append(leg)
     if not pairs:
@@ -334,7 +335,7 @@ def _lump_end_effector(chains: list[Chain], mass: float, closure: Closure | None
     return out
 
 
-def _check_counts(r: _Reader, model: Model) -> None:
+def _check_counts(r: YamlReader, model: Model) -> None:
     n_active = len(model.indices(ACTIVE))
     n_passive = len(model.indices(PASSIVE))
     m = model.closure.size if model.closure is not None else 0

@@ -12,7 +12,7 @@ from elastic_pm_dyn.model.description import ACTIVE, ELASTIC, Branch, Chain, Ini
 from elastic_pm_dyn.model.yaml_source import KeyPath, YamlSource
 
 
-class _Reader:
+class YamlReader:
     """Typed access to YAML data that reports errors at the right line."""
 
     def __init__(self, src: YamlSource):
@@ -40,17 +40,17 @@ class _Reader:
     def mapping(self, path: KeyPath, allowed: set[str] | None = None) -> dict:
         value = self.require(path, "mapping")
         if not isinstance(value, dict):
-            raise self.src.error(path, f"expected a mapping, got {_kind(value)}")
+            raise self.src.error(path, f"expected a mapping, got {kind_of(value)}")
         if allowed is not None:
             for key in value:
                 if key not in allowed:
-                    raise self.src.error(path + (key,), f"unknown key (allowed: {_names(sorted(allowed))})")
+                    raise self.src.error(path + (key,), f"unknown key (allowed: {name_list(sorted(allowed))})")
         return value
 
     def sequence(self, path: KeyPath, min_len: int = 0) -> list:
         value = self.require(path, "list")
         if not isinstance(value, list):
-            raise self.src.error(path, f"expected a list, got {_kind(value)}")
+            raise self.src.error(path, f"expected a list, got {kind_of(value)}")
         if len(value) < min_len:
             raise self.src.error(path, f"needs at least {min_len} entries, got {len(value)}")
         return value
@@ -65,7 +65,7 @@ class _Reader:
         # Strictly typed: a quoted "0.6" or a YAML 1.1 spelling such as 1_000 is a string
         # in YAML 1.2, and true is no number.
         if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise self.src.error(path, f"expected a number, got {_kind(value)}")
+            raise self.src.error(path, f"expected a number, got {kind_of(value)}")
         try:
             x = float(value)
         except OverflowError:
@@ -84,7 +84,7 @@ class _Reader:
             return default
         value = self.node(path)
         if isinstance(value, bool) or not isinstance(value, int):
-            raise self.src.error(path, f"expected a whole number from {low} to {high}, got {_kind(value)}")
+            raise self.src.error(path, f"expected a whole number from {low} to {high}, got {kind_of(value)}")
         if not low <= value <= high:
             raise self.src.error(path, f"must be a whole number from {low} to {high}, got {value}")
         return value
@@ -95,7 +95,7 @@ class _Reader:
             return default
         value = self.node(path)
         if not isinstance(value, bool):
-            raise self.src.error(path, f"expected true or false, got {_kind(value)}")
+            raise self.src.error(path, f"expected true or false, got {kind_of(value)}")
         return value
 
     def vector(self, path: KeyPath, n: int, default: list[float] | None = None) -> np.ndarray:
@@ -115,34 +115,34 @@ class _Reader:
             return default
         value = self.node(path)
         if not isinstance(value, str) or not value:
-            raise self.src.error(path, f"expected a non-empty string, got {_kind(value)}")
+            raise self.src.error(path, f"expected a non-empty string, got {kind_of(value)}")
         if choices is not None and value not in choices:
-            raise self.src.error(path, f"unknown value {_short(value)} (expected one of: {', '.join(choices)})")
+            raise self.src.error(path, f"unknown value {shortened(value)} (expected one of: {', '.join(choices)})")
         return value
 
 
-def _kind(value: Any) -> str:
+def kind_of(value: Any) -> str:
     if value is None:
         return "nothing"
     if isinstance(value, str):
-        return f"the string {_short(value)}"
+        return f"the string {shortened(value)}"
     if isinstance(value, int) and not isinstance(value, bool) and abs(value) >= 10**20:
         return f"an integer of {len(str(abs(value)))} digits"
     return {dict: "a mapping", list: "a list"}.get(type(value), repr(value))
 
 
-def _short(text: str, limit: int = 40) -> str:
+def shortened(text: str, limit: int = 40) -> str:
     """``repr`` of a user's string, cut: a message stays one short line."""
     return repr(text if len(text) <= limit else text[:limit] + "...")
 
 
-def _names(names: list[str], limit: int = 12) -> str:
+def name_list(names: list[str], limit: int = 12) -> str:
     """A comma-separated list of names, cut after ``limit``."""
-    shown = ", ".join(_short(n, 30)[1:-1] for n in names[:limit])
+    shown = ", ".join(shortened(n, 30)[1:-1] for n in names[:limit])
     return shown if len(names) <= limit else f"{shown}, ... ({len(names)} in all)"
 
 
-def _parse_branches(r: _Reader, chains: list[Chain], joint_names: set[str]) -> tuple[Branch, ...]:
+def parse_branches(r: YamlReader, chains: list[Chain], joint_names: set[str]) -> tuple[Branch, ...]:
     elastic = [j.name for c in chains for j in c.joints if j.role == ELASTIC]
     if not r.has(("branches",)):
         return tuple(Branch(n, n) for n in elastic)
@@ -154,19 +154,19 @@ def _parse_branches(r: _Reader, chains: list[Chain], joint_names: set[str]) -> t
         r.mapping(p, {"name", "joint"})
         bname = r.string(p + ("name",))
         if bname in first:
-            raise r.src.error(p + ("name",), f"branch name {_short(bname)} is used twice "
+            raise r.src.error(p + ("name",), f"branch name {shortened(bname)} is used twice "
                               f"(first at branches[{first[bname]}])")
         first[bname] = i
         joint = r.string(p + ("joint",))
         if joint not in joint_names:
-            raise r.src.error(p + ("joint",), f"unknown joint {_short(joint)}")
+            raise r.src.error(p + ("joint",), f"unknown joint {shortened(joint)}")
         if joint not in elastic_set:
-            raise r.src.error(p + ("joint",), f"branch joint {_short(joint)} is not elastic")
+            raise r.src.error(p + ("joint",), f"branch joint {shortened(joint)} is not elastic")
         out.append(Branch(bname, joint))
     return tuple(out)
 
 
-def _parse_initial(r: _Reader, chains: list[Chain], joint_names: set[str]) -> InitialState:
+def parse_initial(r: YamlReader, chains: list[Chain], joint_names: set[str]) -> InitialState:
     path: KeyPath = ("initial_state",)
     if not r.has(path):
         return InitialState()
@@ -178,11 +178,11 @@ def _parse_initial(r: _Reader, chains: list[Chain], joint_names: set[str]) -> In
         active = {}
         for key in r.mapping(path + ("active",)):
             if key not in active_set:
-                raise r.src.error(path + ("active", key), f"not an active joint (active: {_names(active_names)})")
+                raise r.src.error(path + ("active", key), f"not an active joint (active: {name_list(active_names)})")
             active[key] = r.number(path + ("active", key))
         missing = [n for n in active_names if n not in active]
         if missing:
-            raise r.src.error(path + ("active",), f"missing active joints: {_names(missing)}")
+            raise r.src.error(path + ("active",), f"missing active joints: {name_list(missing)}")
     ee = None
     if r.has(path + ("end_effector",)):
         n = len(r.sequence(path + ("end_effector",)))
@@ -195,13 +195,13 @@ def _parse_initial(r: _Reader, chains: list[Chain], joint_names: set[str]) -> In
     if r.has(path + ("guess",)):
         for key in r.mapping(path + ("guess",)):
             if key not in joint_names:
-                raise r.src.error(path + ("guess", key), f"unknown joint {_short(key)}")
+                raise r.src.error(path + ("guess", key), f"unknown joint {shortened(key)}")
             guess[key] = r.number(path + ("guess", key))
     signs: dict[str, int] = {}
     if r.has(path + ("assembly_mode",)):
         for key in r.mapping(path + ("assembly_mode",)):
             if key not in joint_names:
-                raise r.src.error(path + ("assembly_mode", key), f"unknown joint {_short(key)}")
+                raise r.src.error(path + ("assembly_mode", key), f"unknown joint {shortened(key)}")
             sign = r.string(path + ("assembly_mode", key), choices=("positive", "negative"))
             signs[key] = 1 if sign == "positive" else -1
     return InitialState(active=active, end_effector=ee, guess=guess, signs=signs)
