@@ -58,12 +58,30 @@ def _options(args: argparse.Namespace):
                              atol=args.atol, stabilization=args.stabilization, sample=args.sample)
 
 
+def _load(args: argparse.Namespace):
+    """The model the command names: a model YAML, a URDF (+ closure sidecar) or an MJCF."""
+    from elastic_pm_dyn.model.loader import load_model
+    return load_model(args.model, getattr(args, "elastic_dof_per_chain", None), getattr(args, "closures", None))
+
+
+def _add_model(p: argparse.ArgumentParser, positional: bool = False, dof: bool = False) -> None:
+    """The model arguments: the file, a URDF's closure sidecar, and (``dof``) the flexible links' discretisation."""
+    what = "model: YAML, URDF (+ closure sidecar) or MJCF"
+    if positional:
+        p.add_argument("model", help=what)
+    else:
+        p.add_argument("--model", required=True, help=what)
+    p.add_argument("--closures", help="closure sidecar of a URDF model (default: robot.yaml next to it)")
+    if dof:
+        p.add_argument("--elastic-dof-per-chain", type=int, default=None,
+                       help="override the model's discretisation of flexible links")
+
+
 def cmd_simulate(args: argparse.Namespace) -> int:
     from elastic_pm_dyn.kinematics.mechanism import Mechanism
-    from elastic_pm_dyn.model.loader import load_model
     from elastic_pm_dyn.sim.simulator import Simulator
     from elastic_pm_dyn.sim.torque import load_torque_csv
-    mech = Mechanism(load_model(args.model))
+    mech = Mechanism(_load(args))
     sim = Simulator(mech, _options(args))
     sim.check_run_size(args.duration, prefix="--")  # before anything is read or allocated
     torque = load_torque_csv(args.torques, mech.active_names, args.hold)
@@ -86,12 +104,11 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
 def cmd_feedforward(args: argparse.Namespace) -> int:
     from elastic_pm_dyn.errors import InputError
-    from elastic_pm_dyn.model.loader import load_model
     from elastic_pm_dyn.motion.feedforward import line_torques
     from elastic_pm_dyn.motion.manoeuvre import REFERENCE_MANOEUVRE as ref
     from elastic_pm_dyn.motion.trajectory import QuinticLine
     from elastic_pm_dyn.sim.torque import write_torque_csv
-    model = load_model(args.model)
+    model = _load(args)
     points = args.line or [*ref.start, *ref.end]
     a, b = np.array(points[:len(points) // 2]), np.array(points[len(points) // 2:])
     rate = ref.control_rate if args.rate is None else args.rate
@@ -111,8 +128,7 @@ def cmd_check(args: argparse.Namespace) -> int:
     from elastic_pm_dyn.dynamics.linear import elastic_modes
     from elastic_pm_dyn.kinematics.assembly import initial_state
     from elastic_pm_dyn.kinematics.mechanism import Mechanism
-    from elastic_pm_dyn.model.loader import load_model
-    model = load_model(args.model, args.elastic_dof_per_chain)
+    model = _load(args)
     mech = Mechanism(model)
     print(f"model {model.name} ({model.source}): {mech.n_chains} chains, {mech.n} tree joints")
     for role, idx in (("active", mech.active), ("elastic", mech.elastic), ("passive", mech.passive)):
@@ -137,6 +153,17 @@ def cmd_check(args: argparse.Namespace) -> int:
         dt_max = 2 * np.sqrt(2) / (2 * np.pi * modes.natural_hz.max())
         print(f"  fixed-step RK4 needs dt < {dt_max:.3g} s for the fastest mode (use about a quarter "
               "of that for accuracy)")
+    return 0
+
+
+def cmd_urdf(args: argparse.Namespace) -> int:
+    from elastic_pm_dyn.model.urdf_writer import model_to_urdf
+    text = model_to_urdf(_load(args))
+    if args.out is None:
+        sys.stdout.write(text if text.endswith("\n") else text + "\n")
+    else:
+        Path(args.out).write_text(text, encoding="utf-8")
+        print(f"URDF -> {args.out}")
     return 0
 
 
@@ -204,7 +231,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("simulate", help="simulate a model under a torque table")
-    p.add_argument("--model", required=True)
+    _add_model(p, dof=True)
     p.add_argument("--torques", required=True, help="CSV with header t,<active joint names>")
     p.add_argument("--duration", type=float, required=True, help="[s]")
     p.add_argument("--out", required=True, help="output CSV")
@@ -213,7 +240,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_simulate)
 
     p = sub.add_parser("feedforward", help="rigid inverse-dynamics torques of a quintic straight line")
-    p.add_argument("--model", required=True)
+    _add_model(p)
     # Unset options take the reference manoeuvre's values (motion.manoeuvre), read when the command runs.
     p.add_argument("--line", type=float, nargs="+", metavar="X",
                    help="start and end point: XA YA XB YB (planar) or six numbers (spatial); "
@@ -225,10 +252,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_feedforward)
 
     p = sub.add_parser("check", help="DOF, start pose, closure residual, natural frequencies")
-    p.add_argument("model")
-    p.add_argument("--elastic-dof-per-chain", type=int, default=None,
-                   help="override the model's discretisation of flexible links")
+    _add_model(p, positional=True, dof=True)
     p.set_defaults(func=cmd_check)
+
+    p = sub.add_parser("urdf", help="the machine as URDF (for robot_state_publisher and RViz); "
+                       "a URDF machine's own file unchanged")
+    _add_model(p, positional=True, dof=True)
+    p.add_argument("--out", help="URDF file to write (default: standard output)")
+    p.set_defaults(func=cmd_urdf)
 
     p = sub.add_parser("demo", help="the reference manoeuvre: feedforward -> SCDD and L-D'A -> CSV + plots")
     p.add_argument("--model", default=str(Path(__file__).resolve().parent.parent / "config" / "five_bar.yaml"))

@@ -71,7 +71,8 @@ def _register_tune(subparsers) -> argparse.ArgumentParser:
 
 def _add_inputs(p: argparse.ArgumentParser, out_help: str, config_help: str) -> None:
     """The model, bag, output, base config, sensor set and topics: what observe and tune read."""
-    p.add_argument("--model", required=True, help="model YAML")
+    p.add_argument("--model", required=True, help="model: YAML, URDF (+ closure sidecar) or MJCF")
+    p.add_argument("--closures", help="closure sidecar of a URDF model (default: robot.yaml next to it)")
     p.add_argument("--bag", required=True, help="input rosbag2 directory (mcap or sqlite3)")
     p.add_argument("--out", required=True, help=out_help)
     p.add_argument("--config", default=None, help=config_help)
@@ -111,7 +112,7 @@ def cmd_observe(args: argparse.Namespace) -> int:
     from elastic_pm_dyn.observer.bag_input import Topics
     from elastic_pm_dyn.observer.offline import observe_bag
     cfg = _config(args)
-    mech = Mechanism(load_model(args.model))
+    mech = Mechanism(load_model(args.model, closures=args.closures))
     res = observe_bag(mech, cfg, args.bag, args.out, Topics.from_config(cfg), args.order, args.storage,
                       not args.no_bag, log=lambda s: print(s, file=sys.stderr), smoother=args.smoother)
     s = res.summary
@@ -152,7 +153,7 @@ def cmd_tune(args: argparse.Namespace) -> int:
     # the sensor noise a user gave (a file of theirs, --set) stays as given
     explicit = tuning.explicit_names(args.config) | {item.partition("=")[0].strip().removeprefix("observer.")
                                                      for item in args.set}
-    mech = Mechanism(load_model(args.model))
+    mech = Mechanism(load_model(args.model, closures=args.closures))
     events, _ = read_events(Path(args.bag), Topics.from_config(cfg), cfg)
     events = tuning.select(events, args.seconds)
     if not events:
