@@ -3,17 +3,17 @@ or raises one one-line BagError; never another exception, never a hang.
 
 Both storages, finished bags and recordings whose writer never closed them; a fixed
 example budget (derandomised) keeps the run short and the same every time;
-BAG_FUZZ_EXAMPLES=5000 (and BAG_FUZZ_RANDOM=1 for new examples each run) for a long one.
+``pytest --fuzz-long`` (or ELASTIC_PM_DYN_FUZZ=long) runs 50x as many new ones.
 """
 
 from __future__ import annotations
 
-import os
 import shutil
 from pathlib import Path
 
 import pytest
-from hypothesis import HealthCheck, given, settings
+from conftest import fuzz_settings
+from hypothesis import given, settings
 from hypothesis import strategies as st
 from test_bag_errors import N, _joint_states, write_states
 
@@ -23,7 +23,6 @@ from elastic_pm_dyn.bags.msgtypes import JOINT_STATE
 from elastic_pm_dyn.bags.reader import open_bag
 from elastic_pm_dyn.bags.writer import BagWriter
 
-EXAMPLES = int(os.environ.get("BAG_FUZZ_EXAMPLES", "100"))
 SOURCES = [(s, finished) for s in ("mcap", "sqlite3") for finished in (True, False)]
 
 
@@ -69,8 +68,7 @@ def check(path: Path) -> None:
         assert text and "\n" not in text and len(text) < 2000, text
 
 
-@settings(max_examples=EXAMPLES, deadline=3000, derandomize=os.environ.get("BAG_FUZZ_RANDOM") != "1", database=None,
-          suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(fuzz_settings(100), deadline=3000)  # a 3 s deadline: a hang fails the example
 @given(source=st.sampled_from(SOURCES), where=st.floats(0.0, 1.0), damage=st.sampled_from(["truncate", "flip"]),
        flips=st.lists(st.tuples(st.floats(0.0, 1.0), st.integers(0, 7)), min_size=1, max_size=4))
 def test_damaged_bags_read_or_fail_in_one_line(sources, tmp_path_factory, source, where, damage, flips):

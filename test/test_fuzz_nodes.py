@@ -13,7 +13,8 @@ from typing import Any
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from conftest import fuzz_settings
+from hypothesis import given
 from hypothesis import strategies as st
 from ros_harness import RosHarness, domain_id
 
@@ -80,8 +81,7 @@ def _apply(node: Any, op: tuple) -> None:
         assert node.plant.gap() < GAP and node.plant.fault is None
 
 
-@settings(max_examples=60, deadline=None, derandomize=True, database=None,
-          suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
+@fuzz_settings(60)
 @given(ops=operations)
 def test_hostile_sequences_never_raise_and_publish_finite_states(plant: Any, ops: list[tuple]) -> None:
     _apply(plant, ("reset",))
