@@ -13,6 +13,7 @@ from pathlib import Path
 from xml.parsers import expat
 
 from elastic_pm_dyn.errors import ModelError
+from elastic_pm_dyn.text_file import TextFileError, read_text
 
 MAX_XML_BYTES = 32 * 2**20  # exporters inline long visual lists; geometry stays in mesh files
 
@@ -44,21 +45,11 @@ class XmlSource:
 
     @classmethod
     def from_file(cls, path: str | Path) -> XmlSource:
-        p = Path(path)
         try:
-            size = p.stat().st_size
-            if size > MAX_XML_BYTES:
-                raise ModelError(str(p), "", f"{size} bytes, more than the {MAX_XML_BYTES // 2**20} MiB "
-                                 "a robot file may have")
-            raw = p.read_bytes()
-        except OSError as exc:
-            raise ModelError(str(p), "", f"cannot read file: {exc.strerror or exc}") from None
-        try:
-            text = raw.decode("utf-8-sig")
-        except UnicodeDecodeError as exc:
-            raise ModelError(str(p), "", f"not UTF-8 text: byte 0x{raw[exc.start]:02x} at byte {exc.start}",
-                             raw.count(b"\n", 0, exc.start) + 1) from None
-        return cls(text, str(p))
+            text = read_text(path, MAX_XML_BYTES, "robot file")
+        except TextFileError as exc:
+            raise ModelError(str(path), "", exc.reason, exc.line) from None
+        return cls(text, str(path))
 
     def line(self, element: ET.Element | None) -> int | None:
         return None if element is None else self.lines.get(element)

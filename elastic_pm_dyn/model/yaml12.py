@@ -24,6 +24,7 @@ from typing import Any, ClassVar
 import yaml
 
 from elastic_pm_dyn.errors import InputError
+from elastic_pm_dyn.text_file import TextFileError, read_text
 
 _FLOAT_TAG = "tag:yaml.org,2002:float"
 
@@ -61,17 +62,9 @@ def load_file(path: str | Path, what: str = "parameter file") -> Any:
     recursive alias (``&a [*a]``), which would make every later walk over the data recurse forever."""
     p = Path(path)
     try:
-        size = p.stat().st_size
-        if size > MAX_PARAMETER_BYTES:
-            raise InputError(f"{p}: {size} bytes, more than the {MAX_PARAMETER_BYTES} bytes a {what} may have")
-        raw = p.read_bytes()
-    except OSError as exc:
-        raise InputError(f"{p}: cannot read {what}: {exc.strerror or exc}") from None
-    try:
-        text = raw.decode("utf-8-sig")
-    except UnicodeDecodeError as exc:
-        line = raw.count(b"\n", 0, exc.start) + 1
-        raise InputError(f"{p}:{line}: not UTF-8 text: byte 0x{raw[exc.start]:02x} at byte {exc.start}") from None
+        text = read_text(p, MAX_PARAMETER_BYTES, what)
+    except TextFileError as exc:
+        raise InputError(f"{p}{'' if exc.line is None else f':{exc.line}'}: {exc.reason}") from None
     try:
         data = load(text)
     except yaml.MarkedYAMLError as exc:

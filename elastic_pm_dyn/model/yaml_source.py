@@ -20,6 +20,7 @@ import yaml
 
 from elastic_pm_dyn.errors import ModelError
 from elastic_pm_dyn.model import yaml12
+from elastic_pm_dyn.text_file import TextFileError, read_text
 
 KeyPath = tuple[str | int, ...]
 
@@ -65,22 +66,11 @@ class YamlSource:
 
     @classmethod
     def from_file(cls, path: str | Path) -> YamlSource:
-        p = Path(path)
         try:
-            size = p.stat().st_size
-            if size > MAX_MODEL_BYTES:  # before reading: a huge file is refused at once
-                raise ModelError(str(p), "", f"{_size(size)} ({size} bytes), more than the "
-                                 f"{_size(MAX_MODEL_BYTES)} a model file may have")
-            raw = p.read_bytes()
-        except OSError as exc:
-            raise ModelError(str(p), "", f"cannot read file: {exc.strerror or exc}") from None
-        try:
-            text = raw.decode("utf-8-sig")
-        except UnicodeDecodeError as exc:
-            line = raw.count(b"\n", 0, exc.start) + 1
-            raise ModelError(str(p), "", f"not UTF-8 text: byte 0x{raw[exc.start]:02x} at byte {exc.start}", line) \
-                from None
-        return cls(text, str(p))
+            text = read_text(path, MAX_MODEL_BYTES, "model file")
+        except TextFileError as exc:
+            raise ModelError(str(path), "", exc.reason, exc.line) from None
+        return cls(text, str(path))
 
     def line(self, path: KeyPath) -> int | None:
         """Line of ``path``, or of its nearest ancestor that exists."""

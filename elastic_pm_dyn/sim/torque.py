@@ -15,6 +15,9 @@ from pathlib import Path
 import numpy as np
 
 from elastic_pm_dyn.errors import InputError
+from elastic_pm_dyn.text_file import TextFileError, read_text
+
+MAX_TORQUE_FILE_BYTES = 2**30  # 1 GiB: ~2.5e7 rows of two motors; refused before reading
 
 HOLDS = ("zoh", "linear")
 
@@ -115,16 +118,11 @@ def load_torque_csv(path: str | Path, active_names: list[str], hold: str = "zoh"
     """
     p = Path(path)
     try:
-        raw = p.read_bytes()
-    except OSError as exc:
-        raise InputError(f"{p}: cannot read torque file: {exc.strerror or exc}") from None
-    try:
-        text = raw.decode("utf-8-sig")
-    except UnicodeDecodeError as exc:
-        line = raw.count(b"\n", 0, exc.start) + 1
-        raise InputError(f"{p}: line {line}: not UTF-8 text (byte 0x{raw[exc.start]:02x}); "
-                         "a torque file is a CSV table") from None
-    del raw
+        text = read_text(p, MAX_TORQUE_FILE_BYTES, "torque file")
+    except TextFileError as exc:
+        where = "" if exc.line is None else f" line {exc.line}:"
+        hint = "; a torque file is a CSV table" if exc.line is not None else ""
+        raise InputError(f"{p}:{where} {exc.reason}{hint}") from None
     return _read_table(p, csv.reader(io.StringIO(text, newline="")), active_names, hold)
 
 
