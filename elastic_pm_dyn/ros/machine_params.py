@@ -40,6 +40,12 @@ MACHINE_PARAMS = [
     Param("marker_rate", 30.0, "[Hz] wall-clock rate of the RViz markers", positive=True),
     Param("diagnostics_rate", 1.0, "[Hz] wall-clock rate of /diagnostics", positive=True),
 ]
+# The machine as URDF for robot_state_publisher and RViz (:mod:`~elastic_pm_dyn.ros.robot_description`).
+DESCRIPTION_PARAMS = [
+    Param("publish_robot_description", True, "publish the machine's URDF once at start-up (std_msgs/String, "
+          "transient local) for robot_state_publisher and RViz"),
+    Param("topics.robot_description", "robot_description", "std_msgs/String: the machine as URDF"),
+]
 # What only an estimate has.
 ESTIMATE_PARAMS = [
     Param("topics.joint_states_stddev", "~/joint_states_stddev", "observer: JointState of the standard "

@@ -49,12 +49,13 @@ from elastic_pm_dyn.bags.msgtypes import NS
 from elastic_pm_dyn.dynamics.direct import FORMULATIONS
 from elastic_pm_dyn.errors import InputError, SingularConfigurationError
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
-from elastic_pm_dyn.ros.machine_params import ESTIMATE_PARAMS, MACHINE_PARAMS, load_machine
+from elastic_pm_dyn.ros.machine_params import DESCRIPTION_PARAMS, ESTIMATE_PARAMS, MACHINE_PARAMS, load_machine
 from elastic_pm_dyn.ros.markers import MechanismMarkers
 from elastic_pm_dyn.ros.messages import PlantMessages, stamp
 from elastic_pm_dyn.ros.node_main import ManagedNode, run_node
 from elastic_pm_dyn.ros.params import COMMAND_JOINTS, Param, read_parameters, reject_unknown
 from elastic_pm_dyn.ros.qos import CLOCK_QOS, COMMAND_QOS, DIAGNOSTICS_QOS, STATE_QOS, VIEWER_QOS
+from elastic_pm_dyn.ros.robot_description import publish_robot_description
 from elastic_pm_dyn.ros.throttle import KindThrottle
 from elastic_pm_dyn.sim.plant import Plant
 from elastic_pm_dyn.sim.simulator import INTEGRATORS, STABILIZATIONS, SimulationOptions
@@ -79,6 +80,7 @@ PARAMS = [
           "simulated time in fast; unused in lockstep)", positive=True),
     Param("topics.command", "torque_command", "torque command topic"),
     *MACHINE_PARAMS,
+    *DESCRIPTION_PARAMS,
     *ESTIMATE_PARAMS,
 ]
 # Parameters that only one mode uses (a warning lists the ones given to the other mode); and observer.*
@@ -103,6 +105,7 @@ class PlantNode(ManagedNode):
         self.mode: str = p["mode"]
         mech, self.decoder = load_machine(self, p)
         self._warn_unused()
+        self.pub_robot_description = publish_robot_description(self, mech, p)  # both modes: the same machine
         if self.mode == "observer":
             from elastic_pm_dyn.ros.observer_mode import ObserverMode
             self.observer = ObserverMode(self, mech, p)
