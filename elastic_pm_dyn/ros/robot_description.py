@@ -50,6 +50,14 @@ def urdf_joint_names(text: str) -> list[str]:
     return [j.get("name", "") for j in ET.fromstring(text).iter("joint")]
 
 
+def urdf_root_link(text: str) -> str:
+    """The link of a URDF that no joint has as child: the frame the machine stands in (RViz's fixed frame)."""
+    root = ET.fromstring(text)
+    children = {c.get("link") for j in root.iter("joint") for c in j.iter("child")}
+    roots = [link.get("name", "") for link in root.iter("link") if link.get("name") not in children]
+    return roots[0] if roots else ""
+
+
 def missing_joints(text: str, joint_names: Sequence[str]) -> list[str]:
     """The names in ``joint_names`` that are not joints of the URDF ``text`` (robot_state_publisher ignores them)."""
     known = set(urdf_joint_names(text))
