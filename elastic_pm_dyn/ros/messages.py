@@ -3,11 +3,16 @@
 Time stamps travel as integer nanoseconds so that simulated times k * period arrive
 exactly (a float round trip could shift them by an ulp). Outgoing messages are built
 once and refilled: numeric fields are set from ``array.array('d')``, which the generated
-setters take without their per-element checks (this matters at 1-10 kHz).
+setters take without their per-element checks (this matters at 1-10 kHz). The plant's
+four 1 kHz topics go further (:class:`PlantMessages`): each message is serialized once
+and its stamp and numbers are then written into the bytes in place, which rclpy publishes
+as they are (``Publisher.publish(bytes)``: no conversion of a Python message, no CDR
+serialization in the middleware; bench/README_plant.md has the times).
 """
 
 from __future__ import annotations
 
+import struct
 from array import array
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
@@ -16,11 +21,14 @@ import numpy as np
 from builtin_interfaces.msg import Time
 from elastic_pm_dyn_msgs.msg import BranchForces
 from geometry_msgs.msg import PoseStamped
+from rclpy.serialization import deserialize_message
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
+from elastic_pm_dyn.bags import cdr
 from elastic_pm_dyn.bags.msgtypes import NS
+from elastic_pm_dyn.kinematics.kernels import chain_points
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.sim.plant import Plant
 
@@ -73,21 +81,134 @@ class StateMessages:
         pos.x, pos.y, pos.z = xyz
 
 
-class PlantMessages(StateMessages):
-    """The plant's state messages (and /clock), refilled from a :class:`Plant` for each publication."""
+_STAMP = struct.Struct("<iI")  # builtin_interfaces/Time right after the 4-byte CDR encapsulation
+_CLOCK_SIZE = 12  # encapsulation + rosgraph_msgs/Clock (one Time)
+
+
+class SerializedMessage:
+    """One message kept as its CDR bytes: a template serialized once by :mod:`elastic_pm_dyn.bags.cdr`,
+    whose header stamp and float64 arrays are then overwritten in place (``arrays[k]`` is a
+    writable float64 view of the k-th array's bytes). Lengths and names never change after
+    construction, so neither does anything but the numbers."""
+
+    def __init__(self, encode, lengths: Sequence[int]):
+        # Distinct sentinels locate each array in the template: the layout is the CDR writer's.
+        sentinels = [np.full(n, -(k + 1.5) * 2.0**-40) for k, n in enumerate(lengths)]
+        template = bytes(encode(sentinels))
+        self.buffer = bytearray(template)
+        self.arrays: list[np.ndarray] = []
+        for values in sentinels:
+            if not len(values):
+                self.arrays.append(np.zeros(0))
+                continue
+            offset = template.find(values.tobytes())
+            if offset < 0 or template.find(values.tobytes(), offset + 1) >= 0:
+                raise ValueError("float64 array not found exactly once in its serialized template")
+            view = np.frombuffer(self.buffer, dtype="<f8", count=len(values), offset=offset)
+            view[:] = 0.0
+            self.arrays.append(view)
+
+    def set_stamp(self, sec: int, nanosec: int) -> None:
+        _STAMP.pack_into(self.buffer, 4, sec, nanosec)
+
+    def raw(self) -> bytes:
+        """What :meth:`rclpy.publisher.Publisher.publish` takes (it wants ``bytes``, not a bytearray)."""
+        return bytes(self.buffer)
+
+
+class PlantMessages:
+    """The plant's ``joint_states``, ``branch_forces``, ``ee_pose`` and ``/clock``, serialized once and
+    refilled from a :class:`Plant` in place for each publication (:meth:`fill`, then the ``*_raw``
+    bytes to publish). Field by field they are what :class:`StateMessages` would build from the
+    same state: every number comes from the same arithmetic as :meth:`Plant.efforts`,
+    :meth:`Plant.branches` and :meth:`Plant.end_effector`, into arrays allocated once."""
 
     def __init__(self, plant: Plant, base_frame: str):
-        super().__init__(plant.mech, base_frame)
         self.plant = plant
-        self.clock = Clock()
+        mech = plant.mech
+        n, names = mech.n, list(mech.joint_names)
+        branches = [b.name for b in mech.model.branches]
+        nb = len(branches)
+        self._js = SerializedMessage(lambda a: cdr.encode_joint_state(0, names, *a), (n, n, n))
+        self._bf = SerializedMessage(lambda a: cdr.encode_branch_forces(0, branches, *a, np.zeros(0)),
+                                     (nb, nb, nb))
+        # PoseStamped: position xyz, then the orientation (0, 0, 0, 1): a point end effector has none.
+        self._pose = SerializedMessage(lambda a: cdr.encode_pose_stamped_batch([0], a[0][:3], base_frame)[0],
+                                       (3,))
+        self._clock = bytearray(cdr.ENCAPSULATION + bytes(_CLOCK_SIZE - len(cdr.ENCAPSULATION)))
+        self.position, self.velocity, self.effort = self._js.arrays
+        self.force, self.deflection, self.rate = self._bf.arrays
+        self.ee_xyz = self._pose.arrays[0]
+        # Work arrays of the per-period arithmetic (the same operations as Plant.efforts/branches).
+        self._spring = np.empty(n)
+        self._damper = np.empty(n)
+        self._origins, self._coms = np.empty((n, 3)), np.empty((n, 3))
+        self._tips = np.empty((mech.n_points, 3))
+        self._ee_chain = mech.model.end_effector_chain
+        self._ee_components = np.asarray(mech.ee_components, dtype=np.int64)
+        self.stamp_ns = 0
 
     def fill(self, ns: int) -> None:
-        p = self.plant
-        effort = p.efforts()
-        b = p.branches(effort)
-        self._set(ns, p.q, p.qd, effort, b.force, b.deflection, b.rate, p.end_effector())
+        p, mech = self.plant, self.plant.mech
+        self.stamp_ns = ns
         sec, nanosec = divmod(ns, NS)
-        self.clock.clock.sec, self.clock.clock.nanosec = sec, nanosec
+        for m in (self._js, self._bf, self._pose):
+            m.set_stamp(sec, nanosec)
+        _STAMP.pack_into(self._clock, 4, sec, nanosec)
+        q, qd = p.q, p.qd
+        self.position[:] = q
+        self.velocity[:] = qd
+        # efforts: motor torque (active), c (q - rest) + d qd (elastic), 0 (passive), as Plant.efforts
+        np.subtract(q, mech.rest, out=self._spring)
+        np.multiply(mech.stiffness, self._spring, out=self._spring)
+        np.multiply(mech.damping, qd, out=self._damper)
+        np.add(self._spring, self._damper, out=self._spring)
+        effort = self.effort
+        effort[:] = 0.0
+        effort[mech.active] = p.tau
+        effort[mech.elastic] = self._spring[mech.elastic]
+        j = mech.branch_joints
+        self.force[:] = effort[j]
+        np.subtract(q[j], mech.rest[j], out=self.deflection)
+        self.rate[:] = qd[j]
+        ma = mech.arrays
+        chain_points(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_chain, q, self._origins, self._coms,
+                     self._tips)
+        self.ee_xyz[self._ee_components] = self._tips[self._ee_chain, self._ee_components]
+
+    # What to publish: the bytes of each message as last filled.
+    @property
+    def joint_state_raw(self) -> bytes:
+        return self._js.raw()
+
+    @property
+    def branch_forces_raw(self) -> bytes:
+        return self._bf.raw()
+
+    @property
+    def ee_pose_raw(self) -> bytes:
+        return self._pose.raw()
+
+    @property
+    def clock_raw(self) -> bytes:
+        return bytes(self._clock)
+
+    # The same as rclpy messages (decoded from the bytes: for inspection, not for the 1 kHz path).
+    @property
+    def joint_state(self) -> JointState:
+        return deserialize_message(self.joint_state_raw, JointState)
+
+    @property
+    def branch_forces(self) -> BranchForces:
+        return deserialize_message(self.branch_forces_raw, BranchForces)
+
+    @property
+    def ee_pose(self) -> PoseStamped:
+        return deserialize_message(self.ee_pose_raw, PoseStamped)
+
+    @property
+    def clock(self) -> Clock:
+        return deserialize_message(self.clock_raw, Clock)
 
 
 class EstimateMessages(StateMessages):

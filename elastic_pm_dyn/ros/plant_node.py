@@ -318,11 +318,12 @@ class PlantNode(ManagedNode):
     def _publish_state(self) -> None:
         m = self.messages
         m.fill(self._stamp_ns())
-        self.pub_joint_states.publish(m.joint_state)
-        self.pub_branch_forces.publish(m.branch_forces)
-        self.pub_ee_pose.publish(m.ee_pose)
+        # Serialized once, refilled in place: rclpy hands the bytes to the middleware as they are.
+        self.pub_joint_states.publish(m.joint_state_raw)
+        self.pub_branch_forces.publish(m.branch_forces_raw)
+        self.pub_ee_pose.publish(m.ee_pose_raw)
         if self.pub_clock is not None:
-            self.pub_clock.publish(m.clock)
+            self.pub_clock.publish(m.clock_raw)
 
     def _publish_markers(self) -> None:
         if self.pub_markers.get_subscription_count():
