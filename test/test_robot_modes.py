@@ -8,6 +8,7 @@ All at the static pose with the motors clamped (gravity balanced by the springs:
 
 from __future__ import annotations
 
+import re
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -168,3 +169,53 @@ def test_four_bar_spring_mode_by_hand():
           f"{f_hand:.4f} Hz; elastic_modes {f_ours[0]:.4f} Hz, rel. difference {abs(f_ours[0] / f_hand - 1):.1e}")
     assert q[mech.joint_names.index("coupler_spring")] == pytest.approx(u, rel=1e-6)
     assert len(f_ours) == 1 and f_ours[0] == pytest.approx(f_hand, rel=1e-6)
+
+
+# ------------------------------------------------------------- check on each model
+CHECKED = {  # file: (active, elastic, passive, closure equations, chains)
+    "delta_urdf/robot.urdf": (3, 3, 6, 6, 3),
+    "hexa_generated/robot.urdf": (6, 6, 18, 18, 7),
+    "hexa_exported/robot.urdf": (6, 6, 15, 15, 6),
+    "four_bar_spring.xml": (1, 1, 2, 2, 2),
+}
+
+
+@pytest.mark.parametrize("name", list(CHECKED))
+def test_check_reports_each_robot(name, capsys):
+    """``check`` on each file: DOF by role, closure equations, the assembly mode it found, modes."""
+    if name.endswith(".xml"):
+        pytest.importorskip("mujoco")
+    from elastic_pm_dyn.cli import main
+    assert main(["check", str(ROBOTS / name)]) == 0
+    out = capsys.readouterr().out
+    active, elastic, passive, m, chains = CHECKED[name]
+    assert f"{chains} chains" in out
+    for role, n in (("active", active), ("elastic", elastic), ("passive", passive)):
+        assert re.search(rf"^\s+{role}\s+{n}:", out, re.M), f"{role} {n}"
+    assert f"closure equations {m};" in out and "assembly mode:" in out
+    assert out.count(" Hz undamped") == elastic
+
+
+def test_exported_hexapod_is_the_generated_machine():
+    """The same 6-RUS machine three ways (model YAML; model_to_urdf + closure_sidecar; an exporter's
+    file with turned joint frames, principal-axis inertials, the platform on leg 1's ball):
+    the same elastic modes at the home pose, so the same masses, geometry and springs."""
+    ref = None
+    for f in (ROBOTS.parent.parent / "config" / "hexa.yaml", ROBOTS / "hexa_generated" / "robot.urdf",
+              ROBOTS / "hexa_exported" / "robot.urdf"):
+        mech = Mechanism(load_model(f))
+        hz = elastic_modes(mech, initial_state(mech)).natural_hz
+        ref = hz if ref is None else ref
+        print(f"{f.name}: {np.round(hz, 3)} Hz")
+        np.testing.assert_allclose(hz, ref, rtol=1e-6)
+
+
+def test_parallelogram_delta_is_not_supported_yet():
+    """Parallelogram forearms are a branch inside each leg: one line, exit 2."""
+    from elastic_pm_dyn.cli import main
+    from elastic_pm_dyn.errors import ModelError
+    urdf = ROBOTS / "delta_parallelogram" / "robot.urdf"
+    with pytest.raises(ModelError, match="not supported yet: a branch inside a leg") as err:
+        load_model(urdf)
+    assert "\n" not in str(err.value)
+    assert main(["check", str(urdf)]) == 2
