@@ -105,12 +105,13 @@ class PlantNode(ManagedNode):
         self.mode: str = p["mode"]
         mech, self.decoder = load_machine(self, p)
         self._warn_unused()
-        self.pub_robot_description = publish_robot_description(self, mech, p)  # both modes: the same machine
         if self.mode == "observer":
             from elastic_pm_dyn.ros.observer_mode import ObserverMode
             self.observer = ObserverMode(self, mech, p)
         else:
             self._start_plant(mech, p)
+        # Both modes show the same machine; only once started, so a node that refuses to start says one line.
+        self.pub_robot_description = publish_robot_description(self, mech, p)
 
     def _warn_unused(self) -> None:
         other = "observer" if self.mode == "plant" else "plant"
