@@ -142,6 +142,9 @@ def test_the_check_names_what_robot_state_publisher_would_ignore() -> None:
     assert missing_joints(text, [*names, "wrist_x", "wrist_y"]) == ["wrist_x", "wrist_y"]  # a ball the sidecar made
     assert loop_closures(machine) == ["left_upper_arm.end = right_upper_arm.end"]
     assert urdf_root_link(text) == "base_link" and urdf_root_link(model_to_urdf(load_model(FIVE_BAR))) == "world"
+    # An exporter's ball joint, re-typed SPHERICAL in robot.yaml: its three revolutes are not in the file.
+    hexa = load_model(REPO / "test" / "robots" / "hexa_exported" / "robot.urdf")
+    assert missing_joints(model_to_urdf(hexa), hexa.joint_names) == ["leg1_ball_x", "leg1_ball_y", "leg1_ball_z"]
 
 
 # ------------------------------------------------------------------ the launch file
