@@ -219,3 +219,14 @@ def test_launch_file_gives_its_nodes_the_plants_urdf_and_frame(monkeypatch: pyte
     assert plant["frames.base"] == root and nodes["rviz2"]["arguments"][-2:] == ["-f", root]
     assert Path(nodes["rviz2"]["arguments"][1]).name == "five_bar.rviz"
     assert nodes["robot_state_publisher"]["parameters"][0]["use_sim_time"] is False
+
+
+def test_the_observer_node_publishes_the_written_urdf(ros: RosHarness) -> None:
+    """The observer's own executable publishes the description as the plant does."""
+    from elastic_pm_dyn.ros.observer_node import ObserverNode
+    ros.add(ObserverNode(context=ros.context))
+    ros.spin_for(0.1)
+    viewer = _Listener(ros)
+    ros.wait_until(lambda: viewer.descriptions, 10.0, "robot_description")
+    machine = load_model(FIVE_BAR)
+    assert viewer.descriptions == [model_to_urdf(machine)]

@@ -18,12 +18,13 @@ from __future__ import annotations
 import sys
 from typing import Any
 
-from elastic_pm_dyn.ros.machine_params import ESTIMATE_PARAMS, MACHINE_PARAMS, load_machine
+from elastic_pm_dyn.ros.machine_params import DESCRIPTION_PARAMS, ESTIMATE_PARAMS, MACHINE_PARAMS, load_machine
 from elastic_pm_dyn.ros.node_main import ManagedNode, run_node
 from elastic_pm_dyn.ros.observer_mode import OBSERVER_PARAMS, ObserverMode
 from elastic_pm_dyn.ros.params import COMMAND_JOINTS, read_parameters, reject_unknown
+from elastic_pm_dyn.ros.robot_description import publish_robot_description
 
-PARAMS = [*MACHINE_PARAMS, *ESTIMATE_PARAMS]
+PARAMS = [*MACHINE_PARAMS, *ESTIMATE_PARAMS, *DESCRIPTION_PARAMS]
 
 
 class ObserverNode(ManagedNode):
@@ -35,6 +36,8 @@ class ObserverNode(ManagedNode):
         p = read_parameters(self, PARAMS)
         mech, _ = load_machine(self, p)  # the decoder checks command_joints
         self.observer = ObserverMode(self, mech, p)
+        # after the mode has started: a node that refuses to start says only why
+        self.pub_robot_description = publish_robot_description(self, mech, p)
 
 
 def main(args: list[str] | None = None) -> int:
