@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import yaml
+from pinocchio_urdf import PinocchioMachine
 
 from elastic_pm_dyn.dynamics.evaluate import FORMULATION_CODES, accelerations
 from elastic_pm_dyn.kinematics.assembly import initial_state, solve_pose
@@ -125,91 +125,12 @@ def test_four_bar_starts_from_the_files_zero_configuration():
 
 
 # -------------------------------------------------------------------- (b) Pinocchio
-class _PinURDF:
-    """Pinocchio's own URDF parser + Gepetto-style 3D contacts from the sidecar; springs,
-    dampers and the end-effector point mass added from the sidecar's numbers."""
-
-    def __init__(self, urdf: Path, model):
-        import pinocchio as pin
-        self.pin = pin
-        side = yaml.safe_load((urdf.parent / "robot.yaml").read_text())
-        pm = pin.buildModelFromUrdf(str(urdf))
-        pm.gravity.linear = np.asarray(side.get("gravity", [0, 0, -9.81]), dtype=float)
-        names = list(pm.names)
-        self.ids = [names.index(n) for n in model.joint_names]
-        self.nq2 = [pm.joints[i].nq == 2 for i in self.ids]  # continuous: (cos, sin)
-        iv = [pm.joints[i].idx_v for i in self.ids]
-        self.iv = np.array(iv)
-        elastic = side.get("elastic", {})
-        self.k = np.zeros(pm.nv)
-        self.rest = np.zeros(pm.nv)
-        self.d = np.array(pm.damping, dtype=float)  # the URDF's <dynamics damping>
-        for name, spec in elastic.items():
-            v = iv[model.joint_names.index(name)]
-            self.k[v] = spec["stiffness"]
-            self.rest[v] = spec.get("rest", 0.0)
-            self.d[v] = spec.get("damping", self.d[v])
-        for name, value in side.get("rotor_inertia", {}).items():
-            pm.armature[iv[model.joint_names.index(name)]] = value
-        frames = []
-        for a, b in side["closed_loop"]:
-            frames.append([pm.frames[pm.getFrameId(a)], pm.frames[pm.getFrameId(b)]])
-        ee = side.get("end_effector", {}).get("mass", 0.0)
-        if ee:
-            for f in frames[0]:
-                pm.appendBodyToJoint(f.parentJoint, pin.Inertia(ee / 2, f.placement.translation, np.zeros((3, 3))),
-                                     pin.SE3.Identity())
-        self.contacts = pin.StdVec_RigidConstraintModel()
-        for fa, fb in frames:
-            self.contacts.append(pin.RigidConstraintModel(pin.ContactType.CONTACT_3D, pm, fa.parentJoint,
-                                                          fa.placement, fb.parentJoint, fb.placement,
-                                                          pin.ReferenceFrame.LOCAL))
-        self.frames = frames
-        self.pm, self.data = pm, pm.createData()
-        self.datas = pin.StdVec_RigidConstraintData()
-        for c in self.contacts:
-            self.datas.append(c.createData())
-        self.prox = pin.ProximalSettings(1e-12, 1e-9, 50)
-        pin.initConstraintDynamics(pm, self.data, self.contacts, self.datas)
-
-    def q(self, q: np.ndarray) -> np.ndarray:
-        out = np.zeros(self.pm.nq)
-        for k, i in enumerate(self.ids):
-            j = self.pm.joints[i].idx_q
-            if self.nq2[k]:
-                out[j:j + 2] = np.cos(q[k]), np.sin(q[k])
-            else:
-                out[j] = q[k]
-        return out
-
-    def accelerations(self, q, qd, tau):
-        v = np.zeros(self.pm.nv)
-        v[self.iv] = qd
-        t = np.zeros(self.pm.nv)
-        t[self.iv] = tau
-        qv = np.zeros(self.pm.nv)
-        qv[self.iv] = q
-        t -= self.k * (qv - self.rest) + self.d * v
-        # No convergence assertion: in a planar machine the contact's z row is all zero, and
-        # with a flipped joint frame (the four-bar's rocker) the unobservable z force keeps
-        # moving by ~1/mu per proximal iteration, so the solver never reports convergence
-        # although the accelerations have converged to round-off (compared below).
-        a = self.pin.constraintDynamics(self.pm, self.data, self.q(q), v, t, self.contacts, self.datas, self.prox)
-        return a[self.iv]
-
-    def cut_force_world(self) -> np.ndarray:
-        """The first contact's force on frame A, world frame (Pinocchio: A's joint frame, LOCAL)."""
-        fa = self.frames[0][0]
-        R = self.data.oMi[fa.parentJoint].rotation @ fa.placement.rotation
-        return R @ np.array(self.datas[0].contact_force.linear)
-
-
 @pytest.mark.parametrize("urdf", [FIVE_BAR_URDF, FOUR_BAR_URDF], ids=["five_bar", "four_bar_onshape"])
 def test_urdf_matches_pinocchio_constraint_dynamics(urdf):
     pytest.importorskip("pinocchio")
     model = load_model(urdf)
     mech = Mechanism(model)
-    peer = _PinURDF(urdf, model)
+    peer = PinocchioMachine(urdf, model)
     worst_qdd = worst_lam = 0.0
     for q, qd, tau in _states(mech, np.random.default_rng(7)):
         for method in ("scdd", "lda", "multipliers"):

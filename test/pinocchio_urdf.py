@@ -1,0 +1,99 @@
+"""Pinocchio on a URDF + closure sidecar, as Gepetto's example-parallel-robots loader builds it:
+the peer of the own-robot tests (test_robot_files, test_robot_dynamics)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+
+class PinocchioMachine:
+    """Pinocchio's URDF parser + Gepetto-style 3D contacts from the sidecar; springs and
+    dampers as joint torques, rotor inertia as armature, the end-effector point mass split
+    over the frames that meet at the first closure's first frame (exact for a point mass)."""
+
+    def __init__(self, urdf: Path, model, baumgarte: tuple[float, float] = (0.0, 0.0)):
+        import pinocchio as pin
+        self.pin = pin
+        side = yaml.safe_load((urdf.parent / "robot.yaml").read_text())
+        pm = pin.buildModelFromUrdf(str(urdf))
+        pm.gravity.linear = np.asarray(side.get("gravity", [0, 0, -9.81]), dtype=float)
+        names = list(pm.names)
+        ids = [names.index(n) for n in model.joint_names]
+        self.continuous = [pm.joints[i].nq == 2 for i in ids]  # continuous joints: (cos, sin)
+        self.iq = [pm.joints[i].idx_q for i in ids]
+        self.iv = np.array([pm.joints[i].idx_v for i in ids])
+        assert pm.nv == len(ids)
+        self.k, self.rest = np.zeros(pm.nv), np.zeros(pm.nv)
+        self.d = np.array(pm.damping, dtype=float)  # the URDF's <dynamics damping>
+        for name, spec in side.get("elastic", {}).items():
+            v = self.iv[model.joint_names.index(name)]
+            self.k[v], self.rest[v] = spec["stiffness"], spec.get("rest", 0.0)
+            self.d[v] = spec.get("damping", self.d[v])
+        for name, value in side.get("rotor_inertia", {}).items():
+            pm.armature[self.iv[model.joint_names.index(name)]] = value
+        loops = side["closed_loop"]
+        ee = side.get("end_effector", {}).get("mass", 0.0)
+        if ee:
+            first = loops[0][0]
+            meet = [first] + [b if a == first else a for a, b in loops if first in (a, b)]
+            for name in meet:
+                f = pm.frames[pm.getFrameId(name)]
+                pm.appendBodyToJoint(f.parentJoint, pin.Inertia(ee / len(meet), f.placement.translation,
+                                                                np.zeros((3, 3))), pin.SE3.Identity())
+        self.first_frame = pm.frames[pm.getFrameId(loops[0][0])]
+        self.contacts = pin.StdVec_RigidConstraintModel()
+        for a, b in loops:
+            fa, fb = pm.frames[pm.getFrameId(a)], pm.frames[pm.getFrameId(b)]
+            c = pin.RigidConstraintModel(pin.ContactType.CONTACT_3D, pm, fa.parentJoint, fa.placement,
+                                         fb.parentJoint, fb.placement, pin.ReferenceFrame.LOCAL)
+            c.m_baumgarte_parameters.Kp, c.m_baumgarte_parameters.Kd = baumgarte
+            self.contacts.append(c)
+        self.pm, self.data = pm, pm.createData()
+        self.datas = pin.StdVec_RigidConstraintData()
+        for c in self.contacts:
+            self.datas.append(c.createData())
+        # mu ~ 1e-9: a planar machine's 3D contacts have all-zero z rows (docs/peers.md)
+        self.prox = pin.ProximalSettings(1e-12, 1e-9, 50)
+        pin.initConstraintDynamics(pm, self.data, self.contacts, self.datas)
+
+    def config(self, q: np.ndarray) -> np.ndarray:
+        out = np.zeros(self.pm.nq)
+        for k, j in enumerate(self.iq):
+            if self.continuous[k]:
+                out[j:j + 2] = np.cos(q[k]), np.sin(q[k])
+            else:
+                out[j] = q[k]
+        return out
+
+    def accelerations(self, q: np.ndarray, qd: np.ndarray, tau: np.ndarray) -> np.ndarray:
+        v, t, qv = np.zeros(self.pm.nv), np.zeros(self.pm.nv), np.zeros(self.pm.nv)
+        v[self.iv], t[self.iv], qv[self.iv] = qd, tau, q
+        t -= self.k * (qv - self.rest) + self.d * v
+        # No convergence assertion: in a planar machine the contact's z row is all zero, and
+        # with a flipped joint frame (the four-bar's rocker) the unobservable z force keeps
+        # moving by ~1/mu per proximal iteration, so the solver never reports convergence
+        # although the accelerations have converged to round-off.
+        a = self.pin.constraintDynamics(self.pm, self.data, self.config(q), v, t, self.contacts, self.datas,
+                                        self.prox)
+        return np.asarray(a)[self.iv]
+
+    def gap(self, q: np.ndarray) -> float:
+        """Largest closure residual [m] (frame A minus frame B, world)."""
+        pin = self.pin
+        pin.forwardKinematics(self.pm, self.data, self.config(q))
+        worst = 0.0
+        for c in self.contacts:
+            pa = self.data.oMi[c.joint1_id].act(c.joint1_placement).translation
+            pb = self.data.oMi[c.joint2_id].act(c.joint2_placement).translation
+            worst = max(worst, float(np.abs(pa - pb).max()))
+        return worst
+
+    def cut_force_world(self) -> np.ndarray:
+        """The first contact's force on its frame A after :meth:`accelerations`, world frame
+        (Pinocchio gives it in A's joint frame, LOCAL)."""
+        fa = self.first_frame
+        R = self.data.oMi[fa.parentJoint].rotation @ fa.placement.rotation
+        return R @ np.array(self.datas[0].contact_force.linear)
