@@ -722,6 +722,27 @@ def encoder_correct(ma, state, enc, meas, gate):
 
 
 @njit(cache=True)
+def disturbance_torques(Lz, z):
+    """d = Lz z: the unknown torques on the disturbance joints from the disturbance states."""
+    nd = Lz.shape[0]
+    d = np.zeros(nd)
+    for k in range(nd):
+        for m in range(z.shape[0]):
+            d[k] += Lz[k, m] * z[m]
+    return d
+
+
+@njit(cache=True)
+def imu_residual(S, g, meas, a, r):
+    """r = meas - S (a - g): the accelerometer's innovation for point acceleration ``a``."""
+    for i in range(S.shape[0]):
+        h = 0.0
+        for c in range(3):
+            h += S[i, c] * (a[c] - g[c])
+        r[i] = meas[i] - h
+
+
+@njit(cache=True)
 def imu_correct(ma, fixed, proc, state, imu, tau, meas, gate):
     """Accelerometer correction (``imu``: :class:`ImuModel`): y = S (J qdd + Jdot qd - g) at the
     state under tau + Lz z; H = S Hpt. Returns (NIS, status, log det S) as :func:`correct`,
@@ -730,21 +751,12 @@ def imu_correct(ma, fixed, proc, state, imu, tau, meas, gate):
     dist_idx, _, Lz, _, _, _, _ = proc
     q, qd, z, _, _, _, Hpt, _ = state
     S, g, R = imu
-    nd = dist_idx.shape[0]
-    d = np.zeros(nd)
-    for k in range(nd):
-        for m in range(z.shape[0]):
-            d[k] += Lz[k, m] * z[m]
+    d = disturbance_torques(Lz, z)
     a = np.empty(3)
     if not point_acceleration(ma, q, qd, tau, dist_idx, d, point, a) >= SINGULAR_TOL:
         return np.inf, 4, np.nan
-    nz = S.shape[0]
-    r = np.empty(nz)
-    for i in range(nz):
-        h = 0.0
-        for c in range(3):
-            h += S[i, c] * (a[c] - g[c])
-        r[i] = meas[i] - h
+    r = np.empty(S.shape[0])
+    imu_residual(S, g, meas, a, r)
     H = S @ Hpt
     return correct(ma, state, H, R, r, gate)
 
@@ -793,11 +805,7 @@ def imu_innovations(ma, fixed, proc, state, imu, tau_before, tau_after, meas, ga
     dist_idx, _, Lz, _, _, _, _ = proc
     q, qd, z, P, _, _, Hpt, _ = state
     S, g, R = imu
-    nd = dist_idx.shape[0]
-    d = np.zeros(nd)
-    for k in range(nd):
-        for m in range(z.shape[0]):
-            d[k] += Lz[k, m] * z[m]
+    d = disturbance_torques(Lz, z)
     nz = S.shape[0]
     r_b = np.empty(nz)
     r_a = np.empty(nz)
@@ -813,14 +821,8 @@ def imu_innovations(ma, fixed, proc, state, imu, tau_before, tau_after, meas, ga
         a_a[:] = a_b
     elif not point_acceleration(ma, q, qd, tau_after, dist_idx, d, point, a_a) >= SINGULAR_TOL:
         return r_b, r_a, H, False
-    for i in range(nz):
-        h_b = 0.0
-        h_a = 0.0
-        for c in range(3):
-            h_b += S[i, c] * (a_b[c] - g[c])
-            h_a += S[i, c] * (a_a[c] - g[c])
-        r_b[i] = meas[i] - h_b
-        r_a[i] = meas[i] - h_a
+    imu_residual(S, g, meas, a_b, r_b)
+    imu_residual(S, g, meas, a_a, r_a)
     nis_b, logdet = innovation_nis(P, H, R, r_b)
     nis_a, _ = innovation_nis(P, H, R, r_a)
     if np.isfinite(nis_b) and np.isfinite(nis_a):
