@@ -142,9 +142,17 @@ class Mechanism:
         spring = 0.5 * float(np.sum(self.stiffness * (np.asarray(q) - self.rest) ** 2))
         return kinetic, gravity + spring
 
-    def spring_forces(self, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
-        """Per tree joint: K (q - q_rest) + D qd of its spring and damper (0 where none)."""
-        return self.stiffness * (np.asarray(q) - self.rest) + self.damping * np.asarray(qd)
+    def spring_forces(self, q: np.ndarray, qd: np.ndarray, out: np.ndarray | None = None,
+                      work: np.ndarray | None = None) -> np.ndarray:
+        """Per tree joint: K (q - q_rest) + D qd of its spring and damper (0 where none); into
+        ``out`` (``work``: scratch of the same size) without allocating where both are given."""
+        out = np.empty(self.n) if out is None else out
+        work = np.empty(self.n) if work is None else work
+        np.subtract(q, self.rest, out=out)
+        np.multiply(self.stiffness, out, out=out)
+        np.multiply(self.damping, qd, out=work)
+        np.add(out, work, out=out)
+        return out
 
     def branch_forces(self, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
         """F = K u + D du/dt for each named branch, tension positive [N]."""

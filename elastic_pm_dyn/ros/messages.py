@@ -139,7 +139,7 @@ class PlantMessages:
         self.position, self.velocity, self.effort = self._js.arrays
         self.force, self.deflection, self.rate = self._bf.arrays
         self.ee_xyz = self._pose.arrays[0]
-        # Work arrays of the per-period arithmetic (the same operations as Plant.efforts/branches).
+        # Scratch of the per-period arithmetic (Plant.efforts in place; branches as Plant.branches).
         self._spring = np.empty(n)
         self._damper = np.empty(n)
         self._origins, self._coms = np.empty((n, 3)), np.empty((n, 3))
@@ -158,15 +158,7 @@ class PlantMessages:
         q, qd = p.q, p.qd
         self.position[:] = q
         self.velocity[:] = qd
-        # efforts: motor torque (active), c (q - rest) + d qd (elastic), 0 (passive), as Plant.efforts
-        np.subtract(q, mech.rest, out=self._spring)
-        np.multiply(mech.stiffness, self._spring, out=self._spring)
-        np.multiply(mech.damping, qd, out=self._damper)
-        np.add(self._spring, self._damper, out=self._spring)
-        effort = self.effort
-        effort[:] = 0.0
-        effort[mech.active] = p.tau
-        effort[mech.elastic] = self._spring[mech.elastic]
+        effort = p.efforts(self.effort, self._spring, self._damper)
         j = mech.branch_joints
         self.force[:] = effort[j]
         np.subtract(q[j], mech.rest[j], out=self.deflection)

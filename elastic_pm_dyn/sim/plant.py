@@ -186,11 +186,17 @@ class Plant:
         self._sim = Simulator(self.mech, self.options)
 
     # ------------------------------------------------------------------ outputs
-    def efforts(self) -> np.ndarray:
-        """Per tree joint: applied motor torque (active), spring force c u + d du/dt (elastic), 0 (passive)."""
-        out = np.zeros(self.mech.n)
-        out[self.mech.active] = self.tau
-        out[self.mech.elastic] = self.mech.spring_forces(self.q, self.qd)[self.mech.elastic]
+    def efforts(self, out: np.ndarray | None = None, springs: np.ndarray | None = None,
+                work: np.ndarray | None = None) -> np.ndarray:
+        """Per tree joint: applied motor torque (active), spring force c u + d du/dt (elastic), 0
+        (passive); into ``out`` without allocating where ``out``, ``springs`` and ``work`` (scratch
+        of the tree's size) are given (the plant node's publishing, every period)."""
+        mech = self.mech
+        out = np.empty(mech.n) if out is None else out
+        springs = mech.spring_forces(self.q, self.qd, springs, work)
+        out[:] = 0.0
+        out[mech.active] = self.tau
+        out[mech.elastic] = springs[mech.elastic]
         return out
 
     def branches(self, efforts: np.ndarray | None = None) -> BranchState:
