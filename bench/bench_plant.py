@@ -47,7 +47,7 @@ TARGET = {"rate_hz": 990.0, "period_std_ms": 0.3, "fast_rtf": 5.0}
 class Probe:
     """The subscriber side: joint_states arrival times (``states``), /diagnostics values."""
 
-    def __init__(self, domain: int, states: bool):
+    def __init__(self, domain: int, states: bool, name: str = "bench_probe"):
         os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
         import rclpy
         from diagnostic_msgs.msg import DiagnosticArray
@@ -58,7 +58,7 @@ class Probe:
         self.rclpy = rclpy
         self.context = rclpy.Context()
         rclpy.init(context=self.context, domain_id=domain)
-        self.node = rclpy.create_node("bench_probe", context=self.context)
+        self.node = rclpy.create_node(name, context=self.context)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
         self.arrivals: list[float] = []

@@ -37,6 +37,8 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
+from bench_plant import Probe  # noqa: E402
+
 from elastic_pm_dyn.ros.processes import NodeProcess, private_domain_id, ros_env  # noqa: E402
 
 START_TIMEOUT = 300.0  # [s] until the plant's first report
@@ -55,36 +57,28 @@ def _rss_mib(pid: int) -> float:
     return float("nan")
 
 
-class Controller:
-    """PD on the motor angles, one command per received state; /diagnostics collected."""
+class Controller(Probe):
+    """PD on the motor angles, one command per received state; /diagnostics collected (the
+    probe of bench_plant), faults and the largest closure gap counted."""
 
     def __init__(self, domain: int):
-        os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-        import rclpy
-        from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-        from rclpy.executors import SingleThreadedExecutor
+        super().__init__(domain, states=False, name="soak_controller")
+        from diagnostic_msgs.msg import DiagnosticStatus
         from sensor_msgs.msg import JointState
 
         from elastic_pm_dyn.kinematics.assembly import initial_state
         from elastic_pm_dyn.kinematics.mechanism import Mechanism
         from elastic_pm_dyn.model.loader import load_model
         from elastic_pm_dyn.ros.messages import torque_command
-        from elastic_pm_dyn.ros.qos import COMMAND_QOS, DIAGNOSTICS_QOS, STATE_QOS
+        from elastic_pm_dyn.ros.qos import COMMAND_QOS, STATE_QOS
 
-        self.rclpy, self.error_level, self.torque_command = rclpy, DiagnosticStatus.ERROR, torque_command
+        self.error_level, self.torque_command = DiagnosticStatus.ERROR, torque_command
         self.mech = Mechanism(load_model(REPO / "config" / "five_bar.yaml"))
         self.q0 = initial_state(self.mech)[self.mech.active]
-        self.context = rclpy.Context()
-        rclpy.init(context=self.context, domain_id=domain)
-        self.node = rclpy.create_node("soak_controller", context=self.context)
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
         self.pub = self.node.create_publisher(JointState, "torque_command", COMMAND_QOS)
         self.node.create_subscription(JointState, "joint_states", self._on_state, STATE_QOS)
-        self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diag, DIAGNOSTICS_QOS)
         self.received = self.sent = self.faults = 0
         self.max_gap = 0.0
-        self.diagnostics: list[tuple[float, dict[str, str]]] = []
         self.index: list[int] | None = None
 
     def _on_state(self, msg: object) -> None:
@@ -107,23 +101,12 @@ class Controller:
         self.sent += 1
 
     def _on_diag(self, msg: object) -> None:
-        status = msg.status[0]
-        values = {kv.key: kv.value for kv in status.values}
-        if status.level == self.error_level:
+        super()._on_diag(msg)
+        if msg.status[0].level == self.error_level:
             self.faults += 1
-        if values.get("closure_gap_m"):
-            self.max_gap = max(self.max_gap, float(values["closure_gap_m"]))
-        self.diagnostics.append((time.perf_counter(), values))
-
-    def spin(self, seconds: float) -> None:
-        end = time.perf_counter() + seconds
-        while time.perf_counter() < end:
-            self.executor.spin_once(timeout_sec=0.05)
-
-    def close(self) -> None:
-        self.node.destroy_node()
-        self.executor.shutdown(timeout_sec=2.0)
-        self.rclpy.try_shutdown(context=self.context)
+        gap = self.diagnostics[-1][1].get("closure_gap_m")
+        if gap:
+            self.max_gap = max(self.max_gap, float(gap))
 
 
 def soak(minutes: float, log_dir: Path, domain: int) -> dict:
