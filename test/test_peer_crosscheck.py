@@ -18,8 +18,9 @@ import pytest
 
 pin = pytest.importorskip("pinocchio")
 
+from consistent_states import consistent_states  # noqa: E402
+
 from elastic_pm_dyn.dynamics.evaluate import FORMULATION_CODES, accelerations  # noqa: E402
-from elastic_pm_dyn.kinematics.assembly import initial_state, solve_pose  # noqa: E402
 from elastic_pm_dyn.kinematics.mechanism import Mechanism  # noqa: E402
 from elastic_pm_dyn.model.loader import load_model  # noqa: E402
 
@@ -29,22 +30,6 @@ from peers_five_bar import PinFiveBar, five_bar_spec  # noqa: E402
 
 N_STATES = 20
 REL_TOL = 1e-9  # reached: ~1e-15 (round-off); 1e-6 would still show a modelling error
-
-
-def _states(mech: Mechanism, rng: np.random.Generator):
-    """Consistent states near the start pose: motors +-0.2 rad, springs +-0.1 mm,
-    motor rates +-2 rad/s, spring rates +-5 cm/s, motor torques +-2 N m."""
-    q0 = initial_state(mech)
-    for _ in range(N_STATES):
-        q = q0.copy()
-        q[mech.active] += rng.uniform(-0.2, 0.2, len(mech.active))
-        q[mech.elastic] += rng.uniform(-1e-4, 1e-4, len(mech.elastic))
-        q = solve_pose(mech, q, mech.passive)
-        qd_ae = np.concatenate([rng.uniform(-2.0, 2.0, len(mech.active)),
-                                rng.uniform(-0.05, 0.05, len(mech.elastic))])
-        qd = mech.tree_velocity(q, qd_ae)
-        tau = mech.split_tau(rng.uniform(-2.0, 2.0, len(mech.active)))
-        yield q, qd, tau
 
 
 def _scdd(mech: Mechanism, q, qd, tau):
@@ -67,7 +52,7 @@ def test_scdd_matches_pinocchio_constraint_dynamics(config, gravity):
                                 "right_motor", "right_spring", "right_elbow"]
     peer = PinFiveBar(five_bar_spec(gravity))
     worst_qdd = worst_lam = 0.0
-    for q, qd, tau in _states(mech, np.random.default_rng(20240)):
+    for q, qd, tau in consistent_states(mech, np.random.default_rng(20240), N_STATES):
         qdd, lam = _scdd(mech, q, qd, tau)
         a = peer.accelerations(q, qd, tau)
         assert peer.prox.iter < peer.prox.max_iter, "Pinocchio's proximal solver did not converge"

@@ -14,10 +14,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from consistent_states import consistent_states
 from pinocchio_urdf import PinocchioMachine
 
 from elastic_pm_dyn.dynamics.evaluate import FORMULATION_CODES, accelerations
-from elastic_pm_dyn.kinematics.assembly import initial_state, solve_pose
+from elastic_pm_dyn.kinematics.assembly import initial_state
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.model.loader import load_model
 
@@ -27,20 +28,6 @@ FIVE_BAR_URDF = ROBOTS / "five_bar_urdf" / "robot.urdf"
 FOUR_BAR_URDF = ROBOTS / "four_bar_onshape" / "robot.urdf"
 FIVE_BAR_MJCF = ROBOTS / "five_bar.xml"
 REL_TOL = 1e-9
-
-
-def _states(mech: Mechanism, rng: np.random.Generator, n: int = 12):
-    """Consistent states near the start pose: motors +-0.2 rad, springs +-0.1 mm, motor
-    rates +-2 rad/s, spring rates +-5 cm/s, motor torques +-2 N m."""
-    q0 = initial_state(mech)
-    for _ in range(n):
-        q = q0.copy()
-        q[mech.active] += rng.uniform(-0.2, 0.2, len(mech.active))
-        q[mech.elastic] += rng.uniform(-1e-4, 1e-4, len(mech.elastic))
-        q = solve_pose(mech, q, mech.passive)
-        qd = mech.tree_velocity(q, np.concatenate([rng.uniform(-2, 2, len(mech.active)),
-                                                   rng.uniform(-0.05, 0.05, len(mech.elastic))]))
-        yield q, qd, mech.split_tau(rng.uniform(-2, 2, len(mech.active)))
 
 
 def _ours(mech: Mechanism, q, qd, tau, method: str = "scdd"):
@@ -132,7 +119,7 @@ def test_urdf_matches_pinocchio_constraint_dynamics(urdf):
     mech = Mechanism(model)
     peer = PinocchioMachine(urdf, model)
     worst_qdd = worst_lam = 0.0
-    for q, qd, tau in _states(mech, np.random.default_rng(7)):
+    for q, qd, tau in consistent_states(mech, np.random.default_rng(7), 12):
         for method in ("scdd", "lda", "multipliers"):
             qdd, lam = _ours(mech, q, qd, tau, method)
             a = peer.accelerations(q, qd, tau)
@@ -153,7 +140,7 @@ def test_mjcf_matches_mujoco_within_its_soft_constraint():
     d = mujoco.MjData(m)
     adr = [m.jnt_dofadr[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, n)] for n in model.joint_names]
     worst = 0.0
-    for q, qd, tau in _states(mech, np.random.default_rng(11), n=8):
+    for q, qd, tau in consistent_states(mech, np.random.default_rng(11), 8):
         qdd, _ = _ours(mech, q, qd, tau)
         mujoco.mj_resetData(m, d)
         d.qpos[adr], d.qvel[adr], d.qfrc_applied[adr] = q, qd, tau
