@@ -12,6 +12,7 @@ from elastic_pm_dyn.observer import Observer, ObserverConfig, tuning
 from elastic_pm_dyn.observer.bag_input import Event
 from elastic_pm_dyn.observer.event_filter import run_events
 from elastic_pm_dyn.observer.observer_model import ObserverModel
+from elastic_pm_dyn.observer.prepared import prepare
 from elastic_pm_dyn.observer.scenarios import manoeuvre_recording
 
 SENSORS = ["encoders", "imu"]
@@ -56,9 +57,10 @@ def test_a_shared_model_gives_the_observer_of_the_mechanism_bit_for_bit(five_bar
 
 
 def test_tuning_evaluate_on_a_prepared_recording_equals_a_fresh_pass(five_bar, events) -> None:
+    prepared = prepare(five_bar, _cfg({}), events)  # once, as tune does
     for extra in CANDIDATES:
         params = dict(_cfg(extra).parameters)
-        got = tuning.evaluate(five_bar, params, events)  # the model and the fast path's runs from the cache
+        got = tuning.evaluate(five_bar, params, events, prepared=prepared)
         obs = Observer(five_bar, _cfg(extra), t0=0.0)
         obs.gating = False
         _, _, fault = run_events(obs, events, "arrival", origin_ns=events[0].stamp_ns)

@@ -46,7 +46,7 @@ from elastic_pm_dyn.observer.bag_input import Event
 from elastic_pm_dyn.observer.config import DEFAULT_PARAMETERS, PREFIX, ObserverConfig, flatten
 from elastic_pm_dyn.observer.ekf import Observer
 from elastic_pm_dyn.observer.event_filter import order_key, run_events
-from elastic_pm_dyn.observer.prepared import prepare
+from elastic_pm_dyn.observer.prepared import PreparedRecording, prepare
 
 FAILED_NLL = 1e30  # a candidate whose filter faulted
 # A step is kept only if it gains this much log-likelihood [nats]: smaller gains are within
@@ -134,13 +134,15 @@ class Evaluation:
     wall_s: float
 
 
-def evaluate(mech: Mechanism, params: Mapping[str, Any], events: list[Event], gating: bool = False) -> Evaluation:
+def evaluate(mech: Mechanism, params: Mapping[str, Any], events: list[Event], gating: bool = False,
+             prepared: PreparedRecording | None = None) -> Evaluation:
     """The filter with flat ``params`` over ``events`` (in stamp order, :func:`select`): the NLL of every sensor
-    sample (gating off unless ``gating``), per sensor its share, mean NIS / dof and gated count. The fixed
-    observer model and the fast path's input are made once per recording (:func:`~.prepared.prepare`)."""
+    sample (gating off unless ``gating``), per sensor its share, mean NIS / dof and gated count. ``prepared``:
+    the fixed observer model and the fast path's input of these events (:func:`~.prepared.prepare`), made
+    here if None; ``tune`` makes it once for all its passes."""
     wall = time.perf_counter()
     cfg = ObserverConfig.from_parameters(params, "<tuning>")
-    prep = prepare(mech, cfg, events)
+    prep = prepare(mech, cfg, events) if prepared is None else prepared
     obs = Observer(prep.model, cfg, t0=0.0)
     obs.gating = gating
     _, _, fault = run_events(obs, events, "arrival", origin_ns=prep.origin_ns, runs=prep.runs)
@@ -201,11 +203,12 @@ def tune(mech: Mechanism, base: ObserverConfig, events: list[Event], explicit: s
     base_params = dict(base.parameters)
     theta = dict(base_params)
     count = [0]
+    prepared = prepare(mech, base, events)  # the tuned knobs leave the observer model as it is
     pool = ThreadPoolExecutor(max(1, threads))
 
     def run(params_list: list[dict]) -> list[Evaluation]:
         count[0] += len(params_list)
-        return list(pool.map(lambda p: evaluate(mech, p, events), params_list))
+        return list(pool.map(lambda p: evaluate(mech, p, events, prepared=prepared), params_list))
 
     try:
         before = run([theta])[0]  # alone: compiles and caches the kernels once
@@ -227,7 +230,8 @@ def tune(mech: Mechanism, base: ObserverConfig, events: list[Event], explicit: s
         if delay:
             best, theta = _scan_delay(run, theta, events, best, history, log)
         # the gate on, as observe runs: what the tuning does to the gated counts
-        g_before, g_after = pool.map(lambda p: evaluate(mech, p, events, gating=True), (base_params, theta))
+        g_before, g_after = pool.map(lambda p: evaluate(mech, p, events, gating=True, prepared=prepared),
+                                     (base_params, theta))
         count[0] += 2
     finally:
         pool.shutdown()
