@@ -27,6 +27,7 @@ PREFIX = "observer."
 SENSOR_KINDS = ("encoders", "imu", "branch_forces")
 DISTURBANCE_MODELS = ("none", "random_walk", "gauss_markov", "integrated_random_walk", "band_limited",
                       "bias_band_limited")
+BAND_ORDERS = (2, 4)  # Butterworth orders of a disturbance band
 BRANCH_SOURCES = ("branch_forces", "joint_state_effort")
 SAMPLE_TIMINGS = ("before_command", "after_command", "auto")
 AXES = ("x", "y", "z")
@@ -61,6 +62,7 @@ DEFAULT_PARAMETERS: dict[str, Any] = {
     #                                         [(N m)^2/s^3]
     "process.disturbance_stddev": 0.02,  # gauss_markov, band_limited: stationary std [N m]
     "process.disturbance_bandwidth": [5.0, 50.0],  # band_limited: corner frequencies [Hz] (a sum, equal variance each)
+    "process.disturbance_band_order": 2,  # band_limited: Butterworth order of each band (2 or 4)
     "process.disturbance_time_constant": 0.02,  # gauss_markov: correlation time [s]
     "process.torque_noise_psd": 1.0e-10,  # white torque on active joints [(N m)^2 s]
     "process.elastic_force_psd": 1.0e-12,  # white force on elastic joints (model error) [N^2 s]
@@ -129,6 +131,7 @@ class ProcessConfig:
     disturbance_stddev: float
     disturbance_bandwidth: list[float]
     disturbance_time_constant: float
+    disturbance_band_order: int
     torque_noise_psd: float
     elastic_force_psd: float
     vibration_noise: float
@@ -214,7 +217,7 @@ class ObserverConfig:
                                   p["process.disturbance"],
                                   p["process.disturbance_joints"], p["process.disturbance_intensity"],
                                   p["process.disturbance_stddev"], p["process.disturbance_bandwidth"],
-                                  p["process.disturbance_time_constant"],
+                                  p["process.disturbance_time_constant"], p["process.disturbance_band_order"],
                                   p["process.torque_noise_psd"], p["process.elastic_force_psd"],
                                   p["process.vibration_noise"]),
             initial=InitialConfig(p["initial.source"], p["initial.active_position_stddev"],
@@ -287,6 +290,9 @@ class ObserverConfig:
         bands = self.process.disturbance_bandwidth
         if not bands or not all(b > 0 for b in bands) or len(set(bands)) != len(bands):
             raise bad("process.disturbance_bandwidth", f"needs distinct corner frequencies > 0, got {bands!r}")
+        if self.process.disturbance_band_order not in BAND_ORDERS:
+            raise bad("process.disturbance_band_order", f"expected one of {', '.join(map(str, BAND_ORDERS))}, "
+                                                        f"got {self.process.disturbance_band_order!r}")
         if self.process.disturbance not in DISTURBANCE_MODELS:
             raise bad("process.disturbance", f"expected one of {', '.join(DISTURBANCE_MODELS)}, "
                                              f"got {self.process.disturbance!r}")

@@ -10,7 +10,10 @@ Models (``process.disturbance``):
 - ``integrated_random_walk``: d'' white (smooth, unbounded).
 - ``band_limited``: a sum of stationary second-order processes, one per corner frequency
   B_i in ``disturbance_bandwidth`` (f'' = -2 zeta w f' - w^2 f + white, w = 2 pi B_i,
-  zeta = 1/sqrt 2: flat below B_i, falling as f^-4 above). Smooth like a real disturbance
+  zeta = 1/sqrt 2: flat below B_i, falling as f^-4 above), or with
+  ``disturbance_band_order: 4`` fourth-order Butterworth processes (f^-8 above B_i: a band
+  that ends, as a multisine's does, instead of a tail that reaches the spring modes and
+  sets the filter's confidence there). Smooth like a real disturbance
   (no steps that would ring the springs) and bounded where the sensors cannot see it. The
   total variance ``disturbance_stddev``^2 is split equally between the corners: corners
   spaced by a constant ratio then give about equal power per octave between the lowest
@@ -52,7 +55,22 @@ class DisturbanceModel:
     @property
     def is_rate(self) -> np.ndarray:
         """(nz,) True for states that are a disturbance's rate of change."""
-        return np.array([n.endswith("_rate") for n in self.names], dtype=bool)
+        return np.array([n.endswith("_rate") or n[-6:-1] == "_rate" for n in self.names], dtype=bool)
+
+
+def butterworth(order: int, w: float) -> tuple[np.ndarray, np.ndarray]:
+    """A Butterworth low-pass of ``order`` and corner ``w`` [rad/s] driven by unit white noise,
+    in companion form (f, f', ...): the state matrix, and the stationary stds of the states."""
+    poles = w * np.exp(1j * np.pi * (2 * np.arange(1, order + 1) + order - 1) / (2 * order))
+    a = np.real(np.poly(poles))  # s^n + a_1 s^(n-1) + ... + a_n
+    A = np.zeros((order, order))
+    A[:-1, 1:] = np.eye(order - 1)
+    A[-1, :] = -a[:0:-1]
+    from scipy.linalg import solve_continuous_lyapunov
+    B = np.zeros((order, order))
+    B[-1, -1] = 1.0
+    P = solve_continuous_lyapunov(A, -B)
+    return A, np.sqrt(np.diag(P))
 
 
 def _bands(pc: ProcessConfig, nd: int, names: list[str]) -> tuple[list, list, list, list]:
@@ -60,15 +78,26 @@ def _bands(pc: ProcessConfig, nd: int, names: list[str]) -> tuple[list, list, li
     eye, zero = np.eye(nd), np.zeros((nd, nd))
     corners = list(pc.disturbance_bandwidth)
     sigma = pc.disturbance_stddev / np.sqrt(len(corners))
+    order = pc.disturbance_band_order
     L, F, psd, sd, zn = [], [], [], [], []
     for i, b in enumerate(corners):
         w = 2 * np.pi * b
-        L += [eye, zero]
-        F.append(np.block([[zero, eye], [-w * w * eye, -2 * ZETA * w * eye]]))
-        psd += [0.0] * nd + [4 * ZETA * w ** 3 * sigma ** 2] * nd  # stationary variance sigma^2
-        sd += [sigma] * nd + [sigma * w] * nd
         tag = "band" if len(corners) == 1 else f"band{i}"
-        zn += [f"d_{n}_{tag}" for n in names] + [f"d_{n}_{tag}_rate" for n in names]
+        if order == 2:
+            L += [eye, zero]
+            F.append(np.block([[zero, eye], [-w * w * eye, -2 * ZETA * w * eye]]))
+            psd += [0.0] * nd + [4 * ZETA * w ** 3 * sigma ** 2] * nd  # stationary variance sigma^2
+            sd += [sigma] * nd + [sigma * w] * nd
+            zn += [f"d_{n}_{tag}" for n in names] + [f"d_{n}_{tag}_rate" for n in names]
+            continue
+        A, unit_sd = butterworth(order, w)
+        gain = sigma / unit_sd[0]  # white-noise std scale for stationary variance sigma^2
+        L += [eye] + [zero] * (order - 1)
+        F.append(np.kron(A, eye))
+        psd += [0.0] * nd * (order - 1) + [gain ** 2] * nd
+        sd += [s for k in range(order) for s in [gain * unit_sd[k]] * nd]
+        zn += [f"d_{n}_{tag}" + ("" if k == 0 else "_rate" if k == 1 else f"_rate{k}") for k in range(order)
+               for n in names]
     return L, F, psd, sd, zn
 
 

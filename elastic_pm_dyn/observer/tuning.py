@@ -43,7 +43,7 @@ from elastic_pm_dyn.errors import InputError
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.model import yaml12
 from elastic_pm_dyn.observer.bag_input import Event
-from elastic_pm_dyn.observer.config import DEFAULT_PARAMETERS, PREFIX, ObserverConfig, flatten
+from elastic_pm_dyn.observer.config import BAND_ORDERS, DEFAULT_PARAMETERS, PREFIX, ObserverConfig, flatten
 from elastic_pm_dyn.observer.ekf import Observer
 from elastic_pm_dyn.observer.event_filter import order_key, run_events
 from elastic_pm_dyn.observer.prepared import PreparedRecording, prepare
@@ -54,6 +54,7 @@ FAILED_NLL = 1e30  # a candidate whose filter faulted
 # default stays where the recording does not tell
 MIN_GAIN = 2.0
 DELAY_STEPS = (0.0, 0.5, 1.0, 1.5, 2.0)  # [periods] of the command-delay scan
+CORNER_FACTORS = (1.0, 2.0, 4.0)  # top corner of another band order, times the fitted one
 
 
 @dataclass(frozen=True)
@@ -226,6 +227,9 @@ def tune(mech: Mechanism, base: ObserverConfig, events: list[Event], explicit: s
         first = [k for k in ks if k.name in DISTURBANCE_KNOBS]
         best, theta = _compass(run, count, theta, best, first, math.log(10.0), 2 * min_step,
                                min(budget, count[0] + (2 * budget) // 3), history, log)
+        if first and base.process.disturbance in ("band_limited", "bias_band_limited") \
+                and "process.disturbance_band_order" not in explicit:
+            best, theta = _band_order(run, theta, best, history, log)
         best, theta = _compass(run, count, theta, best, ks, math.log(10.0) / 4, min_step, budget, history, log)
         if delay:
             best, theta = _scan_delay(run, theta, events, best, history, log)
@@ -270,6 +274,34 @@ def _compass(run, count: list, theta: dict, best: Evaluation, ks: list[Knob], st
                 log(f"  {k.label} -> {k.get(theta):.4g}: NLL {best.nll:.6g}")
         if not improved:
             step /= 2.0
+    return best, theta
+
+
+def _band_order(run, theta: dict, best: Evaluation, history: list, log) -> tuple[Evaluation, dict]:
+    """The bands' Butterworth order (:data:`~.config.BAND_ORDERS`) by likelihood at the fitted
+    spectrum: another order, with the top corner at 1, 2 and 4 times the fitted one (a steeper
+    band needs a higher corner to pass the same frequencies), is kept if it gains :data:`MIN_GAIN`."""
+    corners = list(theta["process.disturbance_bandwidth"])
+    top = int(np.argmax(corners))
+    trials = []
+    for order in BAND_ORDERS:
+        if order == theta["process.disturbance_band_order"]:
+            continue
+        for factor in CORNER_FACTORS:
+            c = list(corners)
+            c[top] = float(min(c[top] * factor, BANDWIDTH_BOUNDS[1]))
+            p = dict(theta, **{"process.disturbance_band_order": order, "process.disturbance_bandwidth": c})
+            if _valid(p) and p not in trials:
+                trials.append(p)
+    results = run(trials)
+    log("  band order: " + ", ".join(f"{p['process.disturbance_band_order']} to "
+                                     f"{max(p['process.disturbance_bandwidth']):.4g} Hz: NLL {r.nll:.6g}"
+                                     for p, r in zip(trials, results, strict=True))
+        + f" (now {theta['process.disturbance_band_order']}: {best.nll:.6g})")
+    i = int(np.argmin([r.nll for r in results]))
+    if results[i].nll < best.nll - MIN_GAIN:
+        best, theta = results[i], trials[i]
+        history.append((f"process.disturbance_band_order = {theta['process.disturbance_band_order']}", best.nll))
     return best, theta
 
 
