@@ -54,8 +54,8 @@ CASES = [("hexa", 1), ("hexa", 2), ("hexa", 4), ("triglide", 1), ("triglide", 2)
 
 
 @njit(nogil=True)
-def chain_block(c, jf, ji, chain_start, points, point_chain, grav, closure_pairs, comps, leg_pair, q, qd, tau,
-                M, h, J, a_pt, p_pt, wz, wo, jv, jw, XY, L3, dinv2, Lam, Ax, Li3, dinvc2):
+def chain_block(c, jf, ji, chain_start, points, point_body, grav, closure_pairs, comps, leg_pair, q, qd, tau,
+                M, h, J, a_pt, p_pt, wz, wo, jv, jw, fr, XY, L3, dinv2, Lam, Ax, Li3, dinvc2):
     """Chain c alone: its terms, and for a leg (leg_pair[c] = k >= 0) its solves, Lambda_k, A_k x_k.
     Writes only chain c's rows/columns and its own scratch (L3[c], dinv2[c], Li3[c], dinvc2[c])."""
     s = chain_start[c]
@@ -69,7 +69,7 @@ def chain_block(c, jf, ji, chain_start, points, point_chain, grav, closure_pairs
             J[p, 0, i] = 0.0
             J[p, 1, i] = 0.0
             J[p, 2, i] = 0.0
-    chain_terms(jf, ji, c, s, e, points, point_chain, grav, q, qd, M, h, J, a_pt, p_pt, wz, wo, jv, jw)
+    chain_terms(jf, ji, s, e, points, point_body, grav, q, qd, M, h, J, a_pt, p_pt, wz, wo, jv, jw, fr)
     k = leg_pair[c]
     if k == -2:  # the platform: coupled in couple()
         return True
@@ -216,12 +216,12 @@ class Split:
         self.leg_pair = leg_pair
         self.M, self.h = np.zeros((n, n)), np.zeros(n)
         self.J, self.a_pt, self.p_pt = np.zeros((npt, 3, n)), np.zeros((npt, 3)), np.zeros((npt, 3))
-        scratch = [np.zeros((n, 3)) for _ in range(4)]
+        scratch = [np.zeros((n, 3)) for _ in range(4)] + [np.zeros((n, 18))]
         self.XY = np.zeros((n, 1 + nc))
         self.Lam, self.Ax = np.zeros((len(ma.closure_pairs), nc, nc)), np.zeros((len(ma.closure_pairs), nc))
         self.A, self.gamma, self.res = np.zeros((m, n)), np.zeros(m), np.zeros(m)
         self.qdd, self.lam = np.zeros(n), np.zeros(m)
-        self.args = (ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_chain, ma.gravity, ma.closure_pairs,
+        self.args = (ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_body, ma.gravity, ma.closure_pairs,
                      ma.closure_components, leg_pair, q, qd, tau, self.M, self.h, self.J, self.a_pt, self.p_pt,
                      *scratch, self.XY, np.zeros((n_ch, nmax, nmax)), np.zeros((n_ch, nmax)), self.Lam, self.Ax,
                      np.zeros((n_ch, nc, nc)), np.zeros((n_ch, nc)))

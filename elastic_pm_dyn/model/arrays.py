@@ -15,15 +15,19 @@ class ModelArrays(NamedTuple):
 
     jf: np.ndarray  # (n_t, JF_WIDTH) float
     ji: np.ndarray  # (n_t, JI_WIDTH) int
-    chain_start: np.ndarray  # (n_chains + 1,) int: tree index of each chain's first joint
-    points: np.ndarray  # (n_points, 3) float: attachment points in their chain's last joint frame
-    point_chain: np.ndarray  # (n_points,) int: the chain each point belongs to (ends first)
+    chain_start: np.ndarray  # (n_chains + 1,) int: tree index of each subtree's first joint
+    points: np.ndarray  # (n_points, 3) float: attachment points in their body's frame (fixed: world);
+    # (n_points, 12) with welds: then also each point's frame orientation in that frame, row-major
+    point_chain: np.ndarray  # (n_points,) int: the chain each point belongs to (ends first; -1 fixed)
     gravity: np.ndarray  # (3,)
     closure_pairs: np.ndarray  # (n_pairs, 2) int: point indices a, b with S (p_a - p_b) = 0
     closure_components: np.ndarray  # (c,) int: constrained components (0 x, 1 y, 2 z)
     hub: int  # platform chain onto which SCDD reduces, -1 for none
     ae_index: np.ndarray  # (n_ae,) int: tree indices of q_ae = [q_a, q_e]
     p_index: np.ndarray  # (n_p,) int: tree indices of q_p
+    point_body: np.ndarray  # (n_points,) int: tree index of the joint carrying each point (-1: the base)
+    weld_pairs: np.ndarray  # (n_welds, 2) int: point pairs whose frames keep their orientation
+    weld_components: np.ndarray  # (c_w,) int: world axes of the orientation rows
 
 
 def pack(model: Model) -> ModelArrays:
@@ -47,23 +51,39 @@ def pack(model: Model) -> ModelArrays:
             jf[k, L.JF_DAMPING] = j.damping
             jf[k, L.JF_FRICTION] = j.friction
             jf[k, L.JF_REST] = j.rest
-            ji[k] = (L.TYPE_CODES[j.type], L.ROLE_CODES[j.role], ci)
+            ji[k, :L.JI_PARENT] = (L.TYPE_CODES[j.type], L.ROLE_CODES[j.role], ci)
             k += 1
         starts.append(k)
-    if model.closure is not None:
-        pairs = np.array(model.closure.pairs, dtype=np.int64).reshape(-1, 2)
-        cl_comp = np.array(model.closure.components, dtype=np.int64)
-        hub = model.closure.hub
+    ji[:, L.JI_PARENT] = model.parents()
+    closure = model.closure
+    if closure is not None:
+        pairs = np.array(closure.pairs, dtype=np.int64).reshape(-1, 2)
+        cl_comp = np.array(closure.components, dtype=np.int64)
+        hub = closure.hub
+        welds = np.array(closure.welds, dtype=np.int64).reshape(-1, 2)
+        weld_comp = np.array(closure.weld_components if closure.welds else (), dtype=np.int64)
     else:
         pairs = np.zeros((0, 2), dtype=np.int64)
         cl_comp = np.zeros(0, dtype=np.int64)
         hub = -1
+        welds = np.zeros((0, 2), dtype=np.int64)
+        weld_comp = np.zeros(0, dtype=np.int64)
     plist = model.point_list()
+    points = np.array([xyz for _, xyz, _ in plist], dtype=float).reshape(-1, 3)
+    if len(welds):  # the frames' orientations ride along with the points
+        frames = np.tile(np.eye(3).ravel(), (len(plist), 1))
+        for (a, b), (Ra, Rb) in zip(closure.welds, closure.weld_rotations, strict=True):
+            for i, R in ((a, Ra), (b, Rb)):
+                if not np.allclose(frames[i], np.eye(3).ravel()) and not np.allclose(frames[i], R.ravel()):
+                    raise ValueError(f"point {plist[i][2]} carries two weld frames of different orientation")
+                frames[i] = np.asarray(R, dtype=float).ravel()
+        points = np.hstack([points, frames])
     return ModelArrays(
         jf=jf, ji=ji, chain_start=np.array(starts, dtype=np.int64),
-        points=np.array([xyz for _, xyz, _ in plist], dtype=float).reshape(-1, 3),
+        points=np.ascontiguousarray(points),
         point_chain=np.array([ci for ci, _, _ in plist], dtype=np.int64),
         gravity=np.asarray(model.gravity, dtype=float).copy(),
         closure_pairs=pairs, closure_components=cl_comp, hub=int(hub),
         ae_index=model.ae_indices.astype(np.int64), p_index=model.indices(PASSIVE).astype(np.int64),
+        point_body=np.array(model.point_bodies(), dtype=np.int64), weld_pairs=welds, weld_components=weld_comp,
     )

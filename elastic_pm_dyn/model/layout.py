@@ -22,7 +22,8 @@ JF_WIDTH = 33
 JI_TYPE = 0  # 0 revolute, 1 prismatic
 JI_ROLE = 1  # 0 active, 1 elastic, 2 passive
 JI_CHAIN = 2
-JI_WIDTH = 3
+JI_PARENT = 3  # tree index of the parent joint, -1 = the base (serial chain: k - 1)
+JI_WIDTH = 4
 
 TYPE_CODES = {"revolute": 0, "prismatic": 1}
 ROLE_CODES = {"active": 0, "elastic": 1, "passive": 2}
