@@ -281,7 +281,8 @@ def _diverged(ma, qs, vs, tau, a, b, qdd_prev, acc, lam, ws, form, info):
 
 @njit(cache=True)
 def rk4_steps_flat(form, jf, ji, chain_start, points, point_chain, gravity, closure_pairs, closure_components,
-                   hub, ae_index, p_index, point_body, weld_pairs, weld_components, q, qd, tau_coef, dt, n_steps, stab, alpha, beta, tol, singular_tol,
+                   hub, ae_index, p_index, point_body, weld_pairs, weld_components, q, qd, tau_coef, dt, n_steps, stab,
+                   alpha, beta, tol, singular_tol,
                    qdd_prev, lam, info):
     """:func:`rk4_steps` with the model as separate arrays (``*mech.arrays``): the cheap
     entry point from Python (see ``accelerations_flat``)."""
