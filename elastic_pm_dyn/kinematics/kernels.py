@@ -33,7 +33,9 @@ from elastic_pm_dyn.model.layout import (
     JF_REST,
     JF_ROTOR,
     JF_STIFFNESS,
+    JI_KEEP,
     JI_PARENT,
+    JI_SUBTREE,
     JI_TYPE,
 )
 
@@ -57,18 +59,150 @@ def _load_frame(fr, wo, k):
 
 
 @njit(cache=True)
-def chain_terms(jf, ji, s, e, points, point_body, grav, q, qd, M, h, J, a_pt, p_pt, wz, wo, jv, jw, fr):
+def _jacobian_column(ji, wz, wo, c, jv, jw, j):
+    """Column j of the Jacobian of the point c (velocity jv, angular velocity jw)."""
+    zj = (wz[j, 0], wz[j, 1], wz[j, 2])
+    if ji[j, JI_TYPE] == 1:
+        _store(jv, j, zj)
+        _store(jw, j, ZERO)
+    else:
+        _store(jv, j, v.cross(zj, v.sub(c, (wo[j, 0], wo[j, 1], wo[j, 2]))))
+        _store(jw, j, zj)
+
+
+@njit(cache=True)
+def _project(jv, jw, f, t_rot, Ic, h, a):
+    """h[a] += the body's inertial and gravity force projected on column a; returns column
+    a's velocity part and Ic times its angular part."""
+    jva = (jv[a, 0], jv[a, 1], jv[a, 2])
+    jwa = (jw[a, 0], jw[a, 1], jw[a, 2])
+    h[a] += v.dot(jva, f) + v.dot(jwa, t_rot)
+    return jva, v.mv(Ic, jwa)
+
+
+@njit(cache=True)
+def _mass_entry(jv, jw, m, jva, Ijwa, M, a, b):
+    """The body's share of M[a, b] = M[b, a]."""
+    val = m * v.dot(jva, (jv[b, 0], jv[b, 1], jv[b, 2])) + v.dot((jw[b, 0], jw[b, 1], jw[b, 2]), Ijwa)
+    M[a, b] += val
+    if a != b:
+        M[b, a] += val
+
+
+@njit(cache=True)
+def _point_column(ji, wz, wo, pt, J, ip, j, spatial):
+    """Column j of point ip's Jacobian (its angular velocity's too where ``spatial``)."""
+    zj = (wz[j, 0], wz[j, 1], wz[j, 2])
+    prismatic = ji[j, JI_TYPE] == 1
+    col = zj if prismatic else v.cross(zj, v.sub(pt, (wo[j, 0], wo[j, 1], wo[j, 2])))
+    J[ip, 0, j] = col[0]
+    J[ip, 1, j] = col[1]
+    J[ip, 2, j] = col[2]
+    if spatial and not prismatic:
+        J[ip, 3, j] = zj[0]
+        J[ip, 4, j] = zj[1]
+        J[ip, 5, j] = zj[2]
+
+
+@njit(cache=True)
+def serial_chain_terms(jf, ji, s, e, points, point_body, grav, q, qd, M, h, J, a_pt, p_pt, wz, wo, jv, jw):
+    """:func:`subtree_terms` of a serial chain (joint k's parent k - 1) whose points all sit
+    on its last body and have no frames (``ji[s, JI_SUBTREE] == 0``): the sweep carries one
+    body's frame and rates along, every body's Jacobian has the columns s..k. The general
+    sweep's parent lookups and stored frames cost such a chain 7 % (bench/bench_tree_sweep.py)."""
+    g = (grav[0], grav[1], grav[2])
+    R = IDENTITY
+    o = ZERO
+    w = ZERO  # angular velocity of the current body
+    al = ZERO  # its angular bias acceleration
+    ao = ZERO  # bias acceleration of its origin o
+    for k in range(s, e):
+        R0 = v.row9(jf, k, JF_ORIGIN_R)
+        ax = v.row3(jf, k, JF_AXIS)
+        oj = v.add(o, v.mv(R, v.row3(jf, k, JF_ORIGIN_P)))
+        Rj = v.mm(R, R0)
+        z = v.mv(Rj, ax)
+        zq = v.scale(z, qd[k])
+        if ji[k, JI_TYPE] == 1:  # prismatic: the origin slides along z
+            on = v.add(oj, v.scale(z, q[k]))
+            d = v.sub(on, o)
+            ao = v.add(v.add(ao, v.cross(al, d)),
+                       v.add(v.cross(w, v.cross(w, d)), v.scale(v.cross(w, zq), 2.0)))
+            o = on
+            R = Rj
+        else:  # revolute: the child frame turns about z through oj
+            d = v.sub(oj, o)
+            ao = v.add(v.add(ao, v.cross(al, d)), v.cross(w, v.cross(w, d)))
+            al = v.add(al, v.cross(w, zq))
+            w = v.add(w, zq)
+            o = oj
+            R = v.mm(Rj, v.axis_rotation(ax, q[k]))
+        _store(wz, k, z)
+        _store(wo, k, o)
+
+        m = jf[k, JF_MASS]
+        if m <= 0.0:
+            continue
+        c = v.add(o, v.mv(R, v.row3(jf, k, JF_COM)))
+        r = v.sub(c, o)
+        ac = v.add(v.add(ao, v.cross(al, r)), v.cross(w, v.cross(w, r)))
+        Ic = v.mmt(v.mm(R, v.row9(jf, k, JF_INERTIA)), R)
+        for j in range(s, k + 1):
+            zj = (wz[j, 0], wz[j, 1], wz[j, 2])
+            if ji[j, JI_TYPE] == 1:
+                _store(jv, j, zj)
+                _store(jw, j, ZERO)
+            else:
+                _store(jv, j, v.cross(zj, v.sub(c, (wo[j, 0], wo[j, 1], wo[j, 2]))))
+                _store(jw, j, zj)
+        f = v.scale(v.sub(ac, g), m)
+        t_rot = v.add(v.mv(Ic, al), v.cross(w, v.mv(Ic, w)))
+        for a in range(s, k + 1):
+            jva = (jv[a, 0], jv[a, 1], jv[a, 2])
+            jwa = (jw[a, 0], jw[a, 1], jw[a, 2])
+            h[a] += v.dot(jva, f) + v.dot(jwa, t_rot)
+            Ijwa = v.mv(Ic, jwa)
+            for b in range(s, a + 1):
+                val = m * v.dot(jva, (jv[b, 0], jv[b, 1], jv[b, 2])) + \
+                    v.dot((jw[b, 0], jw[b, 1], jw[b, 2]), Ijwa)
+                M[a, b] += val
+                if a != b:
+                    M[b, a] += val
+
+    for ip in range(points.shape[0]):
+        if point_body[ip] < s or point_body[ip] >= e:
+            continue
+        pt = v.add(o, v.mv(R, (points[ip, 0], points[ip, 1], points[ip, 2])))
+        r = v.sub(pt, o)
+        at = v.add(v.add(ao, v.cross(al, r)), v.cross(w, v.cross(w, r)))
+        for i in range(3):
+            p_pt[ip, i] = pt[i]
+            a_pt[ip, i] = at[i]
+        for j in range(s, e):
+            zj = (wz[j, 0], wz[j, 1], wz[j, 2])
+            col = zj if ji[j, JI_TYPE] == 1 else v.cross(zj, v.sub(pt, (wo[j, 0], wo[j, 1], wo[j, 2])))
+            J[ip, 0, j] = col[0]
+            J[ip, 1, j] = col[1]
+            J[ip, 2, j] = col[2]
+    for k in range(s, e):
+        M[k, k] += jf[k, JF_ROTOR]
+        h[k] += jf[k, JF_STIFFNESS] * (q[k] - jf[k, JF_REST]) + \
+            (jf[k, JF_DAMPING] + jf[k, JF_FRICTION]) * qd[k]
+
+
+@njit(cache=True)
+def subtree_terms(jf, ji, s, e, points, point_body, grav, q, qd, M, h, J, a_pt, p_pt, wz, wo, jv, jw, fr):
     """Terms of the subtree whose joints are tree indices s..e-1 (written in place).
 
     Each joint's parent (``ji[k, JI_PARENT]``) is -1 (the base) or an earlier joint of the
-    subtree; a serial chain has parent k - 1. M (n_t x n_t) receives the subtree's diagonal
-    block, h its segment; every attachment point on one of its bodies (``point_body``)
-    gets its Jacobian columns in J (n_points x 3 x n_t; rows 3-5 the angular velocity's
-    where J has 6), its bias acceleration in a_pt and position in p_pt (n_points x 3; with
-    12 columns also the world orientation of the point's frame, row-major, ``points``
-    then holding its orientation in the body frame). wz, wo, jv, jw are (n_t, 3) and
-    fr (n_t, 18) scratch arrays: fr keeps every body's R, angular velocity and bias
-    accelerations for its children and points.
+    subtree; a serial chain has parent k - 1. Each body continues from its parent's frame
+    and rates (stored in fr for the bodies flagged JI_KEEP), its Jacobian's columns are its
+    ancestors' joints. M (n_t x n_t) receives the subtree's diagonal block, h its segment;
+    every attachment point on one of its bodies (``point_body``) gets its Jacobian columns
+    in J (n_points x 3 x n_t; rows 3-5 the angular velocity's where J has 6), its bias
+    acceleration in a_pt and position in p_pt (n_points x 3; with 12 columns also the
+    world orientation of the point's frame, row-major, ``points`` then holding its
+    orientation in the body frame). wz, wo, jv, jw are (n_t, 3) and fr (n_t, 18) scratch.
     """
     g = (grav[0], grav[1], grav[2])
     R = IDENTITY
@@ -104,12 +238,13 @@ def chain_terms(jf, ji, s, e, points, point_body, grav, q, qd, M, h, J, a_pt, p_
             R = v.mm(Rj, v.axis_rotation(ax, q[k]))
         _store(wz, k, z)
         _store(wo, k, o)
-        for i in range(9):
-            fr[k, i] = R[i]
-        for i in range(3):
-            fr[k, 9 + i] = w[i]
-            fr[k, 12 + i] = al[i]
-            fr[k, 15 + i] = ao[i]
+        if ji[k, JI_KEEP] != 0:
+            for i in range(9):
+                fr[k, i] = R[i]
+            for i in range(3):
+                fr[k, 9 + i] = w[i]
+                fr[k, 12 + i] = al[i]
+                fr[k, 15 + i] = ao[i]
 
         m = jf[k, JF_MASS]
         if m <= 0.0:
@@ -118,40 +253,28 @@ def chain_terms(jf, ji, s, e, points, point_body, grav, q, qd, M, h, J, a_pt, p_
         r = v.sub(c, o)
         ac = v.add(v.add(ao, v.cross(al, r)), v.cross(w, v.cross(w, r)))
         Ic = v.mmt(v.mm(R, v.row9(jf, k, JF_INERTIA)), R)
-        j = k
-        while j >= 0:  # the body moves with its ancestors' joints only
-            zj = (wz[j, 0], wz[j, 1], wz[j, 2])
-            if ji[j, JI_TYPE] == 1:
-                _store(jv, j, zj)
-                _store(jw, j, ZERO)
-            else:
-                _store(jv, j, v.cross(zj, v.sub(c, (wo[j, 0], wo[j, 1], wo[j, 2]))))
-                _store(jw, j, zj)
-            j = ji[j, JI_PARENT]
         f = v.scale(v.sub(ac, g), m)
         t_rot = v.add(v.mv(Ic, al), v.cross(w, v.mv(Ic, w)))
+        j = k
+        while j >= 0:  # the body moves with its ancestors' joints only
+            _jacobian_column(ji, wz, wo, c, jv, jw, j)
+            j = ji[j, JI_PARENT]
         a = k
         while a >= 0:
-            jva = (jv[a, 0], jv[a, 1], jv[a, 2])
-            jwa = (jw[a, 0], jw[a, 1], jw[a, 2])
-            h[a] += v.dot(jva, f) + v.dot(jwa, t_rot)
-            Ijwa = v.mv(Ic, jwa)
+            jva, Ijwa = _project(jv, jw, f, t_rot, Ic, h, a)
             b = a
             while b >= 0:
-                val = m * v.dot(jva, (jv[b, 0], jv[b, 1], jv[b, 2])) + \
-                    v.dot((jw[b, 0], jw[b, 1], jw[b, 2]), Ijwa)
-                M[a, b] += val
-                if a != b:
-                    M[b, a] += val
+                _mass_entry(jv, jw, m, jva, Ijwa, M, a, b)
                 b = ji[b, JI_PARENT]
             a = ji[a, JI_PARENT]
 
     spatial = J.shape[1] == 6
+    last = (R, o, w, al, ao)  # the last body's, as the sweep left them
     for ip in range(points.shape[0]):
         body = point_body[ip]
         if body < s or body >= e:
             continue
-        R, o, w, al, ao = _load_frame(fr, wo, body)
+        R, o, w, al, ao = last if body == e - 1 else _load_frame(fr, wo, body)
         pt = v.add(o, v.mv(R, (points[ip, 0], points[ip, 1], points[ip, 2])))
         r = v.sub(pt, o)
         at = v.add(v.add(ao, v.cross(al, r)), v.cross(w, v.cross(w, r)))
@@ -165,17 +288,8 @@ def chain_terms(jf, ji, s, e, points, point_body, grav, q, qd, M, h, J, a_pt, p_
             for i in range(3):
                 a_pt[ip, 3 + i] = al[i]
         j = body
-        while j >= 0:
-            zj = (wz[j, 0], wz[j, 1], wz[j, 2])
-            prismatic = ji[j, JI_TYPE] == 1
-            col = zj if prismatic else v.cross(zj, v.sub(pt, (wo[j, 0], wo[j, 1], wo[j, 2])))
-            J[ip, 0, j] = col[0]
-            J[ip, 1, j] = col[1]
-            J[ip, 2, j] = col[2]
-            if spatial and not prismatic:
-                J[ip, 3, j] = zj[0]
-                J[ip, 4, j] = zj[1]
-                J[ip, 5, j] = zj[2]
+        while j >= 0:  # the point moves with its body's ancestors' joints only
+            _point_column(ji, wz, wo, pt, J, ip, j, spatial)
             j = ji[j, JI_PARENT]
     for k in range(s, e):
         M[k, k] += jf[k, JF_ROTOR]
@@ -199,7 +313,7 @@ def tree_terms(jf, ji, chain_start, points, point_body, grav, q, qd, M, h, J, a_
 
     M (n_t x n_t) block diagonal, h (n_t), J (n_points x 3 x n_t) attachment-point
     Jacobians in tree columns, a_pt / p_pt (n_points x 3) their bias accelerations
-    Jdot qd and positions (see :func:`chain_terms` for the wider forms with frames).
+    Jdot qd and positions (see :func:`subtree_terms` for the wider forms with frames).
     """
     n = q.shape[0]
     tree_terms_into(jf, ji, chain_start, points, point_body, grav, q, qd, M, h, J, a_pt, p_pt,
@@ -213,21 +327,26 @@ def tree_terms_into(jf, ji, chain_start, points, point_body, grav, q, qd, M, h, 
     h[:] = 0.0
     J[:, :, :] = 0.0
     for c in range(chain_start.shape[0] - 1):
-        chain_terms(jf, ji, chain_start[c], chain_start[c + 1], points, point_body, grav, q, qd,
-                    M, h, J, a_pt, p_pt, wz, wo, jv, jw, fr)
+        s, e = chain_start[c], chain_start[c + 1]
+        # The dispatch here, not in a function of its own: a compiled call that is not inlined
+        # passes every array field by field and cost a serial machine half its time.
+        if ji[s, JI_SUBTREE] == 0:
+            serial_chain_terms(jf, ji, s, e, points, point_body, grav, q, qd, M, h, J, a_pt, p_pt, wz, wo, jv, jw)
+        else:
+            subtree_terms(jf, ji, s, e, points, point_body, grav, q, qd, M, h, J, a_pt, p_pt, wz, wo, jv, jw, fr)
     fixed_points(points, point_body, a_pt, p_pt)
 
 
 @njit(cache=True)
 def fixed_points(points, point_body, a_pt, p_pt):
-    """Points on the fixed base (body -1): given in the world, at rest (J stays 0)."""
-    for ip in range(points.shape[0]):
-        if point_body[ip] >= 0:
-            continue
+    """Points on the fixed base (body -1, the last points): given in the world, at rest (J stays 0)."""
+    ip = points.shape[0] - 1
+    while ip >= 0 and point_body[ip] < 0:
         for i in range(p_pt.shape[1]):
             p_pt[ip, i] = points[ip, i]
         for i in range(a_pt.shape[1]):
             a_pt[ip, i] = 0.0
+        ip -= 1
 
 
 @njit(cache=True)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 from typing import NamedTuple
 
 import numpy as np
@@ -54,7 +55,22 @@ def pack(model: Model) -> ModelArrays:
             ji[k, :L.JI_PARENT] = (L.TYPE_CODES[j.type], L.ROLE_CODES[j.role], ci)
             k += 1
         starts.append(k)
-    ji[:, L.JI_PARENT] = model.parents()
+    parents = model.parents()
+    ji[:, L.JI_PARENT] = parents
+    # Frames the sweep must keep: a parent of a joint other than the next one, the body of a
+    # point other than its subtree's last body (those the sweep still holds at the end).
+    for k, p in enumerate(parents):
+        if p >= 0 and p != k - 1:
+            ji[p, L.JI_KEEP] = 1
+    last = set(np.array(starts[1:]) - 1)
+    for b in model.point_bodies():
+        if b >= 0 and b not in last:
+            ji[b, L.JI_KEEP] = 1
+    # A subtree with a stored frame, or any with weld frames, takes the general sweep.
+    welds = model.closure is not None and len(model.closure.welds) > 0
+    for s, e in itertools.pairwise(starts):
+        serial = parents[s:e] == [-1, *range(s, e - 1)]
+        ji[s:e, L.JI_SUBTREE] = int(welds or not serial or ji[s:e, L.JI_KEEP].any())
     closure = model.closure
     if closure is not None:
         pairs = np.array(closure.pairs, dtype=np.int64).reshape(-1, 2)
