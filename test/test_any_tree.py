@@ -57,6 +57,9 @@ def test_tree_machine_matches_pinocchio_constraint_dynamics(urdf):
             worst_forms = max(worst_forms, float(np.abs(ref - qdd).max() / np.abs(ref).max()))
             if method != "lda":
                 worst_lam = max(worst_lam, float(np.abs(f - lam).max() / np.abs(f).max()))
+        # forward kinematics alone (Mechanism.points, the ROS publish path) places the points as the sweep does
+        np.testing.assert_array_equal(mech.points(q)[2], mech.terms(q).p_tip[:, :3])
+        assert mech.gap(q) < 1e-12
     print(f"{urdf.parent.name}: n_t {mech.n}, m {mech.m}; max rel. error qdd {worst_qdd:.2e}, "
           f"closure forces {worst_lam:.2e}; formulations among themselves {worst_forms:.2e}")
     assert worst_qdd <= REL_TOL and worst_lam <= REL_TOL and worst_forms <= ROUND_OFF

@@ -400,11 +400,16 @@ def weld_rows(weld_pairs, weld_components, row0, J, a_pt, p_pt, A, gamma, res):
 @njit(cache=True)
 def chain_points(jf, ji, chain_start, points, point_body, q, origins, coms, p_pt):
     """Forward kinematics only: joint origins, body centres of mass, attachment points (world)."""
-    Rs = np.empty((q.shape[0], 9))  # each body's orientation, for its children and points
+    n_sub = 0
     for c in range(chain_start.shape[0] - 1):
+        n_sub += ji[chain_start[c], JI_SUBTREE]
+    Rs = np.empty((q.shape[0] if n_sub else 0, 9))  # a subtree's body orientations, for children and points
+    for c in range(chain_start.shape[0] - 1):
+        s, e = chain_start[c], chain_start[c + 1]
+        general = ji[s, JI_SUBTREE] != 0
         R = IDENTITY
         o = ZERO
-        for k in range(chain_start[c], chain_start[c + 1]):
+        for k in range(s, e):
             par = ji[k, JI_PARENT]
             if par < 0:
                 R, o = IDENTITY, ZERO
@@ -421,13 +426,19 @@ def chain_points(jf, ji, chain_start, points, point_body, q, origins, coms, p_pt
                 o = oj
                 R = v.mm(Rj, v.axis_rotation(ax, q[k]))
             _store(origins, k, o)
-            for i in range(9):
-                Rs[k, i] = R[i]
+            if general:
+                for i in range(9):
+                    Rs[k, i] = R[i]
             _store(coms, k, v.add(o, v.mv(R, v.row3(jf, k, JF_COM))))
+        for ip in range(points.shape[0]):
+            b = point_body[ip]
+            if b < s or b >= e:
+                continue
+            xyz = (points[ip, 0], points[ip, 1], points[ip, 2])
+            if b == e - 1:  # the last body: as the sweep left it
+                _store(p_pt, ip, v.add(o, v.mv(R, xyz)))
+            else:  # an inner body's (a general subtree's)
+                _store(p_pt, ip, v.add((origins[b, 0], origins[b, 1], origins[b, 2]), v.mv(v.row9(Rs, b, 0), xyz)))
     for ip in range(points.shape[0]):
-        b = point_body[ip]
-        xyz = (points[ip, 0], points[ip, 1], points[ip, 2])
-        if b < 0:
-            _store(p_pt, ip, xyz)
-        else:
-            _store(p_pt, ip, v.add((origins[b, 0], origins[b, 1], origins[b, 2]), v.mv(v.row9(Rs, b, 0), xyz)))
+        if point_body[ip] < 0:
+            _store(p_pt, ip, (points[ip, 0], points[ip, 1], points[ip, 2]))
