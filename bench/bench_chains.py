@@ -211,7 +211,7 @@ class Split:
         self.n_ch, self.ma = n_ch, ma
         leg_pair = np.full(n_ch, -1, dtype=np.int64)
         leg_pair[ma.hub] = -2
-        for k, (pa, _) in enumerate(ma.closure_pairs):
+        for k, (pa, _, _) in enumerate(ma.closure_pairs):
             leg_pair[ma.point_chain[pa]] = k
         self.leg_pair = leg_pair
         self.M, self.h = np.zeros((n, n)), np.zeros(n)

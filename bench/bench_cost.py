@@ -282,8 +282,8 @@ def build_items(configs: list[Config], sanity: dict) -> list[Item]:
 
 
 @njit(cache=True)
-def _noop_flat(form, jf, ji, chain_start, points, point_chain, gravity, closure_pairs, closure_components, hub,
-               ae_index, p_index, point_body, weld_pairs, weld_components, q, qd, tau, a, b, qdd_prev, qdd, lam):
+def _noop_flat(form, jf, ji, chain_start, points, point_body, gravity, closure_pairs, closure_components, hub,
+               ae_index, p_index, q, qd, tau, a, b, qdd_prev, qdd, lam):
     return 1.0, 0.0
 
 

@@ -17,6 +17,7 @@ from elastic_pm_dyn.dynamics.kernels import (
 )
 from elastic_pm_dyn.kinematics.kernels import closure_rows, point_buffers, tree_terms, tree_terms_into, weld_rows
 from elastic_pm_dyn.model.arrays import ModelArrays
+from elastic_pm_dyn.model.layout import JI_CHAIN
 from elastic_pm_dyn.small_linalg import matvec
 
 SCDD = 0
@@ -91,19 +92,28 @@ def _closure_terms(ma, qd, J, a_pt, p_pt, A, gamma, res, baumgarte_alpha, baumga
     if ma.p_index.shape[0] == 0:
         return 0.0
     closure_rows(ma.closure_pairs, ma.closure_components, J, a_pt, p_pt, A, gamma, res)
-    if ma.weld_pairs.shape[0] > 0:
-        weld_rows(ma.weld_pairs, ma.weld_components, ma.closure_pairs.shape[0] * ma.closure_components.shape[0],
-                  J, a_pt, p_pt, A, gamma, res)
+    if ma.points.shape[1] == 12:  # welds: their points carry frames
+        weld_rows(ma.closure_pairs, ma.closure_components, J, a_pt, p_pt, A, gamma, res)
     if baumgarte_alpha > 0.0 or baumgarte_beta > 0.0:
         gamma -= 2.0 * baumgarte_alpha * matvec(A, qd, work) + baumgarte_beta * baumgarte_beta * res
     return np.sqrt(np.sum(res * res))
 
 
 @njit(cache=True)
+def _point_chains(ji, point_body):
+    """The chain of each point's body (-1: the base)."""
+    out = np.full(point_body.shape[0], -1, dtype=np.int64)
+    for i in range(point_body.shape[0]):
+        if point_body[i] >= 0:
+            out[i] = ji[point_body[i], JI_CHAIN]
+    return out
+
+
+@njit(cache=True)
 def _other_formulations(form, ma, M, h, A, gamma, tau, qdd_prev, qdd, lam):
     """Every formulation but the serial-chain SCDD: the platform SCDD, L-D'A, multipliers, one pass."""
     if form == SCDD:  # with a platform hub
-        return scdd_platform(M, h, A, gamma, tau, ma.chain_start, ma.point_chain, ma.closure_pairs,
+        return scdd_platform(M, h, A, gamma, tau, ma.chain_start, _point_chains(ma.ji, ma.point_body), ma.closure_pairs,
                              ma.closure_components.shape[0], ma.hub, qdd, lam)
     if form == LDA:
         lam[:] = 0.0
@@ -114,14 +124,14 @@ def _other_formulations(form, ma, M, h, A, gamma, tau, qdd_prev, qdd, lam):
 
 
 @njit(cache=True)
-def accelerations_flat(form, jf, ji, chain_start, points, point_chain, gravity, closure_pairs,
-                       closure_components, hub, ae_index, p_index, point_body, weld_pairs, weld_components,
-                       q, qd, tau, baumgarte_alpha, baumgarte_beta, qdd_prev, qdd, lam):
+def accelerations_flat(form, jf, ji, chain_start, points, point_body, gravity, closure_pairs,
+                       closure_components, hub, ae_index, p_index, q, qd, tau, baumgarte_alpha,
+                       baumgarte_beta, qdd_prev, qdd, lam):
     """:func:`accelerations` with the model as separate arrays (``*mech.arrays``).
 
     The entry point for calls from Python: numba types plain arrays on a fast path, a
     namedtuple argument on a slow one (about 1.7 us per call, a third of an evaluation).
     """
-    ma = ModelArrays(jf, ji, chain_start, points, point_chain, gravity, closure_pairs, closure_components,
-                     hub, ae_index, p_index, point_body, weld_pairs, weld_components)
+    ma = ModelArrays(jf, ji, chain_start, points, point_body, gravity, closure_pairs, closure_components,
+                     hub, ae_index, p_index)
     return accelerations(form, ma, q, qd, tau, baumgarte_alpha, baumgarte_beta, qdd_prev, qdd, lam)

@@ -370,31 +370,37 @@ def closure_rows(closure_pairs, closure_components, J, a_pt, p_pt, A, gamma, res
 
 
 @njit(cache=True)
-def weld_rows(weld_pairs, weld_components, row0, J, a_pt, p_pt, A, gamma, res):
-    """Orientation rows of welds (6d closures), from row ``row0`` on: the frames of points
-    a and b keep their relative orientation.
+def weld_rows(closure_pairs, closure_components, J, a_pt, p_pt, A, gamma, res):
+    """Orientation rows of the welds (6d closures: ``closure_pairs[k, 2] == 1``), after the
+    point rows: the frames of points a and b keep their relative orientation. Needs the
+    frames (``points`` and p_pt of 12 columns, J and a_pt of 6 rows).
 
     Velocity level: w_a - w_b = 0, so A's rows are the angular-velocity Jacobians' difference
     and gamma = -(alpha_a - alpha_b) (bias angular accelerations). Position level: with
     E = R_a R_b^T (world orientations of the two frames), the residual is
     vee(E - E^T) / 2, which vanishes with the rotation and whose rate at E = I is w_a - w_b.
-    ``weld_components``: the world axes constrained (all three, or z on a planar machine).
+    The world axes constrained are all three, or z alone on a planar machine (point rows in
+    x, y).
     """
-    nc = weld_components.shape[0]
-    for k in range(weld_pairs.shape[0]):
-        pa = weld_pairs[k, 0]
-        pb = weld_pairs[k, 1]
+    planar = closure_components.shape[0] == 2
+    nc = 1 if planar else 3
+    r = closure_pairs.shape[0] * closure_components.shape[0]
+    for k in range(closure_pairs.shape[0]):
+        if closure_pairs[k, 2] == 0:
+            continue
+        pa = closure_pairs[k, 0]
+        pb = closure_pairs[k, 1]
         Ra = v.row9(p_pt, pa, 3)
         Rb = v.row9(p_pt, pb, 3)
         E = v.mmt(Ra, Rb)
         err = (0.5 * (E[7] - E[5]), 0.5 * (E[2] - E[6]), 0.5 * (E[3] - E[1]))
         for i in range(nc):
-            comp = weld_components[i]
-            r = row0 + k * nc + i
+            comp = 2 if planar else i
             for j in range(A.shape[1]):
                 A[r, j] = J[pa, 3 + comp, j] - J[pb, 3 + comp, j]
             res[r] = err[comp]
             gamma[r] = -(a_pt[pa, 3 + comp] - a_pt[pb, 3 + comp])
+            r += 1
 
 
 @njit(cache=True)

@@ -67,9 +67,8 @@ class Mechanism:
         A, gamma, res = np.zeros((m, n)), np.zeros(m), np.zeros(m)
         if m:
             closure_rows(ma.closure_pairs, ma.closure_components, J, a_tip, p_tip, A, gamma, res)
-            if len(ma.weld_pairs):
-                weld_rows(ma.weld_pairs, ma.weld_components, len(ma.closure_pairs) * len(ma.closure_components),
-                          J, a_tip, p_tip, A, gamma, res)
+            if ma.points.shape[1] == 12:  # welds: their points carry frames
+                weld_rows(ma.closure_pairs, ma.closure_components, J, a_tip, p_tip, A, gamma, res)
         return TreeTerms(M, h, J, a_tip, p_tip, A, gamma, res)
 
     def points(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -49,9 +49,8 @@ DIVERGED = 2
 def _closure(ma, q, qd, M, h, J, a_pt, p_pt, A, gamma, res):
     tree_terms(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_body, ma.gravity, q, qd, M, h, J, a_pt, p_pt)
     closure_rows(ma.closure_pairs, ma.closure_components, J, a_pt, p_pt, A, gamma, res)
-    if ma.weld_pairs.shape[0] > 0:
-        weld_rows(ma.weld_pairs, ma.weld_components, ma.closure_pairs.shape[0] * ma.closure_components.shape[0],
-                  J, a_pt, p_pt, A, gamma, res)
+    if ma.points.shape[1] == 12:  # welds: their points carry frames
+        weld_rows(ma.closure_pairs, ma.closure_components, J, a_pt, p_pt, A, gamma, res)
     return np.sqrt(np.sum(res * res))
 
 
@@ -280,13 +279,12 @@ def _diverged(ma, qs, vs, tau, a, b, qdd_prev, acc, lam, ws, form, info):
 
 
 @njit(cache=True)
-def rk4_steps_flat(form, jf, ji, chain_start, points, point_chain, gravity, closure_pairs, closure_components,
-                   hub, ae_index, p_index, point_body, weld_pairs, weld_components, q, qd, tau_coef, dt, n_steps, stab,
-                   alpha, beta, tol, singular_tol,
+def rk4_steps_flat(form, jf, ji, chain_start, points, point_body, gravity, closure_pairs, closure_components,
+                   hub, ae_index, p_index, q, qd, tau_coef, dt, n_steps, stab, alpha, beta, tol, singular_tol,
                    qdd_prev, lam, info):
     """:func:`rk4_steps` with the model as separate arrays (``*mech.arrays``): the cheap
     entry point from Python (see ``accelerations_flat``)."""
-    ma = ModelArrays(jf, ji, chain_start, points, point_chain, gravity, closure_pairs, closure_components,
-                     hub, ae_index, p_index, point_body, weld_pairs, weld_components)
+    ma = ModelArrays(jf, ji, chain_start, points, point_body, gravity, closure_pairs, closure_components,
+                     hub, ae_index, p_index)
     return rk4_steps(form, ma, q, qd, tau_coef, dt, n_steps, stab, alpha, beta, tol, singular_tol,
                      qdd_prev, lam, info)
