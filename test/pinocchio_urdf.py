@@ -105,11 +105,12 @@ class PinocchioMachine:
     def cut_forces_world(self, components) -> np.ndarray:
         """Every contact's force (and a 6D contact's moment) on its frame A after
         :meth:`accelerations`, world frame, in our closure row order: the ``components``
-        of each contact's force, then the moments of the 6D contacts."""
+        of each contact's force, then the moments of the 6D contacts (about z alone where
+        the force has x, y: a planar machine)."""
         forces, moments = [], []
         for fa, kind, d in zip(self.frames_a, self.kinds, self.datas, strict=True):
             R = self.data.oMi[fa.parentJoint].rotation @ fa.placement.rotation
             forces.append((R @ np.array(d.contact_force.linear))[list(components)])
             if kind == "6d":
-                moments.append(R @ np.array(d.contact_force.angular))
+                moments.append((R @ np.array(d.contact_force.angular))[[2] if len(components) == 2 else [0, 1, 2]])
         return np.concatenate(forces + moments)

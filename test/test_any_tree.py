@@ -130,3 +130,35 @@ def test_locked_subtree_is_the_machine_with_springs_at_rest(urdf):
     np.testing.assert_allclose(b.h, a.h[kept], rtol=0, atol=1e-13 * np.abs(a.h).max())
     np.testing.assert_allclose(b.residual, a.residual, rtol=0, atol=1e-15)
     np.testing.assert_allclose(b.A, a.A[:, kept], rtol=0, atol=1e-14)
+
+
+def test_planar_weld_matches_pinocchio(tmp_path):
+    """A weld on a planar machine constrains x, y and the turn about z: the five-bar whose right
+    forearm carries a hand on a pin, welded to the left forearm's end, against Pinocchio's
+    CONTACT_6D (whose z, roll and pitch rows are zero here, as a 3D contact's z row is)."""
+    pytest.importorskip("pinocchio")
+    src = ROBOTS / "five_bar_urdf"
+    urdf = (src / "robot.urdf").read_text().replace(
+        '<joint name="right_closure_joint" type="fixed">', '<joint name="right_hand" type="continuous">').replace(
+        '<origin xyz="0.35 0 0" rpy="0 0 0"/>\n  </joint>\n  <link name="closure_right"/>',
+        '<origin xyz="0.35 0 0" rpy="0 0 0"/>\n    <axis xyz="0 0 1"/>\n  </joint>\n  <link name="closure_right">'
+        '<inertial><origin xyz="0.02 0 0"/><mass value="0.05"/>'
+        '<inertia ixx="0" ixy="0" ixz="0" iyy="1e-5" iyz="0" izz="1e-5"/></inertial></link>')
+    assert 'name="right_hand"' in urdf and '<mass value="0.05"/>' in urdf
+    (tmp_path / "robot.urdf").write_text(urdf)
+    (tmp_path / "robot.yaml").write_text((src / "robot.yaml").read_text().replace("type: ['3d']", "type: ['6d']"))
+    model = load_model(tmp_path / "robot.urdf")
+    mech = Mechanism(model)
+    assert model.planar and mech.m == 3 and len(model.closure.welds) == 1
+    peer = PinocchioMachine(tmp_path / "robot.urdf", model)
+    worst_qdd = worst_lam = 0.0
+    for q, qd, tau in consistent_states(mech, np.random.default_rng(9), N_STATES):
+        a = peer.accelerations(q, qd, tau)
+        f = peer.cut_forces_world(model.closure.components)
+        for method in ("scdd", "lda", "multipliers"):
+            qdd, lam = _ours(mech, q, qd, tau, method)
+            worst_qdd = max(worst_qdd, float(np.abs(a - qdd).max() / np.abs(a).max()))
+            if method != "lda":
+                worst_lam = max(worst_lam, float(np.abs(f - lam).max() / np.abs(f).max()))
+    print(f"planar weld: max rel. error qdd {worst_qdd:.2e}, closure forces {worst_lam:.2e}")
+    assert worst_qdd <= REL_TOL and worst_lam <= REL_TOL
