@@ -7,7 +7,7 @@ SCDD's point (eqs 33-34): each chain's terms and its direct dynamics are indepen
 others'; only the coupling through the cut forces (here the platform system of
 ``scdd_platform``) needs them all. This prototype (bench only; the core's default path is
 unchanged) splits one evaluation of a platform machine into
-- ``chain_block(c)``: chain c's tree terms (the core's compiled ``chain_terms``) and, for a
+- ``chain_block(c)``: chain c's tree terms (the core's compiled ``serial_chain_terms``) and, for a
   leg, its solves M_i^-1 [tau_i - h_i, A_i^T], its end-point inertia Lambda_i =
   (A_i M_i^-1 A_i^T)^-1 and A_i x_i (as ``scdd_platform`` does leg by leg), each chain on
   its own scratch;
@@ -45,7 +45,7 @@ sys.path.insert(0, str(REPO))
 
 from elastic_pm_dyn.dynamics.evaluate import FORMULATION_CODES, accelerations_flat  # noqa: E402
 from elastic_pm_dyn.kinematics.assembly import initial_state  # noqa: E402
-from elastic_pm_dyn.kinematics.kernels import chain_terms, closure_rows  # noqa: E402
+from elastic_pm_dyn.kinematics.kernels import closure_rows, serial_chain_terms  # noqa: E402
 from elastic_pm_dyn.kinematics.mechanism import Mechanism  # noqa: E402
 from elastic_pm_dyn.model.loader import load_model  # noqa: E402
 from elastic_pm_dyn.small_linalg import cholesky_recip, cholesky_solve_rows  # noqa: E402
@@ -54,7 +54,7 @@ CASES = [("hexa", 1), ("hexa", 2), ("hexa", 4), ("triglide", 1), ("triglide", 2)
 
 
 @njit(nogil=True)
-def chain_block(c, jf, ji, chain_start, points, point_chain, grav, closure_pairs, comps, leg_pair, q, qd, tau,
+def chain_block(c, jf, ji, chain_start, points, point_body, grav, closure_pairs, comps, leg_pair, q, qd, tau,
                 M, h, J, a_pt, p_pt, wz, wo, jv, jw, XY, L3, dinv2, Lam, Ax, Li3, dinvc2):
     """Chain c alone: its terms, and for a leg (leg_pair[c] = k >= 0) its solves, Lambda_k, A_k x_k.
     Writes only chain c's rows/columns and its own scratch (L3[c], dinv2[c], Li3[c], dinvc2[c])."""
@@ -69,7 +69,7 @@ def chain_block(c, jf, ji, chain_start, points, point_chain, grav, closure_pairs
             J[p, 0, i] = 0.0
             J[p, 1, i] = 0.0
             J[p, 2, i] = 0.0
-    chain_terms(jf, ji, c, s, e, points, point_chain, grav, q, qd, M, h, J, a_pt, p_pt, wz, wo, jv, jw)
+    serial_chain_terms(jf, ji, s, e, points, point_body, grav, q, qd, M, h, J, a_pt, p_pt, wz, wo, jv, jw)
     k = leg_pair[c]
     if k == -2:  # the platform: coupled in couple()
         return True
@@ -211,7 +211,7 @@ class Split:
         self.n_ch, self.ma = n_ch, ma
         leg_pair = np.full(n_ch, -1, dtype=np.int64)
         leg_pair[ma.hub] = -2
-        for k, (pa, _) in enumerate(ma.closure_pairs):
+        for k, (pa, _, _) in enumerate(ma.closure_pairs):
             leg_pair[ma.point_chain[pa]] = k
         self.leg_pair = leg_pair
         self.M, self.h = np.zeros((n, n)), np.zeros(n)
@@ -221,7 +221,7 @@ class Split:
         self.Lam, self.Ax = np.zeros((len(ma.closure_pairs), nc, nc)), np.zeros((len(ma.closure_pairs), nc))
         self.A, self.gamma, self.res = np.zeros((m, n)), np.zeros(m), np.zeros(m)
         self.qdd, self.lam = np.zeros(n), np.zeros(m)
-        self.args = (ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_chain, ma.gravity, ma.closure_pairs,
+        self.args = (ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_body, ma.gravity, ma.closure_pairs,
                      ma.closure_components, leg_pair, q, qd, tau, self.M, self.h, self.J, self.a_pt, self.p_pt,
                      *scratch, self.XY, np.zeros((n_ch, nmax, nmax)), np.zeros((n_ch, nmax)), self.Lam, self.Ax,
                      np.zeros((n_ch, nc, nc)), np.zeros((n_ch, nc)))

@@ -103,7 +103,7 @@ def _loop_terms(ma, q, qd, n):
         J = np.empty((npt, 3, nt))
         a_pt = np.empty((npt, 3))
         p_pt = np.empty((npt, 3))
-        tree_terms(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_chain, ma.gravity, q, qd, M, h, J, a_pt, p_pt)
+        tree_terms(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_body, ma.gravity, q, qd, M, h, J, a_pt, p_pt)
         A = np.empty((m, nt))
         gamma = np.empty(m)
         res = np.empty(m)
@@ -120,7 +120,7 @@ def _loop_tree_only(ma, q, qd, n):
     M, h = np.empty((nt, nt)), np.empty(nt)
     J, a_pt, p_pt = np.empty((npt, 3, nt)), np.empty((npt, 3)), np.empty((npt, 3))
     for _ in range(n):
-        tree_terms(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_chain, ma.gravity, q, qd, M, h, J, a_pt, p_pt)
+        tree_terms(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_body, ma.gravity, q, qd, M, h, J, a_pt, p_pt)
     return M[0, 0]
 
 
@@ -133,7 +133,7 @@ def _loop_solve(form, ma, q, qd, tau, qdd_prev, qdd, lam, n):
     M, h = np.empty((nt, nt)), np.empty(nt)
     J, a_pt, p_pt = np.empty((npt, 3, nt)), np.empty((npt, 3)), np.empty((npt, 3))
     A, gamma, res = np.empty((m, nt)), np.empty(m), np.empty(m)
-    tree_terms(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_chain, ma.gravity, q, qd, M, h, J, a_pt, p_pt)
+    tree_terms(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_body, ma.gravity, q, qd, M, h, J, a_pt, p_pt)
     closure_rows(ma.closure_pairs, ma.closure_components, J, a_pt, p_pt, A, gamma, res)
     s = 0.0
     for _ in range(n):
@@ -164,7 +164,7 @@ def _loop_terms_proto(ma, q, qd, n):
         J = np.empty((npt, 3, nt))
         a_pt = np.empty((npt, 3))
         p_pt = np.empty((npt, 3))
-        tree_terms(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_chain, ma.gravity, q, qd, M, h, J, a_pt, p_pt)
+        tree_terms(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_body, ma.gravity, q, qd, M, h, J, a_pt, p_pt)
         A = np.empty((m, nt))
         gamma = np.empty(m)
         res = np.empty(m)
@@ -185,7 +185,7 @@ def _loop_solve_proto(ma, q, qd, tau, qdd, lam, variant, n):
     M, h = np.empty((nt, nt)), np.empty(nt)
     J, a_pt, p_pt = np.empty((npt, 3, nt)), np.empty((npt, 3)), np.empty((npt, 3))
     A, gamma, res = np.empty((m, nt)), np.empty(m), np.empty(m)
-    tree_terms(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_chain, ma.gravity, q, qd, M, h, J, a_pt, p_pt)
+    tree_terms(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_body, ma.gravity, q, qd, M, h, J, a_pt, p_pt)
     closure_rows(ma.closure_pairs, ma.closure_components, J, a_pt, p_pt, A, gamma, res)
     s = 0.0
     for _ in range(n):
@@ -282,7 +282,7 @@ def build_items(configs: list[Config], sanity: dict) -> list[Item]:
 
 
 @njit(cache=True)
-def _noop_flat(form, jf, ji, chain_start, points, point_chain, gravity, closure_pairs, closure_components, hub,
+def _noop_flat(form, jf, ji, chain_start, points, point_body, gravity, closure_pairs, closure_components, hub,
                ae_index, p_index, q, qd, tau, a, b, qdd_prev, qdd, lam):
     return 1.0, 0.0
 

@@ -99,7 +99,7 @@ def _loop_tree_terms(ma, q, qd, n):
     M, h = np.empty((nt, nt)), np.empty(nt)
     J, a_pt, p_pt = np.empty((npt, 3, nt)), np.empty((npt, 3)), np.empty((npt, 3))
     for _ in range(n):
-        tree_terms(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_chain, ma.gravity, q, qd, M, h, J, a_pt, p_pt)
+        tree_terms(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_body, ma.gravity, q, qd, M, h, J, a_pt, p_pt)
     return M[0, 0]
 
 
@@ -112,7 +112,7 @@ def _loop_scdd_solve(ma, q, qd, tau, qdd, lam, n):
     M, h = np.empty((nt, nt)), np.empty(nt)
     J, a_pt, p_pt = np.empty((npt, 3, nt)), np.empty((npt, 3)), np.empty((npt, 3))
     A, gamma, res = np.empty((m, nt)), np.empty(m), np.empty(m)
-    tree_terms(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_chain, ma.gravity, q, qd, M, h, J, a_pt, p_pt)
+    tree_terms(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_body, ma.gravity, q, qd, M, h, J, a_pt, p_pt)
     closure_rows(ma.closure_pairs, ma.closure_components, J, a_pt, p_pt, A, gamma, res)
     s = 0.0
     for _ in range(n):

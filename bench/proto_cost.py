@@ -322,7 +322,7 @@ def accelerations_proto(form, ma, q, qd, tau, qdd, lam):
     J = np.empty((npt, 3, n))
     a_pt = np.empty((npt, 3))
     p_pt = np.empty((npt, 3))
-    tree_terms(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_chain, ma.gravity, q, qd, M, h, J, a_pt, p_pt)
+    tree_terms(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_body, ma.gravity, q, qd, M, h, J, a_pt, p_pt)
     A = np.empty((m, n))
     gamma = np.empty(m)
     res = np.empty(m)

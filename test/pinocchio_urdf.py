@@ -10,7 +10,7 @@ import yaml
 
 
 class PinocchioMachine:
-    """Pinocchio's URDF parser + Gepetto-style 3D contacts from the sidecar; springs and
+    """Pinocchio's URDF parser + Gepetto-style 3D/6D contacts from the sidecar; springs and
     dampers as joint torques, rotor inertia as armature, the end-effector point mass split
     over the frames that meet at the first closure's first frame (exact for a point mass)."""
 
@@ -45,9 +45,13 @@ class PinocchioMachine:
                                                                 np.zeros((3, 3))), pin.SE3.Identity())
         self.first_frame = pm.frames[pm.getFrameId(loops[0][0])]
         self.contacts = pin.StdVec_RigidConstraintModel()
-        for a, b in loops:
+        self.kinds = [k.lower() for k in side.get("type", ["6d"] * len(loops))]  # Gepetto's default: 6d
+        self.frames_a = []
+        for (a, b), kind in zip(loops, self.kinds, strict=True):
             fa, fb = pm.frames[pm.getFrameId(a)], pm.frames[pm.getFrameId(b)]
-            c = pin.RigidConstraintModel(pin.ContactType.CONTACT_3D, pm, fa.parentJoint, fa.placement,
+            self.frames_a.append(fa)
+            ctype = pin.ContactType.CONTACT_6D if kind == "6d" else pin.ContactType.CONTACT_3D
+            c = pin.RigidConstraintModel(ctype, pm, fa.parentJoint, fa.placement,
                                          fb.parentJoint, fb.placement, pin.ReferenceFrame.LOCAL)
             c.m_baumgarte_parameters.Kp, c.m_baumgarte_parameters.Kd = baumgarte
             self.contacts.append(c)
@@ -97,3 +101,16 @@ class PinocchioMachine:
         fa = self.first_frame
         R = self.data.oMi[fa.parentJoint].rotation @ fa.placement.rotation
         return R @ np.array(self.datas[0].contact_force.linear)
+
+    def cut_forces_world(self, components) -> np.ndarray:
+        """Every contact's force (and a 6D contact's moment) on its frame A after
+        :meth:`accelerations`, world frame, in our closure row order: the ``components``
+        of each contact's force, then the moments of the 6D contacts (about z alone where
+        the force has x, y: a planar machine)."""
+        forces, moments = [], []
+        for fa, kind, d in zip(self.frames_a, self.kinds, self.datas, strict=True):
+            R = self.data.oMi[fa.parentJoint].rotation @ fa.placement.rotation
+            forces.append((R @ np.array(d.contact_force.linear))[list(components)])
+            if kind == "6d":
+                moments.append((R @ np.array(d.contact_force.angular))[[2] if len(components) == 2 else [0, 1, 2]])
+        return np.concatenate(forces + moments)

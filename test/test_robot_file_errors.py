@@ -48,10 +48,9 @@ URDF_CASES = [
     ("malformed", URDF.replace("</robot>", "</robt>"), "</robt>", "malformed XML"),
     ("doctype", '<?xml version="1.0"?>\n<!DOCTYPE robot [<!ENTITY a "aaaa">]>\n' + URDF.split("?>", 1)[1],
      "<!DOCTYPE", "DOCTYPE"),
-    ("branch in a leg", URDF.replace("</robot>", '  <joint name="tool" type="revolute"><parent link="left_upper_arm"/>'
-                                     '<child link="tool_link"/><axis xyz="0 0 1"/></joint>\n'
-                                     '  <link name="tool_link"/>\n</robot>'),
-     '<joint name="tool"', "not supported yet: a branch inside a leg"),
+    ("joint cycle", URDF.replace("</robot>", '  <joint name="back" type="revolute"><parent link="left_forearm"/>'
+                                 '<child link="left_upper_arm"/><axis xyz="0 0 1"/></joint>\n</robot>'),
+     '<joint name="back"', "already has a parent joint"),
     ("two parents", URDF.replace("</robot>", '  <joint name="extra" type="fixed"><parent link="base_link"/>'
                                  '<child link="closure_right"/></joint>\n</robot>'),
      '<joint name="extra"', "already has a parent joint"),
@@ -68,15 +67,13 @@ def test_bad_urdf_is_one_line_with_file_and_line(tmp_path, urdf, needle, expecte
 SIDECAR_CASES = [
     ("unknown frame", SIDECAR.replace("['closure_left', 'closure_right']", "['closure_left', 'closure_rigth']"),
      "closed_loop:", "no frame (link or joint) 'closure_rigth'"),
-    ("6d", SIDECAR.replace("type: ['3d']", "type: ['6d']"), "closed_loop:", "not supported yet: a 6d closure"),
+    ("6d", SIDECAR.replace("type: ['3d']", "type: ['6d']"), "closed_loop:",
+     "the closures give 3 equations but the legs have 2 passive joints"),  # planar: a weld adds the turn about z
     ("unknown motor", SIDECAR.replace("name_mot: ['left_motor', 'right_motor']", "name_mot: ['left_motor', 'rmotor']"),
      "name_mot:", "no joint 'rmotor'"),
-    ("inner body", SIDECAR.replace("['closure_left', 'closure_right']", "['left_elbow_housing', 'closure_right']"),
-     "closed_loop:", "not supported yet: closure frame 'left_elbow_housing' on an inner body"),
-    ("on the base", SIDECAR.replace("['closure_left', 'closure_right']", "['base_link', 'closure_right']"),
-     "closed_loop:", "not supported yet: a closure on the fixed base"),
-    ("same leg", SIDECAR.replace("['closure_left', 'closure_right']", "['closure_left', 'left_forearm']"),
-     "closed_loop:", "are on the same leg"),
+    ("same body", SIDECAR.replace("['closure_left', 'closure_right']", "['closure_left', 'left_forearm']"),
+     "closed_loop:", "are both on one body of leg 'left_upper_arm': no joint between them, so the closure makes "
+     "no loop"),
     ("unknown key", SIDECAR + "stifness: 3\n", "stifness", "unknown key"),
     ("counts", SIDECAR.replace("name_mot: ['left_motor', 'right_motor']", "name_mot: ['left_motor']"),
      "closed_loop:", "the closures give 2 equations but the legs have 3 passive joints"),
@@ -91,6 +88,16 @@ def test_bad_sidecar_is_one_line_with_its_line(tmp_path, sidecar, needle, expect
     message = _error(tmp_path, sidecar=sidecar)
     assert expected in message
     assert message.startswith(f"{tmp_path / 'robot.yaml'}:{_line_of(sidecar, needle)}:"), message
+
+
+def test_closure_between_two_base_frames_makes_no_loop(tmp_path):
+    urdf = URDF.replace("</robot>", '  <joint name="mark_frame" type="fixed"><parent link="base_link"/>'
+                        '<child link="mark"/><origin xyz="0.1 0 0" rpy="0 0 0"/></joint>\n'
+                        '  <link name="mark"/>\n</robot>')
+    sidecar = SIDECAR.replace("['closure_left', 'closure_right']", "['base_link', 'mark']")
+    message = _error(tmp_path, urdf, sidecar)
+    assert "frames 'base_link' and 'mark' are both on the fixed base: no joint between them" in message
+    assert message.startswith(f"{tmp_path / 'robot.yaml'}:{_line_of(sidecar, 'closed_loop:')}:"), message
 
 
 def test_urdf_without_sidecar(tmp_path):
@@ -111,7 +118,7 @@ MJCF_CASES = [
          '<motor name="left" joint="left_motor"/>', ''), '<joint name="left_motor" type="free"', "free joint"),
     ("weld", MJCF.replace('<connect site1="closure_left" site2="closure_right"',
                           '<weld name="w" site1="closure_left" site2="closure_right"'),
-     '<weld name="w"', "not supported yet: a 6d closure"),
+     '<weld name="w"', "the closures give 3 equations but the legs have 2 passive joints"),
     ("compiler", MJCF.replace('stiffness="5.464e6"', 'stifness="5.464e6"', 1), 'stifness=', "MuJoCo:"),
     ("servo", MJCF.replace('<motor name="right" joint="right_motor"/>', '<position name="right" joint="right_motor"/>'),
      '<position name="right"', "not supported yet: an actuator other than a <motor>"),
@@ -124,3 +131,24 @@ def test_bad_mjcf_is_one_line_with_file_and_line(tmp_path, mjcf, needle, expecte
     message = _error(tmp_path, mjcf, sidecar=None, name="robot.xml")
     assert expected in message
     assert message.startswith(f"{tmp_path / 'robot.xml'}:{_line_of(mjcf, needle)}:"), message
+
+
+def test_what_was_not_supported_loads_now(tmp_path):
+    """A branch inside a leg (a tool on the upper arm, sprung), a closure frame on a leg's inner
+    body and a closure to the fixed base load as subtrees: the counts decide, as for any file."""
+    tool = URDF.replace("</robot>", '  <joint name="tool" type="revolute"><parent link="left_upper_arm"/>'
+                        '<child link="tool_link"/><axis xyz="0 0 1"/></joint>\n'
+                        '  <link name="tool_link"><inertial><mass value="0.1"/>'
+                        '<inertia ixx="1e-4" ixy="0" ixz="0" iyy="1e-4" iyz="0" izz="1e-4"/></inertial></link>\n'
+                        '</robot>')
+    sprung = SIDECAR.replace("elastic:", "elastic:\n  tool: {stiffness: 10.0}")
+    for urdf, sidecar, check in (
+            (tool, sprung, lambda m: m.chains[0].parents and m.joint_names[:4] == ["left_motor", "left_spring",
+                                                                                  "left_elbow", "tool"]),
+            (URDF, SIDECAR.replace("['closure_left', 'closure_right']", "['left_elbow_housing', 'closure_right']"),
+             lambda m: m.chains[0].end_body == 1),
+            (URDF, SIDECAR.replace("['closure_left', 'closure_right']", "['base_link', 'closure_right']"),
+             lambda m: len(m.fixed_points) == 1)):
+        (tmp_path / "robot.urdf").write_text(urdf)
+        (tmp_path / "robot.yaml").write_text(sidecar)
+        assert check(load_model(tmp_path / "robot.urdf"))

@@ -177,6 +177,9 @@ CHECKED = {  # file: (active, elastic, passive, closure equations, chains)
     "hexa_generated/robot.urdf": (6, 6, 18, 18, 7),
     "hexa_exported/robot.urdf": (6, 6, 15, 15, 6),
     "four_bar_spring.xml": (1, 1, 2, 2, 2),
+    "delta_parallelogram/robot.urdf": (3, 3, 15, 15, 3),  # a branch inside each leg: one subtree per leg
+    "weld_arms/robot.urdf": (2, 1, 6, 6, 2),  # a 6d closure
+    "base_pinned/robot.urdf": (1, 1, 3, 3, 1),  # a closure to the base
 }
 
 
@@ -208,14 +211,3 @@ def test_exported_hexapod_is_the_generated_machine():
         ref = hz if ref is None else ref
         print(f"{f.name}: {np.round(hz, 3)} Hz")
         np.testing.assert_allclose(hz, ref, rtol=1e-6)
-
-
-def test_parallelogram_delta_is_not_supported_yet():
-    """Parallelogram forearms are a branch inside each leg: one line, exit 2."""
-    from elastic_pm_dyn.cli import main
-    from elastic_pm_dyn.errors import ModelError
-    urdf = ROBOTS / "delta_parallelogram" / "robot.urdf"
-    with pytest.raises(ModelError, match="not supported yet: a branch inside a leg") as err:
-        load_model(urdf)
-    assert "\n" not in str(err.value)
-    assert main(["check", str(urdf)]) == 2

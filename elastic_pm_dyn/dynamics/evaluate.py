@@ -15,8 +15,9 @@ from elastic_pm_dyn.dynamics.kernels import (
     scdd_one_pass,
     scdd_platform,
 )
-from elastic_pm_dyn.kinematics.kernels import closure_rows, tree_terms, tree_terms_into
+from elastic_pm_dyn.kinematics.kernels import closure_rows, point_buffers, tree_terms, tree_terms_into, weld_rows
 from elastic_pm_dyn.model.arrays import ModelArrays
+from elastic_pm_dyn.model.layout import JI_CHAIN
 from elastic_pm_dyn.small_linalg import matvec
 
 SCDD = 0
@@ -32,12 +33,12 @@ FORMULATION_CODES = {"scdd": SCDD, "lda": LDA, "multipliers": MULTIPLIERS, "scdd
 def workspace(ma):
     """Work arrays of :func:`accelerations_into` for the model ``ma`` (allocate once, reuse)."""
     n = ma.jf.shape[0]
-    npt = ma.points.shape[0]
     m = ma.p_index.shape[0]
     nmax = chain_size_max(ma.chain_start)
-    return (np.empty((n, n)), np.empty(n), np.empty((npt, 3, n)), np.empty((npt, 3)), np.empty((npt, 3)),
+    J, a_pt, p_pt = point_buffers(ma.points, n)
+    return (np.empty((n, n)), np.empty(n), J, a_pt, p_pt,
             np.empty((m, n)), np.empty(m), np.empty(m),
-            np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)),
+            np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 18)),
             np.empty(n), np.empty((n, m)), np.empty((m, m)), np.empty((nmax, nmax)), np.empty(nmax),
             np.empty((nmax, 1 + m)), np.empty(m, dtype=np.int64), np.empty(m), np.empty(n), np.empty(m))
 
@@ -58,11 +59,10 @@ def accelerations(form, ma, q, qd, tau, baumgarte_alpha, baumgarte_beta, qdd_pre
     """
     # One-off calls allocate only what they use: cheaper than a whole workspace (~0.6 us).
     n = q.shape[0]
-    npt = ma.points.shape[0]
     m = ma.p_index.shape[0]
     M, h = np.empty((n, n)), np.empty(n)
-    J, a_pt, p_pt = np.empty((npt, 3, n)), np.empty((npt, 3)), np.empty((npt, 3))
-    tree_terms(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_chain, ma.gravity, q, qd, M, h, J, a_pt, p_pt)
+    J, a_pt, p_pt = point_buffers(ma.points, n)
+    tree_terms(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_body, ma.gravity, q, qd, M, h, J, a_pt, p_pt)
     A, gamma, res = np.empty((m, n)), np.empty(m), np.empty(m)
     gap = _closure_terms(ma, qd, J, a_pt, p_pt, A, gamma, res, baumgarte_alpha, baumgarte_beta, np.empty(m))
     if form in (SCDD, SCDD_STACKED) and not (form == SCDD and ma.hub >= 0):
@@ -76,9 +76,9 @@ def accelerations_into(form, ma, q, qd, tau, baumgarte_alpha, baumgarte_beta, qd
     serial-chain closure allocates nothing (allocation was a third of an evaluation on the
     five-bar). The tree terms (M, h, J, a_pt, p_pt = ws[:5]) and the closure rows
     (A, gamma, res = ws[5:8]) of (q, qd) stay in ``ws`` for the caller."""
-    M, h, J, a_pt, p_pt, A, gamma, res, wz, wo, jv, jw, x, Y, S, L, dinv, XY, piv, r, tmh, bm = ws
-    tree_terms_into(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_chain, ma.gravity, q, qd, M, h, J, a_pt,
-                    p_pt, wz, wo, jv, jw)
+    M, h, J, a_pt, p_pt, A, gamma, res, wz, wo, jv, jw, fr, x, Y, S, L, dinv, XY, piv, r, tmh, bm = ws
+    tree_terms_into(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_body, ma.gravity, q, qd, M, h, J, a_pt,
+                    p_pt, wz, wo, jv, jw, fr)
     gap = _closure_terms(ma, qd, J, a_pt, p_pt, A, gamma, res, baumgarte_alpha, baumgarte_beta, bm)
     if form in (SCDD, SCDD_STACKED) and not (form == SCDD and ma.hub >= 0):
         cond = scdd_into(M, h, A, gamma, tau, ma.chain_start, qdd, lam, x, Y, S, L, dinv, XY, piv, r, tmh)
@@ -92,16 +92,28 @@ def _closure_terms(ma, qd, J, a_pt, p_pt, A, gamma, res, baumgarte_alpha, baumga
     if ma.p_index.shape[0] == 0:
         return 0.0
     closure_rows(ma.closure_pairs, ma.closure_components, J, a_pt, p_pt, A, gamma, res)
+    if ma.points.shape[1] == 12:  # welds: their points carry frames
+        weld_rows(ma.closure_pairs, ma.closure_components, J, a_pt, p_pt, A, gamma, res)
     if baumgarte_alpha > 0.0 or baumgarte_beta > 0.0:
         gamma -= 2.0 * baumgarte_alpha * matvec(A, qd, work) + baumgarte_beta * baumgarte_beta * res
     return np.sqrt(np.sum(res * res))
 
 
 @njit(cache=True)
+def _point_chains(ji, point_body):
+    """The chain of each point's body (-1: the base)."""
+    out = np.full(point_body.shape[0], -1, dtype=np.int64)
+    for i in range(point_body.shape[0]):
+        if point_body[i] >= 0:
+            out[i] = ji[point_body[i], JI_CHAIN]
+    return out
+
+
+@njit(cache=True)
 def _other_formulations(form, ma, M, h, A, gamma, tau, qdd_prev, qdd, lam):
     """Every formulation but the serial-chain SCDD: the platform SCDD, L-D'A, multipliers, one pass."""
     if form == SCDD:  # with a platform hub
-        return scdd_platform(M, h, A, gamma, tau, ma.chain_start, ma.point_chain, ma.closure_pairs,
+        return scdd_platform(M, h, A, gamma, tau, ma.chain_start, _point_chains(ma.ji, ma.point_body), ma.closure_pairs,
                              ma.closure_components.shape[0], ma.hub, qdd, lam)
     if form == LDA:
         lam[:] = 0.0
@@ -112,7 +124,7 @@ def _other_formulations(form, ma, M, h, A, gamma, tau, qdd_prev, qdd, lam):
 
 
 @njit(cache=True)
-def accelerations_flat(form, jf, ji, chain_start, points, point_chain, gravity, closure_pairs,
+def accelerations_flat(form, jf, ji, chain_start, points, point_body, gravity, closure_pairs,
                        closure_components, hub, ae_index, p_index, q, qd, tau, baumgarte_alpha,
                        baumgarte_beta, qdd_prev, qdd, lam):
     """:func:`accelerations` with the model as separate arrays (``*mech.arrays``).
@@ -120,6 +132,6 @@ def accelerations_flat(form, jf, ji, chain_start, points, point_chain, gravity, 
     The entry point for calls from Python: numba types plain arrays on a fast path, a
     namedtuple argument on a slow one (about 1.7 us per call, a third of an evaluation).
     """
-    ma = ModelArrays(jf, ji, chain_start, points, point_chain, gravity, closure_pairs, closure_components,
+    ma = ModelArrays(jf, ji, chain_start, points, point_body, gravity, closure_pairs, closure_components,
                      hub, ae_index, p_index)
     return accelerations(form, ma, q, qd, tau, baumgarte_alpha, baumgarte_beta, qdd_prev, qdd, lam)

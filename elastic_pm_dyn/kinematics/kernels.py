@@ -1,16 +1,20 @@
-"""Compiled per-chain kinematics and dynamics terms.
+"""Compiled per-subtree kinematics and dynamics terms.
 
-For each serial chain i (paper, eq 33) this computes, in one forward sweep:
+The tree is cut at the closure into subtrees from the base (a serial chain is the
+special case where every joint's parent is the previous joint). For each subtree i
+(paper, eq 33) this computes, in one forward sweep:
 - the mass matrix M_i (bodies plus reflected rotor inertia),
 - the bias h_i = C_i qd_i + eta_i + K_i (q_i - q_rest) + D_i qd_i (Coriolis/centrifugal,
   gravity, springs, dampers and viscous friction), i.e. everything but M_i qdd_i,
-- the positions of the chain's attachment points (its end, platform joints), their
-  Jacobians J_i and bias accelerations Jdot_i qd_i.
+- the positions of the attachment points on its bodies (chain ends, platform joints,
+  closure frames on any body), their Jacobians J_i and bias accelerations Jdot_i qd_i.
 
 Method: velocities and bias accelerations (qdd = 0) of every body are propagated from the
-base outwards; generalised forces are projected with the body Jacobians (Kane's form of
-Newton-Euler). All vectors are world-frame. Chains are independent, so the tree terms of
-eq 19 are the chain terms stacked block-diagonally.
+base outwards, each body from its parent's; generalised forces are projected with the body
+Jacobians (Kane's form of Newton-Euler), whose columns are the body's ancestors' joints,
+so a subtree's mass matrix couples a joint only with its ancestors and descendants. All
+vectors are world-frame. Subtrees are independent, so the tree terms of eq 19 are the
+subtree terms stacked block-diagonally.
 """
 
 import numpy as np
@@ -29,6 +33,9 @@ from elastic_pm_dyn.model.layout import (
     JF_REST,
     JF_ROTOR,
     JF_STIFFNESS,
+    JI_KEEP,
+    JI_PARENT,
+    JI_SUBTREE,
     JI_TYPE,
 )
 
@@ -44,14 +51,65 @@ def _store(a, i, t):
 
 
 @njit(cache=True)
-def chain_terms(jf, ji, chain, s, e, points, point_chain, grav, q, qd, M, h, J, a_pt, p_pt, wz, wo, jv, jw):
-    """Terms of the chain with index ``chain``, whose joints are tree indices s..e-1 (written in place).
+def _load_frame(fr, wo, k):
+    """Body k's stored R, origin, angular velocity, angular and origin bias accelerations."""
+    R = (fr[k, 0], fr[k, 1], fr[k, 2], fr[k, 3], fr[k, 4], fr[k, 5], fr[k, 6], fr[k, 7], fr[k, 8])
+    return (R, (wo[k, 0], wo[k, 1], wo[k, 2]), (fr[k, 9], fr[k, 10], fr[k, 11]),
+            (fr[k, 12], fr[k, 13], fr[k, 14]), (fr[k, 15], fr[k, 16], fr[k, 17]))
 
-    M (n_t x n_t) receives its diagonal block, h its segment; for every attachment point
-    of the chain (all on its last body), J (n_points x 3 x n_t) receives its Jacobian
-    columns, a_pt / p_pt (n_points x 3) its bias acceleration and position.
-    wz, wo, jv, jw are (n_t, 3) scratch arrays.
-    """
+
+@njit(cache=True)
+def _jacobian_column(ji, wz, wo, c, jv, jw, j):
+    """Column j of the Jacobian of the point c (velocity jv, angular velocity jw)."""
+    zj = (wz[j, 0], wz[j, 1], wz[j, 2])
+    if ji[j, JI_TYPE] == 1:
+        _store(jv, j, zj)
+        _store(jw, j, ZERO)
+    else:
+        _store(jv, j, v.cross(zj, v.sub(c, (wo[j, 0], wo[j, 1], wo[j, 2]))))
+        _store(jw, j, zj)
+
+
+@njit(cache=True)
+def _project(jv, jw, f, t_rot, Ic, h, a):
+    """h[a] += the body's inertial and gravity force projected on column a; returns column
+    a's velocity part and Ic times its angular part."""
+    jva = (jv[a, 0], jv[a, 1], jv[a, 2])
+    jwa = (jw[a, 0], jw[a, 1], jw[a, 2])
+    h[a] += v.dot(jva, f) + v.dot(jwa, t_rot)
+    return jva, v.mv(Ic, jwa)
+
+
+@njit(cache=True)
+def _mass_entry(jv, jw, m, jva, Ijwa, M, a, b):
+    """The body's share of M[a, b] = M[b, a]."""
+    val = m * v.dot(jva, (jv[b, 0], jv[b, 1], jv[b, 2])) + v.dot((jw[b, 0], jw[b, 1], jw[b, 2]), Ijwa)
+    M[a, b] += val
+    if a != b:
+        M[b, a] += val
+
+
+@njit(cache=True)
+def _point_column(ji, wz, wo, pt, J, ip, j, spatial):
+    """Column j of point ip's Jacobian (its angular velocity's too where ``spatial``)."""
+    zj = (wz[j, 0], wz[j, 1], wz[j, 2])
+    prismatic = ji[j, JI_TYPE] == 1
+    col = zj if prismatic else v.cross(zj, v.sub(pt, (wo[j, 0], wo[j, 1], wo[j, 2])))
+    J[ip, 0, j] = col[0]
+    J[ip, 1, j] = col[1]
+    J[ip, 2, j] = col[2]
+    if spatial and not prismatic:
+        J[ip, 3, j] = zj[0]
+        J[ip, 4, j] = zj[1]
+        J[ip, 5, j] = zj[2]
+
+
+@njit(cache=True)
+def serial_chain_terms(jf, ji, s, e, points, point_body, grav, q, qd, M, h, J, a_pt, p_pt, wz, wo, jv, jw):
+    """:func:`subtree_terms` of a serial chain (joint k's parent k - 1) whose points all sit
+    on its last body and have no frames (``ji[s, JI_SUBTREE] == 0``): the sweep carries one
+    body's frame and rates along, every body's Jacobian has the columns s..k. The general
+    sweep's parent lookups and stored frames cost such a chain 7 % (bench/bench_tree_sweep.py)."""
     g = (grav[0], grav[1], grav[2])
     R = IDENTITY
     o = ZERO
@@ -112,7 +170,7 @@ def chain_terms(jf, ji, chain, s, e, points, point_chain, grav, q, qd, M, h, J, 
                     M[b, a] += val
 
     for ip in range(points.shape[0]):
-        if point_chain[ip] != chain:
+        if point_body[ip] < s or point_body[ip] >= e:
             continue
         pt = v.add(o, v.mv(R, (points[ip, 0], points[ip, 1], points[ip, 2])))
         r = v.sub(pt, o)
@@ -133,27 +191,162 @@ def chain_terms(jf, ji, chain, s, e, points, point_chain, grav, q, qd, M, h, J, 
 
 
 @njit(cache=True)
-def tree_terms(jf, ji, chain_start, points, point_chain, grav, q, qd, M, h, J, a_pt, p_pt):
-    """Tree structure terms (eq 19) chain by chain (eq 33).
+def subtree_terms(jf, ji, s, e, points, point_body, grav, q, qd, M, h, J, a_pt, p_pt, wz, wo, jv, jw, fr):
+    """Terms of the subtree whose joints are tree indices s..e-1 (written in place).
 
-    M (n_t x n_t) block diagonal, h (n_t), J (n_points x 3 x n_t) attachment-point
-    Jacobians in tree columns, a_pt / p_pt (n_points x 3) their bias accelerations
-    Jdot qd and positions. Points 0..n_chains-1 are the chain ends.
+    Each joint's parent (``ji[k, JI_PARENT]``) is -1 (the base) or an earlier joint of the
+    subtree; a serial chain has parent k - 1. Each body continues from its parent's frame
+    and rates (stored in fr for the bodies flagged JI_KEEP), its Jacobian's columns are its
+    ancestors' joints. M (n_t x n_t) receives the subtree's diagonal block, h its segment;
+    every attachment point on one of its bodies (``point_body``) gets its Jacobian columns
+    in J (n_points x 3 x n_t; rows 3-5 the angular velocity's where J has 6), its bias
+    acceleration in a_pt and position in p_pt (n_points x 3; with 12 columns also the
+    world orientation of the point's frame, row-major, ``points`` then holding its
+    orientation in the body frame). wz, wo, jv, jw are (n_t, 3) and fr (n_t, 18) scratch.
     """
-    n = q.shape[0]
-    tree_terms_into(jf, ji, chain_start, points, point_chain, grav, q, qd, M, h, J, a_pt, p_pt,
-                    np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)))
+    g = (grav[0], grav[1], grav[2])
+    R = IDENTITY
+    o = ZERO
+    w = ZERO  # angular velocity of the current body
+    al = ZERO  # its angular bias acceleration
+    ao = ZERO  # bias acceleration of its origin o
+    for k in range(s, e):
+        par = ji[k, JI_PARENT]
+        if par < 0:
+            R, o, w, al, ao = IDENTITY, ZERO, ZERO, ZERO, ZERO
+        elif par != k - 1:  # a branch: continue from the parent's body, not the previous one
+            R, o, w, al, ao = _load_frame(fr, wo, par)
+        R0 = v.row9(jf, k, JF_ORIGIN_R)
+        ax = v.row3(jf, k, JF_AXIS)
+        oj = v.add(o, v.mv(R, v.row3(jf, k, JF_ORIGIN_P)))
+        Rj = v.mm(R, R0)
+        z = v.mv(Rj, ax)
+        zq = v.scale(z, qd[k])
+        if ji[k, JI_TYPE] == 1:  # prismatic: the origin slides along z
+            on = v.add(oj, v.scale(z, q[k]))
+            d = v.sub(on, o)
+            ao = v.add(v.add(ao, v.cross(al, d)),
+                       v.add(v.cross(w, v.cross(w, d)), v.scale(v.cross(w, zq), 2.0)))
+            o = on
+            R = Rj
+        else:  # revolute: the child frame turns about z through oj
+            d = v.sub(oj, o)
+            ao = v.add(v.add(ao, v.cross(al, d)), v.cross(w, v.cross(w, d)))
+            al = v.add(al, v.cross(w, zq))
+            w = v.add(w, zq)
+            o = oj
+            R = v.mm(Rj, v.axis_rotation(ax, q[k]))
+        _store(wz, k, z)
+        _store(wo, k, o)
+        if ji[k, JI_KEEP] != 0:
+            for i in range(9):
+                fr[k, i] = R[i]
+            for i in range(3):
+                fr[k, 9 + i] = w[i]
+                fr[k, 12 + i] = al[i]
+                fr[k, 15 + i] = ao[i]
+
+        m = jf[k, JF_MASS]
+        if m <= 0.0:
+            continue
+        c = v.add(o, v.mv(R, v.row3(jf, k, JF_COM)))
+        r = v.sub(c, o)
+        ac = v.add(v.add(ao, v.cross(al, r)), v.cross(w, v.cross(w, r)))
+        Ic = v.mmt(v.mm(R, v.row9(jf, k, JF_INERTIA)), R)
+        f = v.scale(v.sub(ac, g), m)
+        t_rot = v.add(v.mv(Ic, al), v.cross(w, v.mv(Ic, w)))
+        j = k
+        while j >= 0:  # the body moves with its ancestors' joints only
+            _jacobian_column(ji, wz, wo, c, jv, jw, j)
+            j = ji[j, JI_PARENT]
+        a = k
+        while a >= 0:
+            jva, Ijwa = _project(jv, jw, f, t_rot, Ic, h, a)
+            b = a
+            while b >= 0:
+                _mass_entry(jv, jw, m, jva, Ijwa, M, a, b)
+                b = ji[b, JI_PARENT]
+            a = ji[a, JI_PARENT]
+
+    spatial = J.shape[1] == 6
+    last = (R, o, w, al, ao)  # the last body's, as the sweep left them
+    for ip in range(points.shape[0]):
+        body = point_body[ip]
+        if body < s or body >= e:
+            continue
+        R, o, w, al, ao = last if body == e - 1 else _load_frame(fr, wo, body)
+        pt = v.add(o, v.mv(R, (points[ip, 0], points[ip, 1], points[ip, 2])))
+        r = v.sub(pt, o)
+        at = v.add(v.add(ao, v.cross(al, r)), v.cross(w, v.cross(w, r)))
+        for i in range(3):
+            p_pt[ip, i] = pt[i]
+            a_pt[ip, i] = at[i]
+        if spatial:
+            Rp = v.mm(R, v.row9(points, ip, 3))
+            for i in range(9):
+                p_pt[ip, 3 + i] = Rp[i]
+            for i in range(3):
+                a_pt[ip, 3 + i] = al[i]
+        j = body
+        while j >= 0:  # the point moves with its body's ancestors' joints only
+            _point_column(ji, wz, wo, pt, J, ip, j, spatial)
+            j = ji[j, JI_PARENT]
+    for k in range(s, e):
+        M[k, k] += jf[k, JF_ROTOR]
+        h[k] += jf[k, JF_STIFFNESS] * (q[k] - jf[k, JF_REST]) + \
+            (jf[k, JF_DAMPING] + jf[k, JF_FRICTION]) * qd[k]
 
 
 @njit(cache=True)
-def tree_terms_into(jf, ji, chain_start, points, point_chain, grav, q, qd, M, h, J, a_pt, p_pt, wz, wo, jv, jw):
-    """:func:`tree_terms` with its four (n_t x 3) work arrays given (no allocation)."""
+def point_buffers(points, n):
+    """Empty (J, a_pt, p_pt) for the tree terms: 3 rows/columns per point, or with frames
+    (``points`` of 12 columns, for welds) 6 rows of J and a_pt and 12 columns of p_pt."""
+    npt = points.shape[0]
+    if points.shape[1] == 12:
+        return np.empty((npt, 6, n)), np.empty((npt, 6)), np.empty((npt, 12))
+    return np.empty((npt, 3, n)), np.empty((npt, 3)), np.empty((npt, 3))
+
+
+@njit(cache=True)
+def tree_terms(jf, ji, chain_start, points, point_body, grav, q, qd, M, h, J, a_pt, p_pt):
+    """Tree structure terms (eq 19) subtree by subtree (eq 33).
+
+    M (n_t x n_t) block diagonal, h (n_t), J (n_points x 3 x n_t) attachment-point
+    Jacobians in tree columns, a_pt / p_pt (n_points x 3) their bias accelerations
+    Jdot qd and positions (see :func:`subtree_terms` for the wider forms with frames).
+    """
+    n = q.shape[0]
+    tree_terms_into(jf, ji, chain_start, points, point_body, grav, q, qd, M, h, J, a_pt, p_pt,
+                    np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 18)))
+
+
+@njit(cache=True)
+def tree_terms_into(jf, ji, chain_start, points, point_body, grav, q, qd, M, h, J, a_pt, p_pt, wz, wo, jv, jw, fr):
+    """:func:`tree_terms` with its work arrays given: four (n_t x 3), one (n_t x 18)."""
     M[:, :] = 0.0
     h[:] = 0.0
     J[:, :, :] = 0.0
     for c in range(chain_start.shape[0] - 1):
-        chain_terms(jf, ji, c, chain_start[c], chain_start[c + 1], points, point_chain, grav, q, qd,
-                    M, h, J, a_pt, p_pt, wz, wo, jv, jw)
+        s, e = chain_start[c], chain_start[c + 1]
+        # The dispatch here, not in a function of its own: a compiled call that is not inlined
+        # passes every array field by field and cost a serial machine half its time.
+        if ji[s, JI_SUBTREE] == 0:
+            serial_chain_terms(jf, ji, s, e, points, point_body, grav, q, qd, M, h, J, a_pt, p_pt, wz, wo, jv, jw)
+        else:
+            subtree_terms(jf, ji, s, e, points, point_body, grav, q, qd, M, h, J, a_pt, p_pt, wz, wo, jv, jw, fr)
+    fixed_points(points, point_body, a_pt, p_pt)
+
+
+@njit(cache=True)
+def fixed_points(points, point_body, a_pt, p_pt):
+    """Points on the fixed base (body -1, the last points): given in the world, at rest (J stays 0)."""
+    ip = points.shape[0] - 1
+    while ip >= 0 and point_body[ip] < 0:
+        for i in range(p_pt.shape[1]):
+            p_pt[ip, i] = points[ip, i]
+        for i in range(a_pt.shape[1]):
+            a_pt[ip, i] = 0.0
+        ip -= 1
 
 
 @njit(cache=True)
@@ -177,12 +370,58 @@ def closure_rows(closure_pairs, closure_components, J, a_pt, p_pt, A, gamma, res
 
 
 @njit(cache=True)
-def chain_points(jf, ji, chain_start, points, point_chain, q, origins, coms, p_pt):
+def weld_rows(closure_pairs, closure_components, J, a_pt, p_pt, A, gamma, res):
+    """Orientation rows of the welds (6d closures: ``closure_pairs[k, 2] == 1``), after the
+    point rows: the frames of points a and b keep their relative orientation. Needs the
+    frames (``points`` and p_pt of 12 columns, J and a_pt of 6 rows).
+
+    Velocity level: w_a - w_b = 0, so A's rows are the angular-velocity Jacobians' difference
+    and gamma = -(alpha_a - alpha_b) (bias angular accelerations). Position level: with
+    E = R_a R_b^T (world orientations of the two frames), the residual is
+    vee(E - E^T) / 2, which vanishes with the rotation and whose rate at E = I is w_a - w_b.
+    The world axes constrained are all three, or z alone on a planar machine (point rows in
+    x, y).
+    """
+    planar = closure_components.shape[0] == 2
+    nc = 1 if planar else 3
+    r = closure_pairs.shape[0] * closure_components.shape[0]
+    for k in range(closure_pairs.shape[0]):
+        if closure_pairs[k, 2] == 0:
+            continue
+        pa = closure_pairs[k, 0]
+        pb = closure_pairs[k, 1]
+        Ra = v.row9(p_pt, pa, 3)
+        Rb = v.row9(p_pt, pb, 3)
+        E = v.mmt(Ra, Rb)
+        err = (0.5 * (E[7] - E[5]), 0.5 * (E[2] - E[6]), 0.5 * (E[3] - E[1]))
+        for i in range(nc):
+            comp = 2 if planar else i
+            for j in range(A.shape[1]):
+                A[r, j] = J[pa, 3 + comp, j] - J[pb, 3 + comp, j]
+            res[r] = err[comp]
+            gamma[r] = -(a_pt[pa, 3 + comp] - a_pt[pb, 3 + comp])
+            r += 1
+
+
+@njit(cache=True)
+def chain_points(jf, ji, chain_start, points, point_body, q, origins, coms, p_pt):
     """Forward kinematics only: joint origins, body centres of mass, attachment points (world)."""
+    n_sub = 0
     for c in range(chain_start.shape[0] - 1):
+        n_sub += ji[chain_start[c], JI_SUBTREE]
+    Rs = np.empty((q.shape[0] if n_sub else 0, 9))  # a subtree's body orientations, for children and points
+    for c in range(chain_start.shape[0] - 1):
+        s, e = chain_start[c], chain_start[c + 1]
+        general = ji[s, JI_SUBTREE] != 0
         R = IDENTITY
         o = ZERO
-        for k in range(chain_start[c], chain_start[c + 1]):
+        for k in range(s, e):
+            par = ji[k, JI_PARENT]
+            if par < 0:
+                R, o = IDENTITY, ZERO
+            elif par != k - 1:
+                R = v.row9(Rs, par, 0)
+                o = (origins[par, 0], origins[par, 1], origins[par, 2])
             ax = v.row3(jf, k, JF_AXIS)
             oj = v.add(o, v.mv(R, v.row3(jf, k, JF_ORIGIN_P)))
             Rj = v.mm(R, v.row9(jf, k, JF_ORIGIN_R))
@@ -193,7 +432,19 @@ def chain_points(jf, ji, chain_start, points, point_chain, q, origins, coms, p_p
                 o = oj
                 R = v.mm(Rj, v.axis_rotation(ax, q[k]))
             _store(origins, k, o)
+            if general:
+                for i in range(9):
+                    Rs[k, i] = R[i]
             _store(coms, k, v.add(o, v.mv(R, v.row3(jf, k, JF_COM))))
         for ip in range(points.shape[0]):
-            if point_chain[ip] == c:
-                _store(p_pt, ip, v.add(o, v.mv(R, (points[ip, 0], points[ip, 1], points[ip, 2]))))
+            b = point_body[ip]
+            if b < s or b >= e:
+                continue
+            xyz = (points[ip, 0], points[ip, 1], points[ip, 2])
+            if b == e - 1:  # the last body: as the sweep left it
+                _store(p_pt, ip, v.add(o, v.mv(R, xyz)))
+            else:  # an inner body's (a general subtree's)
+                _store(p_pt, ip, v.add((origins[b, 0], origins[b, 1], origins[b, 2]), v.mv(v.row9(Rs, b, 0), xyz)))
+    for ip in range(points.shape[0]):
+        if point_body[ip] < 0:
+            _store(p_pt, ip, (points[ip, 0], points[ip, 1], points[ip, 2]))

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from elastic_pm_dyn.errors import SingularConfigurationError
-from elastic_pm_dyn.kinematics.kernels import chain_points, closure_rows, tree_terms
+from elastic_pm_dyn.kinematics.kernels import chain_points, closure_rows, point_buffers, tree_terms, weld_rows
 from elastic_pm_dyn.model.arrays import ModelArrays, pack
 from elastic_pm_dyn.model.description import ACTIVE, ELASTIC, PASSIVE, Model
 from elastic_pm_dyn.model.layout import JF_MASS
@@ -22,6 +22,7 @@ class TreeTerms:
     J: np.ndarray  # (n_points, 3, n_t) attachment-point Jacobians in tree columns (chain ends first)
     a_tip: np.ndarray  # (n_points, 3) their bias accelerations Jdot qd
     p_tip: np.ndarray  # (n_points, 3) their positions
+    # (with welds: J and a_tip 6 wide, angular rows last; p_tip 12, each frame's world R after xyz)
     A: np.ndarray  # (m, n_t) closure Jacobian dh/dq_t
     gamma: np.ndarray  # (m,) -Adot qd_t
     residual: np.ndarray  # (m,) h(q_t)
@@ -56,16 +57,18 @@ class Mechanism:
 
     # ----------------------------------------------------------------- evaluation
     def terms(self, q: np.ndarray, qd: np.ndarray | None = None) -> TreeTerms:
-        n, npt, m = self.n, self.n_points, self.m
+        n, m = self.n, self.m
         q = np.ascontiguousarray(q, dtype=float)
         qd = np.zeros(n) if qd is None else np.ascontiguousarray(qd, dtype=float)
         M, h = np.empty((n, n)), np.empty(n)
-        J, a_tip, p_tip = np.empty((npt, 3, n)), np.empty((npt, 3)), np.empty((npt, 3))
         ma = self.arrays
-        tree_terms(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_chain, ma.gravity, q, qd, M, h, J, a_tip, p_tip)
+        J, a_tip, p_tip = point_buffers(ma.points, n)
+        tree_terms(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_body, ma.gravity, q, qd, M, h, J, a_tip, p_tip)
         A, gamma, res = np.zeros((m, n)), np.zeros(m), np.zeros(m)
         if m:
             closure_rows(ma.closure_pairs, ma.closure_components, J, a_tip, p_tip, A, gamma, res)
+            if ma.points.shape[1] == 12:  # welds: their points carry frames
+                weld_rows(ma.closure_pairs, ma.closure_components, J, a_tip, p_tip, A, gamma, res)
         return TreeTerms(M, h, J, a_tip, p_tip, A, gamma, res)
 
     def points(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -74,7 +77,7 @@ class Mechanism:
         n = self.n
         origins, coms, tips = np.empty((n, 3)), np.empty((n, 3)), np.empty((self.n_points, 3))
         ma = self.arrays
-        chain_points(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_chain, np.ascontiguousarray(q, dtype=float),
+        chain_points(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_body, np.ascontiguousarray(q, dtype=float),
                      origins, coms, tips)
         return origins, coms, tips
 
@@ -93,6 +96,8 @@ class Mechanism:
         closure = self.model.closure
         if closure is None:
             return 0.0
+        if closure.welds:  # the orientation residual needs the frames' rotations
+            return float(np.linalg.norm(self.terms(q).residual))
         _, _, p = self.points(q)
         pairs = np.asarray(closure.pairs)
         d = p[pairs[:, 0]][:, self.closure_components] - p[pairs[:, 1]][:, self.closure_components]

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 from typing import NamedTuple
 
 import numpy as np
@@ -11,19 +12,29 @@ from elastic_pm_dyn.model.description import PASSIVE, Model
 
 
 class ModelArrays(NamedTuple):
-    """Everything the kernels need, as contiguous arrays (see :mod:`layout`)."""
+    """Everything the kernels need, as contiguous arrays (see :mod:`layout`).
+
+    As few arrays as will do: each one more costs every call from Python its unboxing
+    (about 0.15 us, bench/bench_dynamics.py's ``ours.kernel.*``).
+    """
 
     jf: np.ndarray  # (n_t, JF_WIDTH) float
     ji: np.ndarray  # (n_t, JI_WIDTH) int
-    chain_start: np.ndarray  # (n_chains + 1,) int: tree index of each chain's first joint
-    points: np.ndarray  # (n_points, 3) float: attachment points in their chain's last joint frame
-    point_chain: np.ndarray  # (n_points,) int: the chain each point belongs to (ends first)
+    chain_start: np.ndarray  # (n_chains + 1,) int: tree index of each subtree's first joint
+    points: np.ndarray  # (n_points, 3) float: attachment points in their body's frame (fixed: world);
+    # (n_points, 12) with welds: then also each point's frame orientation in that frame, row-major
+    point_body: np.ndarray  # (n_points,) int: tree index of the joint carrying each point (-1: the base)
     gravity: np.ndarray  # (3,)
-    closure_pairs: np.ndarray  # (n_pairs, 2) int: point indices a, b with S (p_a - p_b) = 0
+    closure_pairs: np.ndarray  # (n_pairs, 3) int: point indices a, b with S (p_a - p_b) = 0; 1 for a weld
     closure_components: np.ndarray  # (c,) int: constrained components (0 x, 1 y, 2 z)
     hub: int  # platform chain onto which SCDD reduces, -1 for none
     ae_index: np.ndarray  # (n_ae,) int: tree indices of q_ae = [q_a, q_e]
     p_index: np.ndarray  # (n_p,) int: tree indices of q_p
+
+    @property
+    def point_chain(self) -> np.ndarray:
+        """The chain each point belongs to (-1: the base), for Python callers."""
+        return np.where(self.point_body >= 0, self.ji[np.maximum(self.point_body, 0), L.JI_CHAIN], -1)
 
 
 def pack(model: Model) -> ModelArrays:
@@ -47,23 +58,49 @@ def pack(model: Model) -> ModelArrays:
             jf[k, L.JF_DAMPING] = j.damping
             jf[k, L.JF_FRICTION] = j.friction
             jf[k, L.JF_REST] = j.rest
-            ji[k] = (L.TYPE_CODES[j.type], L.ROLE_CODES[j.role], ci)
+            ji[k, :L.JI_PARENT] = (L.TYPE_CODES[j.type], L.ROLE_CODES[j.role], ci)
             k += 1
         starts.append(k)
-    if model.closure is not None:
-        pairs = np.array(model.closure.pairs, dtype=np.int64).reshape(-1, 2)
-        cl_comp = np.array(model.closure.components, dtype=np.int64)
-        hub = model.closure.hub
+    parents = model.parents()
+    ji[:, L.JI_PARENT] = parents
+    # Frames the sweep must keep: a parent of a joint other than the next one, the body of a
+    # point other than its subtree's last body (those the sweep still holds at the end).
+    for k, p in enumerate(parents):
+        if p >= 0 and p != k - 1:
+            ji[p, L.JI_KEEP] = 1
+    last = set(np.array(starts[1:]) - 1)
+    for b in model.point_bodies():
+        if b >= 0 and b not in last:
+            ji[b, L.JI_KEEP] = 1
+    # A subtree with a stored frame, or any with weld frames, takes the general sweep.
+    welds = model.closure is not None and len(model.closure.welds) > 0
+    for s, e in itertools.pairwise(starts):
+        serial = parents[s:e] == [-1, *range(s, e - 1)]
+        ji[s:e, L.JI_SUBTREE] = int(welds or not serial or ji[s:e, L.JI_KEEP].any())
+    closure = model.closure
+    if closure is not None:
+        pairs = np.array([(a, b, int((a, b) in closure.welds)) for a, b in closure.pairs], dtype=np.int64)
+        cl_comp = np.array(closure.components, dtype=np.int64)
+        hub = closure.hub
     else:
-        pairs = np.zeros((0, 2), dtype=np.int64)
+        pairs = np.zeros((0, 3), dtype=np.int64)
         cl_comp = np.zeros(0, dtype=np.int64)
         hub = -1
     plist = model.point_list()
+    points = np.array([xyz for _, xyz, _ in plist], dtype=float).reshape(-1, 3)
+    if closure is not None and closure.welds:  # the frames' orientations ride along with the points
+        frames = np.tile(np.eye(3).ravel(), (len(plist), 1))
+        for (a, b), (Ra, Rb) in zip(closure.welds, closure.weld_rotations, strict=True):
+            for i, R in ((a, Ra), (b, Rb)):
+                if not np.allclose(frames[i], np.eye(3).ravel()) and not np.allclose(frames[i], R.ravel()):
+                    raise ValueError(f"point {plist[i][2]} carries two weld frames of different orientation")
+                frames[i] = np.asarray(R, dtype=float).ravel()
+        points = np.hstack([points, frames])
     return ModelArrays(
         jf=jf, ji=ji, chain_start=np.array(starts, dtype=np.int64),
-        points=np.array([xyz for _, xyz, _ in plist], dtype=float).reshape(-1, 3),
-        point_chain=np.array([ci for ci, _, _ in plist], dtype=np.int64),
+        points=np.ascontiguousarray(points),
+        point_body=np.array(model.point_bodies(), dtype=np.int64),
         gravity=np.asarray(model.gravity, dtype=float).copy(),
-        closure_pairs=pairs, closure_components=cl_comp, hub=int(hub),
+        closure_pairs=pairs.reshape(-1, 3), closure_components=cl_comp, hub=int(hub),
         ae_index=model.ae_indices.astype(np.int64), p_index=model.indices(PASSIVE).astype(np.int64),
     )

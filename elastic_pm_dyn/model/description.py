@@ -1,8 +1,9 @@
-"""Typed description of a parallel manipulator as serial chains cut at the closure.
+"""Typed description of a parallel manipulator as subtrees from the base, cut at the closure.
 
 Conventions (as in URDF):
-- Every joint has a frame. Its ``origin`` (xyz, rpy) places it in the frame of the
-  previous joint of the same chain (the world frame for the first joint).
+- Every joint has a frame. Its ``origin`` (xyz, rpy) places it in the child frame of its
+  parent joint in the same subtree (the world frame for a joint on the base). In a serial
+  chain the parent is the previous joint.
 - A revolute joint turns its child frame about ``axis`` by q; a prismatic one shifts it
   along ``axis`` by q. ``axis`` is a unit vector in the joint frame.
 - A body attached to a joint moves with the joint's child frame; its centre of mass and
@@ -76,16 +77,35 @@ class Joint:
 
 @dataclass(frozen=True)
 class Chain:
-    """A serial kinematic chain from the fixed base to its cut end.
+    """A subtree of joints from the fixed base to its cut ends; by default a serial chain.
 
+    ``parents`` gives each joint's parent as an index into ``joints`` (-1: the base); it
+    must point to an earlier joint. Empty means serial (joint k's parent is k - 1).
     Besides its end, a chain may carry named attachment points (e.g. the joints of a
-    moving platform); all of them sit on the chain's last body.
+    moving platform). The end sits on body ``end_body`` and each point on
+    ``point_bodies[i]`` (indices into ``joints``, -1 = the last); empty: all on the last body.
     """
 
     name: str
     joints: tuple[Joint, ...]
-    end_xyz: np.ndarray  # chain end in the last joint's frame
-    points: tuple[tuple[str, np.ndarray], ...] = ()  # further named points, same frame
+    end_xyz: np.ndarray  # chain end in the frame of the body carrying it
+    points: tuple[tuple[str, np.ndarray], ...] = ()  # further named points, each in its body's frame
+    parents: tuple[int, ...] = ()
+    end_body: int = -1
+    point_bodies: tuple[int, ...] = ()
+
+    def parent_indices(self) -> list[int]:
+        """Each joint's parent index in this chain (-1: the base)."""
+        return list(self.parents) if self.parents else list(range(-1, len(self.joints) - 1))
+
+    def body_index(self, k: int) -> int:
+        """Index into ``joints`` of the body given as ``k`` (-1: the last)."""
+        return k if k >= 0 else len(self.joints) + k
+
+    def end_and_point_bodies(self) -> list[int]:
+        """Body of the end, then of each named point (indices into ``joints``)."""
+        bodies = list(self.point_bodies) if self.point_bodies else [-1] * len(self.points)
+        return [self.body_index(b) for b in [self.end_body, *bodies]]
 
 
 @dataclass(frozen=True)
@@ -93,19 +113,32 @@ class Closure:
     """Loop closure as coinciding point pairs: S (p_a - p_b) = 0 for each pair (eq 8).
 
     Point indices refer to :meth:`Model.point_list` (chain ends first, then the named
-    points); S selects ``components``. ``chains[0]`` carries the end effector. With a
-    moving platform, ``hub`` is the platform chain and every pair joins one leg's end to
-    a platform point: SCDD then reduces onto the platform's coordinates.
+    points, then points on the fixed base); S selects ``components``. ``chains[0]``
+    carries the end effector. With a moving platform, ``hub`` is the platform chain and
+    every pair joins one leg's end to a platform point: SCDD then reduces onto the
+    platform's coordinates.
+
+    A weld (6d closure) also keeps the orientation of two frames: ``welds`` lists point
+    pairs (a, b) whose frames, oriented by ``weld_rotations`` (R_a, R_b in the frames
+    of the bodies carrying the points), stay aligned; their rows follow the point rows.
+    A weld's position is an ordinary entry of ``pairs``.
     """
 
     pairs: tuple[tuple[int, int], ...]
     components: tuple[int, ...]
     chains: tuple[int, ...]
     hub: int = -1
+    welds: tuple[tuple[int, int], ...] = ()
+    weld_rotations: tuple[tuple[np.ndarray, np.ndarray], ...] = ()
+
+    @property
+    def weld_components(self) -> tuple[int, ...]:
+        """World axes of the orientation rows: z alone on a planar machine."""
+        return (2,) if tuple(self.components) == (0, 1) else (0, 1, 2)
 
     @property
     def size(self) -> int:
-        return len(self.pairs) * len(self.components)
+        return len(self.pairs) * len(self.components) + len(self.welds) * len(self.weld_components)
 
 
 @dataclass(frozen=True)
@@ -143,6 +176,7 @@ class Model:
     branches: tuple[Branch, ...]
     source: str = "<memory>"
     planar: bool = False  # closure/end effector in the x-y plane only
+    fixed_points: tuple[tuple[str, np.ndarray], ...] = ()  # closure points on the fixed base, world frame
 
     # --- joint bookkeeping in tree order (chains stacked, joints in chain order) ---
     @property
@@ -173,11 +207,32 @@ class Model:
         return (0, 1) if self.planar else (0, 1, 2)
 
     def point_list(self) -> list[tuple[int, np.ndarray, str]]:
-        """All attachment points as (chain index, xyz in its last joint's frame, label):
-        the chain ends first (index = chain index), then each chain's named points."""
+        """All attachment points as (chain index, xyz in its body's frame, label): the chain
+        ends first (index = chain index), then each chain's named points, then the points
+        on the fixed base (chain -1, xyz in the world)."""
         out = [(ci, c.end_xyz, f"{c.name}.end") for ci, c in enumerate(self.chains)]
         for ci, c in enumerate(self.chains):
             out.extend((ci, xyz, f"{c.name}.{name}") for name, xyz in c.points)
+        out.extend((-1, xyz, f"base.{name}") for name, xyz in self.fixed_points)
+        return out
+
+    def point_bodies(self) -> list[int]:
+        """For each point of :meth:`point_list`, the tree index of the joint whose body
+        carries it (-1: the fixed base)."""
+        starts = np.cumsum([0] + [len(c.joints) for c in self.chains])
+        bodies = [[int(starts[ci]) + b for b in c.end_and_point_bodies()] for ci, c in enumerate(self.chains)]
+        out = [b[0] for b in bodies]
+        for b in bodies:
+            out.extend(b[1:])
+        return out + [-1] * len(self.fixed_points)
+
+    def parents(self) -> list[int]:
+        """Each joint's parent as a tree index (-1: the base), in tree order."""
+        out = []
+        start = 0
+        for c in self.chains:
+            out.extend(p + start if p >= 0 else -1 for p in c.parent_indices())
+            start += len(c.joints)
         return out
 
     @property
@@ -230,6 +285,8 @@ def joint_motion(joint: Joint, q: float) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _lock_chain(chain: Chain, role: str) -> Chain:
+    if chain.parents or chain.point_bodies or chain.end_body != -1:
+        return _lock_subtree(chain, role)
     out: list[Joint] = []
     # Transform of the pending fixed offset, from the frame the next kept joint's origin
     # is written in to the frame of the last kept joint's child.
@@ -258,3 +315,41 @@ def _lock_chain(chain: Chain, role: str) -> Chain:
     end = pend_R @ chain.end_xyz + pend_p
     points = tuple((name, pend_R @ xyz + pend_p) for name, xyz in chain.points)
     return replace(chain, joints=tuple(out), end_xyz=end, points=points)
+
+
+def _lock_subtree(chain: Chain, role: str) -> Chain:
+    """:func:`_lock_chain` for a subtree: a locked joint's children and points move to the
+    body of its nearest kept ancestor, their frames composed with the locked offset."""
+    out: list[Joint] = []
+    parents: list[int] = []
+    # Per original joint: (kept body index or -1 for the base, R, p of its child frame in that body).
+    carrier: list[tuple[int, np.ndarray, np.ndarray]] = []
+    for j, par in zip(chain.joints, chain.parent_indices(), strict=True):
+        kept, pR, pp = carrier[par] if par >= 0 else (-1, np.eye(3), np.zeros(3))
+        R_in = pR @ j.origin_rotation()
+        p_in = pR @ j.origin_xyz + pp
+        if j.role != role:
+            out.append(replace(j, origin_xyz=p_in, origin_rpy=matrix_to_rpy(R_in)))
+            parents.append(kept)
+            carrier.append((len(out) - 1, np.eye(3), np.zeros(3)))
+            continue
+        Rm, pm = joint_motion(j, j.rest)
+        child_R, child_p = R_in @ Rm, R_in @ pm + p_in
+        if j.body is not None and kept >= 0:  # on the base it never moves: no dynamic effect
+            moved = j.body.moved(child_R, child_p)
+            prev = out[kept]
+            out[kept] = replace(prev, body=moved if prev.body is None else prev.body.combined(moved))
+        carrier.append((kept, child_R, child_p))
+
+    def moved_point(body: int, xyz: np.ndarray) -> tuple[int, np.ndarray]:
+        kept, R, p = carrier[chain.body_index(body)]
+        if kept < 0:
+            raise ValueError(f"chain {chain.name!r}: a point on a body locked to the base")
+        return kept, R @ xyz + p
+
+    end_body, end = moved_point(chain.end_body, chain.end_xyz)
+    bodies = chain.end_and_point_bodies()[1:]
+    moved = [moved_point(b, xyz) for b, (_, xyz) in zip(bodies, chain.points, strict=True)]
+    return replace(chain, joints=tuple(out), end_xyz=end, parents=tuple(parents), end_body=end_body,
+                   points=tuple((name, xyz) for (name, _), (_, xyz) in zip(chain.points, moved, strict=True)),
+                   point_bodies=tuple(b for b, _ in moved))

@@ -1,11 +1,12 @@
 """A robot file's kinematic tree (+ closure sidecar) -> :class:`Model`.
 
-The Model is a set of legs from the fixed base, each a path of 1-DOF joints, and closures
-between points on the legs' last bodies. So: fixed joints are merged into their parent
-body (mass properties combined), ball and universal joints become revolute triples and
-pairs, each moving joint from the base starts a leg, and a tree the Model cannot express
-(a branch inside a leg, a closure frame on a leg's inner body or on the base, a weld) is
-one line "not supported yet: <what>, <where>".
+The Model is a set of legs from the fixed base, each a subtree of 1-DOF joints (a leg may
+branch: a parallelogram forearm, a platform hanging under one leg), and closures between
+points on any bodies or on the base, with or without orientation (3d points, 6d welds).
+So: fixed joints are merged into their parent body (mass properties combined), ball and
+universal joints become revolute triples and pairs, each moving joint from the base (or
+from a link fixed to it) starts a leg, and what the Model cannot express is one line
+"not supported yet: <what>, <where>".
 """
 
 from __future__ import annotations
@@ -49,6 +50,7 @@ class _Leg:
     joints: list[Joint] = field(default_factory=list)
     bodies: list[Body | None] = field(default_factory=list)
     sources: list[TreeJoint] = field(default_factory=list)
+    parents: list[int] = field(default_factory=list)  # per joint: its parent's index in the leg, -1 the base
     name: str = ""
 
 
@@ -69,7 +71,7 @@ def build_model(tree: KinematicTree, sidecar: Sidecar | None = None) -> Model:
     gravity = np.asarray(sidecar.gravity if sidecar is not None and sidecar.gravity is not None
                          else tree.gravity if tree.gravity is not None else DEFAULT_GRAVITY, dtype=float)
     planar = _planar(tree, legs, closures, sidecar)
-    chains, closure = _closure(tree, legs, frames, closures, planar)
+    chains, closure, fixed = _closure(tree, legs, frames, closures, planar)
     ee_mass = sidecar.end_effector_mass if sidecar is not None else 0.0
     if ee_mass > 0:
         chains = _lump_end_effector(chains, ee_mass, closure)
@@ -82,8 +84,9 @@ def build_model(tree: KinematicTree, sidecar: Sidecar | None = None) -> Model:
         branches = tuple(Branch(j.name, j.name) for c in chains for j in c.joints if j.role == ELASTIC)
         initial = InitialState(guess={k: v for k, v in tree.start.items() if k in names})
     model = Model(name=tree.name, chains=tuple(chains), closure=closure, gravity=gravity,
-                  end_effector_mass=ee_mass, initial=initial, branches=branches, source=tree.file, planar=planar)
-    _check_counts(tree, model, sidecar)
+                  end_effector_mass=ee_mass, initial=initial, branches=branches, source=tree.file, planar=planar,
+                  fixed_points=fixed)
+    _check_counts(tree, model, sidecar, closures)
     return model
 
 
@@ -195,40 +198,36 @@ def _legs(tree: KinematicTree, joints: list[TreeJoint], motors: set[str],
                           "a robot file has one root link")
     legs: list[_Leg] = []
     frames: dict[str, _Frame] = {}
-    base_children: list[str] = []
-    # Depth first, in file order: (link, leg, joint index, R, p of the link in the carrier frame)
-    stack = [(roots[0], -1, -1, np.eye(3), np.zeros(3))]
+    # Depth first, in file order: (joint reaching the link, link, leg, joint index, R, p of the
+    # link -- or of a moving joint's frame -- in the carrier's frame). A moving joint's 1-DOF
+    # joints are added when it is reached, so a leg's joints are in depth-first order: every
+    # joint after its parent, one branch after the other.
+    stack: list[tuple] = [(None, roots[0], -1, -1, np.eye(3), np.zeros(3))]
     while stack:
-        link, leg, ji, R, p = stack.pop()
+        c, link, leg, ji, R, p = stack.pop()
+        if c is not None and c.type != FIXED:
+            new = _expand(c, R, p, motors, elastic, rotor)
+            first = len(legs[leg].joints)
+            legs[leg].joints.extend(new)
+            legs[leg].bodies.extend([None] * len(new))
+            legs[leg].sources.extend([c] * len(new))
+            # a ball's or universal's revolutes follow each other; the first hangs on the carrier
+            legs[leg].parents.extend([ji] + list(range(first, first + len(new) - 1)))
+            ji, R, p = len(legs[leg].joints) - 1, np.eye(3), np.zeros(3)
         frames[link] = _Frame(leg, ji, R, p, link)
         body = tree.links[link].body
         if body is not None and leg >= 0:
             moved = body.moved(R, p)
             old = legs[leg].bodies[ji]
             legs[leg].bodies[ji] = moved if old is None else old.combined(moved)
-        moving = [c for c in children[link] if c.type != FIXED]
-        if leg >= 0 and len(moving) > 1:
-            raise moving[1].where.error(
-                f"not supported yet: a branch inside a leg (joints {moving[0].name!r} and {moving[1].name!r} "
-                f"both move link {link!r}), {tree.file}")
         todo = []
         for c in children[link]:
-            Rj, pj = R @ c.origin_R, R @ c.origin_p + p
-            if c.type == FIXED:
-                todo.append((c.child, leg, ji, Rj, pj))
-                continue
-            if leg < 0:
+            target, carrier = leg, ji
+            if c.type != FIXED and leg < 0:  # a moving joint on the base starts a leg
                 legs.append(_Leg(name=c.child))
-                base_children.append(c.child)
                 target = len(legs) - 1
-            else:
-                target = leg
-            new = _expand(c, Rj, pj, motors, elastic, rotor)
-            legs[target].joints.extend(new)
-            legs[target].bodies.extend([None] * len(new))
-            legs[target].sources.extend([c] * len(new))
-            todo.append((c.child, target, len(legs[target].joints) - 1, np.eye(3), np.zeros(3)))
-        stack.extend(reversed(todo))  # depth first in file order
+            todo.append((c, c.child, target, carrier, R @ c.origin_R, R @ c.origin_p + p))
+        stack.extend(reversed(todo))
     unreached = [name for name in tree.links if name not in frames]
     if unreached:
         raise tree.links[unreached[0]].where.error("link is not reachable from the root (a cycle of joints)")
@@ -252,9 +251,10 @@ def _world_axes(legs: list[_Leg]) -> list[tuple[Joint, np.ndarray]]:
     """Each joint's axis in the world at the zero configuration."""
     out = []
     for leg in legs:
-        R = np.eye(3)
-        for j in leg.joints:
-            R = R @ j.origin_rotation()
+        frames: list[np.ndarray] = []
+        for j, par in zip(leg.joints, leg.parents, strict=True):
+            R = (frames[par] if par >= 0 else np.eye(3)) @ j.origin_rotation()
+            frames.append(R)
             out.append((j, R @ j.axis))
     return out
 
@@ -290,84 +290,110 @@ def _planar(tree: KinematicTree, legs: list[_Leg], closures: list, sidecar: Side
 
 
 # ----------------------------------------------------------------------- closure
+@dataclass
+class _Points:
+    """Closure points as they are found, per leg and on the base (leg -1): (body, xyz, R, name)."""
+
+    legs: list[list[tuple[int, np.ndarray, np.ndarray, str]]]
+    base: list[tuple[int, np.ndarray, np.ndarray, str]] = field(default_factory=list)
+
+    def add(self, leg: int, body: int, xyz: np.ndarray, R: np.ndarray, name: str, shifted: bool) -> tuple[int, int]:
+        """(leg, index in its list) of the point, the same for a frame met before."""
+        found = self.base if leg < 0 else self.legs[leg]
+        for k, (b, x, r, _) in enumerate(found):
+            if b == body and np.allclose(x, xyz, rtol=0.0, atol=1e-15) and np.allclose(r, R, rtol=0.0, atol=1e-15):
+                return leg, k
+        found.append((body, xyz, R, f"{name}@{len(found)}" if shifted else name))
+        return leg, len(found) - 1
+
+
 def _closure(tree: KinematicTree, legs: list[_Leg], frames: dict[str, _Frame], closures: list,
-             planar: bool) -> tuple[list[Chain], Closure | None]:
-    points: list[list[tuple[str, np.ndarray]]] = [[] for _ in legs]  # per leg: (frame name, xyz)
+             planar: bool) -> tuple[list[Chain], Closure | None, tuple[tuple[str, np.ndarray], ...]]:
+    found = _Points([[] for _ in legs])
     pair_refs: list[tuple[tuple[int, int], tuple[int, int]]] = []
+    weld_refs: list[int] = []
     for spec in closures:
-        if spec.kind != "3d":
-            raise spec.where.error(f"not supported yet: a {spec.kind} closure (a weld: position and orientation) "
-                                   f"between {spec.frame_a!r} and {spec.frame_b!r}; only 3d point closures")
-        refs = []
+        refs, where = [], []
         for name, offset in ((spec.frame_a, spec.offset_a), (spec.frame_b, spec.offset_b)):
             f = _frame(tree, frames, name, spec.where)
-            if f.leg < 0:
-                raise spec.where.error(f"not supported yet: a closure on the fixed base (frame {name!r})")
-            leg = legs[f.leg]
-            if f.joint != len(leg.joints) - 1:
-                after = leg.sources[f.joint + 1].name
-                raise spec.where.error(f"not supported yet: closure frame {name!r} on an inner body of leg "
-                                       f"{leg.name!r} (joint {after!r} follows it); closures join legs' last bodies")
             xyz = f.R @ np.asarray(offset, dtype=float) + f.p
-            key = f"{name}" if not np.any(offset) else f"{name}@{len(points[f.leg])}"
-            for k, (_, pxyz) in enumerate(points[f.leg]):
-                if np.allclose(pxyz, xyz, rtol=0.0, atol=1e-15):
-                    refs.append((f.leg, k))
-                    break
-            else:
-                points[f.leg].append((key, xyz))
-                refs.append((f.leg, len(points[f.leg]) - 1))
-        if refs[0][0] == refs[1][0]:
-            raise spec.where.error(f"frames {spec.frame_a!r} and {spec.frame_b!r} are on the same leg "
-                                   f"{legs[refs[0][0]].name!r}: a closure joins two legs")
+            # A point closure's frame orientation does not matter: only a weld keeps it.
+            R = f.R if spec.kind == "6d" else np.eye(3)
+            refs.append(found.add(f.leg, f.joint, xyz, R, name, bool(np.any(offset))))
+            where.append(f)
+        fa, fb = where
+        if fa.leg == fb.leg and fa.joint == fb.joint:
+            on = "the fixed base" if fa.leg < 0 else f"one body of leg {legs[fa.leg].name!r}"
+            raise spec.where.error(f"frames {spec.frame_a!r} and {spec.frame_b!r} are both on {on}: no joint "
+                                   "between them, so the closure makes no loop")
+        if spec.kind == "6d":
+            weld_refs.append(len(pair_refs))
         pair_refs.append((refs[0], refs[1]))
     chains = []
-    for leg, pts in zip(legs, points, strict=True):
-        end = pts[0][1] if pts else np.zeros(3)
+    for leg, pts in zip(legs, found.legs, strict=True):
+        last = len(leg.joints) - 1
+        parents = tuple(leg.parents)
+        end_body, end = (pts[0][0], pts[0][1]) if pts else (last, np.zeros(3))
+        bodies = tuple(b for b, *_ in pts[1:])
+        # a serial leg with every point on its last body keeps the default (serial) form
+        serial = parents == tuple(range(-1, last)) and end_body == last and all(b == last for b in bodies)
         chains.append(Chain(name=leg.name, joints=tuple(leg.joints), end_xyz=end,
-                            points=tuple((n, x) for n, x in pts[1:])))
+                            points=tuple((n, x) for _, x, _, n in pts[1:]),
+                            parents=() if serial else parents, end_body=-1 if serial else end_body,
+                            point_bodies=() if serial else bodies))
+    fixed = tuple((n, x) for _, x, _, n in found.base)
     if not pair_refs:
-        return chains, None
-    # Model.point_list: every chain's end first, then each chain's further points in order.
+        return chains, None, fixed
+    # Model.point_list: every chain's end first, then each chain's further points, then the base's.
     index: dict[tuple[int, int], int] = {(ci, 0): ci for ci in range(len(legs))}
     k = len(legs)
-    for ci, pts in enumerate(points):
+    for ci, pts in enumerate(found.legs):
         for pi in range(1, len(pts)):
             index[(ci, pi)] = k
             k += 1
+    for pi in range(len(found.base)):
+        index[(-1, pi)] = k + pi
     pairs = tuple((index[a], index[b]) for a, b in pair_refs)
+
+    def rotation(ref: tuple[int, int]) -> np.ndarray:
+        return (found.base if ref[0] < 0 else found.legs[ref[0]])[ref[1]][2]
+
     order: list[int] = []
     for a, b in pair_refs:
         for ci, _ in (a, b):
-            if ci not in order:
+            if ci >= 0 and ci not in order:
                 order.append(ci)
-    return chains, Closure(pairs=pairs, components=(0, 1) if planar else (0, 1, 2), chains=tuple(order))
+    return chains, Closure(pairs=pairs, components=(0, 1) if planar else (0, 1, 2), chains=tuple(order),
+                           welds=tuple(pairs[w] for w in weld_refs),
+                           weld_rotations=tuple((rotation(pair_refs[w][0]), rotation(pair_refs[w][1]))
+                                                for w in weld_refs)), fixed
 
 
 def _lump_end_effector(chains: list[Chain], mass: float, closure: Closure | None) -> list[Chain]:
     """The end-effector point mass at the first closure's first point: split equally over the
-    chains that meet there (exact for a point mass, as in a model YAML)."""
+    bodies that meet there (exact for a point mass, as in a model YAML); none on the base."""
+    plist = [(ci, c.end_xyz, c.end_and_point_bodies()[0]) for ci, c in enumerate(chains)]
+    for ci, c in enumerate(chains):
+        plist.extend((ci, xyz, b) for (_, xyz), b in zip(c.points, c.end_and_point_bodies()[1:], strict=True))
     if closure is None:
-        owners = [(0, chains[0].end_xyz)]
+        owners = [plist[0]]
     else:
         first = closure.pairs[0][0]
         meet = {first} | {b for a, b in closure.pairs if a == first} | {a for a, b in closure.pairs if b == first}
-        plist = [(ci, c.end_xyz) for ci, c in enumerate(chains)]
-        for ci, c in enumerate(chains):
-            plist.extend((ci, xyz) for _, xyz in c.points)
-        owners = [plist[i] for i in sorted(meet)]
+        owners = [plist[i] for i in sorted(meet) if i < len(plist)]  # points beyond plist are on the base
     out = list(chains)
     share = mass / len(owners)
-    for ci, xyz in owners:
+    for ci, xyz, body in owners:
         c = out[ci]
-        last = c.joints[-1]
+        j = c.joints[body]
         point = Body(share, np.array(xyz, dtype=float), np.zeros((3, 3)))
-        out[ci] = replace(c, joints=c.joints[:-1] + (replace(last, body=point if last.body is None
-                                                               else last.body.combined(point)),))
+        joints = list(c.joints)
+        joints[body] = replace(j, body=point if j.body is None else j.body.combined(point))
+        out[ci] = replace(c, joints=tuple(joints))
     return out
 
 
-def _check_counts(tree: KinematicTree, model: Model, sidecar: Sidecar | None) -> None:
+def _check_counts(tree: KinematicTree, model: Model, sidecar: Sidecar | None, closures: list) -> None:
     n_active = len(model.indices(ACTIVE))
     n_passive = len(model.indices(PASSIVE))
     m = model.closure.size if model.closure is not None else 0
@@ -378,7 +404,7 @@ def _check_counts(tree: KinematicTree, model: Model, sidecar: Sidecar | None) ->
     if n_passive != m:
         passive = [j.name for j in model.joints if j.role == PASSIVE]
         where = Where(sidecar.src.file, "closed_loop", sidecar.src.line(("closed_loop",))) if sidecar is not None \
-            else Where(tree.file, "equality")
+            else closures[0].where if closures else Where(tree.file, "equality")
         raise where.error(f"the closures give {m} equations but the legs have {n_passive} passive joints "
                           f"({', '.join(passive[:8])}{', ...' if len(passive) > 8 else ''}): every joint that is "
                           "neither a motor nor elastic must be fixed by the closures")

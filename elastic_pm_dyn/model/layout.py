@@ -22,7 +22,10 @@ JF_WIDTH = 33
 JI_TYPE = 0  # 0 revolute, 1 prismatic
 JI_ROLE = 1  # 0 active, 1 elastic, 2 passive
 JI_CHAIN = 2
-JI_WIDTH = 3
+JI_PARENT = 3  # tree index of the parent joint, -1 = the base (serial chain: k - 1)
+JI_KEEP = 4  # 1: the sweep stores this body's frame (a branch hangs on it, or a point of an inner body)
+JI_SUBTREE = 5  # 1 on every joint of a subtree that is not a plain serial chain (the general sweep)
+JI_WIDTH = 6
 
 TYPE_CODES = {"revolute": 0, "prismatic": 1}
 ROLE_CODES = {"active": 0, "elastic": 1, "passive": 2}

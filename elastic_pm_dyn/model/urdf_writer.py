@@ -30,10 +30,17 @@ def model_to_urdf(model: Model) -> str:
     size = max([float(np.linalg.norm(j.origin_xyz)) for j in model.joints] + [0.1])
     radius = 0.02 * size
     out = ['<?xml version="1.0"?>', f"<robot name={quoteattr(model.name)}>", f"  <link name={quoteattr(BASE)}/>"]
-    for chain in model.chains:
-        parent = BASE
+    rotations = _frame_rotations(model)
+    ip = len(model.chains)  # index of the chain's first named point in Model.point_list
+    for ci, chain in enumerate(model.chains):
+        parents = chain.parent_indices()
+        bodies = chain.end_and_point_bodies()
+        frames = [("end", chain.end_xyz, bodies[0], ci), *((name, xyz, b, ip + k) for k, ((name, xyz), b)
+                                                           in enumerate(zip(chain.points, bodies[1:], strict=True)))]
+        ip += len(chain.points)
         for k, j in enumerate(chain.joints):
             link = _link_name(j.name)
+            parent = BASE if parents[k] < 0 else _link_name(chain.joints[parents[k]].name)
             kind = "prismatic" if j.type == PRISMATIC else "continuous"
             out.append(f"  <joint name={quoteattr(j.name)} type=\"{kind}\">")
             out.append(f"    <parent link={quoteattr(parent)}/>\n    <child link={quoteattr(link)}/>")
@@ -43,10 +50,8 @@ def model_to_urdf(model: Model) -> str:
             if j.friction > 0 and j.role != ELASTIC:
                 out.append(f'    <dynamics damping="{float(j.friction)!r}"/>')
             out.append("  </joint>")
-            if k + 1 < len(chain.joints):
-                ends = [chain.joints[k + 1].origin_xyz]
-            else:
-                ends = [chain.end_xyz] + [xyz for _, xyz in chain.points]
+            ends = [c.origin_xyz for c, p in zip(chain.joints, parents, strict=True) if p == k] + \
+                [xyz for _, xyz, b, _ in frames if b == k]
             out.append(f"  <link name={quoteattr(link)}>")
             if j.body is not None:
                 b = j.body
@@ -56,14 +61,29 @@ def model_to_urdf(model: Model) -> str:
                            f"      <mass value=\"{float(b.mass)!r}\"/>\n      <inertia {moments}/>\n    </inertial>")
             out.extend(_visuals(ends, radius))
             out.append("  </link>")
-            parent = link
-        for name, xyz in [("end", chain.end_xyz), *chain.points]:
-            frame = f"{chain.name}_{name}"
-            out.append(f"  <joint name={quoteattr(frame + '_frame')} type=\"fixed\">\n"
-                       f"    <parent link={quoteattr(parent)}/>\n    <child link={quoteattr(frame)}/>\n"
-                       f"    {_origin(xyz, np.zeros(3))}\n  </joint>\n  <link name={quoteattr(frame)}/>")
+        for name, xyz, b, i in frames:
+            out.append(_frame(f"{chain.name}_{name}", _link_name(chain.joints[b].name), xyz, rotations.get(i)))
+    for k, (name, xyz) in enumerate(model.fixed_points):
+        out.append(_frame(f"base_{name}", BASE, xyz, rotations.get(ip + k)))
     out.append("</robot>")
     return "\n".join(out) + "\n"
+
+
+def _frame(name: str, parent: str, xyz: np.ndarray, R: np.ndarray | None) -> str:
+    """A closure frame: a fixed link, turned as a weld's frame where it is one."""
+    rpy = np.zeros(3) if R is None else matrix_to_rpy(R)
+    return (f"  <joint name={quoteattr(name + '_frame')} type=\"fixed\">\n"
+            f"    <parent link={quoteattr(parent)}/>\n    <child link={quoteattr(name)}/>\n"
+            f"    {_origin(xyz, rpy)}\n  </joint>\n  <link name={quoteattr(name)}/>")
+
+
+def _frame_rotations(model: Model) -> dict[int, np.ndarray]:
+    """Orientation of each weld frame in its body, by point index."""
+    out: dict[int, np.ndarray] = {}
+    if model.closure is not None:
+        for (a, b), (Ra, Rb) in zip(model.closure.welds, model.closure.weld_rotations, strict=True):
+            out[a], out[b] = Ra, Rb
+    return out
 
 
 def closure_sidecar(model: Model) -> str:
@@ -72,7 +92,8 @@ def closure_sidecar(model: Model) -> str:
     data: dict = {}
     if model.closure is not None:
         data["closed_loop"] = [[labels[a], labels[b]] for a, b in model.closure.pairs]
-        data["type"] = ["3d"] * len(model.closure.pairs)
+        welds = set(model.closure.welds)
+        data["type"] = ["6d" if pair in welds else "3d" for pair in model.closure.pairs]
     data["name_mot"] = [j.name for j in model.joints if j.role == ACTIVE]
     elastic = {j.name: {"stiffness": j.stiffness, "damping": j.damping, "rest": j.rest}
                for j in model.joints if j.role == ELASTIC}

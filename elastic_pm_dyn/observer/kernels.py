@@ -36,6 +36,7 @@ from numba import njit
 
 from elastic_pm_dyn.dynamics.evaluate import SCDD, accelerations, accelerations_into, workspace
 from elastic_pm_dyn.dynamics.kernels import passive_map
+from elastic_pm_dyn.kinematics.kernels import point_buffers
 from elastic_pm_dyn.model.layout import JF_STIFFNESS
 from elastic_pm_dyn.sim.kernels import OK, _closure, partition, rk4_steps
 from elastic_pm_dyn.small_linalg import cholesky, cholesky_solve
@@ -112,9 +113,9 @@ class EncoderPlan(NamedTuple):
 
 @njit(cache=True)
 def _work(ma, n):
-    npt = ma.points.shape[0]
     m = ma.p_index.shape[0]
-    return (np.empty((n, n)), np.empty(n), np.empty((npt, 3, n)), np.empty((npt, 3)), np.empty((npt, 3)),
+    J, a_pt, p_pt = point_buffers(ma.points, n)
+    return (np.empty((n, n)), np.empty(n), J, a_pt, p_pt,
             np.empty((m, n)), np.empty(m), np.empty(m))
 
 

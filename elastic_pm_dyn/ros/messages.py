@@ -164,7 +164,7 @@ class PlantMessages:
         np.subtract(q[j], mech.rest[j], out=self.deflection)
         self.rate[:] = qd[j]
         ma = mech.arrays
-        chain_points(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_chain, q, self._origins, self._coms,
+        chain_points(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_body, q, self._origins, self._coms,
                      self._tips)
         self.ee_xyz[self._ee_components] = self._tips[self._ee_chain, self._ee_components]
 

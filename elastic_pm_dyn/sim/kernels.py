@@ -19,7 +19,7 @@ from numba import njit
 
 from elastic_pm_dyn.dynamics.evaluate import LDA, accelerations_into, workspace
 from elastic_pm_dyn.dynamics.kernels import chain_responses
-from elastic_pm_dyn.kinematics.kernels import closure_rows, tree_terms
+from elastic_pm_dyn.kinematics.kernels import closure_rows, point_buffers, tree_terms, weld_rows
 from elastic_pm_dyn.model.arrays import ModelArrays
 from elastic_pm_dyn.small_linalg import lu_factor, lu_solve, matvec
 
@@ -47,8 +47,10 @@ DIVERGED = 2
 
 @njit(cache=True)
 def _closure(ma, q, qd, M, h, J, a_pt, p_pt, A, gamma, res):
-    tree_terms(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_chain, ma.gravity, q, qd, M, h, J, a_pt, p_pt)
+    tree_terms(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_body, ma.gravity, q, qd, M, h, J, a_pt, p_pt)
     closure_rows(ma.closure_pairs, ma.closure_components, J, a_pt, p_pt, A, gamma, res)
+    if ma.points.shape[1] == 12:  # welds: their points carry frames
+        weld_rows(ma.closure_pairs, ma.closure_components, J, a_pt, p_pt, A, gamma, res)
     return np.sqrt(np.sum(res * res))
 
 
@@ -59,12 +61,11 @@ def partition(ma, q, qd, tol, max_iter):
     Returns (gap, pivot ratio of dh/dq_p).
     """
     n = q.shape[0]
-    npt = ma.points.shape[0]
     m = ma.p_index.shape[0]
     if m == 0:
         return 0.0, 1.0
     M, h = np.empty((n, n)), np.empty(n)
-    J, a_pt, p_pt = np.empty((npt, 3, n)), np.empty((npt, 3)), np.empty((npt, 3))
+    J, a_pt, p_pt = point_buffers(ma.points, n)
     A, gamma, res = np.empty((m, n)), np.empty(m), np.empty(m)
     Ap = np.empty((m, m))
     piv = np.empty(m, dtype=np.int64)
@@ -102,12 +103,11 @@ def project(ma, q, qd, tol, max_iter):
     per-chain responses, so this costs one tree evaluation per iteration.
     """
     n = q.shape[0]
-    npt = ma.points.shape[0]
     m = ma.p_index.shape[0]
     if m == 0:
         return 0.0
     M, h = np.empty((n, n)), np.empty(n)
-    J, a_pt, p_pt = np.empty((npt, 3, n)), np.empty((npt, 3)), np.empty((npt, 3))
+    J, a_pt, p_pt = point_buffers(ma.points, n)
     A, gamma, res = np.empty((m, n)), np.empty(m), np.empty(m)
     x = np.empty(n)
     Y = np.empty((n, m))
@@ -279,12 +279,12 @@ def _diverged(ma, qs, vs, tau, a, b, qdd_prev, acc, lam, ws, form, info):
 
 
 @njit(cache=True)
-def rk4_steps_flat(form, jf, ji, chain_start, points, point_chain, gravity, closure_pairs, closure_components,
+def rk4_steps_flat(form, jf, ji, chain_start, points, point_body, gravity, closure_pairs, closure_components,
                    hub, ae_index, p_index, q, qd, tau_coef, dt, n_steps, stab, alpha, beta, tol, singular_tol,
                    qdd_prev, lam, info):
     """:func:`rk4_steps` with the model as separate arrays (``*mech.arrays``): the cheap
     entry point from Python (see ``accelerations_flat``)."""
-    ma = ModelArrays(jf, ji, chain_start, points, point_chain, gravity, closure_pairs, closure_components,
+    ma = ModelArrays(jf, ji, chain_start, points, point_body, gravity, closure_pairs, closure_components,
                      hub, ae_index, p_index)
     return rk4_steps(form, ma, q, qd, tau_coef, dt, n_steps, stab, alpha, beta, tol, singular_tol,
                      qdd_prev, lam, info)
