@@ -1,4 +1,8 @@
-"""RViz markers of a mechanism: links as line strips, joints and end effector as spheres."""
+"""RViz markers of a mechanism: links as lines, joints and end effector as spheres.
+
+A serial chain is one line strip through its joints to its end; a chain that branches (a
+parallelogram forearm, a platform under one leg) is a line list: one segment from each
+joint's parent joint to it, and one from the body carrying the end to the end."""
 
 from __future__ import annotations
 
@@ -29,15 +33,29 @@ class MechanismMarkers:
         sizes = [len(c.joints) for c in mech.model.chains]
         starts = np.concatenate([[0], np.cumsum(sizes)])
         self._chains = [range(starts[i], starts[i + 1]) for i in range(len(sizes))]
+        # per branching chain: (parent, child) tree indices of its segments, and its end's body
+        self._segments: dict[int, tuple[list[tuple[int, int]], int]] = {}
+        for i, c in enumerate(mech.model.chains):
+            parents = c.parent_indices()
+            if parents != list(range(-1, len(c.joints) - 1)) or c.body_index(c.end_body) != len(c.joints) - 1:
+                s0 = int(starts[i])
+                pairs = [(s0 + p, s0 + k) for k, p in enumerate(parents) if p >= 0]
+                self._segments[i] = (pairs, s0 + c.body_index(c.end_body))
 
     def build(self, q: np.ndarray, ns_time: int) -> MarkerArray:
         origins, _, tips = self.mech.points(q)
         markers = []
         for i, joints in enumerate(self._chains):
-            m = self._marker(i, Marker.LINE_STRIP, ns_time)
+            if i in self._segments:
+                m = self._marker(i, Marker.LINE_LIST, ns_time)
+                pairs, end_body = self._segments[i]
+                m.points = [_point(origins[j]) for pair in pairs for j in pair]
+                m.points += [_point(origins[end_body]), _point(tips[i])]
+            else:
+                m = self._marker(i, Marker.LINE_STRIP, ns_time)
+                m.points = [_point(origins[j]) for j in joints] + [_point(tips[i])]
             m.scale.x = LINK_WIDTH
             m.color = _LINK_COLORS[i % len(_LINK_COLORS)]
-            m.points = [_point(origins[j]) for j in joints] + [_point(tips[i])]
             markers.append(m)
         m = self._marker(len(self._chains), Marker.SPHERE_LIST, ns_time)
         m.scale.x = m.scale.y = m.scale.z = JOINT_DIAMETER
