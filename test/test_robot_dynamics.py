@@ -6,7 +6,8 @@
     closure frames, LOCAL), with a small Baumgarte corrector against drift, integrated by
     scipy's DOP853 at rtol 1e-10: 0.2 s from the assembled start pose under gravity (the
     five-bar has none in its file: it is driven by constant motor torques), joint angles
-    agree to 1e-6 rad. Springs and dampers enter Pinocchio as joint torques
+    agree to 1e-6 rad; also on the trees (a parallelogram Delta whose legs branch, two arms
+    welded at their hands (6d), a rocker pinned to the base). Springs and dampers enter Pinocchio as joint torques
     -c (q - q0) - d qd (Pinocchio has no such elements, docs/peers.md).
 (b) MJCF: the four-bar with a spring in its loop against MuJoCo's own RK4 over 0.2 s, within
     the error of MuJoCo's soft loop closure (the bound is explained at the test).
@@ -32,12 +33,14 @@ FIVE_BAR_URDF = ROBOTS / "five_bar_urdf" / "robot.urdf"
 FOUR_BAR_URDF = ROBOTS / "four_bar_onshape" / "robot.urdf"
 DELTA_URDF = ROBOTS / "delta_urdf" / "robot.urdf"
 FOUR_BAR_MJCF = ROBOTS / "four_bar_spring.xml"
+TREES = ("delta_parallelogram", "weld_arms", "base_pinned")  # legs that branch, a 6d weld, a closure to the base
 DURATION = 0.2  # [s]
 SAMPLE = 1e-3  # [s]
 ANGLE_TOL = 1e-6  # [rad] (and m for the springs)
 MUJOCO_TOL = 2e-4  # [rad]: MuJoCo's soft loop closure (7.4e-5 measured), see the MJCF test
 # Motor torques [N m]: the five-bar has no gravity, so it is driven; the others also fall.
-TORQUES = {"five_bar": [0.4, -0.3], "four_bar": [1.0], "delta": [0.8, -0.5, 0.3]}
+TORQUES = {"five_bar": [0.4, -0.3], "four_bar": [1.0], "delta": [0.8, -0.5, 0.3],
+           "delta_parallelogram": [0.8, -0.5, 0.3], "weld_arms": [0.3, -0.2], "base_pinned": [0.2]}
 
 
 def pinocchio_run(peer: PinocchioMachine, mech: Mechanism, q0: np.ndarray, tau_active: np.ndarray,
@@ -61,7 +64,8 @@ def ours(mech: Mechanism, tau_active, integrator: str) -> tuple[np.ndarray, np.n
     return run.t, run.q
 
 
-CASES = [("five_bar", FIVE_BAR_URDF), ("four_bar", FOUR_BAR_URDF), ("delta", DELTA_URDF)]
+CASES = [("five_bar", FIVE_BAR_URDF), ("four_bar", FOUR_BAR_URDF), ("delta", DELTA_URDF)] + \
+    [(name, ROBOTS / name / "robot.urdf") for name in TREES]
 
 
 @pytest.mark.parametrize(("name", "urdf"), CASES, ids=[c[0] for c in CASES])
