@@ -298,10 +298,17 @@ def _band_order(run, theta: dict, best: Evaluation, history: list, log) -> tuple
                                      f"{max(p['process.disturbance_bandwidth']):.4g} Hz: NLL {r.nll:.6g}"
                                      for p, r in zip(trials, results, strict=True))
         + f" (now {theta['process.disturbance_band_order']}: {best.nll:.6g})")
+    return _likeliest(trials, results, best, theta, history, "process.disturbance_band_order")
+
+
+def _likeliest(trials: list[dict], results: list[Evaluation], best: Evaluation, theta: dict, history: list,
+               name: str) -> tuple[Evaluation, dict]:
+    """The likeliest trial if it gains :data:`MIN_GAIN` over ``best`` (recorded in ``history`` by
+    the value of ``name``), else ``best`` and ``theta`` as they were."""
     i = int(np.argmin([r.nll for r in results]))
     if results[i].nll < best.nll - MIN_GAIN:
         best, theta = results[i], trials[i]
-        history.append((f"process.disturbance_band_order = {theta['process.disturbance_band_order']}", best.nll))
+        history.append((f"{name} = {_text(theta[name])}", best.nll))
     return best, theta
 
 
@@ -325,11 +332,7 @@ def _scan_delay(run, theta: dict, events: list[Event], best: Evaluation, history
     log("  command_delay scan: " + ", ".join(f"{p['command_delay'] * 1e3:.3g} ms {r.nll:.6g}"
                                             for p, r in zip(trials, results, strict=True))
         + f" (now {current * 1e3:.3g} ms {best.nll:.6g})")
-    i = int(np.argmin([r.nll for r in results]))
-    if results[i].nll < best.nll - MIN_GAIN:
-        best, theta = results[i], trials[i]
-        history.append((f"command_delay = {theta['command_delay']:.4g}", best.nll))
-    return best, theta
+    return _likeliest(trials, results, best, theta, history, "command_delay")
 
 
 # ---------------------------------------------------------------------- parameter files
