@@ -104,6 +104,30 @@ def _point_column(ji, wz, wo, pt, J, ip, j, spatial):
         J[ip, 5, j] = zj[2]
 
 
+@njit(cache=True, inline="always")
+def _joint_step(jf, ji, k, q, qd, R, o, w, al, ao):
+    """Body k's frame R, origin o, angular velocity w and bias accelerations al, ao from its
+    parent body's (all world-frame), and its joint axis z in the world."""
+    R0 = v.row9(jf, k, JF_ORIGIN_R)
+    ax = v.row3(jf, k, JF_AXIS)
+    oj = v.add(o, v.mv(R, v.row3(jf, k, JF_ORIGIN_P)))
+    Rj = v.mm(R, R0)
+    z = v.mv(Rj, ax)
+    zq = v.scale(z, qd[k])
+    if ji[k, JI_TYPE] == 1:  # prismatic: the origin slides along z
+        on = v.add(oj, v.scale(z, q[k]))
+        d = v.sub(on, o)
+        ao = v.add(v.add(ao, v.cross(al, d)),
+                   v.add(v.cross(w, v.cross(w, d)), v.scale(v.cross(w, zq), 2.0)))
+        return Rj, on, w, al, ao, z
+    # revolute: the child frame turns about z through oj
+    d = v.sub(oj, o)
+    ao = v.add(v.add(ao, v.cross(al, d)), v.cross(w, v.cross(w, d)))
+    al = v.add(al, v.cross(w, zq))
+    w = v.add(w, zq)
+    return v.mm(Rj, v.axis_rotation(ax, q[k])), oj, w, al, ao, z
+
+
 @njit(cache=True)
 def serial_chain_terms(jf, ji, s, e, points, point_body, grav, q, qd, M, h, J, a_pt, p_pt, wz, wo, jv, jw):
     """:func:`subtree_terms` of a serial chain (joint k's parent k - 1) whose points all sit
@@ -117,26 +141,7 @@ def serial_chain_terms(jf, ji, s, e, points, point_body, grav, q, qd, M, h, J, a
     al = ZERO  # its angular bias acceleration
     ao = ZERO  # bias acceleration of its origin o
     for k in range(s, e):
-        R0 = v.row9(jf, k, JF_ORIGIN_R)
-        ax = v.row3(jf, k, JF_AXIS)
-        oj = v.add(o, v.mv(R, v.row3(jf, k, JF_ORIGIN_P)))
-        Rj = v.mm(R, R0)
-        z = v.mv(Rj, ax)
-        zq = v.scale(z, qd[k])
-        if ji[k, JI_TYPE] == 1:  # prismatic: the origin slides along z
-            on = v.add(oj, v.scale(z, q[k]))
-            d = v.sub(on, o)
-            ao = v.add(v.add(ao, v.cross(al, d)),
-                       v.add(v.cross(w, v.cross(w, d)), v.scale(v.cross(w, zq), 2.0)))
-            o = on
-            R = Rj
-        else:  # revolute: the child frame turns about z through oj
-            d = v.sub(oj, o)
-            ao = v.add(v.add(ao, v.cross(al, d)), v.cross(w, v.cross(w, d)))
-            al = v.add(al, v.cross(w, zq))
-            w = v.add(w, zq)
-            o = oj
-            R = v.mm(Rj, v.axis_rotation(ax, q[k]))
+        R, o, w, al, ao, z = _joint_step(jf, ji, k, q, qd, R, o, w, al, ao)
         _store(wz, k, z)
         _store(wo, k, o)
 
@@ -216,26 +221,7 @@ def subtree_terms(jf, ji, s, e, points, point_body, grav, q, qd, M, h, J, a_pt, 
             R, o, w, al, ao = IDENTITY, ZERO, ZERO, ZERO, ZERO
         elif par != k - 1:  # a branch: continue from the parent's body, not the previous one
             R, o, w, al, ao = _load_frame(fr, wo, par)
-        R0 = v.row9(jf, k, JF_ORIGIN_R)
-        ax = v.row3(jf, k, JF_AXIS)
-        oj = v.add(o, v.mv(R, v.row3(jf, k, JF_ORIGIN_P)))
-        Rj = v.mm(R, R0)
-        z = v.mv(Rj, ax)
-        zq = v.scale(z, qd[k])
-        if ji[k, JI_TYPE] == 1:  # prismatic: the origin slides along z
-            on = v.add(oj, v.scale(z, q[k]))
-            d = v.sub(on, o)
-            ao = v.add(v.add(ao, v.cross(al, d)),
-                       v.add(v.cross(w, v.cross(w, d)), v.scale(v.cross(w, zq), 2.0)))
-            o = on
-            R = Rj
-        else:  # revolute: the child frame turns about z through oj
-            d = v.sub(oj, o)
-            ao = v.add(v.add(ao, v.cross(al, d)), v.cross(w, v.cross(w, d)))
-            al = v.add(al, v.cross(w, zq))
-            w = v.add(w, zq)
-            o = oj
-            R = v.mm(Rj, v.axis_rotation(ax, q[k]))
+        R, o, w, al, ao, z = _joint_step(jf, ji, k, q, qd, R, o, w, al, ao)
         _store(wz, k, z)
         _store(wo, k, o)
         if ji[k, JI_KEEP] != 0:
