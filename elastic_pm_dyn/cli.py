@@ -109,8 +109,16 @@ def cmd_feedforward(args: argparse.Namespace) -> int:
     from elastic_pm_dyn.motion.trajectory import QuinticLine
     from elastic_pm_dyn.sim.torque import write_torque_csv
     model = _load(args)
+    dims = len(model.ee_components)
+    axes = " ".join(f"{c}A" for c in "XYZ"[:dims]) + " " + " ".join(f"{c}B" for c in "XYZ"[:dims])
+    if args.line is None and dims != len(ref.start):
+        raise InputError(f"--line is needed: the default line is the planar five-bar's, and this machine's end "
+                         f"effector has {dims} coordinates: give {2 * dims} numbers {axes}")
     points = args.line or [*ref.start, *ref.end]
-    a, b = np.array(points[:len(points) // 2]), np.array(points[len(points) // 2:])
+    if len(points) != 2 * dims:
+        raise InputError(f"--line: this machine's end effector has {dims} coordinates: give {2 * dims} numbers "
+                         f"{axes}, got {len(points)}")
+    a, b = np.array(points[:dims]), np.array(points[dims:])
     rate = ref.control_rate if args.rate is None else args.rate
     line = QuinticLine(a, b, ref.move if args.move is None else args.move, ref.hold if args.hold is None else args.hold)
     samples = line.duration * rate

@@ -255,3 +255,15 @@ def test_observer_parameter_file_mistake_is_one_line(tmp_path, capsys, content, 
     line = _one_error_line(capsys)
     assert str(cfg) in line and all(w in line for w in words), line
     assert not (tmp_path / "out").exists() and not (tmp_path / "tuned.yaml").exists()
+
+
+@pytest.mark.parametrize("extra, words", [((), ["--line is needed", "3 coordinates", "XA YA ZA XB YB ZB"]),
+                                          (("--line", "0", "0", "1", "1"), ["--line", "give 6 numbers", "got 4"])],
+                         ids=["no-line", "planar-line"])
+def test_feedforward_on_a_spatial_machine_asks_for_its_line(tmp_path, capsys, extra, words) -> None:
+    """The default line is the planar five-bar's: a spatial machine gets one line, not a traceback."""
+    out = tmp_path / "ff.csv"
+    assert main(["feedforward", "--model", str(FIVE_BAR.parent / "triglide.yaml"), "--out", str(out), *extra]) == 2
+    err = _one_error_line(capsys)
+    assert all(w in err for w in words), err
+    assert not out.exists()
