@@ -59,6 +59,11 @@ ROLE_ELASTIC = 1
 # (RK4 sub-steps lose (h omega)^6 / 144 of the energy each: all of an undamped kHz mode's
 # within seconds).
 TAYLOR_ORDER = 12
+DEFAULT_PHASE_STEP = 1.0  # [rad] per sub-step (SimulationOptions.phase_step)
+
+# [s] the step `check` suggests: it met the 1 % branch-force criterion on every machine and
+# ZOH input of bench/bench_integrators.py (bench/README_integrators.md)
+RECOMMENDED_STEP = 5e-4
 
 # Upper end of the sub-steps per macro step: a fastest mode 10^4 times the macro step's
 # frequency means a step or a model beyond what the method is for.
@@ -446,3 +451,16 @@ def exponential_steps_flat(scheme, form, jf, ji, chain_start, points, point_chai
                      hub, ae_index, p_index)
     return exponential_steps(scheme, form, ma, q, qd, tau_coef, dt, n_steps, stab, alpha, beta, tol, singular_tol,
                              phase_step, qdd_prev, lam, info)
+
+
+def substeps_at(mech, q: np.ndarray, dt: float) -> tuple[float, int]:
+    """(bound of the fastest frozen rate [rad/s], sub-steps per step of dt at the default
+    phase step) at the pose q: what ETD2's step costs there."""
+    ma = mech.arrays
+    n = mech.n
+    fast = fast_joints(ma)
+    t = mech.terms(q)
+    G = np.empty((n, fast.shape[0] + 2))
+    elastic_gains(ma, fast, t.M, t.A, np.zeros((2, n)), G, gains_workspace(ma, fast))
+    rate = fastest_rate(G, fast, ma.jf[fast, JF_STIFFNESS].copy(), ma.jf[fast, JF_DAMPING].copy())
+    return rate, max(1, int(np.ceil(dt * rate / DEFAULT_PHASE_STEP)))

@@ -47,7 +47,7 @@ class SimulationOptions:
     sample: float = 1e-3  # output interval [s]
     closure_tol: float = 1e-14  # [m] Newton / projection target
     singular_tol: float = 1e-8  # conditioning below which the run stops
-    phase_step: float = 1.0  # etd2: sub-step of the frozen spring system [rad of its fastest mode]
+    phase_step: float = exponential.DEFAULT_PHASE_STEP  # etd2 sub-step [rad of the fastest spring mode]
 
     def validate(self) -> None:
         if self.formulation not in FORMULATION_CODES:
