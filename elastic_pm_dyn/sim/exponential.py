@@ -8,7 +8,7 @@ of the elastic joints (n_f of them) act through the constrained inverse inertia
 (the accelerations SCDD gives to unit forces on the elastic joints, eqs 33-41 with
 tau - h = e_j and gamma = 0). Frozen over a macro step H at its start state, the
 linearisation z' = J z of the tree state z = (q, qd) in the springs alone,
-J = [[0, I], [-G K E^T, -G D E^T]], is integrated exactly up to fine sub-steps, and
+J = [[0, I], [-G K E^T, -G D E^T]], is integrated exactly (to round-off, on sub-steps), and
 everything else (motion, Coriolis, gravity, closure, torques, the springs' variation
 of G) enters as the forcing of an exponential Runge-Kutta method, ETD2RK (Cox and
 Matthews 2002, eq 22):
@@ -16,7 +16,9 @@ Matthews 2002, eq 22):
     a   = z0 + H phi1(H J) F(z0)                           (exponential Euler)
     z1  = a  + H phi2(H J) (N(a) - N(z0)),   N(z) = F(z) - J z
 
-with F the full right-hand side (one formulation evaluation each at z0 and a).
+with F the full right-hand side at the step's start torque (one formulation evaluation each
+at z0 and a); the torque's change over the step (tau(t) = tau0 + t d1 + t^2 d2) is forcing
+of the frozen system too, through the gains P M^-1 d1, P M^-1 d2.
 Second order for any fixed J; exact for the frozen linear spring system, so an undamped
 mode keeps its frequency and energy at any H, and a stiff spring under a slow load sits at
 its quasi-static deflection instead of ringing. After each macro step (q, qd) is
@@ -24,11 +26,16 @@ projected onto the constraint manifold as RK4 does.
 
 phi1 and phi2 applied to a vector are the responses of the linear system from rest to a
 constant and to a ramp forcing. Only the elastic coordinates are dynamic in it (their
-n_f x n_f block B = E^T G), the others integrate their forcing: those responses are fine
-RK4 sub-steps of the 2 n_f elastic states plus the integrals of f, at most
+n_f x n_f block B = E^T G), the others integrate their forcing: those responses are
+Taylor-series sub-steps (order TAYLOR_ORDER) of the 2 n_f elastic states plus the integrals
+of f, at most
 ``phase_step`` rad of the fastest frozen mode each (an upper bound of its frequency from
 Gershgorin's circles), i.e. O(n_f^2) operations per sub-step against a formulation
 evaluation per macro step.
+
+The impulse splitting (r-RESPA: kick H/2 with everything but the springs, the springs alone
+over H, kick H/2; scheme IMPULSE) shares the sub-steps; bench/bench_integrators.py measured it
+against ETD2 and it lost: a stiff spring under a slow load rings after every kick.
 """
 
 import numpy as np
@@ -54,12 +61,15 @@ from elastic_pm_dyn.small_linalg import cholesky_recip, cholesky_solve_rows, lu_
 
 ROLE_ELASTIC = 1
 
-# Terms of the sub-steps' Taylor series: at 1 rad of the fastest mode per sub-step the
-# truncation shifts its phase by 1/13! = 2e-10 rad per sub-step and its amplitude by far less
-# (RK4 sub-steps lose (h omega)^6 / 144 of the energy each: all of an undamped kHz mode's
-# within seconds).
-TAYLOR_ORDER = 12
-DEFAULT_PHASE_STEP = 1.0  # [rad] per sub-step (SimulationOptions.phase_step)
+# Terms of the sub-steps' Taylor series: at 3 rad of the fastest mode per sub-step the
+# truncation error is 3^21 / 21! = 2e-10 per sub-step, and the largest term 3^3 / 3! = 4.5
+# costs no precision. RK4 sub-steps would lose (h omega)^6 / 144 of a mode's energy each
+# (all of an undamped kHz mode's within seconds); order 20 at 3 rad costs 6.7 terms per
+# rad, order 12 at 1 rad 12.
+TAYLOR_ORDER = 20
+# [rad] per sub-step (SimulationOptions.phase_step) against a Gershgorin bound of the fastest
+# rate, 1-11 % above the fastest mode on the shipped machines
+DEFAULT_PHASE_STEP = 3.0
 
 # [s] the step `check` suggests: it met the 1 % branch-force criterion on every machine and
 # ZOH input of bench/bench_integrators.py (bench/README_integrators.md)
@@ -94,8 +104,10 @@ def gains_workspace(ma, fast):
     m = ma.p_index.shape[0]
     nf = fast.shape[0]
     nmax = chain_size_max(ma.chain_start)
+    n_ch = ma.chain_start.shape[0] - 1
     return (np.empty((n, nf + 2)), np.empty((n, m)), np.empty((m, m)), np.empty((m, nf + 2)),
-            np.empty((nmax, nmax)), np.empty(nmax), np.empty((nmax, m + nf + 2)), np.empty(m, dtype=np.int64))
+            np.empty((nmax, nmax)), np.empty(nmax), np.empty((nmax, m + nf + 2)), np.empty(m, dtype=np.int64),
+            np.empty((n_ch, m), dtype=np.int64), np.empty(n_ch, dtype=np.int64))
 
 
 @njit(cache=True)
@@ -105,41 +117,51 @@ def elastic_gains(ma, fast, M, A, extra, G, gws):
     of ``extra`` (the torque's rate and curvature). Returns the pivot ratio of S (0 = singular).
 
     Chain by chain (eq 34): [Y_i, X_i] = M_i^-1 [A_i^T, E_i, extra_i^T] in one sweep,
-    S = sum A_i Y_i; then G = X - Y S^-1 (A X).
+    S = sum A_i Y_i; then G = X - Y S^-1 (A X). A chain's columns of A are non-zero in the few
+    closure rows it takes part in (3 of a hexapod's 18 for a leg): only those are solved for.
     """
-    X, Y, S, C, L, dinv, XY, piv = gws
+    X, Y, S, C, L, dinv, XY, piv, rows, n_rows = gws
     n = M.shape[0]
     m = A.shape[0]
     nf = fast.shape[0]
     nc = G.shape[1]
     S[:, :] = 0.0
+    Y[:, :] = 0.0
     for c in range(ma.chain_start.shape[0] - 1):
         s = ma.chain_start[c]
         ne = ma.chain_start[c + 1] - s
+        k = 0
+        for r in range(m):
+            for i in range(ne):
+                if A[r, s + i] != 0.0:
+                    rows[c, k] = r
+                    k += 1
+                    break
+        n_rows[c] = k
         for i in range(ne):
             for j in range(ne):
                 L[i, j] = M[s + i, s + j]
         if not cholesky_recip(L, ne, dinv):
             return 0.0
         for i in range(ne):
-            for j in range(m):
-                XY[i, j] = A[j, s + i]
+            for j in range(k):
+                XY[i, j] = A[rows[c, j], s + i]
             for j in range(nf):
-                XY[i, m + j] = 1.0 if fast[j] == s + i else 0.0
+                XY[i, k + j] = 1.0 if fast[j] == s + i else 0.0
             for j in range(nf, nc):
-                XY[i, m + j] = extra[j - nf, s + i]
-        cholesky_solve_rows(L, dinv, ne, XY, 0, m + nc)
+                XY[i, k + j] = extra[j - nf, s + i]
+        cholesky_solve_rows(L, dinv, ne, XY, 0, k + nc)
         for i in range(ne):
-            for j in range(m):
-                Y[s + i, j] = XY[i, j]
+            for j in range(k):
+                Y[s + i, rows[c, j]] = XY[i, j]
             for j in range(nc):
-                X[s + i, j] = XY[i, m + j]  # for j < n_f zero outside the chain of fast joint j
-        for i in range(m):
-            for j in range(m):
+                X[s + i, j] = XY[i, k + j]  # for j < n_f zero outside the chain of fast joint j
+        for a in range(k):
+            for b in range(k):
                 acc = 0.0
-                for k in range(ne):
-                    acc += A[i, s + k] * XY[k, j]
-                S[i, j] += acc
+                for t in range(ne):
+                    acc += A[rows[c, a], s + t] * XY[t, b]
+                S[rows[c, a], rows[c, b]] += acc
     for i in range(n):
         for j in range(nc):
             G[i, j] = X[i, j]
@@ -149,26 +171,27 @@ def elastic_gains(ma, fast, M, A, extra, G, gws):
         c = ma.ji[fast[j], JI_CHAIN]
         for i in range(m):
             acc = 0.0
-            for k in range(ma.chain_start[c], ma.chain_start[c + 1]):
-                acc += A[i, k] * X[k, j]
+            for t in range(ma.chain_start[c], ma.chain_start[c + 1]):
+                acc += A[i, t] * X[t, j]
             C[i, j] = acc
     for j in range(nf, nc):
         for i in range(m):
             acc = 0.0
-            for k in range(n):
-                acc += A[i, k] * X[k, j]
+            for t in range(n):
+                acc += A[i, t] * X[t, j]
             C[i, j] = acc
     ratio = lu_factor(S, piv)
     if ratio == 0.0:
         return 0.0
     for j in range(nc):
         lu_solve(S, piv, C[:, j])
-    for i in range(n):
-        for j in range(nc):
-            acc = 0.0
-            for k in range(m):
-                acc += Y[i, k] * C[k, j]
-            G[i, j] -= acc
+    for c in range(ma.chain_start.shape[0] - 1):  # G -= Y C, Y's row i only in its chain's closure rows
+        for i in range(ma.chain_start[c], ma.chain_start[c + 1]):
+            for j in range(nc):
+                acc = 0.0
+                for a in range(n_rows[c]):
+                    acc += Y[i, rows[c, a]] * C[rows[c, a], j]
+                G[i, j] -= acc
     return ratio
 
 
@@ -247,8 +270,8 @@ def phi_response(G, fast, kf, df, H, n_sub, bq, bv, u1, u2, xq, xv, fw, B):
             coef *= h / (k + 1)
             for a in range(4):
                 for j in range(nf):
-                    d[a, j] = dn[a, j]
                     y[a, j] += coef * dn[a, j]
+            d, dn = dn, d
     H2 = H * H
     for i in range(n):
         accq = H * bq[i] + H2 * (0.5 * bv[i] + H * (u1[i] / 6.0 + H * u2[i] / 12.0))
