@@ -2,6 +2,7 @@
 
     .venv/bin/python bench/bench_integrators.py                 # all machines, ~15-25 min
     .venv/bin/python bench/bench_integrators.py --machines five_bar:1 triglide:2 --quick
+    .venv/bin/python bench/bench_integrators.py --simulate-rtf   # offline simulate: RK4 vs ETD2, ~2 min
 
 Methods: RK4 (the baseline, at steps up to its stability limit), ETD2 (sim/exponential.py:
 exponential Runge-Kutta with the elastic springs integrated on sub-steps of their frozen linear
@@ -252,6 +253,37 @@ def cost(mech: Mechanism, torque: TorqueTable, duration: float, methods: list[tu
     return {k: {"wall_per_sim_s": float(np.median(v)), "rtf": float(1.0 / np.median(v))} for k, v in walls.items()}
 
 
+# Offline `simulate` comparison: RK4 at the step it needs for the criterion on ZOH inputs
+# (this bench's table), ETD2 at RECOMMENDED_STEP.
+SIMULATE_STEPS = {"five_bar:1": {"rk4": 5e-5, "etd2": 5e-4}, "triglide:2": {"rk4": 2.5e-5, "etd2": 5e-4},
+                  "hexa:2": {"rk4": 5e-5, "etd2": 5e-4}}
+
+
+def simulate_rtf(repeats: int, duration: float = 2.0) -> dict:
+    """What ``elastic-pm-dyn simulate`` does after start-up (Simulator.run over the manoeuvre's
+    torques held to ``duration``, output every 1 ms, CSV written), interleaved over the methods."""
+    import tempfile
+    out: dict = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for spec, steps in SIMULATE_STEPS.items():
+            name, n_ek = spec.split(":")
+            mech = machine(name, int(n_ek))
+            table, _ = manoeuvre(mech, name)
+            walls: dict[str, list[float]] = {m: [] for m in steps}
+            for m, dt in steps.items():
+                simulate(mech, m, dt, table, 0.01)  # compile / warm
+            for _ in range(repeats):
+                for m, dt in steps.items():
+                    t = time.perf_counter()
+                    simulate(mech, m, dt, table, duration).to_csv(Path(tmp) / "run.csv")
+                    walls[m].append(time.perf_counter() - t)
+            out[spec] = {f"{m}@{steps[m]:g}": {"rtf": duration / float(np.median(w)), "wall_s": w}
+                         for m, w in walls.items()}
+            print(f"simulate {spec}: " + ", ".join(f"{k} RTF {v['rtf']:.1f}" for k, v in out[spec].items()),
+                  flush=True)
+    return out
+
+
 def load() -> float:
     return os.getloadavg()[0]
 
@@ -267,7 +299,14 @@ def main() -> None:
     p.add_argument("--phase-step", type=float, default=SimulationOptions().phase_step,
                    help="etd2 sub-step [rad of the fastest mode]")
     p.add_argument("--out", default=str(REPO / "bench" / "results" / "integrators.json"))
+    p.add_argument("--simulate-rtf", action="store_true",
+                   help="only the offline simulate comparison (five-bar, Triglide and Hexa at n_ek = 2)")
     args = p.parse_args()
+    if args.simulate_rtf:
+        res = {"load_start": load(), "simulate": simulate_rtf(args.repeats), "load_end": load()}
+        Path(args.out).with_name("integrators_simulate.json").write_text(json.dumps(res, indent=1))
+        print(f"load average {res['load_start']:.2f} at start, {res['load_end']:.2f} at end")
+        return
     PHASE_STEP = args.phase_step
     results = {"load_start": load(), "machines": {}, "criterion": CRITERION, "phase_step": PHASE_STEP}
     for spec in args.machines:

@@ -139,7 +139,7 @@ class Plant:
         max_rate = kernels.MAX_STEP_MOTION / self.options.dt  # faster diverges in the first step
         if np.any(np.abs(pos) > MAX_POSITION) or np.any(np.abs(vel) > max_rate):
             raise InputError(f"positions must lie within +-{MAX_POSITION:g} (rad or m) and velocities within "
-                             f"+-{max_rate:g} (rad/s or m/s, one RK4 step of dt = {self.options.dt:g} s)")
+                             f"+-{max_rate:g} (rad/s or m/s, one step of dt = {self.options.dt:g} s)")
         idx = np.array([mech.joint_names.index(n) for n in names], dtype=int)
         q = self.q.copy()
         if self.fault is not None:
