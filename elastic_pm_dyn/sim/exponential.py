@@ -71,8 +71,8 @@ TAYLOR_ORDER = 20
 # rate, 1-11 % above the fastest mode on the shipped machines
 DEFAULT_PHASE_STEP = 3.0
 
-# [s] the step `check` suggests: it met the 1 % branch-force criterion on every machine and
-# ZOH input of bench/bench_integrators.py (bench/README_integrators.md)
+# [s] the step `check` suggests: it met the 1 % branch-force criterion for ZOH torques at
+# 1 kHz on 6 of the 7 machines of bench/bench_integrators.py (bench/README_integrators.md)
 RECOMMENDED_STEP = 5e-4
 
 # Upper end of the sub-steps per macro step: a fastest mode 10^4 times the macro step's
