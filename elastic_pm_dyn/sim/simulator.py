@@ -179,7 +179,8 @@ class Simulator:
                              f"output rows, more than the limit of {limit} (the rows of a run must fit in "
                              f"{MEMORY_BUDGET / 2**30:g} GiB): raise {prefix}sample or shorten {prefix}duration")
         if steps > MAX_STEPS:
-            raise InputError(f"{prefix}duration {duration:g} s at {prefix}dt {o.dt:g} s means {steps:.4g} RK4 steps, "
+            raise InputError(f"{prefix}duration {duration:g} s at {prefix}dt {o.dt:g} s means {steps:.4g} "
+                             f"{o.integrator.upper()} steps, "
                              f"more than the limit of {MAX_STEPS:.0e}: raise {prefix}dt or shorten {prefix}duration")
         if duration > MAX_DURATION:
             raise InputError(f"{prefix}duration {duration:g} s is more than the {MAX_DURATION:g} s a run may simulate")
