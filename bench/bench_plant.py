@@ -2,6 +2,8 @@
 
     .venv/bin/python bench/bench_plant.py            # ~45 s: realtime 10 s, fast 2 x 10 s
     .venv/bin/python bench/bench_plant.py --duration 3
+    .venv/bin/python bench/bench_plant.py --model five_bar triglide:2 hexa:2 --integrator rk4 etd2 \
+        --duration 8 --repeats 3          # fast mode at 1 kHz only, per machine and integrator, interleaved
 
 The plant node runs as its own process (``python -m elastic_pm_dyn.ros.plant_node``) on a
 private loopback domain, five-bar, SCDD + RK4 dt = 1e-4 s (10 kHz) + projection, no
@@ -113,7 +115,7 @@ class CpuWindow:
 
 
 def _start_plant(sync: str, publish_rate: float, log_dir: Path, domain: int, model: str = "", dt: float = 1e-4,
-                 source: Path | None = None, label: str = "") -> NodeProcess:
+                 source: Path | None = None, label: str = "", integrator: str = "rk4") -> NodeProcess:
     """The plant node process; ``source``: a directory holding another version of the package
     and its ``config/`` (bench_publish.py's "before"), which the child uses instead of this checkout's."""
     params = (source or REPO) / "config" / "plant.yaml"  # each version with its own parameter file
@@ -121,6 +123,8 @@ def _start_plant(sync: str, publish_rate: float, log_dir: Path, domain: int, mod
             "-p", f"publish_rate:={publish_rate!r}", "-p", f"dt:={dt!r}", "-p", "formulation:=scdd",
             "-p", "stabilization:=projection", "-p", "diagnostics_rate:=1.0"] + (["-p", f"model:={model}"] if model
                                                                                   else [])
+    if integrator != "rk4":  # an older checkout (source) may not know the parameter's other values
+        args += ["-p", f"integrator:={integrator}"]
     env = ros_env(domain)
     name = f"plant_{sync}_{publish_rate:g}{label}"
     if source is None:
@@ -224,11 +228,88 @@ def table(r: dict) -> str:
     return "\n".join(lines)
 
 
+# Step per (machine, integrator) that meets the 1 % branch-force criterion on ZOH inputs
+# (bench/README_integrators.md): RK4's accurate step, ETD2's; RK4 on the five-bar at the old
+# default 1e-4 s (1.1-2.1 %: the criterion needs 5e-5 s).
+STEPS = {("five_bar", "rk4"): 1e-4, ("five_bar", "etd2"): 5e-4, ("triglide:2", "rk4"): 2.5e-5,
+         ("triglide:2", "etd2"): 5e-4, ("hexa:2", "rk4"): 5e-5, ("hexa:2", "etd2"): 5e-4}
+
+
+def mujoco_anchor(seconds: float = 2.0) -> dict:
+    """MuJoCo's five-bar ``mj_step`` (RK4, dt 1e-4 s) called from Python: its real-time factor."""
+    sys.path.insert(0, str(REPO / "bench"))
+    from peers_five_bar import MjFiveBar  # needs mujoco
+    mj = MjFiveBar(dt=1e-4)
+    import mujoco
+    n = 0
+    t0 = time.perf_counter()
+    while time.perf_counter() - t0 < seconds:
+        for _ in range(1000):
+            mujoco.mj_step(mj.model, mj.data)
+        n += 1000
+    per_step = (time.perf_counter() - t0) / n
+    return {"mj_step_us": per_step * 1e6, "real_time_factor": 1e-4 / per_step, "mujoco": mujoco.__version__}
+
+
+def compare_integrators(args: argparse.Namespace, log_dir: Path, domain: int) -> dict:
+    """Fast mode at 1 kHz for every machine x integrator (each at its step of STEPS), the runs
+    interleaved over ``repeats`` rounds, MuJoCo's anchor measured in each round."""
+    sys.path.insert(0, str(REPO / "bench"))
+    from bench_publish import MACHINES, model_file
+    names = {"five_bar": "five_bar", "triglide:2": "triglide_nek2", "hexa:2": "hexa_nek2"}
+    runs: dict[str, list[dict]] = {}
+    anchors = []
+    for _ in range(args.repeats):
+        for machine in args.model:
+            path = model_file(names[machine], log_dir)
+            assert MACHINES[names[machine]][1] == (int(machine.split(":")[1]) if ":" in machine else 1)
+            for integrator in args.integrator:
+                dt = STEPS[(machine, integrator)]
+                key = f"{machine} {integrator} dt {dt:g}"
+                print(f"fast 1 kHz: {key} ...", flush=True)
+                runs.setdefault(key, []).append(run_fast(args.duration, 1000.0, log_dir, domain, model=str(path),
+                                                         dt=dt, integrator=integrator, label=integrator))
+        anchors.append(mujoco_anchor())
+    return {"runs": runs, "mujoco_five_bar": anchors}
+
+
+def compare_table(r: dict) -> str:
+    lines = ["| machine, integrator, step | fast-mode RTF at 1 kHz publishing, median (runs) | step time per period "
+             "| other processes' CPU |", "|---|---|---|---|"]
+    for key, runs in r["runs"].items():
+        rtf = [x["real_time_factor"] for x in runs]
+        lines.append(f"| {key} | {np.median(rtf):.2f} ({', '.join(f'{v:.2f}' for v in rtf)}) | "
+                     f"{np.median([x['step_time_mean_us'] for x in runs]):.0f} us | "
+                     f"{np.median([x['other_processes_cpu_percent'] for x in runs]):.0f} % |")
+    mj = [a["real_time_factor"] for a in r["mujoco_five_bar"]]
+    lines.append("")
+    lines.append(f"MuJoCo five-bar `mj_step` (RK4, dt 1e-4 s, from Python) in the same run: real-time factor "
+                 f"{np.median(mj):.1f} ({', '.join(f'{v:.1f}' for v in mj)}; "
+                 f"{np.median([a['mj_step_us'] for a in r['mujoco_five_bar']]):.1f} us per step).")
+    return "\n".join(lines)
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--duration", type=float, default=10.0, help="measurement window per run [s]")
     parser.add_argument("--out", type=Path, default=REPO / "bench" / "results")
+    parser.add_argument("--model", nargs="+", choices=("five_bar", "triglide:2", "hexa:2"),
+                        help="fast mode at 1 kHz only, on these machines (with --integrator)")
+    parser.add_argument("--integrator", nargs="+", choices=("rk4", "etd2"), default=["rk4", "etd2"])
+    parser.add_argument("--repeats", type=int, default=3, help="rounds of the --model comparison")
     args = parser.parse_args()
+    if args.model:
+        domain = private_domain_id()
+        with tempfile.TemporaryDirectory() as logs:
+            results = {"load_before": os.getloadavg(), **compare_integrators(args, Path(logs), domain),
+                       "load_after": os.getloadavg()}
+        args.out.mkdir(parents=True, exist_ok=True)
+        (args.out / "plant_integrators.json").write_text(json.dumps(results, indent=2))
+        md = compare_table(results)
+        (args.out / "plant_integrators.md").write_text(md + "\n")
+        print(md)
+        print(f"load average before/after: {results['load_before']} / {results['load_after']}")
+        return 0
     domain = private_domain_id()
     results: dict = {"machine": {"cpus": os.cpu_count(), "platform": platform.platform(),
                                  "python": platform.python_version(), "load_before": os.getloadavg()},

@@ -45,7 +45,7 @@ def _add_simulation_options(p: argparse.ArgumentParser) -> None:
     from elastic_pm_dyn.sim.simulator import INTEGRATORS, STABILIZATIONS
     p.add_argument("--method", choices=FORMULATIONS, default="scdd", help="formulation (default scdd)")
     p.add_argument("--integrator", choices=INTEGRATORS, default="rk4")
-    p.add_argument("--dt", type=float, default=1e-4, help="RK4 step [s] (default 1e-4)")
+    p.add_argument("--dt", type=float, default=1e-4, help="RK4 / ETD2 step [s] (default 1e-4; etd2: see check)")
     p.add_argument("--rtol", type=float, default=1e-10, help="dop853 relative tolerance")
     p.add_argument("--atol", type=float, default=1e-12, help="dop853 absolute tolerance")
     p.add_argument("--stabilization", choices=tuple(STABILIZATIONS), default="projection")
@@ -161,7 +161,23 @@ def cmd_check(args: argparse.Namespace) -> int:
         dt_max = 2 * np.sqrt(2) / (2 * np.pi * modes.natural_hz.max())
         print(f"  fixed-step RK4 needs dt < {dt_max:.3g} s for the fastest mode (use about a quarter "
               "of that for accuracy)")
+        _print_integrator_steps(mech, q, dt_max)
     return 0
+
+
+def _print_integrator_steps(mech, q: np.ndarray, rk4_limit: float) -> None:
+    """One line per integrator: the step it needs and why (bench/README_integrators.md)."""
+    from elastic_pm_dyn.sim import exponential
+    rate, n_sub = exponential.substeps_at(mech, q, exponential.RECOMMENDED_STEP)
+    print("integrators (step for branch forces within 1 % of their elastic part, bench/README_integrators.md):")
+    print(f"  rk4:  stability limit {rk4_limit:.3g} s (fastest mode); the accuracy needed {rk4_limit / 30:.2g}-"
+          f"{rk4_limit / 4:.2g} s (1/30 to 1/4 of the limit) on the machines measured")
+    print(f"  etd2: no stability limit from the springs (integrated exactly: {n_sub} sub-steps per "
+          f"{exponential.RECOMMENDED_STEP:g} s step, fastest frozen rate below {rate / (2 * np.pi):.4g} Hz); "
+          f"dt = {exponential.RECOMMENDED_STEP:g} s for torques held per 1 ms control period (6 of 7 machines "
+          f"measured; the Triglide at n_ek = 4 needed {exponential.RECOMMENDED_STEP / 2:g} s), "
+          f"{exponential.RECOMMENDED_STEP / 2:g} s for smooth torques up to ~1 kHz; not with --method lda")
+    print("  dop853: adaptive (rtol); the reference, slow (Python right-hand side)")
 
 
 def cmd_urdf(args: argparse.Namespace) -> int:

@@ -70,8 +70,9 @@ PARAMS = [
     Param("mode", "plant", "plant: simulate the machine; observer: estimate its state from commands and measurements",
           choices=MODES),
     Param("formulation", "scdd", "direct dynamics formulation", choices=FORMULATIONS),
-    Param("integrator", "rk4", "rk4 (fixed step dt) or dop853 (adaptive, offline accuracy)", choices=INTEGRATORS),
-    Param("dt", 1.0e-4, "internal RK4 step [s]; shortened so steps end on control periods", positive=True),
+    Param("integrator", "rk4", "rk4 (fixed step dt), etd2 (fixed step dt, the springs exactly: a step of "
+          "0.25-1 ms, see elastic-pm-dyn check) or dop853 (adaptive, offline accuracy)", choices=INTEGRATORS),
+    Param("dt", 1.0e-4, "internal RK4 / ETD2 step [s]; shortened so steps end on control periods", positive=True),
     Param("stabilization", "projection", "closure drift stabilisation", choices=tuple(STABILIZATIONS)),
     Param("publish_rate", 1000.0, "control and publish rate [Hz]; a command is held for one period",
           positive=True),

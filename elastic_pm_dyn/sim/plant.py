@@ -20,7 +20,7 @@ from elastic_pm_dyn.errors import AssemblyError, InputError, SingularConfigurati
 from elastic_pm_dyn.kinematics.assembly import initial_state, solve_pose, solve_velocity
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.sim import kernels
-from elastic_pm_dyn.sim.simulator import SimulationOptions, Simulator
+from elastic_pm_dyn.sim.simulator import FIXED_STEP, SimulationOptions, Simulator
 from elastic_pm_dyn.sim.stopped import integration_error
 from elastic_pm_dyn.sim.torque import ConstantTorque
 
@@ -57,7 +57,6 @@ class Plant:
         self.fault_error: SingularConfigurationError | None = None
         self._sim = Simulator(mech, options)
         self._coef = np.zeros((3, mech.n))  # the held torque as RK4's polynomial (constant)
-        self._info = np.zeros(3)
         # Compile (or load) the integrator now, not inside the first control period; a
         # throwaway simulator keeps the real one's state as offline runs start it.
         Simulator(mech, options).advance(self.q0.copy(), np.zeros(mech.n), ConstantTorque(self.tau), 0.0, period)
@@ -86,8 +85,8 @@ class Plant:
         t1 = t0 + self.period
         q, qd = self.q.copy(), self.qd.copy()  # the stepping works on copies: a fault keeps the last good state
         try:
-            if self.options.integrator == "rk4":
-                self._rk4(q, qd, tau, t0, t1)
+            if self.options.integrator in FIXED_STEP:
+                self._fixed_step(q, qd, tau, t0, t1)
             else:
                 self._sim.advance(q, qd, ConstantTorque(tau), t0, t1)
             if not (np.isfinite(q.sum()) and np.isfinite(qd.sum())):  # the adaptive path has no check of its own
@@ -99,18 +98,17 @@ class Plant:
         self.tau = tau.copy()
         self.k += 1
 
-    def _rk4(self, q: np.ndarray, qd: np.ndarray, tau: np.ndarray, t0: float, t1: float) -> None:
-        """The simulator's RK4 over one torque piece (the same steps, so the same arithmetic as
-        offline ``simulate``), with the kernel's status turned into the error that says why."""
-        o, sim, info = self.options, self._sim, self._info
+    def _fixed_step(self, q: np.ndarray, qd: np.ndarray, tau: np.ndarray, t0: float, t1: float) -> None:
+        """The simulator's fixed-step method (RK4 or ETD2) over one torque piece (the same steps, so
+        the same arithmetic as offline ``simulate``), with the kernel's status turned into the
+        error that says why."""
+        o, sim = self.options, self._sim
         n_steps = max(1, int(np.ceil((t1 - t0) / o.dt - 1e-9)))
         h = (t1 - t0) / n_steps
         self._coef[0, self.mech.active] = tau
-        status = kernels.rk4_steps_flat(sim.code, *self.mech.arrays, q, qd, self._coef, h, n_steps, sim.stab,
-                                        o.baumgarte_alpha, o.baumgarte_beta, o.closure_tol, o.singular_tol,
-                                        sim.qdd_prev, sim.lam, info)
+        status = sim.fixed_steps(q, qd, self._coef, h, n_steps)
         if status != kernels.OK:
-            raise integration_error(status, o.formulation, t0 + info[0] * h, info)
+            raise integration_error(status, o.formulation, t0 + sim.info[0] * h, sim.info)
 
     def reset(self) -> None:
         """Back to the model's initial state at rest (see :meth:`_restart` for the time)."""
@@ -141,7 +139,7 @@ class Plant:
         max_rate = kernels.MAX_STEP_MOTION / self.options.dt  # faster diverges in the first step
         if np.any(np.abs(pos) > MAX_POSITION) or np.any(np.abs(vel) > max_rate):
             raise InputError(f"positions must lie within +-{MAX_POSITION:g} (rad or m) and velocities within "
-                             f"+-{max_rate:g} (rad/s or m/s, one RK4 step of dt = {self.options.dt:g} s)")
+                             f"+-{max_rate:g} (rad/s or m/s, one step of dt = {self.options.dt:g} s)")
         idx = np.array([mech.joint_names.index(n) for n in names], dtype=int)
         q = self.q.copy()
         if self.fault is not None:

@@ -12,12 +12,15 @@ from elastic_pm_dyn.dynamics.evaluate import FORMULATION_CODES, LDA, acceleratio
 from elastic_pm_dyn.errors import InputError, RunInterrupted, SingularConfigurationError
 from elastic_pm_dyn.kinematics.assembly import initial_state
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
-from elastic_pm_dyn.sim import kernels
+from elastic_pm_dyn.sim import exponential, kernels
 from elastic_pm_dyn.sim.result import SimulationResult
 from elastic_pm_dyn.sim.stopped import integration_error
 from elastic_pm_dyn.sim.torque import TorqueSource
 
-INTEGRATORS = ("rk4", "dop853")
+INTEGRATORS = ("rk4", "dop853", "etd2")
+# Fixed-step compiled methods: RK4 on everything, or the exponential ETD2RK whose springs are
+# integrated on sub-steps of a frozen linear system (sim/exponential.py); both take dt.
+FIXED_STEP = ("rk4", "etd2")
 STABILIZATIONS = {"none": 0, "baumgarte": kernels.STAB_BAUMGARTE, "projection": kernels.STAB_PROJECTION,
                   "both": kernels.STAB_BAUMGARTE | kernels.STAB_PROJECTION}
 
@@ -44,17 +47,21 @@ class SimulationOptions:
     sample: float = 1e-3  # output interval [s]
     closure_tol: float = 1e-14  # [m] Newton / projection target
     singular_tol: float = 1e-8  # conditioning below which the run stops
+    phase_step: float = exponential.DEFAULT_PHASE_STEP  # etd2 sub-step [rad of the fastest spring mode]
 
     def validate(self) -> None:
         if self.formulation not in FORMULATION_CODES:
             raise InputError(f"unknown formulation {self.formulation!r} "
                              f"(expected one of: {', '.join(FORMULATION_CODES)})")
         if self.integrator not in INTEGRATORS:
-            raise InputError(f"unknown integrator {self.integrator!r} (expected rk4 or dop853)")
+            raise InputError(f"unknown integrator {self.integrator!r} (expected one of: {', '.join(INTEGRATORS)})")
+        if self.integrator == "etd2" and self.formulation == "lda":
+            raise InputError("integrator etd2 needs a tree formulation (scdd, multipliers, scdd_one_pass, "
+                             "scdd_stacked); L-D'A integrates q_ae: use rk4 or dop853 with it")
         if self.stabilization not in STABILIZATIONS:
             raise InputError(f"unknown stabilization {self.stabilization!r} "
                              f"(expected one of: {', '.join(STABILIZATIONS)})")
-        for name in ("dt", "rtol", "atol", "sample"):
+        for name in ("dt", "rtol", "atol", "sample", "phase_step"):
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
                 raise InputError(f"{name} must be a positive number, got {value!r}")
@@ -73,8 +80,9 @@ class Simulator:
         self.lam = np.zeros(mech.m)
         # Reused by every advance(): a plant node calls it once per control period.
         self._coef = np.zeros((3, mech.n))
-        self._info = np.zeros(3)
+        self.info = np.zeros(3)
         self._args = (*mech.arrays,)
+        self.scheme = exponential.ETD2  # etd2; the impulse splitting is only for the comparison bench
 
     # ------------------------------------------------------------------ stepping
     def advance(self, q: np.ndarray, qd: np.ndarray, torque: TorqueSource, t0: float, t1: float) -> None:
@@ -88,18 +96,27 @@ class Simulator:
         if o.integrator == "dop853":
             self._advance_adaptive(q, qd, torque, t0, t1)
             return
-        info, coef = self._info, self._coef
+        info, coef = self.info, self._coef
         # A table's piece is one polynomial over the whole call; a function is refitted
         # through the stage times of every step.
         calls = ([(t0 + k * h, 1) for k in range(n_steps)] if torque.smooth else
                  [(t0 + k * h, min(STEPS_PER_CALL, n_steps - k)) for k in range(0, n_steps, STEPS_PER_CALL)])
         for start, steps in calls:
             coef[:, self.mech.active] = torque.coefficients(start, steps * h)
-            status = kernels.rk4_steps_flat(self.code, *self._args, q, qd, coef, h, steps, self.stab,
-                                       o.baumgarte_alpha, o.baumgarte_beta, o.closure_tol, o.singular_tol,
-                                       self.qdd_prev, self.lam, info)
+            status = self.fixed_steps(q, qd, coef, h, steps)
             if status != kernels.OK:  # a singular configuration or a blow-up, told apart
                 raise integration_error(status, o.formulation, start + info[0] * h, info)
+
+    def fixed_steps(self, q: np.ndarray, qd: np.ndarray, coef: np.ndarray, h: float, steps: int) -> int:
+        """``steps`` compiled steps of h of the fixed-step integrator; the kernel's status."""
+        o = self.options
+        if o.integrator == "etd2":
+            return exponential.exponential_steps_flat(
+                self.scheme, self.code, *self._args, q, qd, coef, h, steps, self.stab, o.baumgarte_alpha,
+                o.baumgarte_beta, o.closure_tol, o.singular_tol, o.phase_step, self.qdd_prev, self.lam, self.info)
+        return kernels.rk4_steps_flat(self.code, *self._args, q, qd, coef, h, steps, self.stab,
+                                      o.baumgarte_alpha, o.baumgarte_beta, o.closure_tol, o.singular_tol,
+                                      self.qdd_prev, self.lam, self.info)
 
     def _advance_adaptive(self, q: np.ndarray, qd: np.ndarray, torque: TorqueSource, t0: float, t1: float) -> None:
         o, mech, n = self.options, self.mech, self.mech.n
@@ -138,7 +155,7 @@ class Simulator:
         astronomical); steps 0 with DOP853."""
         o = self.options
         rows = math.floor(duration / o.sample + 1e-9) + 2.0 if duration / o.sample < 2**52 else duration / o.sample
-        steps = 0.0 if o.integrator != "rk4" else duration / o.dt
+        steps = 0.0 if o.integrator not in FIXED_STEP else duration / o.dt
         return rows, steps
 
     def max_rows(self) -> int:
@@ -162,7 +179,8 @@ class Simulator:
                              f"output rows, more than the limit of {limit} (the rows of a run must fit in "
                              f"{MEMORY_BUDGET / 2**30:g} GiB): raise {prefix}sample or shorten {prefix}duration")
         if steps > MAX_STEPS:
-            raise InputError(f"{prefix}duration {duration:g} s at {prefix}dt {o.dt:g} s means {steps:.4g} RK4 steps, "
+            raise InputError(f"{prefix}duration {duration:g} s at {prefix}dt {o.dt:g} s means {steps:.4g} "
+                             f"{o.integrator.upper()} steps, "
                              f"more than the limit of {MAX_STEPS:.0e}: raise {prefix}dt or shorten {prefix}duration")
         if duration > MAX_DURATION:
             raise InputError(f"{prefix}duration {duration:g} s is more than the {MAX_DURATION:g} s a run may simulate")
