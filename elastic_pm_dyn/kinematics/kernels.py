@@ -58,7 +58,7 @@ def _load_frame(fr, wo, k):
             (fr[k, 12], fr[k, 13], fr[k, 14]), (fr[k, 15], fr[k, 16], fr[k, 17]))
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _jacobian_column(ji, wz, wo, c, jv, jw, j):
     """Column j of the Jacobian of the point c (velocity jv, angular velocity jw)."""
     zj = (wz[j, 0], wz[j, 1], wz[j, 2])
@@ -102,6 +102,16 @@ def _point_column(ji, wz, wo, pt, J, ip, j, spatial):
         J[ip, 3, j] = zj[0]
         J[ip, 4, j] = zj[1]
         J[ip, 5, j] = zj[2]
+
+
+@njit(cache=True, inline="always")
+def _joint_elements(jf, s, e, q, qd, M, h):
+    """What acts in the joints s..e-1 themselves: rotor inertia on M's diagonal; spring,
+    damper and viscous friction forces in h."""
+    for k in range(s, e):
+        M[k, k] += jf[k, JF_ROTOR]
+        h[k] += jf[k, JF_STIFFNESS] * (q[k] - jf[k, JF_REST]) + \
+            (jf[k, JF_DAMPING] + jf[k, JF_FRICTION]) * qd[k]
 
 
 @njit(cache=True, inline="always")
@@ -153,13 +163,7 @@ def serial_chain_terms(jf, ji, s, e, points, point_body, grav, q, qd, M, h, J, a
         ac = v.add(v.add(ao, v.cross(al, r)), v.cross(w, v.cross(w, r)))
         Ic = v.mmt(v.mm(R, v.row9(jf, k, JF_INERTIA)), R)
         for j in range(s, k + 1):
-            zj = (wz[j, 0], wz[j, 1], wz[j, 2])
-            if ji[j, JI_TYPE] == 1:
-                _store(jv, j, zj)
-                _store(jw, j, ZERO)
-            else:
-                _store(jv, j, v.cross(zj, v.sub(c, (wo[j, 0], wo[j, 1], wo[j, 2]))))
-                _store(jw, j, zj)
+            _jacobian_column(ji, wz, wo, c, jv, jw, j)
         f = v.scale(v.sub(ac, g), m)
         t_rot = v.add(v.mv(Ic, al), v.cross(w, v.mv(Ic, w)))
         for a in range(s, k + 1):
@@ -189,10 +193,7 @@ def serial_chain_terms(jf, ji, s, e, points, point_body, grav, q, qd, M, h, J, a
             J[ip, 0, j] = col[0]
             J[ip, 1, j] = col[1]
             J[ip, 2, j] = col[2]
-    for k in range(s, e):
-        M[k, k] += jf[k, JF_ROTOR]
-        h[k] += jf[k, JF_STIFFNESS] * (q[k] - jf[k, JF_REST]) + \
-            (jf[k, JF_DAMPING] + jf[k, JF_FRICTION]) * qd[k]
+    _joint_elements(jf, s, e, q, qd, M, h)
 
 
 @njit(cache=True)
@@ -277,10 +278,7 @@ def subtree_terms(jf, ji, s, e, points, point_body, grav, q, qd, M, h, J, a_pt, 
         while j >= 0:  # the point moves with its body's ancestors' joints only
             _point_column(ji, wz, wo, pt, J, ip, j, spatial)
             j = ji[j, JI_PARENT]
-    for k in range(s, e):
-        M[k, k] += jf[k, JF_ROTOR]
-        h[k] += jf[k, JF_STIFFNESS] * (q[k] - jf[k, JF_REST]) + \
-            (jf[k, JF_DAMPING] + jf[k, JF_FRICTION]) * qd[k]
+    _joint_elements(jf, s, e, q, qd, M, h)
 
 
 @njit(cache=True)
