@@ -59,3 +59,30 @@ def test_free_joint_is_the_rod_spinning_on_its_axis():
     np.testing.assert_allclose(origins1, origins0, rtol=0, atol=1e-10)  # the balls at both rod ends
     np.testing.assert_allclose(tips1, tips0, rtol=0, atol=1e-10)  # the weld point, the rod's middle
     assert np.abs(q1 - q0).max() > 0.5  # something did turn
+
+
+def test_cardan_is_two_revolutes_about_x_then_y(tmp_path):
+    """joint_type CARDAN, as Gepetto's loader builds it (RX then RY at the joint's frame,
+    <joint>_X and _Y): on the crank's ball it stops the rod's spin, so no joint is free, and
+    the machine's accelerations are Pinocchio's at random consistent states."""
+    pytest.importorskip("pinocchio")
+    from consistent_states import consistent_states
+    from pinocchio_urdf import PinocchioMachine
+
+    from elastic_pm_dyn.dynamics.direct import Dynamics
+    urdf = tmp_path / "robot.urdf"
+    urdf.write_text(URDF.read_text())
+    (tmp_path / "robot.yaml").write_text(
+        "closed_loop: [['closedloop1_A', 'closedloop1_B']]\ntype: ['6d']\nname_mot: ['motor_crank']\n"
+        "joint_name: ['spherical_crank', 'spherical_rocker']\njoint_type: ['CARDAN', 'SPHERICAL']\n")
+    model = load_model(urdf)
+    mech = Mechanism(model)
+    joints = {j.name: j for j in model.joints}
+    np.testing.assert_array_equal(joints["spherical_crank_X"].axis, [1.0, 0.0, 0.0])
+    np.testing.assert_array_equal(joints["spherical_crank_Y"].axis, [0.0, 1.0, 0.0])
+    assert len(mech.elastic) == 0 and len(mech.passive) == 6
+    peer = PinocchioMachine(urdf, model)
+    for q, qd, tau in consistent_states(mech, np.random.default_rng(5), 4):
+        a = peer.accelerations(q, qd, tau)
+        qdd = Dynamics(mech, "scdd").accelerations(q, qd, tau[mech.active])
+        assert np.abs(a - qdd).max() <= 1e-9 * np.abs(a).max()
