@@ -139,8 +139,15 @@ def cmd_check(args: argparse.Namespace) -> int:
     model = _load(args)
     mech = Mechanism(model)
     print(f"model {model.name} ({model.source}): {mech.n_chains} chains, {mech.n} tree joints")
-    for role, idx in (("active", mech.active), ("elastic", mech.elastic), ("passive", mech.passive)):
+    # Free joints: passive motions the closures leave free (a rod spinning between two
+    # balls), independent coordinates without a spring; they have no elastic mode.
+    free = np.array([i for i in mech.elastic if model.joints[i].stiffness == 0.0], dtype=np.int64)
+    sprung = np.array([i for i in mech.elastic if model.joints[i].stiffness > 0.0], dtype=np.int64)
+    for role, idx in (("active", mech.active), ("elastic", sprung), ("passive", mech.passive)):
         print(f"  {role:8s} {len(idx)}: {', '.join(mech.joint_names[i] for i in idx) or '-'}")
+    if len(free):
+        print(f"  free     {len(free)}: {', '.join(mech.joint_names[i] for i in free)} "
+              "(left free by the closures: unactuated, no spring)")
     print(f"  closure equations {mech.m}; non-redundant coordinates q_ae: {len(mech.ae)}")
     q = initial_state(mech)
     print("start pose:")
@@ -151,9 +158,10 @@ def cmd_check(args: argparse.Namespace) -> int:
     print("  assembly mode: " + (", ".join(f"{mech.joint_names[i]} {'positive' if np.sin(q[i]) >= 0 else 'negative'}"
                                            for i in mech.passive if model.joints[i].type == "revolute") or "-"))
     print(f"  closure residual {mech.gap(q):.3g} m")
-    if len(mech.elastic):
+    if len(sprung):
         modes = elastic_modes(mech, q, clamp_motors=True)
-        print("elastic modes at the start pose (motors clamped):")
+        print("elastic modes at the start pose (motors clamped"
+              + (", free joints included at 0 Hz):" if len(free) else "):"))
         for k, f in enumerate(modes.natural_hz):
             zeta = modes.damping_ratio[k] if k < len(modes.damping_ratio) else float("nan")
             print(f"  mode {k + 1}: {f:9.2f} Hz undamped, damping ratio {zeta:.4f}")
@@ -162,6 +170,8 @@ def cmd_check(args: argparse.Namespace) -> int:
         print(f"  fixed-step RK4 needs dt < {dt_max:.3g} s for the fastest mode (use about a quarter "
               "of that for accuracy)")
         _print_integrator_steps(mech, q, dt_max)
+    else:
+        print("no elastic joints: no elastic modes")
     return 0
 
 

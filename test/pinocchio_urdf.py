@@ -9,6 +9,43 @@ import numpy as np
 import yaml
 
 
+def retyped(pin, pm, side: dict):
+    """The URDF model with the sidecar's joint_name/joint_type applied, rebuilt joint by joint
+    as Gepetto's completeRobotLoader does, except that a SPHERICAL joint is three revolutes
+    about its frame's x, y, z (<joint>_x, _y, _z, as ours: the same dynamics away from the
+    middle one's +-90 degrees, compared coordinate by coordinate) and CARDAN two (_X, _Y)."""
+    kinds = dict(zip(side.get("joint_name", []), side.get("joint_type", []), strict=True))
+    kinds = {k: v.upper() for k, v in kinds.items() if k in pm.names}
+    if not kinds:
+        return pm
+    if "FIXED" in kinds.values():
+        raise NotImplementedError("joint_type FIXED in the Pinocchio peer")
+    axes = {"SPHERICAL": [("_x", pin.JointModelRX), ("_y", pin.JointModelRY), ("_z", pin.JointModelRZ)],
+            "CARDAN": [("_X", pin.JointModelRX), ("_Y", pin.JointModelRY)]}
+    new = pin.Model()
+    new.gravity = pm.gravity
+    last = {"universe": 0}  # old joint name -> the new joint carrying its body
+    damping = []
+    for jid in range(1, pm.njoints):
+        name, place = pm.names[jid], pm.jointPlacements[jid]
+        parent = last[pm.names[pm.parents[jid]]]
+        if name in kinds:
+            for k, (suffix, jm) in enumerate(axes[kinds[name]]):
+                parent = new.addJoint(parent, jm(), place if k == 0 else pin.SE3.Identity(), name + suffix)
+                damping.append(0.0)
+            jnew = parent
+        else:
+            jnew = new.addJoint(parent, pm.joints[jid], place, name)
+            damping.extend(pm.damping[pm.joints[jid].idx_v:pm.joints[jid].idx_v + pm.joints[jid].nv])
+        new.appendBodyToJoint(jnew, pm.inertias[jid], pin.SE3.Identity())
+        last[name] = jnew
+    for f in pm.frames[1:]:
+        if not new.existFrame(f.name):
+            new.addFrame(pin.Frame(f.name, last[pm.names[f.parentJoint]], f.placement, f.type), False)
+    new.damping[:] = np.array(damping)
+    return new
+
+
 class PinocchioMachine:
     """Pinocchio's URDF parser + Gepetto-style 3D/6D contacts from the sidecar; springs and
     dampers as joint torques, rotor inertia as armature, the end-effector point mass split
@@ -18,7 +55,7 @@ class PinocchioMachine:
         import pinocchio as pin
         self.pin = pin
         side = yaml.safe_load((urdf.parent / "robot.yaml").read_text())
-        pm = pin.buildModelFromUrdf(str(urdf))
+        pm = retyped(pin, pin.buildModelFromUrdf(str(urdf)), side)
         pm.gravity.linear = np.asarray(side.get("gravity", [0, 0, -9.81]), dtype=float)
         names = list(pm.names)
         ids = [names.index(n) for n in model.joint_names]
@@ -45,7 +82,8 @@ class PinocchioMachine:
                                                                 np.zeros((3, 3))), pin.SE3.Identity())
         self.first_frame = pm.frames[pm.getFrameId(loops[0][0])]
         self.contacts = pin.StdVec_RigidConstraintModel()
-        self.kinds = [k.lower() for k in side.get("type", ["6d"] * len(loops))]  # Gepetto's default: 6d
+        # Gepetto's loader: 3d or 3D a point, anything else (or nothing) a weld
+        self.kinds = ["3d" if k.lower() == "3d" else "6d" for k in side.get("type", ["6d"] * len(loops))]
         self.frames_a = []
         for (a, b), kind in zip(loops, self.kinds, strict=True):
             fa, fb = pm.frames[pm.getFrameId(a)], pm.frames[pm.getFrameId(b)]

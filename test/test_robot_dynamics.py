@@ -33,14 +33,16 @@ FIVE_BAR_URDF = ROBOTS / "five_bar_urdf" / "robot.urdf"
 FOUR_BAR_URDF = ROBOTS / "four_bar_onshape" / "robot.urdf"
 DELTA_URDF = ROBOTS / "delta_urdf" / "robot.urdf"
 FOUR_BAR_MJCF = ROBOTS / "four_bar_spring.xml"
-TREES = ("delta_parallelogram", "weld_arms", "base_pinned")  # legs that branch, a 6d weld, a closure to the base
+TREES = ("delta_parallelogram", "weld_arms", "base_pinned", "split_rod")  # legs that branch, a 6d weld, a closure
+# to the base, a rod on two balls spinning freely (a Gepetto-style sidecar)
 DURATION = 0.2  # [s]
 SAMPLE = 1e-3  # [s]
 ANGLE_TOL = 1e-6  # [rad] (and m for the springs)
 MUJOCO_TOL = 2e-4  # [rad]: MuJoCo's soft loop closure (7.4e-5 measured), see the MJCF test
 # Motor torques [N m]: the five-bar has no gravity, so it is driven; the others also fall.
 TORQUES = {"five_bar": [0.4, -0.3], "four_bar": [1.0], "delta": [0.8, -0.5, 0.3],
-           "delta_parallelogram": [0.8, -0.5, 0.3], "weld_arms": [0.3, -0.2], "base_pinned": [0.2]}
+           "delta_parallelogram": [0.8, -0.5, 0.3], "weld_arms": [0.3, -0.2], "base_pinned": [0.2],
+           "split_rod": [0.3]}
 
 
 def pinocchio_run(peer: PinocchioMachine, mech: Mechanism, q0: np.ndarray, tau_active: np.ndarray,

@@ -8,6 +8,7 @@ check in :func:`initial_state` makes a wrong mode an error, not a surprise).
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from elastic_pm_dyn.errors import AssemblyError
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
@@ -19,9 +20,33 @@ NEAR_RESIDUAL = 1e-6
 SINGULAR_RATIO = 1e-4
 
 
+def _weld_angles(mech: Mechanism, terms) -> np.ndarray:
+    """The closure residual with each weld's orientation rows as the rotation vector of
+    E = R_a R_b^T (angle times axis) instead of the kernels' vee(E - E^T) / 2 = sin(angle)
+    axis: the two agree to first order at E = I, but the sine vanishes again at a half
+    turn, where Newton from a far guess (an exported zero pose with a rod flipped) would stall."""
+    res = terms.residual.copy()
+    ma = mech.arrays
+    pairs = ma.closure_pairs
+    if not len(pairs) or not np.any(pairs[:, 2]):
+        return res
+    planar = len(ma.closure_components) == 2
+    r = len(pairs) * len(ma.closure_components)
+    for a, b, weld in pairs:
+        if not weld:
+            continue
+        Ra = terms.p_tip[a, 3:12].reshape(3, 3)
+        Rb = terms.p_tip[b, 3:12].reshape(3, 3)
+        phi = Rotation.from_matrix(Ra @ Rb.T).as_rotvec()
+        rows = [2] if planar else [0, 1, 2]
+        res[r:r + len(rows)] = phi[rows]
+        r += len(rows)
+    return res
+
+
 def _residual(mech: Mechanism, q: np.ndarray, target: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
     t = mech.terms(q)
-    r, jac = [t.residual], [t.A]
+    r, jac = [_weld_angles(mech, t)], [t.A]
     if target is not None:
         J_ee, _ = mech.end_effector_jacobian(t)
         r.append(mech.end_effector(q) - target)

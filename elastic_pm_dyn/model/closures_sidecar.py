@@ -7,7 +7,13 @@ Gepetto's keys::
     type: ['3d', ...]                      # '3d' a point; '6d' a weld (not expressible yet)
     name_mot: [joint, ...]                 # the actuated joints
     joint_name: [joint, ...]               # joints to re-type ...
-    joint_type: ['SPHERICAL', ...]         # ... as SPHERICAL (ball) or FIXED
+    joint_type: ['SPHERICAL', ...]         # ... as SPHERICAL (ball), CARDAN (about the joint
+                                           # frame's x, then y) or FIXED
+
+As Gepetto's loader reads them: a ``type`` other than 3d/3D is a weld (6d), a
+``joint_name`` the file does not have is passed over (it re-types only the joints it
+meets; we warn), and a ``name_mot`` entry that is no joint's exact name actuates every
+joint whose name contains it (its ActuationModel matches by substring).
 
 Ours (all optional)::
 
@@ -36,7 +42,7 @@ SIDECAR_NAME = "robot.yaml"
 _KEYS = {"closed_loop", "type", "name_mot", "joint_name", "joint_type", "elastic", "rotor_inertia", "universal",
          "gravity", "planar", "end_effector", "branches", "initial_state"}
 CLOSURE_TYPES = ("3d", "6d")
-JOINT_RETYPES = ("SPHERICAL", "FIXED", "UNIVERSAL")
+JOINT_RETYPES = ("SPHERICAL", "FIXED", "UNIVERSAL", "CARDAN")
 
 
 @dataclass(frozen=True)

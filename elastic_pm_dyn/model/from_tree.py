@@ -11,6 +11,7 @@ from a link fixed to it) starts a leg, and what the Model cannot express is one 
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -29,8 +30,10 @@ from elastic_pm_dyn.model.description import (
     Model,
     matrix_to_rpy,
 )
+from elastic_pm_dyn.model.free_motions import free_passive_motions
 from elastic_pm_dyn.model.kinematic_tree import (
     BALL,
+    CARDAN,
     FIXED,
     PRISMATIC,
     REVOLUTE,
@@ -86,19 +89,23 @@ def build_model(tree: KinematicTree, sidecar: Sidecar | None = None) -> Model:
     model = Model(name=tree.name, chains=tuple(chains), closure=closure, gravity=gravity,
                   end_effector_mass=ee_mass, initial=initial, branches=branches, source=tree.file, planar=planar,
                   fixed_points=fixed)
+    model = free_passive_motions(model)
     _check_counts(tree, model, sidecar, closures)
     return model
 
 
 # ------------------------------------------------------------------------ joints
 def _retyped(tree: KinematicTree, sidecar: Sidecar | None) -> list[TreeJoint]:
-    """The tree's joints with the sidecar's re-typing (SPHERICAL, FIXED, UNIVERSAL) applied."""
+    """The tree's joints with the sidecar's re-typing (SPHERICAL, CARDAN, FIXED, UNIVERSAL) applied."""
     if sidecar is None:
         return list(tree.joints)
     by_name = {j.name: j for j in tree.joints}
     for name, (_, where) in sidecar.retype.items():
         if name not in by_name:
-            raise where.error(f"no joint {name!r} in {tree.file}")
+            # Gepetto's loader re-types the joints it meets and passes over the others (its
+            # sidecars outlive URDF revisions); a typo then shows in the counts, if anywhere.
+            warnings.warn(f"{where.file}:{where.line}: {where.element}: no joint {name!r} in {tree.file}, "
+                          "passed over as Gepetto's loader does", stacklevel=2)
     for name, (_, where) in sidecar.universal.items():
         if sidecar.retype.get(name, ("",))[0] != "UNIVERSAL":
             raise where.error(f"joint {name!r} has a second axis but is not typed UNIVERSAL in joint_type")
@@ -109,6 +116,8 @@ def _retyped(tree: KinematicTree, sidecar: Sidecar | None) -> list[TreeJoint]:
             j = replace(j, type=BALL)
         elif kind == "FIXED":
             j = replace(j, type=FIXED)
+        elif kind == "CARDAN":
+            j = replace(j, type=CARDAN, axis=np.array([1.0, 0.0, 0.0]), axis2=np.array([0.0, 1.0, 0.0]))
         elif kind == "UNIVERSAL":
             if j.name not in sidecar.universal:
                 raise sidecar.retype[j.name][1].error(f"UNIVERSAL joint {j.name!r} needs its second axis "
@@ -141,11 +150,13 @@ def _roles(tree: KinematicTree, joints: list[TreeJoint], sidecar: Sidecar | None
         return j
 
     for name, where in sidecar.motors.items():
-        single_dof(name, where, "a motor")
-        motors.add(name)
+        # An exact name, else every joint whose name contains it (Gepetto's ActuationModel).
+        for match in [name] if name in by_name else [n for n in by_name if name in n] or [name]:
+            single_dof(match, where, "a motor")
+            motors.add(match)
     for name, spec in sidecar.elastic.items():
         j = single_dof(name, spec.where, "elastic")
-        if name in sidecar.motors:
+        if name in motors:
             raise spec.where.error(f"joint {name!r} is a motor (name_mot) and elastic at once")
         elastic[name] = (spec.stiffness, j.damping if spec.damping is None else spec.damping, spec.rest)
     for name, (value, where) in sidecar.rotor_inertia.items():
@@ -168,6 +179,8 @@ def _expand(j: TreeJoint, R: np.ndarray, p: np.ndarray, motors: set[str],
         # Three revolutes about the joint frame's x, y, z (singular where the middle one
         # reaches +-90 degrees: a start pose away from that is the user's to choose).
         axes = [("x", np.array([1.0, 0, 0])), ("y", np.array([0, 1.0, 0])), ("z", np.array([0, 0, 1.0]))]
+    elif j.type == CARDAN:
+        axes = [("X", j.axis), ("Y", j.axis2)]  # the names Gepetto's loader gives them
     else:
         axes = [("1", j.axis), ("2", j.axis2)]
     out = []

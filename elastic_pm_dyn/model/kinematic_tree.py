@@ -20,6 +20,7 @@ REVOLUTE = "revolute"  # continuous joints too: limits do not enter the dynamics
 PRISMATIC = "prismatic"
 BALL = "ball"  # three revolutes about the joint frame's x, y, z
 UNIVERSAL = "universal"  # two revolutes: axis, then axis2
+CARDAN = "cardan"  # two revolutes about the joint frame's x, then y (Gepetto's CARDAN: <joint>_X, _Y)
 
 
 @dataclass(frozen=True)

@@ -2,7 +2,7 @@
 joint frames turned so that the file's zero pose is assembled, 1e-9 kg closure frames, a
 Gepetto-style robot.yaml beside each URDF.
 
-    python test/robots/make_tree_robots.py      # rewrites the three directories below
+    python test/robots/make_tree_robots.py      # rewrites the directories below
 
 - delta_parallelogram: a Delta whose forearms are parallelograms (two rods on universal
   joints at the elbow: a branch inside each leg), the platform hung on leg 1's rod by a
@@ -11,6 +11,11 @@ Gepetto-style robot.yaml beside each URDF.
   mounted tool branching off its forearm.
 - base_pinned: a spatial crank-coupler-rocker whose rocker is pinned to a point of the base
   (a closure to the fixed base) on an inner body: a sprung tip hangs beyond it.
+- split_rod: a spatial crank-rod-rocker written as Gepetto's example-parallel-robots
+  writes its legs: the rod is two halves, each on a ball (a revolute in the URDF that the
+  sidecar re-types SPHERICAL), welded (6d) where they meet, so the rod spins freely about
+  its axis; the zero pose is not assembled (one half folded back a half turn); the sidecar
+  names a motor by part of its name and re-types a joint the file no longer has.
 """
 
 from __future__ import annotations
@@ -252,7 +257,46 @@ def base_pinned() -> None:
         "rotor_inertia: {motor: 5.0e-4}\n")
 
 
+def split_rod() -> None:
+    u = Urdf("split_rod", "A spatial crank-rod-rocker as Gepetto's example-parallel-robots writes its legs "
+             "(written by make_tree_robots.py): the rod is two halves, each on a ball joint written as one "
+             "revolute and re-typed SPHERICAL by the sidecar, welded where they meet; the zero pose is not "
+             "assembled: the rocker's half is folded back a half turn.")
+    u.root("base_link", mass=3.0, com=(0, 0, -0.02), inertia=(0.01, 0.01, 0.015))
+    crank_end = np.array([0.1, 0.0, 0.05])
+    pivot, rocker_end = np.array([0.3, 0.25, 0.0]), np.array([0.3, 0.2, 0.14])
+    mid = 0.5 * (crank_end + rocker_end)
+    u.joint("motor_crank", "revolute", "base_link", "crank", frame_along(crank_end, np.array([0, 0, 1.0])),
+            np.zeros(3), axis=(0, 0, 1))
+    u.rod("crank", float(np.linalg.norm(crank_end)), 0.5)
+    u.joint("free_rocker", "revolute", "base_link", "rocker",
+            frame_along(rocker_end - pivot, np.array([1.0, 0.2, 0.0])), pivot, axis=(0, 0, 1))
+    u.rod("rocker", float(np.linalg.norm(rocker_end - pivot)), 0.4)
+    half = float(np.linalg.norm(mid - crank_end))
+    weld = frame_along(mid - crank_end, np.array([0.0, 0.3, 1.0]))  # both halves' weld frames, assembled
+    u.joint("spherical_crank", "revolute", "crank", "rod_a", frame_along(mid - crank_end, np.array([0, 0, 1.0])),
+            crank_end, axis=(0, 0, 1))
+    u.rod("rod_a", half, 0.2)
+    u.frame("closedloop1_A", "rod_a", mid, weld)
+    # rod b at zero: its assembled pose turned a half turn about its ball's z (folded back)
+    Rb = frame_along(mid - rocker_end, np.array([0, 0, 1.0]))
+    fold = rot(Rb[:, 2], np.pi)
+    u.joint("spherical_rocker", "revolute", "rocker", "rod_b", fold @ Rb, rocker_end, axis=(0, 0, 1))
+    u.rod("rod_b", half, 0.2)
+    u.frame("closedloop1_B", "rod_b", rocker_end + fold @ (mid - rocker_end), fold @ weld)
+    u.write(HERE / "split_rod" / "robot.urdf")
+    (HERE / "split_rod" / "robot.yaml").write_text(
+        "# Gepetto's keys only, as its sidecars are written: the motor named by part of its name, a\n"
+        "# re-typed joint the file no longer has, the weld type in upper case\n"
+        "closed_loop: [['closedloop1_A', 'closedloop1_B']]\n"
+        "type: ['6D']\n"
+        "name_mot: ['motor']\n"
+        "joint_name: ['spherical_crank', 'spherical_rocker', 'spherical_old']\n"
+        "joint_type: ['SPHERICAL', 'SPHERICAL', 'SPHERICAL']\n")
+
+
 if __name__ == "__main__":
     delta_parallelogram()
     weld_arms()
     base_pinned()
+    split_rod()

@@ -1,0 +1,174 @@
+"""Passive motions the closures leave free: a rod between two ball joints spins about its
+own axis, whatever the motors do (Gepetto's legged robots close every rod this way, a 6d
+weld between two half rods each hung on a ball). The closures then give fewer equations
+than there are passive joints, and no choice of dependent joints fixes them all.
+
+Such a motion is a degree of freedom of its own, unactuated and unsprung: it becomes an
+independent coordinate, an elastic joint of zero stiffness (its damping the file's joint
+damping), as Pinocchio integrates it. Which joints stay dependent is chosen from the
+closure Jacobian at an assembled pose (reached from the file's zero pose) by QR with
+column pivoting (the best-conditioned set); the others are the free ones.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import scipy.linalg
+from scipy.spatial.transform import Rotation
+
+from elastic_pm_dyn.model.description import ELASTIC, PASSIVE, Model
+
+RANK_TOL = 1e-9  # relative to the largest pivot: below it a column adds nothing new
+CLOSED = 1e-10  # [m, rad] closure residual taken as assembled for choosing the free joints
+
+
+def _axis_rotation(axis: np.ndarray, angle: float) -> np.ndarray:
+    K = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+    return np.eye(3) + np.sin(angle) * K + (1.0 - np.cos(angle)) * K @ K
+
+
+def _forward(model: Model, q: np.ndarray) -> tuple[list, list, list, list]:
+    """World origin and axis of each joint, world pose of each body, tree order."""
+    joints = model.joints
+    p_joint, R_body, p_body, axes = [], [], [], []
+    for k, (j, par) in enumerate(zip(joints, model.parents(), strict=True)):
+        R0, p0 = (R_body[par], p_body[par]) if par >= 0 else (np.eye(3), np.zeros(3))
+        Rj = R0 @ j.origin_rotation()
+        pj = p0 + R0 @ np.asarray(j.origin_xyz, dtype=float)
+        a = np.asarray(j.axis, dtype=float)
+        p_joint.append(pj)
+        axes.append(Rj @ a)
+        if j.type == "revolute":
+            R_body.append(Rj @ _axis_rotation(a / np.linalg.norm(a), q[k]))
+            p_body.append(pj)
+        else:
+            R_body.append(Rj)
+            p_body.append(pj + axes[k] * q[k])
+    return p_joint, axes, R_body, p_body
+
+
+def _ancestors(parents: list[int], b: int) -> list[int]:
+    out = []
+    while b >= 0:
+        out.append(b)
+        b = parents[b]
+    return out
+
+
+def _velocity_rows(model: Model, p_joint, axes, x: np.ndarray, b: int) -> np.ndarray:
+    """d(x)/dq for a point x on body b (6 rows: linear, then angular)."""
+    J = np.zeros((6, len(axes)))
+    for k in _ancestors(model.parents(), b):
+        if model.joints[k].type == "revolute":
+            J[:3, k] = np.cross(axes[k], x - p_joint[k])
+            J[3:, k] = axes[k]
+        else:
+            J[:3, k] = axes[k]
+    return J
+
+
+def closure_terms(model: Model, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Closure residual and Jacobian d/dq at tree coordinates q: point rows (eq 8's
+    S (p_a - p_b)), then each weld's orientation rows (the rotation vector of R_a R_b^T),
+    in the order of :attr:`Closure.size`. Plain forward kinematics: the model layer's own,
+    for choosing roles before the model is compiled."""
+    c = model.closure
+    p_joint, axes, R_body, p_body = _forward(model, q)
+    n = len(axes)
+    points = model.point_list()
+    bodies = model.point_bodies()
+
+    def point(i: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        b = bodies[i]
+        xyz = np.asarray(points[i][1], dtype=float)
+        J = np.zeros((6, n))
+        if b < 0:
+            return xyz, np.eye(3), J  # on the base, in the world
+        x = p_body[b] + R_body[b] @ xyz
+        return x, R_body[b], _velocity_rows(model, p_joint, axes, x, b)
+
+    res, rows = [], []
+    for a, b in c.pairs:
+        (xa, _, Ja), (xb, _, Jb) = point(a), point(b)
+        res.append((xa - xb)[list(c.components)])
+        rows.append((Ja - Jb)[list(c.components)])
+    for (a, b), (Ra, Rb) in zip(c.welds, c.weld_rotations, strict=True):
+        (_, Rba, Ja), (_, Rbb, Jb) = point(a), point(b)
+        phi = Rotation.from_matrix((Rba @ Ra) @ (Rbb @ Rb).T).as_rotvec()
+        res.append(phi[list(c.weld_components)])
+        rows.append((Ja - Jb)[[3 + k for k in c.weld_components]])
+    return np.concatenate(res), np.vstack(rows)
+
+
+def _assembled(model: Model, free: list[int]) -> np.ndarray | None:
+    """Tree coordinates closing the loops, moving ``free`` from the zero pose (least-squares
+    Newton: there are more free joints than equations); None if that fails."""
+    q = np.array([model.initial.guess.get(j.name, j.rest) for j in model.joints], dtype=float)
+    r, J = closure_terms(model, q)
+    for _ in range(100):
+        norm = float(np.linalg.norm(r))
+        if norm < CLOSED:
+            return q
+        step = np.linalg.lstsq(J[:, free], r, rcond=None)[0]
+        lam = 1.0
+        while lam > 1e-6:
+            trial = q.copy()
+            trial[free] -= lam * step
+            r_new, J_new = closure_terms(model, trial)
+            if np.linalg.norm(r_new) < norm:
+                break
+            lam *= 0.5
+        else:
+            return None
+        q, r, J = trial, r_new, J_new
+    return q if float(np.linalg.norm(r)) < CLOSED else None
+
+
+def _only_spins(model: Model, q: np.ndarray, passive: list[int], Jp: np.ndarray) -> bool:
+    """Whether every passive motion the closures allow (motors and springs held) moves no
+    joint origin: a part spinning about the line through its two balls (its closure point
+    may be off that line: Gepetto's half rods meet at a bend), not a mechanism short of a
+    motor, whose joints would move."""
+    null = scipy.linalg.null_space(Jp, rcond=RANK_TOL)
+    if null.shape[1] == 0:
+        return True
+    p_joint, axes, _, _ = _forward(model, q)
+    parents = model.parents()
+    rows = [_velocity_rows(model, p_joint, axes, p_joint[k], parents[k])[:3] for k in range(len(axes))
+            if parents[k] >= 0]
+    V = np.vstack(rows)[:, passive] @ null
+    return float(np.abs(V).max()) < 1e-9 * max(1.0, float(np.abs(Jp).max()))
+
+
+def free_passive_motions(model: Model) -> Model:
+    """``model`` with the passive joints the closures cannot fix made independent
+    (elastic, zero stiffness); the same model when there are none or the closures are
+    redundant (the counts then name the problem)."""
+    passive = [i for i, j in enumerate(model.joints) if j.role == PASSIVE]
+    m = model.closure.size if model.closure is not None else 0
+    if len(passive) <= m or m == 0:
+        return model
+    # At an assembled pose: away from it the rod halves are not in line, and their spins
+    # look independent.
+    q = _assembled(model, passive)
+    if q is None:
+        return model  # _check_counts names the counts
+    Jp = closure_terms(model, q)[1][:, passive]
+    if not _only_spins(model, q, passive, Jp):
+        return model  # a motion that moves the machine (a motor missing?): _check_counts names it
+    _, r, piv = scipy.linalg.qr(Jp, pivoting=True, mode="economic")
+    diag = np.abs(np.diag(r))
+    rank = int(np.sum(diag > RANK_TOL * max(diag[0], 1e-300)))
+    if rank < m:
+        return model  # redundant closures: not a free motion, _check_counts says so
+    free = {passive[k] for k in piv[m:]}
+    chains = []
+    start = 0
+    for ch in model.chains:
+        joints = tuple(replace(j, role=ELASTIC, stiffness=0.0, damping=j.friction, rest=0.0, friction=0.0)
+                       if start + k in free else j for k, j in enumerate(ch.joints))
+        chains.append(replace(ch, joints=joints))
+        start += len(ch.joints)
+    return replace(model, chains=tuple(chains))
