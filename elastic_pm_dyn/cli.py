@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 from typing import NoReturn
@@ -359,10 +360,16 @@ def _validate(args: argparse.Namespace) -> None:
         raise InputError(f"--rtol {args.rtol:g} is below the {RTOL_MIN:.3g} DOP853 can honour in double precision")
 
 
+def _one_line_warning(message, category, filename, lineno, line=None) -> str:
+    """A warning from the package as one line, like the errors (not Python's two with the source line)."""
+    return f"elastic-pm-dyn: warning: {message}\n"
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     func: Callable[[argparse.Namespace], int] = args.func
+    warnings.formatwarning = _one_line_warning
     try:
         _validate(args)
         return func(args)

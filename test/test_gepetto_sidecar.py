@@ -86,3 +86,15 @@ def test_cardan_is_two_revolutes_about_x_then_y(tmp_path):
         a = peer.accelerations(q, qd, tau)
         qdd = Dynamics(mech, "scdd").accelerations(q, qd, tau[mech.active])
         assert np.abs(a - qdd).max() <= 1e-9 * np.abs(a).max()
+
+
+def test_check_prints_a_passed_over_joint_as_one_warning_line() -> None:
+    """As a user sees it (a process of its own: pytest would capture the warning)."""
+    import subprocess
+    import sys
+    urdf = Path(__file__).resolve().parent / "robots" / "split_rod" / "robot.urdf"
+    out = subprocess.run([sys.executable, "-m", "elastic_pm_dyn", "check", str(urdf)], capture_output=True,
+                         text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    err = [line for line in out.stderr.splitlines() if line.strip()]
+    assert len(err) == 1 and err[0].startswith("elastic-pm-dyn: warning: ") and "spherical_old" in err[0], err
