@@ -105,6 +105,17 @@ def _point_column(ji, wz, wo, pt, J, ip, j, spatial):
 
 
 @njit(cache=True, inline="always")
+def _body_loads(jf, k, m, g, R, o, w, al, ao):
+    """Body k of mass m (frame R at o, rates w, al, ao): its centre c, world inertia Ic, and the
+    inertial-plus-gravity force f and moment t_rot that its Jacobian columns project (Kane)."""
+    c = v.add(o, v.mv(R, v.row3(jf, k, JF_COM)))
+    r = v.sub(c, o)
+    ac = v.add(v.add(ao, v.cross(al, r)), v.cross(w, v.cross(w, r)))
+    Ic = v.mmt(v.mm(R, v.row9(jf, k, JF_INERTIA)), R)
+    return c, Ic, v.scale(v.sub(ac, g), m), v.add(v.mv(Ic, al), v.cross(w, v.mv(Ic, w)))
+
+
+@njit(cache=True, inline="always")
 def _joint_elements(jf, s, e, q, qd, M, h):
     """What acts in the joints s..e-1 themselves: rotor inertia on M's diagonal; spring,
     damper and viscous friction forces in h."""
@@ -158,14 +169,9 @@ def serial_chain_terms(jf, ji, s, e, points, point_body, grav, q, qd, M, h, J, a
         m = jf[k, JF_MASS]
         if m <= 0.0:
             continue
-        c = v.add(o, v.mv(R, v.row3(jf, k, JF_COM)))
-        r = v.sub(c, o)
-        ac = v.add(v.add(ao, v.cross(al, r)), v.cross(w, v.cross(w, r)))
-        Ic = v.mmt(v.mm(R, v.row9(jf, k, JF_INERTIA)), R)
+        c, Ic, f, t_rot = _body_loads(jf, k, m, g, R, o, w, al, ao)
         for j in range(s, k + 1):
             _jacobian_column(ji, wz, wo, c, jv, jw, j)
-        f = v.scale(v.sub(ac, g), m)
-        t_rot = v.add(v.mv(Ic, al), v.cross(w, v.mv(Ic, w)))
         for a in range(s, k + 1):
             jva = (jv[a, 0], jv[a, 1], jv[a, 2])
             jwa = (jw[a, 0], jw[a, 1], jw[a, 2])
@@ -236,12 +242,7 @@ def subtree_terms(jf, ji, s, e, points, point_body, grav, q, qd, M, h, J, a_pt, 
         m = jf[k, JF_MASS]
         if m <= 0.0:
             continue
-        c = v.add(o, v.mv(R, v.row3(jf, k, JF_COM)))
-        r = v.sub(c, o)
-        ac = v.add(v.add(ao, v.cross(al, r)), v.cross(w, v.cross(w, r)))
-        Ic = v.mmt(v.mm(R, v.row9(jf, k, JF_INERTIA)), R)
-        f = v.scale(v.sub(ac, g), m)
-        t_rot = v.add(v.mv(Ic, al), v.cross(w, v.mv(Ic, w)))
+        c, Ic, f, t_rot = _body_loads(jf, k, m, g, R, o, w, al, ao)
         j = k
         while j >= 0:  # the body moves with its ancestors' joints only
             _jacobian_column(ji, wz, wo, c, jv, jw, j)
