@@ -56,6 +56,7 @@ from elastic_pm_dyn.sim.kernels import (
     _sane,
     _step_motion,
     project,
+    unsound_step,
 )
 from elastic_pm_dyn.small_linalg import cholesky_recip, cholesky_solve_rows, lu_factor, lu_solve
 
@@ -452,9 +453,7 @@ def exponential_steps(scheme, form, ma, q, qd, tau_coef, dt, n_steps, stab, alph
                     acc -= G[i, j] * f1[j]
                 v1[i] += 0.5 * dt * acc
         if not _sane(q1, v1, limit):
-            info[1] = worst if worst < NEAR_SINGULAR else max(np.max(np.abs(acc0)), np.max(np.abs(acc1)))
-            info[2] = gap
-            return SINGULAR if worst < NEAR_SINGULAR else DIVERGED
+            return unsound_step(worst, acc0, acc1, gap, info)
         q[:] = q1
         qd[:] = v1
         if stab & STAB_PROJECTION:

@@ -245,9 +245,7 @@ def rk4_steps(form, ma, q, qd, tau_coef, dt, n_steps, stab, alpha, beta, tol, si
             q4[i] = q[i] + dt / 6.0 * (qd[i] + 2.0 * v2[i] + 2.0 * v3[i] + v4[i])
             v4[i] = qd[i] + dt / 6.0 * (a1[i] + 2.0 * a2[i] + 2.0 * a3[i] + a4[i])
         if not _sane(q4, v4, limit):
-            info[1] = worst if worst < NEAR_SINGULAR else max(np.max(np.abs(a1)), np.max(np.abs(a4)))
-            info[2] = gap
-            return SINGULAR if worst < NEAR_SINGULAR else DIVERGED
+            return unsound_step(worst, a1, a4, gap, info)
         q[:] = q4
         qd[:] = v4
         if form == LDA:
@@ -262,6 +260,16 @@ def rk4_steps(form, ma, q, qd, tau_coef, dt, n_steps, stab, alpha, beta, tol, si
     info[1] = worst
     info[2] = gap
     return OK
+
+
+@njit(cache=True, inline="always")
+def unsound_step(worst, acc_first, acc_last, gap, info):
+    """The status of a step whose new state is not sane (:func:`_sane`): SINGULAR if the
+    conditioning fell below NEAR_SINGULAR on the way (info[1] = it), else DIVERGED (info[1] =
+    the largest |qdd| of the step's first and last stage); info[2] = the gap."""
+    info[1] = worst if worst < NEAR_SINGULAR else max(np.max(np.abs(acc_first)), np.max(np.abs(acc_last)))
+    info[2] = gap
+    return SINGULAR if worst < NEAR_SINGULAR else DIVERGED
 
 
 @njit(cache=True)
