@@ -27,10 +27,8 @@ the variants in random order (batches of ~2 ms); the serial fraction for Amdahl'
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
-import subprocess
 import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -42,6 +40,8 @@ from numba import njit, prange
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
+
+import bench_report  # noqa: E402  (bench/ is on the path: the scripts run as bench/<name>.py)
 
 from elastic_pm_dyn.dynamics.evaluate import FORMULATION_CODES, accelerations_flat  # noqa: E402
 from elastic_pm_dyn.kinematics.assembly import initial_state  # noqa: E402
@@ -342,13 +342,8 @@ def main() -> int:
             results.append(measure(machine, n_ek, rounds, pool, seed=5))
     meta = {"cpus": os.cpu_count(), "numba": numba.__version__, "threading_layer": numba.threading_layer(),
             "platform": platform.platform(), "python": platform.python_version(), "load_after": os.getloadavg(),
-            "commit": subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", "HEAD"], capture_output=True,
-                                     text=True).stdout.strip()}
-    args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "chains.json").write_text(json.dumps({"machine": meta, "cases": results}, indent=2))
-    md = table(results)
-    (args.out / "chains.md").write_text(md + "\n")
-    print(md)
+            "commit": bench_report.commit()}
+    bench_report.write(args.out, "chains", {"machine": meta, "cases": results}, table(results))
     print(f"numba threading layer {meta['threading_layer']}; load average {meta['load_after']}")
     return 0
 

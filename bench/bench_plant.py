@@ -23,10 +23,8 @@ Writes bench/results/plant.json (all numbers, machine, load) and plant.md (the t
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
-import subprocess
 import sys
 import tempfile
 import time
@@ -37,6 +35,8 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
+
+import bench_report  # noqa: E402  (bench/ is on the path: the scripts run as bench/<name>.py)
 
 from elastic_pm_dyn.analysis.metrics import stream_stats  # noqa: E402
 from elastic_pm_dyn.ros.processes import NodeProcess, private_domain_id, ros_env  # noqa: E402
@@ -303,18 +303,13 @@ def main() -> int:
         with tempfile.TemporaryDirectory() as logs:
             results = {"load_before": os.getloadavg(), **compare_integrators(args, Path(logs), domain),
                        "load_after": os.getloadavg()}
-        args.out.mkdir(parents=True, exist_ok=True)
-        (args.out / "plant_integrators.json").write_text(json.dumps(results, indent=2))
-        md = compare_table(results)
-        (args.out / "plant_integrators.md").write_text(md + "\n")
-        print(md)
+        bench_report.write(args.out, "plant_integrators", results, compare_table(results))
         print(f"load average before/after: {results['load_before']} / {results['load_after']}")
         return 0
     domain = private_domain_id()
     results: dict = {"machine": {"cpus": os.cpu_count(), "platform": platform.platform(),
                                  "python": platform.python_version(), "load_before": os.getloadavg()},
-                     "commit": subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", "HEAD"],
-                                              capture_output=True, text=True).stdout.strip()}
+                     "commit": bench_report.commit()}
     with tempfile.TemporaryDirectory() as logs:
         log_dir = Path(logs)
         print(f"realtime 1 kHz, {args.duration:g} s ...", flush=True)
@@ -323,11 +318,7 @@ def main() -> int:
             print(f"fast, publish {rate:g} Hz, {args.duration:g} s ...", flush=True)
             results[f"fast_{rate:g}"] = run_fast(args.duration, rate, log_dir, domain)
     results["machine"]["load_after"] = os.getloadavg()
-    args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "plant.json").write_text(json.dumps(results, indent=2))
-    md = table(results)
-    (args.out / "plant.md").write_text(md + "\n")
-    print(md)
+    bench_report.write(args.out, "plant", results, table(results))
     print(f"load average before/after: {results['machine']['load_before']} / {results['machine']['load_after']}")
     return 0
 

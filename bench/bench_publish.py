@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import argparse
 import io
-import json
 import os
 import platform
 import subprocess
@@ -45,6 +44,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "bench"))
 
+import bench_report  # noqa: E402  (bench/ is on the path: the scripts run as bench/<name>.py)
 from bench_plant import run_fast  # noqa: E402
 
 from elastic_pm_dyn.ros.processes import private_domain_id  # noqa: E402
@@ -244,9 +244,7 @@ def main() -> int:
         args.periods, args.duration, args.repeats = 600, 3.0, 1
     results: dict = {"machine": {"cpus": os.cpu_count(), "platform": platform.platform(),
                                  "python": platform.python_version(), "load_before": os.getloadavg()},
-                     "commit": subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", "HEAD"],
-                                              capture_output=True, text=True).stdout.strip(),
-                     "before": args.before}
+                     "commit": bench_report.commit(), "before": args.before}
     with tempfile.TemporaryDirectory() as tmp:
         tmp_dir = Path(tmp)
         models = {m: model_file(m, tmp_dir) for m in MACHINES}
@@ -259,11 +257,7 @@ def main() -> int:
             results["rtf"] = rtf_pairs(list(MACHINES), models, before_src, args.duration, args.repeats,
                                        tmp_dir / "logs")
     results["machine"]["load_after"] = os.getloadavg()
-    args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "publish.json").write_text(json.dumps(results, indent=2))
-    md = tables(results)
-    (args.out / "publish.md").write_text(md + "\n")
-    print(md)
+    bench_report.write(args.out, "publish", results, tables(results))
     print(f"load average before/after: {results['machine']['load_before']} / {results['machine']['load_after']}")
     return 0
 
