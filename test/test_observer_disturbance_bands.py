@@ -24,6 +24,7 @@ def test_a_band_is_a_butterworth_process_of_the_stated_variance(order: int) -> N
                                           "process.disturbance_band_order": order})
     dm = build(cfg.process, cfg.initial, ["a", "b"])
     assert dm.nz == 2 * order and dm.is_rate.sum() == 2 * (order - 1)
+    assert list(dm.rate_order) == [k for k in range(order) for _ in range(2)]  # f, f', f'', ... per joint
     wc = 2 * np.pi * corner
     dc = _psd(dm, 0, 1e-3 * wc)
     for ratio in (0.3, 1.0, 3.0, 10.0):  # |H|^2 = 1 / (1 + (w / wc)^(2n))

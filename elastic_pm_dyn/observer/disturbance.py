@@ -25,6 +25,7 @@ Models (``process.disturbance``):
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 
 import numpy as np
@@ -53,9 +54,16 @@ class DisturbanceModel:
         return np.tile(np.arange(nd), self.nz // nd) if nd else np.zeros(0, dtype=int)
 
     @property
+    def rate_order(self) -> np.ndarray:
+        """(nz,) which time derivative of a disturbance each state is (0: the torque itself;
+        names end in ``_rate``, ``_rate2``, ``_rate3``)."""
+        orders = [re.search(r"_rate(\d*)$", n) for n in self.names]
+        return np.array([0 if m is None else int(m.group(1) or 1) for m in orders], dtype=int)
+
+    @property
     def is_rate(self) -> np.ndarray:
-        """(nz,) True for states that are a disturbance's rate of change."""
-        return np.array([n.endswith("_rate") or n[-6:-1] == "_rate" for n in self.names], dtype=bool)
+        """(nz,) True for states that are a disturbance's rate of change (of any order)."""
+        return self.rate_order > 0
 
 
 def butterworth(order: int, w: float) -> tuple[np.ndarray, np.ndarray]:

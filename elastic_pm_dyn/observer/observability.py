@@ -191,8 +191,9 @@ def analyse(obs, horizon: float | None = None, q: np.ndarray | None = None, qd: 
         u = "rad" if joint.type == "revolute" else "m"
         units.append(u if k < obs.nae else u + "/s")
     dm = obs.disturbance_model
-    for j, rate in zip(dm.joint_of_state, dm.is_rate, strict=True):
+    for j, order in zip(dm.joint_of_state, dm.rate_order, strict=True):
         joint = mech.model.joints[int(obs.dist_idx[j])]
-        units.append(("N m" if joint.type == "revolute" else "N") + ("/s" if rate else ""))
+        units.append(("N m" if joint.type == "revolute" else "N") + ("" if order == 0 else "/s" if order == 1
+                                                                     else f"/s^{order}"))
     return ObservabilityReport(list(obs.cfg.sensors), labels, list(obs.state_names), units, horizon, s,
                                s * ratio, ratio, classes, sv, steady, steady_F, list(obs.branch_names), note)
