@@ -31,7 +31,7 @@ def _weld_angles(mech: Mechanism, terms) -> np.ndarray:
     if not len(pairs) or not np.any(pairs[:, 2]):
         return res
     closure = mech.model.closure
-    axes = closure.basis[list(closure.weld_components)]  # the normal alone on a planar machine
+    axes = closure.weld_axes  # the normal alone on a planar machine
     r = len(pairs) * len(ma.closure_axes)
     for a, b, weld in pairs:
         if not weld:

@@ -135,7 +135,8 @@ class Closure:
     hub: int = -1
     welds: tuple[tuple[int, int], ...] = ()
     weld_rotations: tuple[tuple[np.ndarray, np.ndarray], ...] = ()
-    basis: np.ndarray = field(default_factory=lambda: np.eye(3))
+    # rows as tuples: closures compare by value (a model read twice is the same model)
+    basis: tuple[tuple[float, float, float], ...] = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
 
     @property
     def weld_components(self) -> tuple[int, ...]:
@@ -146,6 +147,11 @@ class Closure:
     def axes(self) -> np.ndarray:
         """(c, 3) world directions of each point pair's rows."""
         return np.asarray(self.basis, dtype=float)[list(self.components)]
+
+    @property
+    def weld_axes(self) -> np.ndarray:
+        """(w, 3) world directions of each weld's orientation rows."""
+        return np.asarray(self.basis, dtype=float)[list(self.weld_components)]
 
     @property
     def size(self) -> int:

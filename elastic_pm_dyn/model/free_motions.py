@@ -90,7 +90,7 @@ def closure_terms(model: Model, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return x, R_body[b], _velocity_rows(model, p_joint, axes, x, b)
 
     res, rows = [], []
-    S, S_weld = c.axes, c.basis[list(c.weld_components)]  # in the plane and about its normal if planar
+    S, S_weld = c.axes, c.weld_axes  # in the plane and about its normal if planar
     for a, b in c.pairs:
         (xa, _, Ja), (xb, _, Jb) = point(a), point(b)
         res.append(S @ (xa - xb))

@@ -394,7 +394,8 @@ def _closure(tree: KinematicTree, legs: list[_Leg], frames: dict[str, _Frame], c
     return chains, Closure(pairs=pairs, components=(0, 1) if planar else (0, 1, 2), chains=tuple(order),
                            welds=tuple(pairs[w] for w in weld_refs),
                            weld_rotations=tuple((rotation(pair_refs[w][0]), rotation(pair_refs[w][1]))
-                                                for w in weld_refs), basis=basis), fixed
+                                                for w in weld_refs),
+                           basis=tuple(tuple(float(x) for x in row) for row in basis)), fixed
 
 
 def _lump_end_effector(chains: list[Chain], mass: float, closure: Closure | None) -> list[Chain]:
