@@ -110,8 +110,9 @@ def cmd_feedforward(args: argparse.Namespace) -> int:
     from elastic_pm_dyn.motion.trajectory import QuinticLine
     from elastic_pm_dyn.sim.torque import write_torque_csv
     model = _load(args)
-    dims = len(model.ee_components)
-    axes = " ".join(f"{c}A" for c in "XYZ"[:dims]) + " " + " ".join(f"{c}B" for c in "XYZ"[:dims])
+    names = [c.upper() for c in model.ee_names]
+    dims = len(names)
+    axes = " ".join(f"{c}A" for c in names) + " " + " ".join(f"{c}B" for c in names)
     if args.line is None and dims != len(ref.start):
         raise InputError(f"--line is needed: the default line is the planar five-bar's, and this machine's end "
                          f"effector has {dims} coordinates: give {2 * dims} numbers {axes}")
@@ -154,7 +155,11 @@ def cmd_check(args: argparse.Namespace) -> int:
     print("start pose:")
     for name, value in zip(mech.joint_names, q, strict=True):
         print(f"  {name:20s} {value: .9f}")
-    print(f"  end effector {np.array2string(mech.end_effector(q), precision=6)} m")
+    print(f"  end effector ({', '.join(mech.ee_names)}) {np.array2string(mech.end_effector(q), precision=6)} m")
+    if mech.model.planar:
+        u, v, n = mech.model.plane_basis
+        print(f"  planar: in the plane normal to {np.round(n, 6).tolist()}"
+              + ("" if mech.ee_unit is not None else f"; u = {np.round(u, 6).tolist()}, v = {np.round(v, 6).tolist()}"))
     # The assembly mode as initial_state.assembly_mode spells it: keep it to pin the mode.
     print("  assembly mode: " + (", ".join(f"{mech.joint_names[i]} {'positive' if np.sin(q[i]) >= 0 else 'negative'}"
                                            for i in mech.passive if model.joints[i].type == "revolute") or "-"))

@@ -90,15 +90,16 @@ def closure_terms(model: Model, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return x, R_body[b], _velocity_rows(model, p_joint, axes, x, b)
 
     res, rows = [], []
+    S, S_weld = c.axes, c.weld_axes  # in the plane and about its normal if planar
     for a, b in c.pairs:
         (xa, _, Ja), (xb, _, Jb) = point(a), point(b)
-        res.append((xa - xb)[list(c.components)])
-        rows.append((Ja - Jb)[list(c.components)])
+        res.append(S @ (xa - xb))
+        rows.append(S @ (Ja - Jb)[:3])
     for (a, b), (Ra, Rb) in zip(c.welds, c.weld_rotations, strict=True):
         (_, Rba, Ja), (_, Rbb, Jb) = point(a), point(b)
         phi = Rotation.from_matrix((Rba @ Ra) @ (Rbb @ Rb).T).as_rotvec()
-        res.append(phi[list(c.weld_components)])
-        rows.append((Ja - Jb)[[3 + k for k in c.weld_components]])
+        res.append(S_weld @ phi)
+        rows.append(S_weld @ (Ja - Jb)[3:])
     return np.concatenate(res), np.vstack(rows)
 
 
