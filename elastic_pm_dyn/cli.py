@@ -62,7 +62,8 @@ def _options(args: argparse.Namespace):
 def _load(args: argparse.Namespace):
     """The model the command names: a model YAML, a URDF (+ closure sidecar) or an MJCF."""
     from elastic_pm_dyn.model.loader import load_model
-    return load_model(args.model, getattr(args, "elastic_dof_per_chain", None), getattr(args, "closures", None))
+    return load_model(args.model, getattr(args, "elastic_dof_per_chain", None), getattr(args, "closures", None),
+                      getattr(args, "fix_base", False))
 
 
 def _add_model(p: argparse.ArgumentParser, positional: bool = False, dof: bool = False) -> None:
@@ -73,6 +74,9 @@ def _add_model(p: argparse.ArgumentParser, positional: bool = False, dof: bool =
     else:
         p.add_argument("--model", required=True, help=what)
     p.add_argument("--closures", help="closure sidecar of a URDF model (default: robot.yaml next to it)")
+    p.add_argument("--fix-base", action="store_true",
+                   help="MJCF: weld each body on a free joint (a floating base) to the world where the file puts "
+                        "it; the free joint's keyframe entries are dropped")
     if dof:
         p.add_argument("--elastic-dof-per-chain", type=int, default=None,
                        help="override the model's discretisation of flexible links")

@@ -172,3 +172,21 @@ def free_passive_motions(model: Model) -> Model:
         chains.append(replace(ch, joints=joints))
         start += len(ch.joints)
     return replace(model, chains=tuple(chains))
+
+
+def repeated_rows(model: Model) -> tuple[list[int], int] | None:
+    """Closure rows that repeat the others at an assembled pose, and the rank of all of them in
+    the passive joints; None when they are independent (or no pose assembles: the counts or the
+    assembly name that). A planar loop closed by a 3-D point makes its out-of-plane row repeat."""
+    passive = [i for i, j in enumerate(model.joints) if j.role == PASSIVE]
+    m = model.closure.size if model.closure is not None else 0
+    if m == 0 or not passive:
+        return None
+    q = _assembled(model, passive)
+    if q is None:
+        return None
+    Jp = closure_terms(model, q)[1][:, passive]
+    _, r, piv = scipy.linalg.qr(Jp.T, pivoting=True, mode="economic")
+    diag = np.abs(np.diag(r))
+    rank = int(np.sum(diag > RANK_TOL * max(diag[0], 1e-300)))
+    return (sorted(int(i) for i in piv[rank:]), rank) if rank < m else None
