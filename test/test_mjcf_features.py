@@ -199,3 +199,63 @@ def test_redundant_point_closure_is_named(tmp_path):
     message = str(err.value)
     assert message.startswith(f"{path}:{line}: connect coupler-rocker: not supported yet"), message
     assert "6 equations have rank 5" in message
+
+
+FOUR_BAR_XY = """<mujoco model="four_bar">
+  <compiler angle="radian"/>
+  <option gravity="0 -9.81 0"/>
+  <default><position kp="50" kv="5"/></default>
+  <worldbody>
+    <body name="mount">
+      <body name="crank">
+        <joint name="crank" type="hinge" axis="0 0 1" damping="0.01"/>
+        <inertial pos="0.05 0.01 0" mass="0.5" diaginertia="1e-4 1e-3 1e-3"/>
+        <body name="coupler" pos="0.1 0 0" euler="0 0 1.2">
+          <joint name="coupler" type="hinge" axis="0 0 1"/>
+          <inertial pos="0.1 0 0.02" mass="0.3" diaginertia="1e-5 1e-3 1e-3"/>
+        </body>
+      </body>
+      <body name="rocker" pos="0.3 0 0" euler="0 0 1.9">
+        <joint name="rocker" type="hinge" axis="0 0 1"/>
+        <inertial pos="0.1 0 0" mass="0.3" diaginertia="1e-5 1e-3 1e-3"/>
+      </body>
+    </body>
+  </worldbody>
+  <equality>
+    <connect body1="coupler" body2="rocker" anchor="0.2 0 0"/>
+  </equality>
+  <actuator>
+    <position name="crank" joint="crank"/>
+  </actuator>
+</mujoco>
+"""
+
+
+def test_planar_machine_in_the_y_z_plane_moves_as_in_x_y(tmp_path):
+    """The same four-bar turned a quarter about y (hinges along x; gravity along y stays):
+    planar in y-z, its joints move exactly as in x-y."""
+    from elastic_pm_dyn.sim.simulator import SimulationOptions, Simulator
+    from elastic_pm_dyn.sim.torque import ConstantTorque
+    runs = []
+    options = SimulationOptions(integrator="rk4", dt=1e-4, sample=1e-3)
+    for name, turn in (("xy.xml", ""), ("yz.xml", ' euler="0 1.5707963267948966 0"')):
+        path = _write(tmp_path, FOUR_BAR_XY.replace('<body name="mount">', f'<body name="mount"{turn}>'), name)
+        mech = Mechanism(load_model(path, servos_as_motors=True))
+        assert mech.model.planar and mech.active_names == ["crank"]
+        run = Simulator(mech, options).run(ConstantTorque([0.0]), 0.05)
+        runs.append((mech, run))
+    (m_xy, r_xy), (m_yz, r_yz) = runs
+    assert tuple(m_xy.ee_components) == (0, 1) and tuple(m_yz.ee_components) == (1, 2)
+    assert np.abs(r_xy.q - r_xy.q[0]).max() > 1e-3  # it falls
+    np.testing.assert_allclose(r_yz.q, r_xy.q, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(r_yz.ee[:, 0], r_xy.ee[:, 1], rtol=0, atol=1e-12)  # world y is y in both
+
+
+def test_servo_is_refused_unless_taken_for_a_motor(tmp_path):
+    path = _write(tmp_path, FOUR_BAR_XY)
+    with pytest.raises(ModelError) as err:
+        load_model(path)
+    line = FOUR_BAR_XY.splitlines().index('    <position name="crank" joint="crank"/>') + 1
+    assert str(err.value).startswith(f"{path}:{line}: actuator 'crank': not supported yet"), str(err.value)
+    assert "--servos-as-motors" in str(err.value)
+    assert load_model(path, servos_as_motors=True).active_names == ["crank"]

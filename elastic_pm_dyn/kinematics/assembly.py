@@ -31,6 +31,7 @@ def _weld_angles(mech: Mechanism, terms) -> np.ndarray:
     if not len(pairs) or not np.any(pairs[:, 2]):
         return res
     planar = len(ma.closure_components) == 2
+    normal = 3 - int(sum(ma.closure_components)) if planar else 2
     r = len(pairs) * len(ma.closure_components)
     for a, b, weld in pairs:
         if not weld:
@@ -38,7 +39,7 @@ def _weld_angles(mech: Mechanism, terms) -> np.ndarray:
         Ra = terms.p_tip[a, 3:12].reshape(3, 3)
         Rb = terms.p_tip[b, 3:12].reshape(3, 3)
         phi = Rotation.from_matrix(Ra @ Rb.T).as_rotvec()
-        rows = [2] if planar else [0, 1, 2]
+        rows = [normal] if planar else [0, 1, 2]
         res[r:r + len(rows)] = phi[rows]
         r += len(rows)
     return res

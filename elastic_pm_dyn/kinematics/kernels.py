@@ -364,10 +364,11 @@ def weld_rows(closure_pairs, closure_components, J, a_pt, p_pt, A, gamma, res):
     and gamma = -(alpha_a - alpha_b) (bias angular accelerations). Position level: with
     E = R_a R_b^T (world orientations of the two frames), the residual is
     vee(E - E^T) / 2, which vanishes with the rotation and whose rate at E = I is w_a - w_b.
-    The world axes constrained are all three, or z alone on a planar machine (point rows in
-    x, y).
+    The world axes constrained are all three, or the plane's normal alone on a planar machine
+    (point rows in the other two).
     """
     planar = closure_components.shape[0] == 2
+    normal = 3 - closure_components[0] - closure_components[1] if planar else 2
     nc = 1 if planar else 3
     r = closure_pairs.shape[0] * closure_components.shape[0]
     for k in range(closure_pairs.shape[0]):
@@ -380,7 +381,7 @@ def weld_rows(closure_pairs, closure_components, J, a_pt, p_pt, A, gamma, res):
         E = v.mmt(Ra, Rb)
         err = (0.5 * (E[7] - E[5]), 0.5 * (E[2] - E[6]), 0.5 * (E[3] - E[1]))
         for i in range(nc):
-            comp = 2 if planar else i
+            comp = normal if planar else i
             for j in range(A.shape[1]):
                 A[r, j] = J[pa, 3 + comp, j] - J[pb, 3 + comp, j]
             res[r] = err[comp]

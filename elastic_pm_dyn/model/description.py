@@ -133,8 +133,8 @@ class Closure:
 
     @property
     def weld_components(self) -> tuple[int, ...]:
-        """World axes of the orientation rows: z alone on a planar machine."""
-        return (2,) if tuple(self.components) == (0, 1) else (0, 1, 2)
+        """World axes of the orientation rows: the plane's normal alone on a planar machine."""
+        return (3 - sum(self.components),) if len(self.components) == 2 else (0, 1, 2)
 
     @property
     def size(self) -> int:
@@ -175,7 +175,8 @@ class Model:
     initial: InitialState
     branches: tuple[Branch, ...]
     source: str = "<memory>"
-    planar: bool = False  # closure/end effector in the x-y plane only
+    planar: bool = False  # closure/end effector in one coordinate plane only (x-y unless plane_normal says)
+    plane_normal: int = 2  # the world axis a planar machine's hinges lie along (MJCF/URDF: 0, 1 or 2)
     fixed_points: tuple[tuple[str, np.ndarray], ...] = ()  # closure points on the fixed base, world frame
 
     # --- joint bookkeeping in tree order (chains stacked, joints in chain order) ---
@@ -204,7 +205,7 @@ class Model:
 
     @property
     def ee_components(self) -> tuple[int, ...]:
-        return (0, 1) if self.planar else (0, 1, 2)
+        return tuple(k for k in range(3) if k != self.plane_normal) if self.planar else (0, 1, 2)
 
     def point_list(self) -> list[tuple[int, np.ndarray, str]]:
         """All attachment points as (chain index, xyz in its body's frame, label): the chain

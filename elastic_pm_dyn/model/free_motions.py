@@ -102,10 +102,11 @@ def closure_terms(model: Model, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.concatenate(res), np.vstack(rows)
 
 
-def _assembled(model: Model, free: list[int]) -> np.ndarray | None:
-    """Tree coordinates closing the loops, moving ``free`` from the zero pose (least-squares
-    Newton: there are more free joints than equations); None if that fails."""
-    q = np.array([model.initial.guess.get(j.name, j.rest) for j in model.joints], dtype=float)
+def _assembled(model: Model, free: list[int], start: np.ndarray | None = None) -> np.ndarray | None:
+    """Tree coordinates closing the loops, moving ``free`` from ``start`` (default: the zero
+    pose; least-squares Newton: there are more free joints than equations); None if that fails."""
+    q = np.array([model.initial.guess.get(j.name, j.rest) for j in model.joints], dtype=float) \
+        if start is None else np.array(start, dtype=float)
     r, J = closure_terms(model, q)
     for _ in range(100):
         norm = float(np.linalg.norm(r))
@@ -185,8 +186,23 @@ def repeated_rows(model: Model) -> tuple[list[int], int] | None:
     q = _assembled(model, passive)
     if q is None:
         return None
-    Jp = closure_terms(model, q)[1][:, passive]
-    _, r, piv = scipy.linalg.qr(Jp.T, pivoting=True, mode="economic")
-    diag = np.abs(np.diag(r))
-    rank = int(np.sum(diag > RANK_TOL * max(diag[0], 1e-300)))
-    return (sorted(int(i) for i in piv[rank:]), rank) if rank < m else None
+
+    def rank_at(q: np.ndarray) -> tuple[int, np.ndarray]:
+        _, r, piv = scipy.linalg.qr(closure_terms(model, q)[1][:, passive].T, pivoting=True, mode="economic")
+        diag = np.abs(np.diag(r))
+        return int(np.sum(diag > RANK_TOL * max(diag[0], 1e-300))), piv
+
+    rank, piv = rank_at(q)
+    if rank == m:
+        return None
+    # Repeated everywhere, or only at this pose (a zero pose folded onto a singularity)? Look
+    # again at poses the other joints reach from it (seeded: the same answer every load).
+    others = [i for i in range(len(model.joints)) if i not in passive]
+    rng = np.random.default_rng(0)
+    for _ in range(2):
+        start = q.copy()
+        start[others] += rng.uniform(-0.1, 0.1, len(others))
+        moved = _assembled(model, passive, start)
+        if moved is not None and rank_at(moved)[0] == m:
+            return None
+    return sorted(int(i) for i in piv[rank:]), rank

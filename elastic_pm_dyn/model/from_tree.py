@@ -73,8 +73,9 @@ def build_model(tree: KinematicTree, sidecar: Sidecar | None = None) -> Model:
     closures = list(tree.closures) + (sidecar.closures if sidecar else [])
     gravity = np.asarray(sidecar.gravity if sidecar is not None and sidecar.gravity is not None
                          else tree.gravity if tree.gravity is not None else DEFAULT_GRAVITY, dtype=float)
-    planar = _planar(tree, legs, closures, sidecar)
-    chains, closure, fixed = _closure(tree, legs, frames, closures, planar)
+    normal = _planar(tree, legs, closures, sidecar)
+    planar = normal is not None
+    chains, closure, fixed = _closure(tree, legs, frames, closures, normal)
     ee_mass = sidecar.end_effector_mass if sidecar is not None else 0.0
     if ee_mass > 0:
         chains = _lump_end_effector(chains, ee_mass, closure)
@@ -88,6 +89,7 @@ def build_model(tree: KinematicTree, sidecar: Sidecar | None = None) -> Model:
         initial = InitialState(guess={k: v for k, v in tree.start.items() if k in names})
     model = Model(name=tree.name, chains=tuple(chains), closure=closure, gravity=gravity,
                   end_effector_mass=ee_mass, initial=initial, branches=branches, source=tree.file, planar=planar,
+                  plane_normal=2 if normal is None else normal,
                   fixed_points=fixed)
     model = free_passive_motions(model)
     _check_counts(tree, model, sidecar, closures)
@@ -107,8 +109,8 @@ def _check_repeated(model: Model, closures: list) -> None:
     spec = closures[rows[0] // len(c.components)] if rows[0] < n_point \
         else closures[welds[(rows[0] - n_point) // len(c.weld_components)]]
     raise spec.where.error(f"not supported yet: the closures' {c.size} equations have rank {rank} in the passive "
-                           f"joints at the start pose; this one repeats the others (a loop whose hinges are all "
-                           f"parallel, closed by a 3-D point: its row along them holds by itself)")
+                           f"joints at the start pose and near it; this one repeats the others (a loop whose hinges "
+                           f"are all parallel, closed by a 3-D point: its row along them holds by itself)")
 
 
 # ------------------------------------------------------------------------ joints
@@ -289,12 +291,14 @@ def _world_axes(legs: list[_Leg]) -> list[tuple[Joint, np.ndarray]]:
     return out
 
 
-def _planar(tree: KinematicTree, legs: list[_Leg], closures: list, sidecar: Sidecar | None) -> bool:
+def _planar(tree: KinematicTree, legs: list[_Leg], closures: list, sidecar: Sidecar | None) -> int | None:
     """A point closure of a mechanism that moves in the x-y plane has an all-zero z row:
-    such a machine is planar (closes in x and y). Found from the axes unless the sidecar says."""
+    such a machine is planar (closes in x and y). Found from the axes unless the sidecar says
+    (its ``planar: true`` means x-y); found, the y-z and z-x planes too. The plane's normal
+    axis (2 for x-y), None for a spatial machine."""
     axes = _world_axes(legs)
     if not closures or not axes:
-        return bool(sidecar is not None and sidecar.planar)
+        return 2 if sidecar is not None and sidecar.planar else None
 
     def planar_about(n: np.ndarray) -> bool:
         return all(np.linalg.norm(np.cross(a, n)) < PARALLEL_TOL if j.type == REVOLUTE else abs(a @ n) < PARALLEL_TOL
@@ -308,15 +312,16 @@ def _planar(tree: KinematicTree, legs: list[_Leg], closures: list, sidecar: Side
                                           else abs(a @ ez) >= PARALLEL_TOL))
         raise sidecar.where(("planar",)).error(f"planar: true, but joint {bad.name!r} does not move in the x-y plane")
     if said is not None:
-        return said
-    if in_xy:
-        return True
+        return 2 if said else None
+    for k in (2, 0, 1):  # x-y first: a machine with no hinge is planar about every axis
+        if planar_about(np.eye(3)[k]):
+            return k
     revolute = [a for j, a in axes if j.type == REVOLUTE]
     if revolute and planar_about(revolute[0]):
         where = closures[0].where
-        raise where.error(f"not supported yet: a planar mechanism moving in a plane other than x-y "
+        raise where.error(f"not supported yet: a planar mechanism moving in a plane other than x-y, y-z or z-x "
                           f"(joint axes along {np.round(revolute[0], 6).tolist()}), {tree.file}")
-    return False
+    return None
 
 
 # ----------------------------------------------------------------------- closure
@@ -338,7 +343,7 @@ class _Points:
 
 
 def _closure(tree: KinematicTree, legs: list[_Leg], frames: dict[str, _Frame], closures: list,
-             planar: bool) -> tuple[list[Chain], Closure | None, tuple[tuple[str, np.ndarray], ...]]:
+             normal: int | None) -> tuple[list[Chain], Closure | None, tuple[tuple[str, np.ndarray], ...]]:
     found = _Points([[] for _ in legs])
     pair_refs: list[tuple[tuple[int, int], tuple[int, int]]] = []
     weld_refs: list[int] = []
@@ -393,7 +398,8 @@ def _closure(tree: KinematicTree, legs: list[_Leg], frames: dict[str, _Frame], c
         for ci, _ in (a, b):
             if ci >= 0 and ci not in order:
                 order.append(ci)
-    return chains, Closure(pairs=pairs, components=(0, 1) if planar else (0, 1, 2), chains=tuple(order),
+    components = (0, 1, 2) if normal is None else tuple(k for k in range(3) if k != normal)
+    return chains, Closure(pairs=pairs, components=components, chains=tuple(order),
                            welds=tuple(pairs[w] for w in weld_refs),
                            weld_rotations=tuple((rotation(pair_refs[w][0]), rotation(pair_refs[w][1]))
                                                 for w in weld_refs)), fixed

@@ -17,6 +17,9 @@ MuJoCo's coordinate (the joint angle is ``qpos``: the body is written at ``qpos 
 A free joint (a floating base) is refused, unless ``fix_base``: then each body carried by
 a free joint is welded to the world at the pose the file writes it at (the free joint's
 entries of the keyframes are dropped), as a legged robot hangs from a fixed pelvis.
+An actuator other than a ``<motor>`` (a ``<position>`` servo, as onshape-to-robot writes on
+every joint) is refused, unless ``servos_as_motors``: then the joint it drives is a motor
+whose torque is the input; the servo's law (kp, kv) is left out.
 """
 
 from __future__ import annotations
@@ -44,14 +47,15 @@ from elastic_pm_dyn.model.xml_source import XmlSource
 _EQ_KINDS = {0: "3d", 1: "6d"}  # mjEQ_CONNECT, mjEQ_WELD
 
 
-def read_mjcf(path: str | Path, fix_base: bool = False) -> KinematicTree:
-    """The file's tree; ``fix_base`` welds the bodies of free joints to the world (module doc)."""
+def read_mjcf(path: str | Path, fix_base: bool = False, servos_as_motors: bool = False) -> KinematicTree:
+    """The file's tree; ``fix_base`` welds the bodies of free joints to the world,
+    ``servos_as_motors`` takes a servo's joint for a motor's (module doc)."""
     file = str(path)
     src = XmlSource.from_file(path)
     lines = _element_lines(src)
     mujoco = _mujoco(file)
     m = compile_mjcf(path, fix_base)
-    return _Tree(m, mujoco, file, lines).build(src.root.get("model") or Path(path).stem)
+    return _Tree(m, mujoco, file, lines, servos_as_motors).build(src.root.get("model") or Path(path).stem)
 
 
 def _mujoco(file: str):
@@ -135,8 +139,9 @@ def _quat_matrix(mujoco, quat: np.ndarray) -> np.ndarray:
 
 
 class _Tree:
-    def __init__(self, m, mujoco, file: str, lines: dict[tuple[str, str], int]):
+    def __init__(self, m, mujoco, file: str, lines: dict[tuple[str, str], int], servos_as_motors: bool = False):
         self.m, self.mj, self.file, self.lines = m, mujoco, file, lines
+        self.servos_as_motors = servos_as_motors
         obj = mujoco.mjtObj
         self.body_names = [mujoco.mj_id2name(m, obj.mjOBJ_BODY, i) or f"body{i}" for i in range(m.nbody)]
         self.joint_names = [mujoco.mj_id2name(m, obj.mjOBJ_JOINT, i) or f"joint{i}" for i in range(m.njnt)]
@@ -233,16 +238,21 @@ class _Tree:
                          rest=float(m.qpos_spring[qadr]), armature=float(m.dof_armature[dadr]), actuated=j in motors)
 
     def _motors(self) -> set[int]:
-        """Joints driven by a <motor> (a joint transmission with no bias: torque = gear * ctrl)."""
+        """Joints driven by a <motor> (a joint transmission with no bias: torque = gear * ctrl), or
+        by any joint actuator with ``servos_as_motors``."""
         m = self.m
         out = set()
         for a in range(m.nu):
             name = self.mj.mj_id2name(m, self.obj.mjOBJ_ACTUATOR, a) or f"actuator{a}"
-            where = Where(self.file, f"actuator {name!r}", self.lines.get(("motor", name))
-                          or self.lines.get(("general", name)) or self.lines.get(("position", name)))
-            if m.actuator_trntype[a] != 0 or m.actuator_biastype[a] != 0 or m.actuator_gaintype[a] != 0:
-                raise where.error("not supported yet: an actuator other than a <motor> on a joint "
-                                  "(servos, tendons, sites)")
+            tags = ("motor", "general", "position", "velocity", "intvelocity", "damper", "cylinder", "muscle")
+            where = Where(self.file, f"actuator {name!r}",
+                          next((self.lines[(t, name)] for t in tags if (t, name) in self.lines), None))
+            if m.actuator_trntype[a] != 0:
+                raise where.error("not supported yet: an actuator on a tendon, site or body (only joints)")
+            if not self.servos_as_motors and (m.actuator_biastype[a] != 0 or m.actuator_gaintype[a] != 0):
+                raise where.error("not supported yet: an actuator other than a <motor> on a joint (a servo); "
+                                  "servos_as_motors=True (check/simulate --servos-as-motors) takes its joint for "
+                                  "a motor's, the servo law left out")
             j = int(m.actuator_trnid[a, 0])
             if j in out:
                 raise where.error(f"joint {self.joint_names[j]!r} has two motors")

@@ -103,7 +103,8 @@ def closure_sidecar(model: Model) -> str:
     if rotor:
         data["rotor_inertia"] = rotor
     data["gravity"] = [float(g) for g in model.gravity]
-    data["planar"] = bool(model.planar)
+    if not model.planar or model.plane_normal == 2:  # a sidecar's planar: true means x-y; another plane is found
+        data["planar"] = bool(model.planar)
     data["branches"] = [{"name": b.name, "joint": b.joint} for b in model.branches]
     init = model.initial
     state: dict = {}
