@@ -118,7 +118,8 @@ def cmd_feedforward(args: argparse.Namespace) -> int:
     from elastic_pm_dyn.sim.torque import write_torque_csv
     model = _load(args)
     dims = len(model.ee_components)
-    axes = " ".join(f"{c}A" for c in "XYZ"[:dims]) + " " + " ".join(f"{c}B" for c in "XYZ"[:dims])
+    labels = ["XYZ"[c] for c in model.ee_components]
+    axes = " ".join(f"{c}A" for c in labels) + " " + " ".join(f"{c}B" for c in labels)
     if args.line is None and dims != len(ref.start):
         raise InputError(f"--line is needed: the default line is the planar five-bar's, and this machine's end "
                          f"effector has {dims} coordinates: give {2 * dims} numbers {axes}")

@@ -249,6 +249,7 @@ def test_planar_machine_in_the_y_z_plane_moves_as_in_x_y(tmp_path):
     assert np.abs(r_xy.q - r_xy.q[0]).max() > 1e-3  # it falls
     np.testing.assert_allclose(r_yz.q, r_xy.q, rtol=0, atol=1e-12)
     np.testing.assert_allclose(r_yz.ee[:, 0], r_xy.ee[:, 1], rtol=0, atol=1e-12)  # world y is y in both
+    assert [h for h in r_yz.header() if h.startswith("ee_")] == ["ee_y", "ee_z"]
 
 
 def test_servo_is_refused_unless_taken_for_a_motor(tmp_path):
