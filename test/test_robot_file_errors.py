@@ -105,11 +105,15 @@ def test_urdf_without_sidecar(tmp_path):
     assert "robot.yaml next to it" in message
 
 
-def test_planar_outside_the_xy_plane_is_not_supported_yet(tmp_path):
-    urdf = URDF.replace('<axis xyz="0 0 1"/>', '<axis xyz="0 1 0"/>').replace('<axis xyz="1 0 0"/>',
-                                                                            '<axis xyz="1 0 0"/>')
-    message = _error(tmp_path, urdf)
-    assert "not supported yet: a planar mechanism moving in a plane other than x-y" in message
+def test_planar_outside_the_coordinate_planes_is_not_supported_yet(tmp_path):
+    """Hinges along y: planar in z-x, loaded; along a slanted axis: one line."""
+    urdf = URDF.replace('<axis xyz="0 0 1"/>', '<axis xyz="0 1 0"/>')
+    (tmp_path / "robot.urdf").write_text(urdf)
+    (tmp_path / "robot.yaml").write_text(SIDECAR)
+    model = load_model(tmp_path / "robot.urdf")
+    assert model.planar and model.plane_normal == 1 and tuple(model.ee_components) == (0, 2)
+    message = _error(tmp_path, URDF.replace('<axis xyz="0 0 1"/>', '<axis xyz="0 0.6 0.8"/>'))
+    assert "not supported yet: a planar mechanism moving in a plane other than x-y, y-z or z-x" in message
 
 
 MJCF_CASES = [
