@@ -62,7 +62,8 @@ def _options(args: argparse.Namespace):
 def _load(args: argparse.Namespace):
     """The model the command names: a model YAML, a URDF (+ closure sidecar) or an MJCF."""
     from elastic_pm_dyn.model.loader import load_model
-    return load_model(args.model, getattr(args, "elastic_dof_per_chain", None), getattr(args, "closures", None))
+    return load_model(args.model, getattr(args, "elastic_dof_per_chain", None), getattr(args, "closures", None),
+                      getattr(args, "fix_base", False), getattr(args, "servos_as_motors", False))
 
 
 def _add_model(p: argparse.ArgumentParser, positional: bool = False, dof: bool = False) -> None:
@@ -73,6 +74,12 @@ def _add_model(p: argparse.ArgumentParser, positional: bool = False, dof: bool =
     else:
         p.add_argument("--model", required=True, help=what)
     p.add_argument("--closures", help="closure sidecar of a URDF model (default: robot.yaml next to it)")
+    p.add_argument("--fix-base", action="store_true",
+                   help="MJCF: weld each body on a free joint (a floating base) to the world where the file puts "
+                        "it; the free joint's keyframe entries are dropped")
+    p.add_argument("--servos-as-motors", action="store_true",
+                   help="MJCF: a joint driven by a servo (<position>, <velocity>, <general> ...) is a motor: its "
+                        "torque is the input, the servo law (kp, kv) is left out")
     if dof:
         p.add_argument("--elastic-dof-per-chain", type=int, default=None,
                        help="override the model's discretisation of flexible links")

@@ -30,7 +30,7 @@ from elastic_pm_dyn.model.description import (
     Model,
     matrix_to_rpy,
 )
-from elastic_pm_dyn.model.free_motions import free_passive_motions
+from elastic_pm_dyn.model.free_motions import free_passive_motions, repeated_rows
 from elastic_pm_dyn.model.kinematic_tree import (
     BALL,
     CARDAN,
@@ -91,7 +91,24 @@ def build_model(tree: KinematicTree, sidecar: Sidecar | None = None) -> Model:
                   fixed_points=fixed)
     model = free_passive_motions(model)
     _check_counts(tree, model, sidecar, closures)
+    _check_repeated(model, closures)
     return model
+
+
+def _check_repeated(model: Model, closures: list) -> None:
+    """Closure equations must fix the passive joints independently: SCDD solves for them."""
+    found = repeated_rows(model)
+    if found is None or not closures:
+        return
+    rows, rank = found
+    c = model.closure
+    n_point = len(c.pairs) * len(c.components)
+    welds = [k for k, spec in enumerate(closures) if spec.kind == "6d"]
+    spec = closures[rows[0] // len(c.components)] if rows[0] < n_point \
+        else closures[welds[(rows[0] - n_point) // len(c.weld_components)]]
+    raise spec.where.error(f"not supported yet: the closures' {c.size} equations have rank {rank} in the passive "
+                           f"joints at the start pose and near it; this one repeats the others (a loop whose hinges "
+                           f"are all parallel, closed by a 3-D point: its row along them holds by itself)")
 
 
 # ------------------------------------------------------------------------ joints
@@ -342,11 +359,11 @@ def _closure(tree: KinematicTree, legs: list[_Leg], frames: dict[str, _Frame], c
     weld_refs: list[int] = []
     for spec in closures:
         refs, where = [], []
-        for name, offset in ((spec.frame_a, spec.offset_a), (spec.frame_b, spec.offset_b)):
+        for name, offset, turn in ((spec.frame_a, spec.offset_a, spec.turn_a), (spec.frame_b, spec.offset_b, None)):
             f = _frame(tree, frames, name, spec.where)
             xyz = f.R @ np.asarray(offset, dtype=float) + f.p
             # A point closure's frame orientation does not matter: only a weld keeps it.
-            R = f.R if spec.kind == "6d" else np.eye(3)
+            R = (f.R if turn is None else f.R @ turn) if spec.kind == "6d" else np.eye(3)
             refs.append(found.add(f.leg, f.joint, xyz, R, name, bool(np.any(offset))))
             where.append(f)
         fa, fb = where
