@@ -111,7 +111,7 @@ class Mechanism:
         closure = self.model.closure
         if closure is None:
             return 0.0
-        if closure.welds:  # the orientation residual needs the frames' rotations
+        if closure.welds or closure.reduced:  # those rows need the frames' rotations
             return float(np.linalg.norm(self.terms(q).residual))
         _, _, p = self.points(q)
         pairs = np.asarray(closure.pairs)
