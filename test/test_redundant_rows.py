@@ -111,6 +111,10 @@ def test_formulations_agree_and_the_dropped_row_holds(leg):
     rng = np.random.default_rng(7)
     k, _ = mech.model.closure.reduced[0]
     a, b = mech.model.closure.pairs[k]
+    # point a's world frame (its body's orientation times ``frame``): the third column is the dropped direction
+    n_start = mech.terms(initial_state(mech)).p_tip[a, 3:12].reshape(3, 3)[:, 2]
+    roll = mech.joint_names.index("roll")
+    turned = 0
     for _ in range(4):
         q, qd, tau_a = random_consistent_state(mech, rng, spread=0.5)
         tau = mech.split_tau(tau_a)
@@ -127,6 +131,15 @@ def test_formulations_agree_and_the_dropped_row_holds(leg):
         t = mech.terms(q, qd)
         rel = (t.J[a][:3] - t.J[b][:3]) @ out["scdd"] + t.a_tip[a][:3] - t.a_tip[b][:3]
         assert np.abs(rel).max() < 1e-11 * scale  # all three directions, the dropped one included
+        # The hinges' direction at the start, held fixed in the world, is no longer one that holds
+        # by itself once the yoke has rolled: the direction must turn with the coupler.
+        n_now = t.p_tip[a, 3:12].reshape(3, 3)[:, 2]
+        dJ = t.J[a][:3] - t.J[b][:3]
+        assert np.abs(n_now @ dJ).max() < 1e-12 * np.abs(dJ).max()
+        if abs(q[roll] - initial_state(mech)[roll]) > 0.2:
+            turned += 1
+            assert np.abs(n_start @ dJ).max() > 0.05 * np.abs(dJ).max()
+    assert turned
 
 
 def test_matches_pinocchio_on_the_urdf_export(leg, tmp_path):
