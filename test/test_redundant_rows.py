@@ -244,3 +244,40 @@ def test_a_row_that_locks_a_motor_is_not_dropped(tmp_path):
     message = str(err.value)
     assert message.startswith(f"{path}:{line}: connect coupler-rocker: not supported yet"), message
     assert "6 equations have rank 5" in message
+
+
+FOLDED = """<mujoco model="folded">
+  <compiler angle="radian"/>
+  <worldbody>
+    <body name="crank">
+      <joint name="crank" type="hinge" axis="0 0 1"/>
+      <inertial pos="0.05 0 0" mass="0.5" diaginertia="1e-4 1e-3 1e-3"/>
+      <body name="coupler" pos="0.1 0 0">
+        <joint name="coupler" type="hinge" axis="0 0 1"/>
+        <inertial pos="0.1 0 0" mass="0.3" diaginertia="1e-5 1e-3 1e-3"/>
+      </body>
+    </body>
+    <body name="rocker" pos="0.3 0 -0.2">
+      <joint name="rocker" type="hinge" axis="0 1 0"/>
+      <inertial pos="0 0 0.1" mass="0.3" diaginertia="1e-3 1e-3 1e-5"/>
+    </body>
+  </worldbody>
+  <equality>
+    <connect body1="coupler" body2="rocker" anchor="0.2 0 0"/>
+  </equality>
+  <actuator>
+    <motor name="crank" joint="crank"/>
+  </actuator>
+</mujoco>
+"""
+
+
+def test_a_row_still_only_at_the_start_pose_is_not_dropped(tmp_path):
+    """Two hinges along z and one along y, the y one's arm upright at the start: there every
+    joint moves the closure point in the x-y plane, so the row along z is zero in all joints;
+    but the loop is locked (its three equations leave the crank no motion), and near the
+    start pose no pose assembles to confirm the row: not dropped, the counts refuse it."""
+    path = tmp_path / "folded.xml"
+    path.write_text(FOLDED)
+    with pytest.raises(ModelError, match="the closures give 3 equations but the legs have 2 passive joints"):
+        load_model(path)

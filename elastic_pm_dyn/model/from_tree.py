@@ -89,9 +89,11 @@ def build_model(tree: KinematicTree, sidecar: Sidecar | None = None) -> Model:
     model = Model(name=tree.name, chains=tuple(chains), closure=closure, gravity=gravity,
                   end_effector_mass=ee_mass, initial=initial, branches=branches, source=tree.file, planar=planar,
                   fixed_points=fixed)
-    model = free_passive_motions(drop_still_rows(model))  # a still row would hide a free spin from the rank
+    model, independent = drop_still_rows(model)
+    model = free_passive_motions(model)  # after: a still row would hide a free spin from the rank
     _check_counts(tree, model, sidecar, closures)
-    _check_repeated(model, closures)
+    if not independent:  # found independent at the assembled pose: freeing joints keeps them so
+        _check_repeated(model, closures)
     return model
 
 
