@@ -171,14 +171,13 @@ class Closure:
         """Indices into ``pairs`` of the pairs that keep two rows in a body's frame."""
         return tuple(k for k, _ in self.reduced)
 
-    def row_owners(self) -> list[tuple[int, str]]:
-        """Per closure row, in order: the index into ``pairs`` it belongs to, and what it is
-        (a world direction's name, "turn" for a weld's orientation, "in-plane" for a reduced pair)."""
+    def row_pairs(self) -> list[int]:
+        """Per closure row, in order, the index into ``pairs`` of the pair it belongs to: the
+        point rows, then the welds' orientation rows, then the reduced pairs' two each."""
         skip = set(self.reduced_pairs)
-        names = "xyz" if self.basis == Closure.basis else "uvn"
-        out = [(k, names[c]) for k in range(len(self.pairs)) if k not in skip for c in self.components]
-        out += [(self.pairs.index(w), "turn") for w in self.welds for _ in self.weld_components]
-        out += [(k, "in-plane") for k in self.reduced_pairs for _ in range(2)]
+        out = [k for k in range(len(self.pairs)) if k not in skip for _ in self.components]
+        out += [self.pairs.index(w) for w in self.welds for _ in self.weld_components]
+        out += [k for k in self.reduced_pairs for _ in range(2)]
         return out
 
 

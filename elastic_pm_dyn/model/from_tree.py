@@ -104,7 +104,7 @@ def _check_repeated(model: Model, closures: list) -> None:
         return
     rows, rank = found
     c = model.closure
-    spec = closures[c.row_owners()[rows[0]][0]]  # closures and pairs in one order
+    spec = closures[c.row_pairs()[rows[0]]]  # closures and pairs in one order
     raise spec.where.error(f"not supported yet: the closures' {c.size} equations have rank {rank} in the passive "
                            f"joints at the start pose and near it; this one repeats the others (not a row that holds "
                            f"by itself, which would be dropped: a loop closed twice, or one that locks a joint)")
