@@ -73,7 +73,7 @@ class Mechanism:
         A, gamma, res = np.zeros((m, n)), np.zeros(m), np.zeros(m)
         if m:
             closure_rows(ma.closure_pairs, ma.closure_axes, J, a_tip, p_tip, A, gamma, res)
-            if ma.points.shape[1] == 12:  # welds: their points carry frames
+            if ma.points.shape[1] == 12:  # welds, reduced pairs: their points carry frames
                 weld_rows(ma.closure_pairs, ma.closure_axes, J, a_tip, p_tip, A, gamma, res)
         return TreeTerms(M, h, J, a_tip, p_tip, A, gamma, res)
 
