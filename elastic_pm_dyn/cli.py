@@ -158,6 +158,8 @@ def cmd_check(args: argparse.Namespace) -> int:
         print(f"  free     {len(free)}: {', '.join(mech.joint_names[i] for i in free)} "
               "(left free by the closures: unactuated, no spring)")
     print(f"  closure equations {mech.m}; non-redundant coordinates q_ae: {len(mech.ae)}")
+    for line in _dropped_rows(model):
+        print(line)
     q = initial_state(mech)
     print("start pose:")
     for name, value in zip(mech.joint_names, q, strict=True):
@@ -186,6 +188,26 @@ def cmd_check(args: argparse.Namespace) -> int:
     else:
         print("no elastic joints: no elastic modes")
     return 0
+
+
+def _dropped_rows(model) -> list[str]:
+    """One line per closure row dropped because it holds by itself (Closure.reduced)."""
+    closure = model.closure
+    if closure is None:
+        return []
+    bodies = model.point_bodies()
+
+    def on(i: int) -> str:
+        return f"body of joint {model.joints[bodies[i]].name}" if bodies[i] >= 0 else "base"
+
+    out = []
+    for k, frame in closure.reduced:
+        a, b = closure.pairs[k]
+        n = np.round(np.asarray(frame)[:, 2], 6).tolist()
+        out.append(f"  dropped  row {n} of closure {k + 1} ({on(a)} = {on(b)}; the direction in the frame of the "
+                   f"first): it holds by itself, every joint moving both points alike along it (a loop of hinges "
+                   "parallel to it, closed by a 3-D point); the two rows across it are kept")
+    return out
 
 
 def _print_integrator_steps(mech, q: np.ndarray, rk4_limit: float) -> None:
