@@ -177,9 +177,10 @@ def cmd_check(args: argparse.Namespace) -> int:
         modes = elastic_modes(mech, q, clamp_motors=True)
         print("elastic modes at the start pose (motors clamped"
               + (", free joints included at 0 Hz):" if len(free) else "):"))
-        for k, f in enumerate(modes.natural_hz):
-            zeta = modes.damping_ratio[k] if k < len(modes.damping_ratio) else float("nan")
-            print(f"  mode {k + 1}: {f:9.2f} Hz undamped, damping ratio {zeta:.4f}")
+        for k, (f, zeta) in enumerate(zip(modes.natural_hz, modes.damping_ratio, strict=True)):
+            print(f"  mode {k + 1}: {f:9.2f} Hz undamped, "
+                  + (f"damping ratio {zeta:.4f}" if zeta == zeta
+                     else "no oscillation" + (" (a free joint: no spring)" if f == 0 else " (overdamped)")))
         # RK4 is stable for undamped modes while |h omega| <= 2 sqrt(2).
         dt_max = 2 * np.sqrt(2) / (2 * np.pi * modes.natural_hz.max())
         print(f"  fixed-step RK4 needs dt < {dt_max:.3g} s for the fastest mode (use about a quarter "

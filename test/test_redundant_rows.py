@@ -281,3 +281,26 @@ def test_a_row_still_only_at_the_start_pose_is_not_dropped(tmp_path):
     path.write_text(FOLDED)
     with pytest.raises(ModelError, match="the closures give 3 equations but the legs have 2 passive joints"):
         load_model(path)
+
+
+def test_modes_keep_their_damping_ratio_beside_a_free_spin(tmp_path):
+    """With a free rod spin (0 Hz, no oscillation) beside a sprung tip on the lever, each mode's
+    damping ratio stays its own: the tip on a torsion spring k with damping d about its pivot,
+    light damping zeta ~ d / (2 sqrt(k I)) within what the moving lever changes."""
+    from elastic_pm_dyn.dynamics.linear import elastic_modes
+    path = tmp_path / "sprung.xml"
+    tip = ('<body name="tip" pos="0.2 0 0"><joint name="tip" type="hinge" axis="0 0 1" stiffness="50" '
+           'damping="0.02"/><inertial pos="0.1 0 0" mass="0.2" diaginertia="1e-5 1e-3 1e-3"/></body>')
+    path.write_text(LEG.replace('<inertial pos="0.1 0 0" mass="0.2" diaginertia="1e-5 1e-3 1e-3"/>',
+                                '<inertial pos="0.1 0 0" mass="0.2" diaginertia="1e-5 1e-3 1e-3"/>' + tip, 1))
+    mech = Mechanism(load_model(path))
+    modes = elastic_modes(mech, initial_state(mech), clamp_motors=True)
+    spin = modes.natural_hz == 0.0
+    assert spin.sum() == 1 and np.isnan(modes.damping_ratio[spin]).all()
+    zeta = modes.damping_ratio[~spin]
+    assert zeta.shape == (1,) and 0.0 < zeta[0] < 0.05
+    # the tip alone: I about its pivot = 1e-3 + 0.2 * 0.1^2
+    assert zeta[0] == pytest.approx(0.02 / (2 * np.sqrt(50 * 3e-3)), rel=0.05)  # 0.0258 both
+    out = subprocess.run([sys.executable, "-m", "elastic_pm_dyn", "check", str(path)], capture_output=True,
+                         text=True, timeout=300)
+    assert "no oscillation (a free joint: no spring)" in out.stdout and "nan" not in out.stdout, out.stdout + out.stderr
