@@ -24,14 +24,7 @@ class SimulationResult:
     info: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        mech, n = self.mech, len(self.t)
-        self.ee = np.empty((n, len(mech.ee_components)))
-        self.branch_forces = np.empty((n, len(mech.model.branches)))
-        self.gap = np.empty(n)
-        for k in range(n):
-            self.ee[k] = mech.end_effector(self.q[k])
-            self.branch_forces[k] = mech.branch_forces(self.q[k], self.qd[k])
-            self.gap[k] = mech.gap(self.q[k])
+        self.ee, self.branch_forces, self.gap = self.mech.sample_outputs(self.q, self.qd)
 
     def header(self) -> list[str]:
         mech = self.mech
