@@ -213,7 +213,9 @@ class Simulator:
         grid = grid[np.concatenate([[True], np.diff(grid) > 1e-12])]
         is_out = np.isin(np.round(grid / 1e-12), np.round(out_times / 1e-12))
 
-        if o.integrator in FIXED_STEP:
+        if o.integrator in FIXED_STEP and not torque.smooth:
+            # a function's fits cost more than the loop (3 Python calls a step): it stays below,
+            # called in time order as each step needs it
             return self._run_pieces(torque, grid, is_out, q, qd, t_end)
         samples: list[tuple[float, np.ndarray, np.ndarray, np.ndarray]] = []
 
@@ -260,7 +262,7 @@ class Simulator:
         try:
             for i0 in range(0, len(grid) - 1, INTERVALS_PER_BLOCK):
                 i1 = min(i0 + INTERVALS_PER_BLOCK, len(grid) - 1)
-                starts, hs, steps, record = self._calls(torque, grid[i0:i1 + 1], is_out[i0 + 1:i1 + 1])
+                starts, hs, steps, record = self._calls(grid[i0:i1 + 1], is_out[i0 + 1:i1 + 1])
                 # chunks of about STEPS_PER_CALL steps (at least one call each)
                 marks = STEPS_PER_CALL * np.arange(1, steps.sum() // STEPS_PER_CALL + 1)
                 ends = np.searchsorted(np.cumsum(steps), marks, side="right")
@@ -281,15 +283,15 @@ class Simulator:
             raise RunInterrupted(f"interrupted at t = {t_last:.6g} s of {t_end:.6g} s", t_last, partial) from None
         return result(row)
 
-    def _calls(self, torque: TorqueSource, grid: np.ndarray, out: np.ndarray
+    def _calls(self, grid: np.ndarray, out: np.ndarray
                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """The compiled calls :meth:`advance` makes over the intervals of ``grid`` (a function:
-        one per step; else STEPS_PER_CALL steps at most): their start times, steps h, step
-        counts, and whether the state after them is a sample (``out``: per interval)."""
+        """The compiled calls :meth:`advance` makes over the intervals of ``grid`` for a torque
+        that is not a function (STEPS_PER_CALL steps at most): their start times, steps h,
+        step counts, and whether the state after them is a sample (``out``: per interval)."""
         a, b = grid[:-1], grid[1:]
         n_steps = np.maximum(1, np.ceil((b - a) / self.options.dt - 1e-9).astype(np.int64))
         h = (b - a) / n_steps
-        per_call = 1 if torque.smooth else STEPS_PER_CALL
+        per_call = STEPS_PER_CALL
         n_calls = -(-n_steps // per_call)
         interval = np.repeat(np.arange(len(a)), n_calls)
         last = np.cumsum(n_calls) - 1
