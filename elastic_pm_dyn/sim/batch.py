@@ -23,11 +23,10 @@ ETD2 = 1
 
 @njit(cache=True)
 def run_pieces(method, scheme, form, ma, active, q, qd, coefs, hs, steps, record, q_out, qd_out, row, stab, alpha,
-               beta, tol, singular_tol, phase_step, gains_every, recheck, qdd_prev, lam, info):
+               beta, tol, singular_tol, phase_step, qdd_prev, lam, info):
     """Integrate the pieces k = 0 .. len(hs) - 1 in turn: ``steps[k]`` steps of ``hs[k]`` under
     the torque polynomial ``coefs[k]`` (3, n_a: the active joints' columns of the tree
-    polynomial, time from the piece's start; ETD2's gains every ``gains_every`` steps of a
-    piece). After each piece with ``record[k]`` the state goes
+    polynomial, time from the piece's start). After each piece with ``record[k]`` the state goes
     to row ``row`` of q_out, qd_out and row advances.
 
     Returns (status, pieces done, next row): on a status other than OK, piece ``pieces done``
@@ -43,8 +42,7 @@ def run_pieces(method, scheme, form, ma, active, q, qd, coefs, hs, steps, record
                 tau_coef[r, active[j]] = coefs[k, r, j]
         if method == ETD2:
             status = exponential_steps_ws(scheme, form, ma, q, qd, tau_coef, hs[k], steps[k], stab, alpha, beta,
-                                          tol, singular_tol, phase_step, qdd_prev, lam, info, ew, gains_every,
-                                          recheck)
+                                          tol, singular_tol, phase_step, qdd_prev, lam, info, ew)
         else:
             status = rk4_steps(form, ma, q, qd, tau_coef, hs[k], steps[k], stab, alpha, beta, tol, singular_tol,
                                qdd_prev, lam, info)
@@ -60,10 +58,9 @@ def run_pieces(method, scheme, form, ma, active, q, qd, coefs, hs, steps, record
 @njit(cache=True)
 def run_pieces_flat(method, scheme, form, jf, ji, chain_start, points, point_body, gravity, closure_pairs,
                     closure_components, hub, ae_index, p_index, active, q, qd, coefs, hs, steps, record, q_out,
-                    qd_out, row, stab, alpha, beta, tol, singular_tol, phase_step, gains_every, recheck, qdd_prev, lam,
-                    info):
+                    qd_out, row, stab, alpha, beta, tol, singular_tol, phase_step, qdd_prev, lam, info):
     """:func:`run_pieces` with the model as separate arrays (``*mech.arrays``)."""
     ma = ModelArrays(jf, ji, chain_start, points, point_body, gravity, closure_pairs, closure_components,
                      hub, ae_index, p_index)
     return run_pieces(method, scheme, form, ma, active, q, qd, coefs, hs, steps, record, q_out, qd_out, row, stab,
-                      alpha, beta, tol, singular_tol, phase_step, gains_every, recheck, qdd_prev, lam, info)
+                      alpha, beta, tol, singular_tol, phase_step, qdd_prev, lam, info)

@@ -77,17 +77,6 @@ DEFAULT_PHASE_STEP = 3.0
 # 1 kHz on 6 of the 7 machines of bench/bench_integrators.py (bench/README_integrators.md)
 RECOMMENDED_STEP = 5e-4
 
-# Offline runs (Simulator.run; not Simulator.advance, the plant node's path) evaluate the frozen
-# gains G every GAINS_EVERY steps of a torque piece and reuse them in between: ETD2 is second
-# order for any fixed J, and G's change enters its forcing N explicitly. And they project after
-# a step with one Gauss-Newton correction and no evaluation after it (kernels.project_into with
-# recheck False). bench/bench_integrators.py: the largest branch-force error of the seven
-# machines' ZOH scenarios moved from 0.9949 % to 0.9956 % of the elastic RMS (Triglide n_ek=2,
-# chirp_zoh; the criterion is 1 %), every other one stays far below; 12 + 7 us of a Hexa
-# n_ek=2 step's 49 us saved.
-GAINS_EVERY = 2
-PROJECTION_RECHECK = False
-
 # Upper end of the sub-steps per macro step: a fastest mode 10^4 times the macro step's
 # frequency means a step or a model beyond what the method is for.
 MAX_SUBSTEPS = 100000
@@ -345,7 +334,7 @@ def exponential_steps(scheme, form, ma, q, qd, tau_coef, dt, n_steps, stab, alph
     with info[1] = -1.
     """
     return exponential_steps_ws(scheme, form, ma, q, qd, tau_coef, dt, n_steps, stab, alpha, beta, tol,
-                                singular_tol, phase_step, qdd_prev, lam, info, etd2_workspace(ma), 1, True)
+                                singular_tol, phase_step, qdd_prev, lam, info, etd2_workspace(ma))
 
 
 @njit(cache=True)
@@ -368,11 +357,8 @@ def etd2_workspace(ma):
 
 @njit(cache=True)
 def exponential_steps_ws(scheme, form, ma, q, qd, tau_coef, dt, n_steps, stab, alpha, beta, tol, singular_tol,
-                         phase_step, qdd_prev, lam, info, ew, gains_every, recheck):
-    """:func:`exponential_steps` on the work arrays ``ew`` of :func:`etd2_workspace`, with the
-    frozen gains G (and the sub-step count from them) evaluated every ``gains_every``-th step
-    of the call and reused in between (ETD2 only; 1: every step); ``recheck``: of
-    :func:`elastic_pm_dyn.sim.kernels.project_into`."""
+                         phase_step, qdd_prev, lam, info, ew):
+    """:func:`exponential_steps` on the work arrays ``ew`` of :func:`etd2_workspace`."""
     n = q.shape[0]
     info[0] = 0.0
     if form == LDA:
@@ -390,8 +376,6 @@ def exponential_steps_ws(scheme, form, ma, q, qd, tau_coef, dt, n_steps, stab, a
     worst = 1.0
     gap = 0.0
     limit = MAX_STEP_MOTION / dt
-    n_sub = 1
-    s_gains = 0.0
     for step in range(n_steps):
         s0 = step * dt
         status, cond, gap = _evaluate(form, ma, q, qd, tau_coef, s0, tau, a, b, qdd_prev, acc0, lam, ws, dt,
@@ -399,28 +383,26 @@ def exponential_steps_ws(scheme, form, ma, q, qd, tau_coef, dt, n_steps, stab, a
         if status != OK:
             return status
         worst = min(worst, cond)
-        if step % gains_every == 0 or scheme != ETD2:
-            M, A = ws[0], ws[5]
-            for i in range(n):  # tau(s0 + t) = tau(s0) + t d1 + t^2 d2
-                extra[0, i] = tau_coef[1, i] + 2.0 * s0 * tau_coef[2, i]
-                extra[1, i] = tau_coef[2, i]
-            ratio = elastic_gains(ma, fast, M, A, extra, G, gws)
-            if ratio < singular_tol:
-                info[1] = ratio
-                info[2] = gap
-                return SINGULAR
-            rate = fastest_rate(G, fast, kf, df)
-            n_sub = max(1, int(np.ceil(dt * rate / phase_step)))
-            if not n_sub <= MAX_SUBSTEPS:
-                info[1] = np.max(np.abs(acc0))
-                info[2] = gap
-                return DIVERGED
-            s_gains = s0
+        M, A = ws[0], ws[5]
+        for i in range(n):  # tau(s0 + t) = tau(s0) + t d1 + t^2 d2
+            extra[0, i] = tau_coef[1, i] + 2.0 * s0 * tau_coef[2, i]
+            extra[1, i] = tau_coef[2, i]
+        ratio = elastic_gains(ma, fast, M, A, extra, G, gws)
+        if ratio < singular_tol:
+            info[1] = ratio
+            info[2] = gap
+            return SINGULAR
+        rate = fastest_rate(G, fast, kf, df)
+        n_sub = max(1, int(np.ceil(dt * rate / phase_step)))
+        if not n_sub <= MAX_SUBSTEPS:
+            info[1] = np.max(np.abs(acc0))
+            info[2] = gap
+            return DIVERGED
         if scheme == ETD2:
             # exponential Euler a = z0 + H phi1(HJ) F(z0), the torque's change over the step
             # (P M^-1 (t d1 + t^2 d2), frozen like J) integrated with it
-            for i in range(n):  # the rate at s0 from the gains of the rate at s_gains (linear in it)
-                u1[i] = G[i, nf] if s0 == s_gains else G[i, nf] + 2.0 * (s0 - s_gains) * G[i, nf + 1]
+            for i in range(n):
+                u1[i] = G[i, nf]
                 u2[i] = G[i, nf + 1]
             phi_response(G, fast, kf, df, dt, n_sub, qd, acc0, u1, u2, xq, xv, fw, B)
             for i in range(n):
@@ -489,7 +471,7 @@ def exponential_steps_ws(scheme, form, ma, q, qd, tau_coef, dt, n_steps, stab, a
         q[:] = q1
         qd[:] = v1
         if stab & STAB_PROJECTION:
-            project_into(ma, q, qd, tol, 3, pws, recheck)
+            project_into(ma, q, qd, tol, 3, pws)
         info[0] = step + 1
     info[1] = worst
     info[2] = gap

@@ -117,7 +117,7 @@ def project(ma, q, qd, tol, max_iter):
     same operator applied to A qd. M^-1 A^T and its Schur complement are exactly SCDD's
     per-chain responses, so this costs one tree evaluation per iteration.
     """
-    return project_into(ma, q, qd, tol, max_iter, projection_workspace(ma), True)
+    return project_into(ma, q, qd, tol, max_iter, projection_workspace(ma))
 
 
 @njit(cache=True)
@@ -161,14 +161,9 @@ def _chain_responses_sparse(M, A, chain_start, Y, S, L, dinv, XY, rows, n_rows):
 
 
 @njit(cache=True)
-def project_into(ma, q, qd, tol, max_iter, pws, recheck):
+def project_into(ma, q, qd, tol, max_iter, pws):
     """:func:`project` on the work arrays ``pws`` of :func:`projection_workspace`: allocates
-    nothing, and solves each chain only in its own closure rows (bit-identical).
-
-    ``recheck`` False: one Gauss-Newton correction of q and no evaluation after it; the
-    velocity is projected with the rows at q before the correction. After a step that left a
-    gap g, q's gap is then O(g^2) and A qd O(g |qd|) instead of checked below tol (at a step's
-    gap of 1e-11 m both are at round-off), for one tree evaluation less."""
+    nothing, and solves each chain only in its own closure rows (bit-identical)."""
     M, h, J, a_pt, p_pt, A, gamma, res, wz, wo, jv, jw, fr, Y, zero, S, piv, L, dinv, XY, rows, n_rows, v = pws
     m = ma.p_index.shape[0]
     if m == 0:
@@ -194,8 +189,6 @@ def project_into(ma, q, qd, tol, max_iter, pws, recheck):
             for i in range(ma.chain_start[c], ma.chain_start[c + 1]):
                 for a in range(n_rows[c]):
                     q[i] -= Y[i, rows[c, a]] * res[rows[c, a]]
-        if not recheck:
-            break
     matvec(A, qd, v)
     lu_solve(S, piv, v)
     for c in range(ma.chain_start.shape[0] - 1):

@@ -87,8 +87,6 @@ class Simulator:
         self.info = np.zeros(3)
         self._args = (*mech.arrays,)
         self.scheme = exponential.ETD2  # etd2; the impulse splitting is only for the comparison bench
-        self.gains_every = exponential.GAINS_EVERY  # offline runs: ETD2's G every this many steps
-        self.recheck = exponential.PROJECTION_RECHECK  # offline ETD2 runs: evaluate after projecting
 
     # ------------------------------------------------------------------ stepping
     def advance(self, q: np.ndarray, qd: np.ndarray, torque: TorqueSource, t0: float, t1: float) -> None:
@@ -273,8 +271,7 @@ class Simulator:
                     status, done, row = batch.run_pieces_flat(
                         method, self.scheme, self.code, *self._args, active, q, qd, coefs, hs[c0:c1], steps[c0:c1],
                         record[c0:c1], q_out, qd_out, row, self.stab, o.baumgarte_alpha, o.baumgarte_beta,
-                        o.closure_tol, o.singular_tol, o.phase_step, self.gains_every, self.recheck, self.qdd_prev,
-                        self.lam, self.info)
+                        o.closure_tol, o.singular_tol, o.phase_step, self.qdd_prev, self.lam, self.info)
                     if status != kernels.OK:  # a singular configuration or a blow-up, told apart
                         p = c0 + done
                         err = integration_error(status, o.formulation, starts[p] + self.info[0] * hs[p], self.info)
