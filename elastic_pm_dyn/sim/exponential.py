@@ -59,7 +59,7 @@ from elastic_pm_dyn.sim.kernels import (
     projection_workspace,
     unsound_step,
 )
-from elastic_pm_dyn.small_linalg import cholesky_recip, cholesky_solve_rows, lu_factor, lu_solve
+from elastic_pm_dyn.small_linalg import cholesky_recip, cholesky_solve_rows, lu_factor, lu_solve_rows
 
 ROLE_ELASTIC = 1
 
@@ -185,8 +185,7 @@ def elastic_gains(ma, fast, M, A, extra, G, gws):
     ratio = lu_factor(S, piv)
     if ratio == 0.0:
         return 0.0
-    for j in range(nc):
-        lu_solve(S, piv, C[:, j])
+    lu_solve_rows(S, piv, C)
     for c in range(ma.chain_start.shape[0] - 1):  # G -= Y C, Y's row i only in its chain's closure rows
         for i in range(ma.chain_start[c], ma.chain_start[c + 1]):
             for j in range(nc):
