@@ -338,8 +338,9 @@ def exponential_steps(scheme, form, ma, q, qd, tau_coef, dt, n_steps, stab, alph
 
 @njit(cache=True)
 def etd2_workspace(ma):
-    """The spring data and work arrays of :func:`exponential_steps_ws` (allocate once per
-    run: every array is written before it is read in each step, or never written)."""
+    """The spring data and work arrays of :func:`exponential_steps_ws`, allocated once for
+    many calls (sim/batch.py): every array is written before it is read in each step, or
+    never written, so reusing them changes no result."""
     n = ma.jf.shape[0]
     fast = fast_joints(ma)
     nf = fast.shape[0]
