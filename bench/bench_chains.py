@@ -206,7 +206,9 @@ class Split:
         ma = mech.arrays
         n, npt, m = mech.n, ma.points.shape[0], ma.p_index.shape[0]
         n_ch = ma.chain_start.shape[0] - 1
-        nc = ma.closure_components.shape[0]
+        # the prototype indexes world components: the shipped machines' closure axes are base axes
+        comps = np.array([int(np.argmax(a)) for a in ma.closure_axes], dtype=np.int64)
+        nc = comps.shape[0]
         nmax = int(np.max(np.diff(ma.chain_start)))
         self.n_ch, self.ma = n_ch, ma
         leg_pair = np.full(n_ch, -1, dtype=np.int64)
@@ -222,10 +224,10 @@ class Split:
         self.A, self.gamma, self.res = np.zeros((m, n)), np.zeros(m), np.zeros(m)
         self.qdd, self.lam = np.zeros(n), np.zeros(m)
         self.args = (ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_body, ma.gravity, ma.closure_pairs,
-                     ma.closure_components, leg_pair, q, qd, tau, self.M, self.h, self.J, self.a_pt, self.p_pt,
+                     comps, leg_pair, q, qd, tau, self.M, self.h, self.J, self.a_pt, self.p_pt,
                      *scratch, self.XY, np.zeros((n_ch, nmax, nmax)), np.zeros((n_ch, nmax)), self.Lam, self.Ax,
                      np.zeros((n_ch, nc, nc)), np.zeros((n_ch, nc)))
-        self.couple_args = (ma.chain_start, ma.point_chain, ma.closure_pairs, ma.closure_components, ma.hub,
+        self.couple_args = (ma.chain_start, ma.point_chain, ma.closure_pairs, comps, ma.hub,
                             leg_pair, tau, self.M, self.h, self.J, self.a_pt, self.p_pt, self.XY, self.Lam,
                             self.Ax, self.A, self.gamma, self.res, self.qdd, self.lam)
         # halves with about equal joint counts (the platform and the legs differ in size)

@@ -107,7 +107,7 @@ def _loop_terms(ma, q, qd, n):
         A = np.empty((m, nt))
         gamma = np.empty(m)
         res = np.empty(m)
-        closure_rows(ma.closure_pairs, ma.closure_components, J, a_pt, p_pt, A, gamma, res)
+        closure_rows(ma.closure_pairs, ma.closure_axes, J, a_pt, p_pt, A, gamma, res)
         s += np.sqrt(np.sum(res * res)) + M[0, 0] + A[0, 0] + h[0]
     return s
 
@@ -134,12 +134,12 @@ def _loop_solve(form, ma, q, qd, tau, qdd_prev, qdd, lam, n):
     J, a_pt, p_pt = np.empty((npt, 3, nt)), np.empty((npt, 3)), np.empty((npt, 3))
     A, gamma, res = np.empty((m, nt)), np.empty(m), np.empty(m)
     tree_terms(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_body, ma.gravity, q, qd, M, h, J, a_pt, p_pt)
-    closure_rows(ma.closure_pairs, ma.closure_components, J, a_pt, p_pt, A, gamma, res)
+    closure_rows(ma.closure_pairs, ma.closure_axes, J, a_pt, p_pt, A, gamma, res)
     s = 0.0
     for _ in range(n):
         if form == SCDD and ma.hub >= 0:
             s += scdd_platform(M, h, A, gamma, tau, ma.chain_start, ma.point_chain, ma.closure_pairs,
-                               ma.closure_components.shape[0], ma.hub, qdd, lam)
+                               ma.closure_axes.shape[0], ma.hub, qdd, lam)
         elif form in (SCDD, SCDD_STACKED):
             s += scdd(M, h, A, gamma, tau, ma.chain_start, qdd, lam)
         elif form == LDA:
@@ -168,7 +168,7 @@ def _loop_terms_proto(ma, q, qd, n):
         A = np.empty((m, nt))
         gamma = np.empty(m)
         res = np.empty(m)
-        closure_rows_noalloc(ma.closure_pairs, ma.closure_components, J, a_pt, p_pt, A, gamma, res)
+        closure_rows_noalloc(ma.closure_pairs, ma.closure_axes, J, a_pt, p_pt, A, gamma, res)
         acc = 0.0
         for i in range(m):
             acc += res[i] * res[i]
@@ -186,15 +186,15 @@ def _loop_solve_proto(ma, q, qd, tau, qdd, lam, variant, n):
     J, a_pt, p_pt = np.empty((npt, 3, nt)), np.empty((npt, 3)), np.empty((npt, 3))
     A, gamma, res = np.empty((m, nt)), np.empty(m), np.empty(m)
     tree_terms(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_body, ma.gravity, q, qd, M, h, J, a_pt, p_pt)
-    closure_rows(ma.closure_pairs, ma.closure_components, J, a_pt, p_pt, A, gamma, res)
+    closure_rows(ma.closure_pairs, ma.closure_axes, J, a_pt, p_pt, A, gamma, res)
     s = 0.0
     for _ in range(n):
         if variant == 2:
             s += scdd_platform_fast(M, h, A, gamma, tau, ma.chain_start, ma.point_chain, ma.closure_pairs,
-                                    ma.closure_components.shape[0], ma.hub, qdd, lam)
+                                    ma.closure_axes.shape[0], ma.hub, qdd, lam)
         else:
             s += scdd_platform_ws(M, h, A, gamma, tau, ma.chain_start, ma.point_chain, ma.closure_pairs,
-                                  ma.closure_components.shape[0], ma.hub, qdd, lam, variant == 1)
+                                  ma.closure_axes.shape[0], ma.hub, qdd, lam, variant == 1)
     return s
 
 
@@ -282,7 +282,7 @@ def build_items(configs: list[Config], sanity: dict) -> list[Item]:
 
 
 @njit(cache=True)
-def _noop_flat(form, jf, ji, chain_start, points, point_body, gravity, closure_pairs, closure_components, hub,
+def _noop_flat(form, jf, ji, chain_start, points, point_body, gravity, closure_pairs, closure_axes, hub,
                ae_index, p_index, q, qd, tau, a, b, qdd_prev, qdd, lam):
     return 1.0, 0.0
 

@@ -113,7 +113,7 @@ def _loop_scdd_solve(ma, q, qd, tau, qdd, lam, n):
     J, a_pt, p_pt = np.empty((npt, 3, nt)), np.empty((npt, 3)), np.empty((npt, 3))
     A, gamma, res = np.empty((m, nt)), np.empty(m), np.empty(m)
     tree_terms(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_body, ma.gravity, q, qd, M, h, J, a_pt, p_pt)
-    closure_rows(ma.closure_pairs, ma.closure_components, J, a_pt, p_pt, A, gamma, res)
+    closure_rows(ma.closure_pairs, ma.closure_axes, J, a_pt, p_pt, A, gamma, res)
     s = 0.0
     for _ in range(n):
         s += scdd(M, h, A, gamma, tau, ma.chain_start, qdd, lam)

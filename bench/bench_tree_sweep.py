@@ -116,7 +116,7 @@ class Machine:
         ma = self.mech.arrays
         b = self.bufs
         return (ma.jf, ma.ji, ma.chain_start, ma.points, self.index[which], ma.gravity, ma.closure_pairs,
-                ma.closure_components, self.q, self.qd, self.tau, *b, *self.rows[:3], *self.rows[3:])
+                ma.closure_axes, self.q, self.qd, self.tau, *b, *self.rows[:3], *self.rows[3:])
 
 
 def identical(machine: Machine, before) -> bool:

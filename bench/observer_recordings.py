@@ -235,11 +235,13 @@ def main() -> int:
     ap.add_argument("--every", type=int, default=1, metavar="K",
                     help="every K-th recording of the matrix only (with --tune: --every 6 is 14 recordings that "
                          "still cover both motions, all spectra, both amplitudes and every timing/delay/epoch way)")
+    ap.add_argument("--offset", type=int, default=0, metavar="I",
+                    help="with --every: start at the I-th recording (--every 6 --offset 3: 13 other recordings)")
     ap.add_argument("--out", default=str(ROOT / "bench" / "results"))
     args = ap.parse_args()
     wall0 = time.perf_counter()
     mech = Mechanism(load_model(ROOT / "config" / "five_bar.yaml"))
-    specs = matrix(args.quick, args.hard)[::max(1, args.every)]
+    specs = matrix(args.quick, args.hard)[args.offset::max(1, args.every)]
     result = {"when": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "machine": f"{platform.processor() or platform.machine()} "
               f"({os.cpu_count()} cores)", "load": " ".join(f"{x:.2f}" for x in os.getloadavg()),
               "quick": args.quick, "hard": args.hard, "tune": args.tune, "specs": [s.name for s in specs]}
@@ -256,7 +258,7 @@ def main() -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     stem = ("observer_recordings" + ("_hard" if args.hard else "") + ("_tuned" if args.tune else "")
-            + (f"_every{args.every}" if args.every > 1 else ""))
+            + (f"_every{args.every}" if args.every > 1 else "") + (f"_offset{args.offset}" if args.offset else ""))
     (out / f"{stem}.json").write_text(json.dumps(result, indent=2, default=float))
     (out / f"{stem}.md").write_text(md + "\n")
     return 0

@@ -326,17 +326,17 @@ def accelerations_proto(form, ma, q, qd, tau, qdd, lam):
     A = np.empty((m, n))
     gamma = np.empty(m)
     res = np.empty(m)
-    closure_rows_noalloc(ma.closure_pairs, ma.closure_components, J, a_pt, p_pt, A, gamma, res)
+    closure_rows_noalloc(ma.closure_pairs, ma.closure_axes, J, a_pt, p_pt, A, gamma, res)
     acc = 0.0
     for i in range(m):
         acc += res[i] * res[i]
     gap = np.sqrt(acc)
     if form in (SCDD, SCDD_RECIP):
         cond = scdd_platform_ws(M, h, A, gamma, tau, ma.chain_start, ma.point_chain, ma.closure_pairs,
-                                ma.closure_components.shape[0], ma.hub, qdd, lam, form == SCDD_RECIP)
+                                ma.closure_axes.shape[0], ma.hub, qdd, lam, form == SCDD_RECIP)
     elif form == SCDD_FAST:
         cond = scdd_platform_fast(M, h, A, gamma, tau, ma.chain_start, ma.point_chain, ma.closure_pairs,
-                                  ma.closure_components.shape[0], ma.hub, qdd, lam)
+                                  ma.closure_axes.shape[0], ma.hub, qdd, lam)
     else:
         cond = lda_blocks(M, h, A, gamma, tau, ma.ae_index, ma.p_index, ma.chain_start, qdd)
         lam[:] = 0.0

@@ -62,7 +62,8 @@ def _options(args: argparse.Namespace):
 def _load(args: argparse.Namespace):
     """The model the command names: a model YAML, a URDF (+ closure sidecar) or an MJCF."""
     from elastic_pm_dyn.model.loader import load_model
-    return load_model(args.model, getattr(args, "elastic_dof_per_chain", None), getattr(args, "closures", None))
+    return load_model(args.model, getattr(args, "elastic_dof_per_chain", None), getattr(args, "closures", None),
+                      getattr(args, "fix_base", False), getattr(args, "servos_as_motors", False))
 
 
 def _add_model(p: argparse.ArgumentParser, positional: bool = False, dof: bool = False) -> None:
@@ -73,6 +74,12 @@ def _add_model(p: argparse.ArgumentParser, positional: bool = False, dof: bool =
     else:
         p.add_argument("--model", required=True, help=what)
     p.add_argument("--closures", help="closure sidecar of a URDF model (default: robot.yaml next to it)")
+    p.add_argument("--fix-base", action="store_true",
+                   help="MJCF: weld each body on a free joint (a floating base) to the world where the file puts "
+                        "it; the free joint's keyframe entries are dropped")
+    p.add_argument("--servos-as-motors", action="store_true",
+                   help="MJCF: a joint driven by a servo (<position>, <velocity>, <general> ...) is a motor: its "
+                        "torque is the input, the servo law (kp, kv) is left out")
     if dof:
         p.add_argument("--elastic-dof-per-chain", type=int, default=None,
                        help="override the model's discretisation of flexible links")
@@ -110,8 +117,9 @@ def cmd_feedforward(args: argparse.Namespace) -> int:
     from elastic_pm_dyn.motion.trajectory import QuinticLine
     from elastic_pm_dyn.sim.torque import write_torque_csv
     model = _load(args)
-    dims = len(model.ee_components)
-    axes = " ".join(f"{c}A" for c in "XYZ"[:dims]) + " " + " ".join(f"{c}B" for c in "XYZ"[:dims])
+    names = [c.upper() for c in model.ee_names]
+    dims = len(names)
+    axes = " ".join(f"{c}A" for c in names) + " " + " ".join(f"{c}B" for c in names)
     if args.line is None and dims != len(ref.start):
         raise InputError(f"--line is needed: the default line is the planar five-bar's, and this machine's end "
                          f"effector has {dims} coordinates: give {2 * dims} numbers {axes}")
@@ -154,7 +162,11 @@ def cmd_check(args: argparse.Namespace) -> int:
     print("start pose:")
     for name, value in zip(mech.joint_names, q, strict=True):
         print(f"  {name:20s} {value: .9f}")
-    print(f"  end effector {np.array2string(mech.end_effector(q), precision=6)} m")
+    print(f"  end effector ({', '.join(mech.ee_names)}) {np.array2string(mech.end_effector(q), precision=6)} m")
+    if mech.model.planar:
+        u, v, n = mech.model.plane_basis
+        print(f"  planar: in the plane normal to {np.round(n, 6).tolist()}"
+              + ("" if mech.ee_unit is not None else f"; u = {np.round(u, 6).tolist()}, v = {np.round(v, 6).tolist()}"))
     # The assembly mode as initial_state.assembly_mode spells it: keep it to pin the mode.
     print("  assembly mode: " + (", ".join(f"{mech.joint_names[i]} {'positive' if np.sin(q[i]) >= 0 else 'negative'}"
                                            for i in mech.passive if model.joints[i].type == "revolute") or "-"))

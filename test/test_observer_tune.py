@@ -84,6 +84,19 @@ def test_tune_improves_likelihood_and_error_on_a_held_out_recording(five_bar, st
     assert ratio["tuned"] < 0.5 < ratio["default"]
 
 
+def test_the_grid_start_finds_a_likelier_optimum_than_the_compass_from_the_defaults(five_bar, tmp_path) -> None:
+    """Three tones in 5-150 Hz per motor (a held-out seed): the compass started from the default
+    band (5-50 Hz) stops in a worse optimum; started in the basin the coarse grid picks, it ends
+    100+ nats likelier (measured 112). The grid only chooses where the same search starts."""
+    rec = generate(five_bar, RecordingSpec(duration=0.6, spectrum="tones", disturbance_rms=0.02, seed=8831))
+    bag = write_bag(rec, tmp_path / "tones")
+    cfg = ObserverConfig.from_parameters({"sensors": SENSORS})
+    events = _events(cfg, bag)
+    nll = {grid: tuning.tune(five_bar, cfg, events, max_evaluations=90, log=lambda s: None, grid=grid).after.nll
+           for grid in (False, True)}
+    assert nll[True] < nll[False] - 50.0
+
+
 def test_tuned_file_is_read_by_observe_and_keeps_the_base_file(five_bar, strong, tmp_path, capsys) -> None:
     _, bag = strong
     out = tmp_path / "tuned.yaml"

@@ -105,11 +105,10 @@ def test_urdf_without_sidecar(tmp_path):
     assert "robot.yaml next to it" in message
 
 
-def test_planar_outside_the_xy_plane_is_not_supported_yet(tmp_path):
-    urdf = URDF.replace('<axis xyz="0 0 1"/>', '<axis xyz="0 1 0"/>').replace('<axis xyz="1 0 0"/>',
-                                                                            '<axis xyz="1 0 0"/>')
-    message = _error(tmp_path, urdf)
-    assert "not supported yet: a planar mechanism moving in a plane other than x-y" in message
+def test_planar_true_with_an_axis_off_the_plane(tmp_path):
+    urdf = URDF.replace('<axis xyz="0 0 1"/>', '<axis xyz="0 1 0"/>', 1)  # the left motor now turns about y
+    message = _error(tmp_path, urdf, SIDECAR + "planar: true\n")
+    assert "planar: true, but joint" in message and "does not move in the plane normal to" in message
 
 
 MJCF_CASES = [

@@ -227,7 +227,7 @@ def run_from_bag(bag: BagData, info: ModelInfo, label: str, hold_start: float | 
             run.gap_source = f"{js.topic} (closure residual of the model)"
     if run.ee is None and "ee_pose" in s:  # no usable joint states: the plant's own pose
         pose = s["ee_pose"]
-        run.t, run.ee = rel(pose), pose.fields["position"][:, list(mech.ee_components)]
+        run.t, run.ee = rel(pose), mech.ee_of(pose.fields["position"])
         run.ee_source = pose.topic
 
     ref = s.get("reference")

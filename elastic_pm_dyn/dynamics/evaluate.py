@@ -99,9 +99,9 @@ def _closure_terms(ma, qd, J, a_pt, p_pt, A, gamma, res, baumgarte_alpha, baumga
     """Closure rows (A, gamma, residual) with Baumgarte's terms in gamma; returns |h(q)|."""
     if ma.p_index.shape[0] == 0:
         return 0.0
-    closure_rows(ma.closure_pairs, ma.closure_components, J, a_pt, p_pt, A, gamma, res)
+    closure_rows(ma.closure_pairs, ma.closure_axes, J, a_pt, p_pt, A, gamma, res)
     if ma.points.shape[1] == 12:  # welds: their points carry frames
-        weld_rows(ma.closure_pairs, ma.closure_components, J, a_pt, p_pt, A, gamma, res)
+        weld_rows(ma.closure_pairs, ma.closure_axes, J, a_pt, p_pt, A, gamma, res)
     if baumgarte_alpha > 0.0 or baumgarte_beta > 0.0:
         gamma -= 2.0 * baumgarte_alpha * matvec(A, qd, work) + baumgarte_beta * baumgarte_beta * res
     return np.sqrt(np.sum(res * res))
@@ -122,7 +122,7 @@ def _other_formulations(form, ma, M, h, A, gamma, tau, qdd_prev, qdd, lam):
     """Every formulation but the serial-chain SCDD: the platform SCDD, L-D'A, multipliers, one pass."""
     if form == SCDD:  # with a platform hub
         return scdd_platform(M, h, A, gamma, tau, ma.chain_start, _point_chains(ma.ji, ma.point_body), ma.closure_pairs,
-                             ma.closure_components.shape[0], ma.hub, qdd, lam)
+                             ma.closure_axes.shape[0], ma.hub, qdd, lam)
     if form == LDA:
         lam[:] = 0.0
         return lagrange_dalembert(M, h, A, gamma, tau, ma.ae_index, ma.p_index, qdd)
@@ -133,13 +133,13 @@ def _other_formulations(form, ma, M, h, A, gamma, tau, qdd_prev, qdd, lam):
 
 @njit(cache=True)
 def accelerations_flat(form, jf, ji, chain_start, points, point_body, gravity, closure_pairs,
-                       closure_components, hub, ae_index, p_index, q, qd, tau, baumgarte_alpha,
+                       closure_axes, hub, ae_index, p_index, q, qd, tau, baumgarte_alpha,
                        baumgarte_beta, qdd_prev, qdd, lam):
     """:func:`accelerations` with the model as separate arrays (``*mech.arrays``).
 
     The entry point for calls from Python: numba types plain arrays on a fast path, a
     namedtuple argument on a slow one (about 1.7 us per call, a third of an evaluation).
     """
-    ma = ModelArrays(jf, ji, chain_start, points, point_body, gravity, closure_pairs, closure_components,
+    ma = ModelArrays(jf, ji, chain_start, points, point_body, gravity, closure_pairs, closure_axes,
                      hub, ae_index, p_index)
     return accelerations(form, ma, q, qd, tau, baumgarte_alpha, baumgarte_beta, qdd_prev, qdd, lam)

@@ -16,12 +16,12 @@ def branch_directions(mech: Mechanism, q: np.ndarray) -> np.ndarray:
     the five-bar this is the forearm direction. Requires that space to be 1-D.
     """
     t = mech.terms(q)
-    comps = mech.model.closure.components
+    axes = mech.model.closure.axes  # the closure's directions: x, y[, z] or in a planar machine's plane
     cols = []
     for ci in _branch_chains(mech):
         lo, hi = mech.arrays.chain_start[ci], mech.arrays.chain_start[ci + 1]
         passive = [j for j in mech.passive if lo <= j < hi]
-        Jp = t.J[ci][np.ix_(comps, passive)]
+        Jp = (axes @ t.J[ci][:3])[:, passive]
         _, s, vt = np.linalg.svd(Jp.T)
         rank = int(np.sum(s > 1e-12 * max(s.max(initial=0.0), 1e-300)))
         null = vt[rank:]
@@ -47,10 +47,10 @@ def parallel_jacobian_transpose(mech: Mechanism, q: np.ndarray) -> np.ndarray:
     t = mech.terms(q)
     W, _ = mech.passive_map(t)
     closure = mech.model.closure
-    comps = list(closure.components)
+    axes = closure.axes
     chains = _branch_chains(mech)
     S = branch_directions(mech, q)
-    k = len(comps)
+    k = len(axes)
     if closure.hub >= 0 and _platform_turns(mech):
         _, _, points = mech.points(q)
         centre = points[mech.model.end_effector_chain]
@@ -64,7 +64,7 @@ def parallel_jacobian_transpose(mech: Mechanism, q: np.ndarray) -> np.ndarray:
     Jt = np.zeros((k * len(chains), mech.n))
     for b, ci in enumerate(chains):
         U[b * k:(b + 1) * k, b] = S[:k, b]
-        Jt[b * k:(b + 1) * k] = t.J[ci][comps]
+        Jt[b * k:(b + 1) * k] = axes @ t.J[ci][:3]
     return W.T @ Jt.T @ U @ np.linalg.inv(S)
 
 

@@ -29,6 +29,7 @@ from elastic_pm_dyn.small_linalg import (
     cholesky_recip,
     cholesky_solve,
     cholesky_solve_rows,
+    equilibrated_pivot_ratio,
     lu_factor,
     lu_solve,
     lu_solve_columns,
@@ -126,9 +127,12 @@ def scdd_into(M, h, A, gamma, tau, chain_start, qdd, lam, x, Y, S, L, dinv, XY, 
     matvec(A, x, r)
     for i in range(m):
         r[i] = gamma[i] - r[i]
-    ratio = lu_factor(S, piv)
-    if ratio == 0.0:
+        lam[i] = S[i, i]  # lam and tmh (n >= m) are free until the solve: the ratio's scratch
+    if lu_factor(S, piv) == 0.0:
         return 0.0
+    # S's rows mix metres and radians and weigh bodies of any size: its own pivot ratio
+    # would call a light part (a 6 mg ball spinning in a weld) a singularity
+    ratio = equilibrated_pivot_ratio(S, piv, lam, tmh)
     lu_solve(S, piv, r)
     lam[:] = r
     for i in range(n):

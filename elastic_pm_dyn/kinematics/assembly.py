@@ -30,17 +30,17 @@ def _weld_angles(mech: Mechanism, terms) -> np.ndarray:
     pairs = ma.closure_pairs
     if not len(pairs) or not np.any(pairs[:, 2]):
         return res
-    planar = len(ma.closure_components) == 2
-    r = len(pairs) * len(ma.closure_components)
+    closure = mech.model.closure
+    axes = closure.weld_axes  # the normal alone on a planar machine
+    r = len(pairs) * len(ma.closure_axes)
     for a, b, weld in pairs:
         if not weld:
             continue
         Ra = terms.p_tip[a, 3:12].reshape(3, 3)
         Rb = terms.p_tip[b, 3:12].reshape(3, 3)
         phi = Rotation.from_matrix(Ra @ Rb.T).as_rotvec()
-        rows = [2] if planar else [0, 1, 2]
-        res[r:r + len(rows)] = phi[rows]
-        r += len(rows)
+        res[r:r + len(axes)] = axes @ phi
+        r += len(axes)
     return res
 
 

@@ -335,27 +335,48 @@ def fixed_points(points, point_body, a_pt, p_pt):
 
 
 @njit(cache=True)
-def closure_rows(closure_pairs, closure_components, J, a_pt, p_pt, A, gamma, res):
-    """Closure residual h(q_t) (eq 8), its Jacobian A = dh/dq_t and gamma = -Adot qd_t.
-
-    Row block k holds S (p_a - p_b) for the k-th point pair (a, b), so that
-    A qdd_t = gamma holds on the constraint manifold.
-    """
-    nc = closure_components.shape[0]
-    for k in range(closure_pairs.shape[0]):
-        pa = closure_pairs[k, 0]
-        pb = closure_pairs[k, 1]
-        for i in range(nc):
-            comp = closure_components[i]
-            r = k * nc + i
-            for j in range(A.shape[1]):  # element-wise: a row expression would allocate
-                A[r, j] = J[pa, comp, j] - J[pb, comp, j]
-            res[r] = p_pt[pa, comp] - p_pt[pb, comp]
-            gamma[r] = -(a_pt[pa, comp] - a_pt[pb, comp])
+def unit_axis(axes, i):
+    """The base axis (0 x, 1 y, 2 z) row i of ``axes`` is, -1 if none: those rows take the
+    components themselves (the same numbers, no products)."""
+    for c in range(3):
+        if axes[i, c] == 1.0 and axes[i, (c + 1) % 3] == 0.0 and axes[i, (c + 2) % 3] == 0.0:
+            return c
+    return -1
 
 
 @njit(cache=True)
-def weld_rows(closure_pairs, closure_components, J, a_pt, p_pt, A, gamma, res):
+def closure_rows(closure_pairs, closure_axes, J, a_pt, p_pt, A, gamma, res):
+    """Closure residual h(q_t) (eq 8), its Jacobian A = dh/dq_t and gamma = -Adot qd_t.
+
+    Row block k holds S (p_a - p_b) for the k-th point pair (a, b), so that
+    A qdd_t = gamma holds on the constraint manifold. S's rows are ``closure_axes``:
+    x, y[, z], or a planar machine's in-plane directions.
+    """
+    nc = closure_axes.shape[0]
+    for i in range(nc):
+        comp = unit_axis(closure_axes, i)
+        e0, e1, e2 = closure_axes[i, 0], closure_axes[i, 1], closure_axes[i, 2]
+        for k in range(closure_pairs.shape[0]):
+            pa = closure_pairs[k, 0]
+            pb = closure_pairs[k, 1]
+            r = k * nc + i
+            if comp >= 0:
+                for j in range(A.shape[1]):  # element-wise: a row expression would allocate
+                    A[r, j] = J[pa, comp, j] - J[pb, comp, j]
+                res[r] = p_pt[pa, comp] - p_pt[pb, comp]
+                gamma[r] = -(a_pt[pa, comp] - a_pt[pb, comp])
+            else:
+                for j in range(A.shape[1]):
+                    A[r, j] = (e0 * (J[pa, 0, j] - J[pb, 0, j]) + e1 * (J[pa, 1, j] - J[pb, 1, j])
+                               + e2 * (J[pa, 2, j] - J[pb, 2, j]))
+                res[r] = e0 * (p_pt[pa, 0] - p_pt[pb, 0]) + e1 * (p_pt[pa, 1] - p_pt[pb, 1]) \
+                    + e2 * (p_pt[pa, 2] - p_pt[pb, 2])
+                gamma[r] = -(e0 * (a_pt[pa, 0] - a_pt[pb, 0]) + e1 * (a_pt[pa, 1] - a_pt[pb, 1])
+                             + e2 * (a_pt[pa, 2] - a_pt[pb, 2]))
+
+
+@njit(cache=True)
+def weld_rows(closure_pairs, closure_axes, J, a_pt, p_pt, A, gamma, res):
     """Orientation rows of the welds (6d closures: ``closure_pairs[k, 2] == 1``), after the
     point rows: the frames of points a and b keep their relative orientation. Needs the
     frames (``points`` and p_pt of 12 columns, J and a_pt of 6 rows).
@@ -364,12 +385,18 @@ def weld_rows(closure_pairs, closure_components, J, a_pt, p_pt, A, gamma, res):
     and gamma = -(alpha_a - alpha_b) (bias angular accelerations). Position level: with
     E = R_a R_b^T (world orientations of the two frames), the residual is
     vee(E - E^T) / 2, which vanishes with the rotation and whose rate at E = I is w_a - w_b.
-    The world axes constrained are all three, or z alone on a planar machine (point rows in
-    x, y).
+    The directions constrained are the world's three, or on a planar machine (point rows
+    along its two in-plane directions) the plane's normal alone.
     """
-    planar = closure_components.shape[0] == 2
+    planar = closure_axes.shape[0] == 2
     nc = 1 if planar else 3
-    r = closure_pairs.shape[0] * closure_components.shape[0]
+    n0, n1, n2 = 0.0, 0.0, 1.0
+    if planar:  # the normal, u x v (z for an x-y machine)
+        n0 = closure_axes[0, 1] * closure_axes[1, 2] - closure_axes[0, 2] * closure_axes[1, 1]
+        n1 = closure_axes[0, 2] * closure_axes[1, 0] - closure_axes[0, 0] * closure_axes[1, 2]
+        n2 = closure_axes[0, 0] * closure_axes[1, 1] - closure_axes[0, 1] * closure_axes[1, 0]
+    normal = 2 if n0 == 0.0 and n1 == 0.0 and n2 == 1.0 else 0 if n0 == 1.0 and n1 == 0.0 and n2 == 0.0 else -1
+    r = closure_pairs.shape[0] * closure_axes.shape[0]
     for k in range(closure_pairs.shape[0]):
         if closure_pairs[k, 2] == 0:
             continue
@@ -380,11 +407,19 @@ def weld_rows(closure_pairs, closure_components, J, a_pt, p_pt, A, gamma, res):
         E = v.mmt(Ra, Rb)
         err = (0.5 * (E[7] - E[5]), 0.5 * (E[2] - E[6]), 0.5 * (E[3] - E[1]))
         for i in range(nc):
-            comp = 2 if planar else i
-            for j in range(A.shape[1]):
-                A[r, j] = J[pa, 3 + comp, j] - J[pb, 3 + comp, j]
-            res[r] = err[comp]
-            gamma[r] = -(a_pt[pa, 3 + comp] - a_pt[pb, 3 + comp])
+            comp = normal if planar else i
+            if comp >= 0:
+                for j in range(A.shape[1]):
+                    A[r, j] = J[pa, 3 + comp, j] - J[pb, 3 + comp, j]
+                res[r] = err[comp]
+                gamma[r] = -(a_pt[pa, 3 + comp] - a_pt[pb, 3 + comp])
+            else:
+                for j in range(A.shape[1]):
+                    A[r, j] = (n0 * (J[pa, 3, j] - J[pb, 3, j]) + n1 * (J[pa, 4, j] - J[pb, 4, j])
+                               + n2 * (J[pa, 5, j] - J[pb, 5, j]))
+                res[r] = n0 * err[0] + n1 * err[1] + n2 * err[2]
+                gamma[r] = -(n0 * (a_pt[pa, 3] - a_pt[pb, 3]) + n1 * (a_pt[pa, 4] - a_pt[pb, 4])
+                             + n2 * (a_pt[pa, 5] - a_pt[pb, 5]))
             r += 1
 
 

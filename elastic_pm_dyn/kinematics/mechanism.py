@@ -55,7 +55,13 @@ class Mechanism:
         self.joint_names = model.joint_names
         self.active_names = [self.joint_names[i] for i in self.active]
         self.ee_components = np.array(model.ee_components)
-        self.closure_components = list(model.closure.components) if model.closure is not None else []
+        self.ee_axes = model.ee_axes  # (k, 3) world directions of the end effector's components
+        self.ee_names = model.ee_names
+        # the base axes the end effector's components are (x-y, y-z, spatial), None if in-plane
+        # u, v: those take the coordinates themselves (the same numbers, no products)
+        self.ee_unit: list[int] | None = [int(np.argmax(a)) for a in self.ee_axes] if all(
+            np.count_nonzero(a) == 1 and a.max() == 1.0 for a in self.ee_axes) else None
+        self.closure_axes = model.closure.axes if model.closure is not None else np.zeros((0, 3))
         joints = model.joints
         self.stiffness = np.array([j.stiffness for j in joints])
         self.damping = np.array([j.damping for j in joints])
@@ -73,9 +79,9 @@ class Mechanism:
         tree_terms(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_body, ma.gravity, q, qd, M, h, J, a_tip, p_tip)
         A, gamma, res = np.zeros((m, n)), np.zeros(m), np.zeros(m)
         if m:
-            closure_rows(ma.closure_pairs, ma.closure_components, J, a_tip, p_tip, A, gamma, res)
+            closure_rows(ma.closure_pairs, ma.closure_axes, J, a_tip, p_tip, A, gamma, res)
             if ma.points.shape[1] == 12:  # welds: their points carry frames
-                weld_rows(ma.closure_pairs, ma.closure_components, J, a_tip, p_tip, A, gamma, res)
+                weld_rows(ma.closure_pairs, ma.closure_axes, J, a_tip, p_tip, A, gamma, res)
         return TreeTerms(M, h, J, a_tip, p_tip, A, gamma, res)
 
     def points(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -90,13 +96,22 @@ class Mechanism:
 
     def end_effector(self, q: np.ndarray) -> np.ndarray:
         """End-effector point: the end of the closure's first chain (the platform's reference
-        point where there is one); x, y for planar models."""
-        return self.points(q)[2][self.model.end_effector_chain][self.ee_components]
+        point where there is one); its in-plane components (:attr:`ee_axes`) on a planar model."""
+        return self.ee_of(self.points(q)[2][self.model.end_effector_chain])
+
+    def ee_of(self, xyz: np.ndarray) -> np.ndarray:
+        """The end effector's components of world vectors (..., 3) (or 3 x n Jacobian rows: axis 0)."""
+        if self.ee_unit is not None:
+            return xyz[..., self.ee_unit]
+        return xyz @ self.ee_axes.T
 
     def end_effector_jacobian(self, terms: TreeTerms) -> tuple[np.ndarray, np.ndarray]:
         """(J_ee, Jdot_ee qd) of the end-effector point in tree coordinates."""
         chain = self.model.end_effector_chain
-        return terms.J[chain][self.ee_components], terms.a_tip[chain][self.ee_components]
+        J, a = terms.J[chain][:3], terms.a_tip[chain][:3]
+        if self.ee_unit is not None:
+            return J[self.ee_unit], a[self.ee_unit]
+        return self.ee_axes @ J, self.ee_axes @ a
 
     def gap(self, q: np.ndarray) -> float:
         """Closure gap |h(q_t)| [m] (the paper's Fig. 4), from forward kinematics alone."""
@@ -107,7 +122,7 @@ class Mechanism:
             return float(np.linalg.norm(self.terms(q).residual))
         _, _, p = self.points(q)
         pairs = np.asarray(closure.pairs)
-        d = p[pairs[:, 0]][:, self.closure_components] - p[pairs[:, 1]][:, self.closure_components]
+        d = (p[pairs[:, 0]] - p[pairs[:, 1]]) @ self.closure_axes.T
         return float(np.linalg.norm(d))
 
     # -------------------------------------------------------------- coordinates

@@ -26,7 +26,8 @@ class ModelArrays(NamedTuple):
     point_body: np.ndarray  # (n_points,) int: tree index of the joint carrying each point (-1: the base)
     gravity: np.ndarray  # (3,)
     closure_pairs: np.ndarray  # (n_pairs, 3) int: point indices a, b with S (p_a - p_b) = 0; 1 for a weld
-    closure_components: np.ndarray  # (c,) int: constrained components (0 x, 1 y, 2 z)
+    closure_axes: np.ndarray  # (c, 3) float: world direction of each pair's rows (the identity's x, y[, z]
+    # rows unless planar off x-y); c == 2: planar, welds turn about closure_axes[0] x closure_axes[1]
     hub: int  # platform chain onto which SCDD reduces, -1 for none
     ae_index: np.ndarray  # (n_ae,) int: tree indices of q_ae = [q_a, q_e]
     p_index: np.ndarray  # (n_p,) int: tree indices of q_p
@@ -80,11 +81,11 @@ def pack(model: Model) -> ModelArrays:
     closure = model.closure
     if closure is not None:
         pairs = np.array([(a, b, int((a, b) in closure.welds)) for a, b in closure.pairs], dtype=np.int64)
-        cl_comp = np.array(closure.components, dtype=np.int64)
+        cl_axes = np.ascontiguousarray(closure.axes, dtype=float)
         hub = closure.hub
     else:
         pairs = np.zeros((0, 3), dtype=np.int64)
-        cl_comp = np.zeros(0, dtype=np.int64)
+        cl_axes = np.zeros((0, 3))
         hub = -1
     plist = model.point_list()
     points = np.array([xyz for _, xyz, _ in plist], dtype=float).reshape(-1, 3)
@@ -101,6 +102,6 @@ def pack(model: Model) -> ModelArrays:
         points=np.ascontiguousarray(points),
         point_body=np.array(model.point_bodies(), dtype=np.int64),
         gravity=np.asarray(model.gravity, dtype=float).copy(),
-        closure_pairs=pairs.reshape(-1, 3), closure_components=cl_comp, hub=int(hub),
+        closure_pairs=pairs.reshape(-1, 3), closure_axes=cl_axes, hub=int(hub),
         ae_index=model.ae_indices.astype(np.int64), p_index=model.indices(PASSIVE).astype(np.int64),
     )

@@ -122,6 +122,11 @@ class Closure:
     pairs (a, b) whose frames, oriented by ``weld_rotations`` (R_a, R_b in the frames
     of the bodies carrying the points), stay aligned; their rows follow the point rows.
     A weld's position is an ordinary entry of ``pairs``.
+
+    ``components`` index the rows of ``basis`` (an orthonormal, right-handed frame, its rows
+    world directions; the identity unless the machine is planar in another plane than x-y):
+    a planar machine closes along its in-plane directions ``basis[0]``, ``basis[1]`` and its
+    welds turn about the normal ``basis[2]``.
     """
 
     pairs: tuple[tuple[int, int], ...]
@@ -130,11 +135,23 @@ class Closure:
     hub: int = -1
     welds: tuple[tuple[int, int], ...] = ()
     weld_rotations: tuple[tuple[np.ndarray, np.ndarray], ...] = ()
+    # rows as tuples: closures compare by value (a model read twice is the same model)
+    basis: tuple[tuple[float, float, float], ...] = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
 
     @property
     def weld_components(self) -> tuple[int, ...]:
-        """World axes of the orientation rows: z alone on a planar machine."""
+        """Rows of ``basis`` of the orientation rows: the normal alone on a planar machine."""
         return (2,) if tuple(self.components) == (0, 1) else (0, 1, 2)
+
+    @property
+    def axes(self) -> np.ndarray:
+        """(c, 3) world directions of each point pair's rows."""
+        return np.asarray(self.basis, dtype=float)[list(self.components)]
+
+    @property
+    def weld_axes(self) -> np.ndarray:
+        """(w, 3) world directions of each weld's orientation rows."""
+        return np.asarray(self.basis, dtype=float)[list(self.weld_components)]
 
     @property
     def size(self) -> int:
@@ -175,7 +192,7 @@ class Model:
     initial: InitialState
     branches: tuple[Branch, ...]
     source: str = "<memory>"
-    planar: bool = False  # closure/end effector in the x-y plane only
+    planar: bool = False  # closure and end effector in a plane (x-y unless the closure's basis says)
     fixed_points: tuple[tuple[str, np.ndarray], ...] = ()  # closure points on the fixed base, world frame
 
     # --- joint bookkeeping in tree order (chains stacked, joints in chain order) ---
@@ -204,7 +221,25 @@ class Model:
 
     @property
     def ee_components(self) -> tuple[int, ...]:
+        """Rows of :attr:`plane_basis` the end effector is given in: the in-plane two if planar."""
         return (0, 1) if self.planar else (0, 1, 2)
+
+    @property
+    def plane_basis(self) -> np.ndarray:
+        """(3, 3) orthonormal rows: the directions of the closure's and end effector's components
+        (a planar machine's in-plane u, v, then its normal); the identity unless planar off x-y."""
+        return np.asarray(self.closure.basis, dtype=float) if self.closure is not None else np.eye(3)
+
+    @property
+    def ee_axes(self) -> np.ndarray:
+        """(k, 3) world directions of the end effector's components."""
+        return self.plane_basis[list(self.ee_components)]
+
+    @property
+    def ee_names(self) -> list[str]:
+        """Names of the end effector's components: x, y, z where a direction is a base axis,
+        else u, v (the in-plane directions :attr:`ee_axes`) of a tilted plane."""
+        return component_names(self.ee_axes)
 
     def point_list(self) -> list[tuple[int, np.ndarray, str]]:
         """All attachment points as (chain index, xyz in its body's frame, label): the chain
@@ -251,6 +286,15 @@ class Model:
         branches = tuple(b for b in self.branches if b.joint not in locked_names)
         return replace(self, chains=chains, branches=branches,
                        name=f"{self.name} ({role} locked)")
+
+
+def component_names(axes: np.ndarray) -> list[str]:
+    """"x", "y", "z" where every row is a base axis, else "u", "v", "w" by position."""
+    names = []
+    for a in np.asarray(axes, dtype=float):
+        unit = [i for i in range(3) if a[i] == 1.0 and not np.any(np.delete(a, i))]
+        names.append(AXIS_NAMES[unit[0]] if unit else "")
+    return names if all(names) else list("uvw"[:len(names)])
 
 
 def rpy_to_matrix(rpy: np.ndarray) -> np.ndarray:

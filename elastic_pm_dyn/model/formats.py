@@ -29,7 +29,8 @@ def model_format(path: str | Path) -> str:
     return _ROOTS[root]
 
 
-def read_robot_file(path: str | Path, kind: str, closures: str | Path | None = None) -> Model:
+def read_robot_file(path: str | Path, kind: str, closures: str | Path | None = None,
+                    fix_base: bool = False, servos_as_motors: bool = False) -> Model:
     from elastic_pm_dyn.model.from_tree import build_model
     if kind == URDF:
         from elastic_pm_dyn.model.urdf import read_urdf
@@ -42,4 +43,4 @@ def read_robot_file(path: str | Path, kind: str, closures: str | Path | None = N
     from elastic_pm_dyn.model.mjcf import read_mjcf
     if closures is not None:
         raise ModelError(str(closures), "", f"an MJCF holds its own closures (<equality>); no sidecar for {path}")
-    return build_model(read_mjcf(path))
+    return build_model(read_mjcf(path, fix_base, servos_as_motors))

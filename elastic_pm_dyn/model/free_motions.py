@@ -90,22 +90,24 @@ def closure_terms(model: Model, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return x, R_body[b], _velocity_rows(model, p_joint, axes, x, b)
 
     res, rows = [], []
+    S, S_weld = c.axes, c.weld_axes  # in the plane and about its normal if planar
     for a, b in c.pairs:
         (xa, _, Ja), (xb, _, Jb) = point(a), point(b)
-        res.append((xa - xb)[list(c.components)])
-        rows.append((Ja - Jb)[list(c.components)])
+        res.append(S @ (xa - xb))
+        rows.append(S @ (Ja - Jb)[:3])
     for (a, b), (Ra, Rb) in zip(c.welds, c.weld_rotations, strict=True):
         (_, Rba, Ja), (_, Rbb, Jb) = point(a), point(b)
         phi = Rotation.from_matrix((Rba @ Ra) @ (Rbb @ Rb).T).as_rotvec()
-        res.append(phi[list(c.weld_components)])
-        rows.append((Ja - Jb)[[3 + k for k in c.weld_components]])
+        res.append(S_weld @ phi)
+        rows.append(S_weld @ (Ja - Jb)[3:])
     return np.concatenate(res), np.vstack(rows)
 
 
-def _assembled(model: Model, free: list[int]) -> np.ndarray | None:
-    """Tree coordinates closing the loops, moving ``free`` from the zero pose (least-squares
-    Newton: there are more free joints than equations); None if that fails."""
-    q = np.array([model.initial.guess.get(j.name, j.rest) for j in model.joints], dtype=float)
+def _assembled(model: Model, free: list[int], start: np.ndarray | None = None) -> np.ndarray | None:
+    """Tree coordinates closing the loops, moving ``free`` from ``start`` (default: the zero
+    pose; least-squares Newton: there are more free joints than equations); None if that fails."""
+    q = np.array([model.initial.guess.get(j.name, j.rest) for j in model.joints], dtype=float) \
+        if start is None else np.array(start, dtype=float)
     r, J = closure_terms(model, q)
     for _ in range(100):
         norm = float(np.linalg.norm(r))
@@ -172,3 +174,36 @@ def free_passive_motions(model: Model) -> Model:
         chains.append(replace(ch, joints=joints))
         start += len(ch.joints)
     return replace(model, chains=tuple(chains))
+
+
+def repeated_rows(model: Model) -> tuple[list[int], int] | None:
+    """Closure rows that repeat the others at an assembled pose, and the rank of all of them in
+    the passive joints; None when they are independent (or no pose assembles: the counts or the
+    assembly name that). A planar loop closed by a 3-D point makes its out-of-plane row repeat."""
+    passive = [i for i, j in enumerate(model.joints) if j.role == PASSIVE]
+    m = model.closure.size if model.closure is not None else 0
+    if m == 0 or not passive:
+        return None
+    q = _assembled(model, passive)
+    if q is None:
+        return None
+
+    def rank_at(q: np.ndarray) -> tuple[int, np.ndarray]:
+        _, r, piv = scipy.linalg.qr(closure_terms(model, q)[1][:, passive].T, pivoting=True, mode="economic")
+        diag = np.abs(np.diag(r))
+        return int(np.sum(diag > RANK_TOL * max(diag[0], 1e-300))), piv
+
+    rank, piv = rank_at(q)
+    if rank == m:
+        return None
+    # Repeated everywhere, or only at this pose (a zero pose folded onto a singularity)? Look
+    # again at poses the other joints reach from it (seeded: the same answer every load).
+    others = [i for i in range(len(model.joints)) if i not in passive]
+    rng = np.random.default_rng(0)
+    for _ in range(2):
+        start = q.copy()
+        start[others] += rng.uniform(-0.1, 0.1, len(others))
+        moved = _assembled(model, passive, start)
+        if moved is not None and rank_at(moved)[0] == m:
+            return None
+    return sorted(int(i) for i in piv[rank:]), rank

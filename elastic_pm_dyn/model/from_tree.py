@@ -30,7 +30,7 @@ from elastic_pm_dyn.model.description import (
     Model,
     matrix_to_rpy,
 )
-from elastic_pm_dyn.model.free_motions import free_passive_motions
+from elastic_pm_dyn.model.free_motions import free_passive_motions, repeated_rows
 from elastic_pm_dyn.model.kinematic_tree import (
     BALL,
     CARDAN,
@@ -73,8 +73,8 @@ def build_model(tree: KinematicTree, sidecar: Sidecar | None = None) -> Model:
     closures = list(tree.closures) + (sidecar.closures if sidecar else [])
     gravity = np.asarray(sidecar.gravity if sidecar is not None and sidecar.gravity is not None
                          else tree.gravity if tree.gravity is not None else DEFAULT_GRAVITY, dtype=float)
-    planar = _planar(tree, legs, closures, sidecar)
-    chains, closure, fixed = _closure(tree, legs, frames, closures, planar)
+    planar, basis = _planar(tree, legs, closures, sidecar)
+    chains, closure, fixed = _closure(tree, legs, frames, closures, planar, basis)
     ee_mass = sidecar.end_effector_mass if sidecar is not None else 0.0
     if ee_mass > 0:
         chains = _lump_end_effector(chains, ee_mass, closure)
@@ -91,7 +91,24 @@ def build_model(tree: KinematicTree, sidecar: Sidecar | None = None) -> Model:
                   fixed_points=fixed)
     model = free_passive_motions(model)
     _check_counts(tree, model, sidecar, closures)
+    _check_repeated(model, closures)
     return model
+
+
+def _check_repeated(model: Model, closures: list) -> None:
+    """Closure equations must fix the passive joints independently: SCDD solves for them."""
+    found = repeated_rows(model)
+    if found is None or not closures:
+        return
+    rows, rank = found
+    c = model.closure
+    n_point = len(c.pairs) * len(c.components)
+    welds = [k for k, spec in enumerate(closures) if spec.kind == "6d"]
+    spec = closures[rows[0] // len(c.components)] if rows[0] < n_point \
+        else closures[welds[(rows[0] - n_point) // len(c.weld_components)]]
+    raise spec.where.error(f"not supported yet: the closures' {c.size} equations have rank {rank} in the passive "
+                           f"joints at the start pose and near it; this one repeats the others (a loop whose hinges "
+                           f"are all parallel, closed by a 3-D point: its row along them holds by itself)")
 
 
 # ------------------------------------------------------------------------ joints
@@ -272,34 +289,48 @@ def _world_axes(legs: list[_Leg]) -> list[tuple[Joint, np.ndarray]]:
     return out
 
 
-def _planar(tree: KinematicTree, legs: list[_Leg], closures: list, sidecar: Sidecar | None) -> bool:
-    """A point closure of a mechanism that moves in the x-y plane has an all-zero z row:
-    such a machine is planar (closes in x and y). Found from the axes unless the sidecar says."""
+def _planar(tree: KinematicTree, legs: list[_Leg], closures: list, sidecar: Sidecar | None
+            ) -> tuple[bool, np.ndarray]:
+    """Whether the machine is planar (every revolute axis along one direction n, every
+    prismatic axis across it: its closures then have no rows along n and no turns but
+    about n), and the basis its closure and end effector are taken in (rows u, v, n; see
+    :func:`plane_basis`). Found from the axes unless the sidecar says."""
     axes = _world_axes(legs)
     if not closures or not axes:
-        return bool(sidecar is not None and sidecar.planar)
+        return bool(sidecar is not None and sidecar.planar), np.eye(3)
 
-    def planar_about(n: np.ndarray) -> bool:
-        return all(np.linalg.norm(np.cross(a, n)) < PARALLEL_TOL if j.type == REVOLUTE else abs(a @ n) < PARALLEL_TOL
-                   for j, a in axes)
+    def off_plane(n: np.ndarray) -> list[Joint]:
+        return [j for j, a in axes if (np.linalg.norm(np.cross(a, n)) >= PARALLEL_TOL if j.type == REVOLUTE
+                                       else abs(a @ n) >= PARALLEL_TOL)]
 
-    ez = np.array([0.0, 0.0, 1.0])
-    in_xy = planar_about(ez)
-    said = sidecar.planar if sidecar is not None else None
-    if said is True and not in_xy:
-        bad = next(j for j, a in axes if (np.linalg.norm(np.cross(a, ez)) >= PARALLEL_TOL if j.type == REVOLUTE
-                                          else abs(a @ ez) >= PARALLEL_TOL))
-        raise sidecar.where(("planar",)).error(f"planar: true, but joint {bad.name!r} does not move in the x-y plane")
-    if said is not None:
-        return said
-    if in_xy:
-        return True
     revolute = [a for j, a in axes if j.type == REVOLUTE]
-    if revolute and planar_about(revolute[0]):
-        where = closures[0].where
-        raise where.error(f"not supported yet: a planar mechanism moving in a plane other than x-y "
-                          f"(joint axes along {np.round(revolute[0], 6).tolist()}), {tree.file}")
-    return False
+    n = revolute[0] / np.linalg.norm(revolute[0]) if revolute else np.array([0.0, 0.0, 1.0])
+    bad = off_plane(n)
+    said = sidecar.planar if sidecar is not None else None
+    if said is True and bad:
+        raise sidecar.where(("planar",)).error(f"planar: true, but joint {bad[0].name!r} does not move in the "
+                                               f"plane normal to {np.round(n, 6).tolist()} (joint "
+                                               f"{axes[0][0].name!r}'s axis)")
+    planar = said if said is not None else not bad
+    return planar, plane_basis(n) if planar else np.eye(3)
+
+
+def plane_basis(n: np.ndarray) -> np.ndarray:
+    """Rows u, v, n (orthonormal, right-handed) of the plane normal to ``n``: the base axes
+    themselves where n is one (x-y for z, y-z for x, x-z for y: the components the user
+    reads are then his base frame's), else u the base axis most across n, projected."""
+    n = np.asarray(n, dtype=float) / np.linalg.norm(n)
+    for i, rows in ((2, (0, 1, 2)), (0, (1, 2, 0)), (1, (0, 2, 1))):
+        if np.linalg.norm(np.cross(n, np.eye(3)[i])) < PARALLEL_TOL:
+            basis = np.eye(3)[list(rows)]
+            if i == 1:
+                basis[2] = -basis[2]  # x, z, -y is right-handed
+            return basis
+    n = n if n[np.argmax(np.abs(n))] > 0 else -n
+    e = np.eye(3)[int(np.argmin(np.abs(n)))]
+    u = e - (e @ n) * n
+    u /= np.linalg.norm(u)
+    return np.array([u, np.cross(n, u), n])
 
 
 # ----------------------------------------------------------------------- closure
@@ -321,17 +352,18 @@ class _Points:
 
 
 def _closure(tree: KinematicTree, legs: list[_Leg], frames: dict[str, _Frame], closures: list,
-             planar: bool) -> tuple[list[Chain], Closure | None, tuple[tuple[str, np.ndarray], ...]]:
+             planar: bool, basis: np.ndarray
+             ) -> tuple[list[Chain], Closure | None, tuple[tuple[str, np.ndarray], ...]]:
     found = _Points([[] for _ in legs])
     pair_refs: list[tuple[tuple[int, int], tuple[int, int]]] = []
     weld_refs: list[int] = []
     for spec in closures:
         refs, where = [], []
-        for name, offset in ((spec.frame_a, spec.offset_a), (spec.frame_b, spec.offset_b)):
+        for name, offset, turn in ((spec.frame_a, spec.offset_a, spec.turn_a), (spec.frame_b, spec.offset_b, None)):
             f = _frame(tree, frames, name, spec.where)
             xyz = f.R @ np.asarray(offset, dtype=float) + f.p
             # A point closure's frame orientation does not matter: only a weld keeps it.
-            R = f.R if spec.kind == "6d" else np.eye(3)
+            R = (f.R if turn is None else f.R @ turn) if spec.kind == "6d" else np.eye(3)
             refs.append(found.add(f.leg, f.joint, xyz, R, name, bool(np.any(offset))))
             where.append(f)
         fa, fb = where
@@ -379,7 +411,8 @@ def _closure(tree: KinematicTree, legs: list[_Leg], frames: dict[str, _Frame], c
     return chains, Closure(pairs=pairs, components=(0, 1) if planar else (0, 1, 2), chains=tuple(order),
                            welds=tuple(pairs[w] for w in weld_refs),
                            weld_rotations=tuple((rotation(pair_refs[w][0]), rotation(pair_refs[w][1]))
-                                                for w in weld_refs)), fixed
+                                                for w in weld_refs),
+                           basis=tuple(tuple(float(x) for x in row) for row in basis)), fixed
 
 
 def _lump_end_effector(chains: list[Chain], mass: float, closure: Closure | None) -> list[Chain]:

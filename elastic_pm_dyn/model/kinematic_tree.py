@@ -64,7 +64,9 @@ class TreeJoint:
 class ClosureSpec:
     """Two frames (links) that coincide: ``kind`` '3d' (a point) or '6d' (a weld).
 
-    ``offset_a``/``offset_b`` shift the point inside the frame (MJCF connect anchors)."""
+    ``offset_a``/``offset_b`` shift the point inside the frame (MJCF connect anchors); a weld
+    keeps frame b's orientation at ``turn_a`` in frame a (an MJCF body weld's relative pose),
+    None: the two frames align."""
 
     frame_a: str
     frame_b: str
@@ -72,6 +74,7 @@ class ClosureSpec:
     where: Where
     offset_a: np.ndarray = field(default_factory=lambda: np.zeros(3))
     offset_b: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    turn_a: np.ndarray | None = None
 
 
 @dataclass

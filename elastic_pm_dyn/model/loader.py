@@ -34,22 +34,30 @@ _JOINT_KEYS = {"name", "type", "role", "axis", "origin", "body", "stiffness", "d
 
 
 def load_model(path: str | Path, elastic_dof_per_chain: int | None = None,
-               closures: str | Path | None = None) -> Model:
+               closures: str | Path | None = None, fix_base: bool = False, servos_as_motors: bool = False) -> Model:
     """Read and validate a model file: a model YAML, a URDF or an MJCF.
 
     The format follows from the suffix (.yaml/.yml, .urdf, .xml/.mjcf) and, for any other,
     from the content (an XML root ``<robot>`` or ``<mujoco>``). A URDF takes its loop
     closures from a sidecar: ``closures``, else ``robot.yaml`` next to it.
     ``elastic_dof_per_chain`` overrides a YAML's value: how many lumped elastic joints
-    each ``flexible_link`` is discretised into (URDF and MJCF have none).
+    each ``flexible_link`` is discretised into (URDF and MJCF have none). ``fix_base`` (MJCF
+    only) welds the bodies of free joints to the world where the file puts them;
+    ``servos_as_motors`` (MJCF only) takes the joints of servos (``<position>`` ...) for motors.
     """
-    from elastic_pm_dyn.model.formats import model_format, read_robot_file
+    from elastic_pm_dyn.model.formats import MJCF, model_format, read_robot_file
     kind = model_format(path)
+    if fix_base and kind != MJCF:
+        raise ModelError(str(path), "", "fixing the base is for an MJCF's free joints; a model YAML or URDF "
+                         "stands on a fixed base already")
+    if servos_as_motors and kind != MJCF:
+        raise ModelError(str(path), "", "servos as motors is for an MJCF's actuators; a model YAML or URDF "
+                         "names its motors")
     if kind == "yaml":
         if closures is not None:
             raise ModelError(str(closures), "", f"a closure sidecar belongs to a URDF, {path} is a model YAML")
         return parse_model(YamlSource.from_file(path), elastic_dof_per_chain)
-    return read_robot_file(path, kind, closures)
+    return read_robot_file(path, kind, closures, fix_base, servos_as_motors)
 
 
 def parse_model(src: YamlSource, elastic_dof_per_chain: int | None = None) -> Model:

@@ -11,7 +11,15 @@ one body -> a path of joints: a universal joint is two hinges); a body without j
 welded to its parent; joint ``stiffness``/``springref``/``damping`` -> an elastic joint,
 ``damping`` alone -> viscous friction, ``armature`` -> rotor inertia; a joint driven by a
 ``<motor>`` -> active; ``<connect>`` -> a point closure, ``<weld>`` -> a 6d closure; sites
-are frames; the first keyframe's joint positions guide the assembly.
+are frames; the first keyframe's joint positions guide the assembly. A joint ``ref`` keeps
+MuJoCo's coordinate (the joint angle is ``qpos``: the body is written at ``qpos = ref``).
+
+A free joint (a floating base) is refused, unless ``fix_base``: then each body carried by
+a free joint is welded to the world at the pose the file writes it at (the free joint's
+entries of the keyframes are dropped), as a legged robot hangs from a fixed pelvis.
+An actuator other than a ``<motor>`` (a ``<position>`` servo, as onshape-to-robot writes on
+every joint) is refused, unless ``servos_as_motors``: then the joint it drives is a motor
+whose torque is the input; the servo's law (kp, kv) is left out.
 """
 
 from __future__ import annotations
@@ -39,28 +47,71 @@ from elastic_pm_dyn.model.xml_source import XmlSource
 _EQ_KINDS = {0: "3d", 1: "6d"}  # mjEQ_CONNECT, mjEQ_WELD
 
 
-def read_mjcf(path: str | Path) -> KinematicTree:
+def read_mjcf(path: str | Path, fix_base: bool = False, servos_as_motors: bool = False) -> KinematicTree:
+    """The file's tree; ``fix_base`` welds the bodies of free joints to the world,
+    ``servos_as_motors`` takes a servo's joint for a motor's (module doc)."""
     file = str(path)
     src = XmlSource.from_file(path)
     lines = _element_lines(src)
+    mujoco = _mujoco(file)
+    m = compile_mjcf(path, fix_base)
+    return _Tree(m, mujoco, file, lines, servos_as_motors).build(src.root.get("model") or Path(path).stem)
+
+
+def _mujoco(file: str):
     try:
         import mujoco
     except ImportError:
         raise ModelError(file, "", "reading an MJCF needs MuJoCo's compiler: pip install mujoco") from None
+    return mujoco
+
+
+def compile_mjcf(path: str | Path, fix_base: bool = False):
+    """MuJoCo's ``MjModel`` of the file, the free joints removed if ``fix_base`` (and their
+    keyframe entries): the model this package reads, for a peer simulation of the same machine."""
+    file = str(path)
+    mujoco = _mujoco(file)
     try:
-        m = mujoco.MjModel.from_xml_path(file)
+        if not fix_base:
+            return mujoco.MjModel.from_xml_path(file)
+        spec = mujoco.MjSpec.from_file(file)
+        m = spec.compile()
+        free = [j for j in range(m.njnt) if m.jnt_type[j] == mujoco.mjtJoint.mjJNT_FREE]
+        if not free:
+            return m
+        qpos = np.ones(m.nq, dtype=bool)
+        qvel = np.ones(m.nv, dtype=bool)
+        for j in free:
+            qpos[m.jnt_qposadr[j]:m.jnt_qposadr[j] + 7] = False
+            qvel[m.jnt_dofadr[j]:m.jnt_dofadr[j] + 6] = False
+        keys = [(np.array(k.qpos), np.array(k.qvel)) for k in spec.keys]
+        for joint in [j for j in spec.joints if j.type == mujoco.mjtJoint.mjJNT_FREE]:
+            spec.delete(joint)  # (re-sizes the keys to the new model's: set them after)
+        for key, (kq, kv) in zip(spec.keys, keys, strict=True):  # a key lists all of qpos/qvel, or nothing
+            if len(kq) == m.nq:
+                key.qpos = kq[qpos]
+            if len(kv) == m.nv:
+                key.qvel = kv[qvel]
+        return spec.compile()
     except ValueError as exc:
         raise _compiler_error(file, str(exc)) from None
-    return _Tree(m, mujoco, file, lines).build(src.root.get("model") or Path(path).stem)
 
 
 def _element_lines(src: XmlSource) -> dict[tuple[str, str], int]:
-    """(tag, name) -> line of the named elements of the main file (includes are not followed)."""
+    """(tag, name) -> line of the named elements of the main file (includes are not followed);
+    an unnamed joint as ("body joint", "<body name>#<k>"): the k-th joint element of the body."""
     out: dict[tuple[str, str], int] = {}
     for el, line in src.lines.items():
         name = el.get("name")
         if name is not None:
             out.setdefault((el.tag, name), line)
+        if el.tag == "equality":  # MuJoCo numbers the equalities in file order
+            for c in el:
+                out.setdefault(("equality #", str(sum(1 for t, _ in out if t == "equality #"))), src.lines[c])
+        if el.tag == "body" and name is not None:
+            joints = [c for c in el if c.tag in ("joint", "freejoint")]
+            for k, c in enumerate(joints):
+                out.setdefault(("body joint", f"{name}#{k}"), src.lines[c])
     return out
 
 
@@ -75,6 +126,12 @@ def _compiler_error(file: str, message: str) -> ModelError:
                       int(line.group(1)) if line else None)
 
 
+def _axis_rotation(axis: np.ndarray, angle: float) -> np.ndarray:
+    """Rodrigues: the rotation by ``angle`` about the unit ``axis``."""
+    K = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+    return np.eye(3) + np.sin(angle) * K + (1.0 - np.cos(angle)) * K @ K
+
+
 def _quat_matrix(mujoco, quat: np.ndarray) -> np.ndarray:
     out = np.empty(9)
     mujoco.mju_quat2Mat(out, np.asarray(quat, dtype=float))
@@ -82,8 +139,9 @@ def _quat_matrix(mujoco, quat: np.ndarray) -> np.ndarray:
 
 
 class _Tree:
-    def __init__(self, m, mujoco, file: str, lines: dict[tuple[str, str], int]):
+    def __init__(self, m, mujoco, file: str, lines: dict[tuple[str, str], int], servos_as_motors: bool = False):
         self.m, self.mj, self.file, self.lines = m, mujoco, file, lines
+        self.servos_as_motors = servos_as_motors
         obj = mujoco.mjtObj
         self.body_names = [mujoco.mj_id2name(m, obj.mjOBJ_BODY, i) or f"body{i}" for i in range(m.nbody)]
         self.joint_names = [mujoco.mj_id2name(m, obj.mjOBJ_JOINT, i) or f"joint{i}" for i in range(m.njnt)]
@@ -150,36 +208,51 @@ class _Tree:
     def _joint(self, j: int, parent: str, child: str, R: np.ndarray, p: np.ndarray, motors: set[int]) -> TreeJoint:
         m = self.m
         name = self.joint_names[j]
+        body = self.body_names[m.jnt_bodyid[j]]
         where = self.where("joint", name)
+        if where.line is None:  # unnamed: the body's k-th joint element
+            k = j - int(m.body_jntadr[m.jnt_bodyid[j]])
+            where = Where(self.file, f"joint of body {body!r}", self.lines.get(("body joint", f"{body}#{k}")))
         kind = int(m.jnt_type[j])
         if kind == 0:
-            raise where.error("a free joint is not supported (a floating base): this package's machines stand "
-                              "on a fixed base")
+            raise where.error("a free joint (a floating base) is not supported: this package's machines stand on a "
+                              f"fixed base; fix_base=True (check/simulate --fix-base) welds body {body!r} to the "
+                              "world where the file puts it")
         qadr, dadr = m.jnt_qposadr[j], m.jnt_dofadr[j]
         if kind == 1:
             if m.jnt_stiffness[j] > 0 or j in motors:
                 raise where.error("not supported yet: a ball joint with a spring or a motor")
             return TreeJoint(name, BALL, parent, child, R, p, np.array([0.0, 0.0, 1.0]), where,
                              damping=float(m.dof_damping[dadr]))
-        if m.qpos0[qadr] != 0:
-            raise where.error(f"not supported yet: a joint 'ref' ({m.qpos0[qadr]:g}): write the body at the "
-                              "joint's zero position")
-        return TreeJoint(name, REVOLUTE if kind == 3 else PRISMATIC, parent, child, R, p,
-                         m.jnt_axis[j] / np.linalg.norm(m.jnt_axis[j]), where,
+        axis = m.jnt_axis[j] / np.linalg.norm(m.jnt_axis[j])
+        ref = float(m.qpos0[qadr])
+        if ref != 0.0:
+            # MuJoCo writes the body at qpos = ref: the joint moves it by qpos - ref. Shifting the
+            # joint's origin by -ref about (along) its axis keeps our coordinate equal to qpos.
+            if kind == 3:
+                R = R @ _axis_rotation(axis, -ref)
+            else:
+                p = p - R @ axis * ref
+        return TreeJoint(name, REVOLUTE if kind == 3 else PRISMATIC, parent, child, R, p, axis, where,
                          damping=float(m.dof_damping[dadr]), stiffness=float(m.jnt_stiffness[j]),
                          rest=float(m.qpos_spring[qadr]), armature=float(m.dof_armature[dadr]), actuated=j in motors)
 
     def _motors(self) -> set[int]:
-        """Joints driven by a <motor> (a joint transmission with no bias: torque = gear * ctrl)."""
+        """Joints driven by a <motor> (a joint transmission with no bias: torque = gear * ctrl), or
+        by any joint actuator with ``servos_as_motors``."""
         m = self.m
         out = set()
         for a in range(m.nu):
             name = self.mj.mj_id2name(m, self.obj.mjOBJ_ACTUATOR, a) or f"actuator{a}"
-            where = Where(self.file, f"actuator {name!r}", self.lines.get(("motor", name))
-                          or self.lines.get(("general", name)) or self.lines.get(("position", name)))
-            if m.actuator_trntype[a] != 0 or m.actuator_biastype[a] != 0 or m.actuator_gaintype[a] != 0:
-                raise where.error("not supported yet: an actuator other than a <motor> on a joint "
-                                  "(servos, tendons, sites)")
+            tags = ("motor", "general", "position", "velocity", "intvelocity", "damper", "cylinder", "muscle")
+            where = Where(self.file, f"actuator {name!r}",
+                          next((self.lines[(t, name)] for t in tags if (t, name) in self.lines), None))
+            if m.actuator_trntype[a] != 0:
+                raise where.error("not supported yet: an actuator on a tendon, site or body (only joints)")
+            if not self.servos_as_motors and (m.actuator_biastype[a] != 0 or m.actuator_gaintype[a] != 0):
+                raise where.error("not supported yet: an actuator other than a <motor> on a joint (a servo); "
+                                  "servos_as_motors=True (check/simulate --servos-as-motors) takes its joint for "
+                                  "a motor's, the servo law left out")
             j = int(m.actuator_trnid[a, 0])
             if j in out:
                 raise where.error(f"joint {self.joint_names[j]!r} has two motors")
@@ -190,21 +263,28 @@ class _Tree:
         m = self.m
         out = []
         for e in range(m.neq):
-            name = self.mj.mj_id2name(m, self.obj.mjOBJ_EQUALITY, e) or f"equality{e}"
+            name = self.mj.mj_id2name(m, self.obj.mjOBJ_EQUALITY, e)
             kind = int(m.eq_type[e])
             tag = {0: "connect", 1: "weld"}.get(kind, "equality")
-            where = Where(self.file, f"{tag} {name!r}" if not name.startswith("equality") else tag,
-                          self.lines.get((tag, name)))
+            a, b = int(m.eq_obj1id[e]), int(m.eq_obj2id[e])
+            names = self.site_names if m.eq_objtype[e] == self.obj.mjOBJ_SITE else self.body_names
+            # an unnamed one by what it joins, and its line by its place in the file
+            where = Where(self.file, f"{tag} {name!r}", self.lines.get((tag, name))) if name else \
+                Where(self.file, f"{tag} {names[a]}-{names[b]}", self.lines.get(("equality #", str(e))))
             if not m.eq_active0[e]:
                 continue
             if kind not in _EQ_KINDS:
                 raise where.error("not supported yet: an equality other than <connect> or <weld> (joint, tendon, "
                                   "flex couplings)")
-            a, b = int(m.eq_obj1id[e]), int(m.eq_obj2id[e])
             if m.eq_objtype[e] == self.obj.mjOBJ_SITE:
                 out.append(ClosureSpec(self.site_names[a], self.site_names[b], _EQ_KINDS[kind], where))
-            else:
+            elif kind == 0:  # connect: the anchor in body1 (data[0:3]) and, at qpos0, in body2 (data[3:6])
                 data = m.eq_data[e]
-                out.append(ClosureSpec(self.body_names[a], self.body_names[b], _EQ_KINDS[kind], where,
+                out.append(ClosureSpec(self.body_names[a], self.body_names[b], "3d", where,
                                        offset_a=data[0:3] - shift[a], offset_b=data[3:6] - shift[b]))
+            else:  # weld: the anchor in body2 (data[0:3]) and in body1 (data[3:6]); body2 in body1 (data[6:10])
+                data = m.eq_data[e]
+                out.append(ClosureSpec(self.body_names[a], self.body_names[b], "6d", where,
+                                       offset_a=data[3:6] - shift[a], offset_b=data[0:3] - shift[b],
+                                       turn_a=_quat_matrix(self.mj, data[6:10])))
         return out

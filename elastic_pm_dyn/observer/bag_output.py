@@ -59,7 +59,7 @@ class EstimatesBag:
     def __init__(self, path: Path, obs: Observer, storage: str = "mcap"):
         self.obs = obs
         self.names = list(obs.mech.joint_names)
-        self.comps = [int(c) for c in obs.mech.ee_components]
+        self.ee_unit, self.ee_axes = obs.mech.ee_unit, obs.mech.ee_axes  # the pose: back in the base frame
         self.lay = obs.flat_layout()
         self.w = BagWriter(path, storage)
         try:
@@ -75,8 +75,11 @@ class EstimatesBag:
         obs, names, lay = self.obs, self.names, self.lay
         table = rows.table()
         ns = np.array(rows.t, dtype=np.int64)
-        xyz = np.zeros((len(ns), 3))
-        xyz[:, self.comps] = table[:, lay["ee"]]
+        if self.ee_unit is not None:
+            xyz = np.zeros((len(ns), 3))
+            xyz[:, self.ee_unit] = table[:, lay["ee"]]
+        else:  # a tilted plane's u, v: the point's projection on the plane through the origin
+            xyz = table[:, lay["ee"]] @ self.ee_axes
         self.w.write_rows(self.conns, ns, [
             cdr.encode_joint_state_batch(ns, names, table[:, lay["q"]], table[:, lay["qd"]], table[:, lay["effort"]]),
             cdr.encode_branch_forces_batch(ns, obs.branch_names, *(table[:, lay[k]] for k in (

@@ -923,7 +923,7 @@ class Observer:
         layout = getattr(self, "_flat_layout", None)
         if layout is None:
             m = self.model
-            n, nb, ne, nd, nx = self.mech.n, len(m.branch_joint), len(m.ee_comp), len(m.dist_idx), self.nx
+            n, nb, ne, nd, nx = self.mech.n, len(m.branch_joint), len(m.ee_axes), len(m.dist_idx), self.nx
             layout, o = {}, 0
             for key, width in (("t", 1), ("q", n), ("qd", n), ("q_std", n), ("qd_std", n), ("effort", n),
                                ("branch_force", nb), ("branch_force_std", nb), ("deflection", nb),

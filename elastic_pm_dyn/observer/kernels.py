@@ -36,7 +36,7 @@ from numba import njit
 
 from elastic_pm_dyn.dynamics.evaluate import SCDD, accelerations, accelerations_into, workspace
 from elastic_pm_dyn.dynamics.kernels import passive_map
-from elastic_pm_dyn.kinematics.kernels import point_buffers
+from elastic_pm_dyn.kinematics.kernels import point_buffers, unit_axis
 from elastic_pm_dyn.model.layout import JF_STIFFNESS
 from elastic_pm_dyn.sim.kernels import OK, _closure, partition, rk4_steps
 from elastic_pm_dyn.small_linalg import cholesky, cholesky_solve
@@ -56,7 +56,7 @@ class Fixed(NamedTuple):
     with_point: bool  # an accelerometer is used: its Jacobian Hpt is linearised too
     active_idx: np.ndarray  # (n_a,) tree indices of the motors (command order)
     ee_point: int  # the end-effector point (its position in the estimates)
-    ee_comp: np.ndarray  # its components in the estimates (0 x, 1 y, 2 z)
+    ee_axes: np.ndarray  # (k, 3) world directions of its components in the estimates (Mechanism.ee_axes)
     branch_joint: np.ndarray  # (n_b,) tree index of each branch's elastic joint
     stiff: np.ndarray  # (n_b,) its stiffness c
     damp: np.ndarray  # (n_b,) its damping d
@@ -196,7 +196,7 @@ def pose_outputs(ma, q, point, W, Jp, p):
 
 
 @njit(cache=True)
-def outputs(ma, q, qd, P, point, ee_comp, branch_joint, stiff, damp, rest, q_std, qd_std, F, F_std, ee, ee_std):
+def outputs(ma, q, qd, P, point, ee_axes, branch_joint, stiff, damp, rest, q_std, qd_std, F, F_std, ee, ee_std):
     """Estimated outputs with standard deviations from (q, qd, P): every tree joint (through
     W), branch forces F = c (u - rest) + d du/dt, and the end-effector point's components."""
     n = q.shape[0]
@@ -223,13 +223,14 @@ def outputs(ma, q, qd, P, point, ee_comp, branch_joint, stiff, damp, rest, q_std
         v = (stiff[k] ** 2 * P[a, a] + 2 * stiff[k] * damp[k] * P[a, nae + a]
              + damp[k] ** 2 * P[nae + a, nae + a])
         F_std[k] = np.sqrt(max(v, 0.0))
-    for r in range(ee_comp.shape[0]):
-        c = ee_comp[r]
-        ee[r] = p[c]
+    for r in range(ee_axes.shape[0]):
+        c = unit_axis(ee_axes, r)
+        e0, e1, e2 = ee_axes[r, 0], ee_axes[r, 1], ee_axes[r, 2]
+        ee[r] = p[c] if c >= 0 else e0 * p[0] + e1 * p[1] + e2 * p[2]
         row = np.zeros(nae)
         for a in range(nae):
             for j in range(n):
-                row[a] += Jp[c, j] * W[j, a]
+                row[a] += (Jp[c, j] if c >= 0 else e0 * Jp[0, j] + e1 * Jp[1, j] + e2 * Jp[2, j]) * W[j, a]
         v = 0.0
         for a in range(nae):
             for b in range(nae):
@@ -242,12 +243,12 @@ def estimate_flat(ma, fixed, proc, state, tau_last, t, out):
     """Every output of ``Observer.estimate`` into one flat array ``out``:
     [t, q, qd, q_std, qd_std, effort (n_t each), F, F_std, deflection, deflection rate (n_b each),
     ee, ee_std, d, d_std, x, P (row-major)]."""
-    _, _, _, _, active_idx, point, ee_comp, branch_joint, stiff, damp, rest = fixed
+    _, _, _, _, active_idx, point, ee_axes, branch_joint, stiff, damp, rest = fixed
     dist_idx, _, Lz, _, _, _, _ = proc
     q, qd, z, P, _, _, _, _ = state
     n = q.shape[0]
     nb = branch_joint.shape[0]
-    ne = ee_comp.shape[0]
+    ne = ee_axes.shape[0]
     nd = dist_idx.shape[0]
     nz = z.shape[0]
     nae = ma.ae_index.shape[0]
@@ -264,7 +265,7 @@ def estimate_flat(ma, fixed, proc, state, tau_last, t, out):
     o += 2 * nd
     ox = o
     oP = o + nx
-    outputs(ma, q, qd, P, point, ee_comp, branch_joint, stiff, damp, rest, out[oqs:oqs + n], out[oqds:oqds + n],
+    outputs(ma, q, qd, P, point, ee_axes, branch_joint, stiff, damp, rest, out[oqs:oqs + n], out[oqds:oqds + n],
             out[oF:oF + nb], out[oFs:oFs + nb], out[oee:oee + ne], out[oees:oees + ne])
     for i in range(n):
         out[oq + i] = q[i]

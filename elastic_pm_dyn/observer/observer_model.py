@@ -67,7 +67,7 @@ class ObserverModel:
     rest: np.ndarray  # (n_b,)
     H_F: np.ndarray  # (n_b, 2 n_ae) the branch forces' rows on [q_ae, qd_ae]
     active_idx: np.ndarray  # (n_a,) tree indices of the motors
-    ee_comp: np.ndarray  # end-effector components in the estimates
+    ee_axes: np.ndarray  # end-effector components in the estimates
     ee_point: int  # the end-effector point
     point: int  # the accelerometer's point (the end effector's without one)
     encoders: Encoders | None  # sensor geometry (noise levels: Observer's copies, ``with_noise``)
@@ -121,13 +121,13 @@ class ObserverModel:
         ee_point = int(model.end_effector_chain)
         point = imu.point if imu is not None else ee_point
         active_idx = np.asarray(mech.active, dtype=np.int64)
-        ee_comp = np.asarray(mech.ee_components, dtype=np.int64)
-        fixed = tuple(kernels.Fixed(eps_q, eps_v, point, imu is not None, active_idx, ee_point, ee_comp, branch_joint,
+        ee_axes = np.ascontiguousarray(mech.ee_axes, dtype=float)
+        fixed = tuple(kernels.Fixed(eps_q, eps_v, point, imu is not None, active_idx, ee_point, ee_axes, branch_joint,
                                     stiff, damp, rest))
         return cls(mech, model_key(cfg), ae, x_of_ae, tuple(model.joints[j].role for j in ae), eps_q, eps_v,
                    np.array(dist, dtype=np.int64), np.array([x_of_ae[j] for j in dist], dtype=np.int64),
                    [mech.joint_names[j] for j in dist], branch_names, branch_joint, stiff, damp, rest, H_F,
-                   active_idx, ee_comp, ee_point, point, encoders, imu, branch, fixed)
+                   active_idx, ee_axes, ee_point, point, encoders, imu, branch, fixed)
 
     def serves(self, cfg: ObserverConfig) -> bool:
         """Was this model built from the same fixed parts as ``cfg`` has?"""

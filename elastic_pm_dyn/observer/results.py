@@ -114,7 +114,7 @@ def csv_header(obs: Observer) -> list[str]:
     names = mech.joint_names
     vel = [f"{n}_vel" for n in names]
     F = [f"F_{b}" for b in obs.branch_names]
-    ee = ["ee_x", "ee_y", "ee_z"][:len(mech.ee_components)]
+    ee = [f"ee_{c}" for c in mech.ee_names]
     d = [f"d_{mech.joint_names[j]}" for j in obs.dist_idx]
     cols = ["t", "stamp_ns", *names, *vel, *F]
     cols += [f"{c}_std" for c in (*names, *vel, *F)]

@@ -21,13 +21,17 @@ the two trials of a knob at once in two threads (the compiled filter kernel rele
 GIL), keeps what lowers the NLL by at least :data:`MIN_GAIN` and halves the step after a
 sweep without gain, until the step is small or the budget is spent; first the disturbance
 spectrum alone from factors of 10, then every knob from smaller steps (sensor noise and
-white torque noise tuned from the start end in worse optima). ``command_delay`` (the filter is very sensitive to it)
+white torque noise tuned from the start end in worse optima). The compass starts in the basin
+a coarse grid finds (:func:`_grid`: the band's top corner over its whole range, the levels a
+decade either way, judged on the first second): from the defaults alone it can end in a worse
+optimum. ``command_delay`` (the filter is very sensitive to it)
 is chosen first by a likelihood scan over 0, 1/2, ..., 2 periods, and checked again at the
 end with the tuned noise.
 """
 
 from __future__ import annotations
 
+import itertools
 import math
 import time
 from collections.abc import Callable, Mapping
@@ -54,7 +58,15 @@ FAILED_NLL = 1e30  # a candidate whose filter faulted
 # default stays where the recording does not tell
 MIN_GAIN = 2.0
 DELAY_STEPS = (0.0, 0.5, 1.0, 1.5, 2.0)  # [periods] of the command-delay scan
-CORNER_FACTORS = (1.0, 2.0, 4.0)  # top corner of another band order, times the fitted one
+CORNER_FACTORS = (1.0, 1.4, 2.0, 2.8, 4.0)  # top corner of another band order, times the fitted one
+# The coarse grid that picks the disturbance spectrum's basin before the compass search: the
+# top band corner over the whole tunable range, the band order, the stddev a decade either
+# side of the base's (the user's guess, else the default). Judged on the first GRID_SECONDS only: the grid
+# picks a basin, the compass on the whole recording finds its optimum.
+GRID_TOPS = (5.0, 10.0, 20.0, 40.0, 80.0, 160.0, 320.0)  # [Hz]
+GRID_LEVELS = (0.1, 1.0, 10.0)  # times the base's disturbance stddev
+GRID_SECONDS = 1.0
+GRID_FINALISTS = 3  # the grid's likeliest, judged again on the whole recording
 
 
 @dataclass(frozen=True)
@@ -193,10 +205,11 @@ def select(events: list[Event], seconds: float | None) -> list[Event]:
 
 def tune(mech: Mechanism, base: ObserverConfig, events: list[Event], explicit: set[str] | None = None,
          delay: bool = True, max_evaluations: int = 160, min_step: float = 0.1, threads: int = 2,
-         log: Callable[[str], object] = print) -> TuneResult:
+         log: Callable[[str], object] = print, grid: bool = True) -> TuneResult:
     """Maximum-likelihood tuning of ``base`` on ``events`` (module docstring). ``explicit``: flat
     names the user set (their sensor noise is kept); ``delay``: scan ``command_delay``;
-    ``min_step``: the smallest log step (0.1: about 10 %); ``max_evaluations``: filter passes in all."""
+    ``min_step``: the smallest log step (0.1: about 10 %); ``max_evaluations``: filter passes in all
+    (the grid's short passes not counted); ``grid``: start from the grid's basin (:func:`_grid`)."""
     wall0 = time.perf_counter()
     explicit = set(explicit or ())
     if not events:
@@ -219,16 +232,19 @@ def tune(mech: Mechanism, base: ObserverConfig, events: list[Event], explicit: s
         if delay:
             best, theta = _scan_delay(run, theta, events, best, history, log)
         ks = knobs(base, explicit)
+        first = [k for k in ks if k.name in DISTURBANCE_KNOBS]
+        band = base.process.disturbance in ("band_limited", "bias_band_limited")
+        orders = BAND_ORDERS if band and "process.disturbance_band_order" not in explicit else ()
+        if band and grid:
+            best, theta = _grid(mech, base, events, run, theta, best, first, orders, threads, history, log)
         # passes kept for the end: the delay checked again, the two with the gate on
         budget = max_evaluations - (len(DELAY_STEPS) - 1 if delay else 0) - 2
         # First the disturbance spectrum alone, from factors of 10, then every knob from a factor
         # of ~1.8: tried together from the start, the sensor noise and the white torque noise
         # take what the disturbance band should explain and the search ends in a worse optimum.
-        first = [k for k in ks if k.name in DISTURBANCE_KNOBS]
         best, theta = _compass(run, count, theta, best, first, math.log(10.0), 2 * min_step,
                                min(budget, count[0] + (2 * budget) // 3), history, log)
-        if first and base.process.disturbance in ("band_limited", "bias_band_limited") \
-                and "process.disturbance_band_order" not in explicit:
+        if first and orders:
             best, theta = _band_order(run, theta, best, history, log)
         best, theta = _compass(run, count, theta, best, ks, math.log(10.0) / 4, min_step, budget, history, log)
         if delay:
@@ -242,6 +258,49 @@ def tune(mech: Mechanism, base: ObserverConfig, events: list[Event], explicit: s
     changed = {name: (base_params[name], theta[name]) for name in theta if theta[name] != base_params[name]}
     return TuneResult(theta, base_params, before, best, g_before, g_after, changed, count[0],
                       time.perf_counter() - wall0, history)
+
+
+def _grid(mech: Mechanism, base: ObserverConfig, events: list[Event], run, theta: dict, best: Evaluation,
+          first: list[Knob], orders: tuple[int, ...], threads: int, history: list, log) -> tuple[Evaluation, dict]:
+    """Start the search in the likeliest basin: the band's top corner (:data:`GRID_TOPS`, the other
+    corners scaled with it), the disturbance stddev (:data:`GRID_LEVELS`) and the band ``orders``
+    on a coarse grid, each point judged on the first :data:`GRID_SECONDS` of the recording, the
+    :data:`GRID_FINALISTS` likeliest on all of it; one is kept if it gains :data:`MIN_GAIN` over
+    ``best``. Without it the compass, started from the defaults, can walk into a worse optimum
+    (a random walk of large intensity explaining tones at 20-100 Hz through a band that ends at
+    5 Hz, 200 nats less likely than the tones' band; a second-order band where a fourth-order
+    one at another corner is 100 nats likelier)."""
+    axes: list[list[tuple[str, float]]] = [[("process.disturbance_band_order", o) for o in orders]] if orders else []
+    for k in first:
+        if k.name == "process.disturbance_bandwidth" and k.index == int(np.argmax(theta[k.name])):
+            axes.append([(k.name, top) for top in GRID_TOPS])
+        elif k.name == "process.disturbance_stddev":
+            axes.append([(k.name, k.get(theta) * f) for f in GRID_LEVELS])
+    trials = []
+    for point in itertools.product(*axes):
+        p = dict(theta)
+        for name, value in point:
+            if name == "process.disturbance_bandwidth":  # the top corner; the others keep their ratios
+                lo, hi = BANDWIDTH_BOUNDS
+                p[name] = [float(min(max(c * value / max(theta[name]), lo), hi)) for c in theta[name]]
+            elif name == "process.disturbance_stddev":
+                lo, hi = PROCESS_KNOBS[name]
+                p[name] = float(min(max(value, lo), hi))
+            else:
+                p[name] = value
+        if _valid(p) and p not in trials:
+            trials.append(p)
+    short = select(events, GRID_SECONDS)
+    prep = prepare(mech, base, short)
+    with ThreadPoolExecutor(max(1, threads)) as pool:
+        coarse = list(pool.map(lambda p: evaluate(mech, p, short, prepared=prep).nll, trials))
+    finalists = [trials[i] for i in np.argsort(coarse)[:GRID_FINALISTS]]
+    results = run(finalists)
+    log(f"  grid of {len(trials)} spectra on the first {GRID_SECONDS:g} s; finalists: "
+        + ", ".join(f"order {p['process.disturbance_band_order']} to {max(p['process.disturbance_bandwidth']):.4g} Hz"
+                    f" stddev {p.get('process.disturbance_stddev', float('nan')):.3g}: NLL {r.nll:.6g}"
+                    for p, r in zip(finalists, results, strict=True)) + f" (now {best.nll:.6g})")
+    return _likeliest(finalists, results, best, theta, history, "process.disturbance_bandwidth")
 
 
 def _compass(run, count: list, theta: dict, best: Evaluation, ks: list[Knob], step: float, min_step: float,
@@ -279,8 +338,8 @@ def _compass(run, count: list, theta: dict, best: Evaluation, ks: list[Knob], st
 
 def _band_order(run, theta: dict, best: Evaluation, history: list, log) -> tuple[Evaluation, dict]:
     """The bands' Butterworth order (:data:`~.config.BAND_ORDERS`) by likelihood at the fitted
-    spectrum: another order, with the top corner at 1, 2 and 4 times the fitted one (a steeper
-    band needs a higher corner to pass the same frequencies), is kept if it gains :data:`MIN_GAIN`."""
+    spectrum: another order, with the top corner at :data:`CORNER_FACTORS` times the fitted one (a
+    steeper band needs a higher corner to pass the same frequencies), is kept if it gains :data:`MIN_GAIN`."""
     corners = list(theta["process.disturbance_bandwidth"])
     top = int(np.argmax(corners))
     trials = []

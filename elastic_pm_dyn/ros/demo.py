@@ -126,7 +126,7 @@ def analyse(out: Path, bag: Path, model_path: Path, sync: str, line: QuinticLine
     t = common * 1e-9
     q = np.column_stack([js.column("position", n) for n in mech.joint_names])[i_js]
     qd = np.column_stack([js.column("velocity", n) for n in mech.joint_names])[i_js]
-    ee = pose.values["position"][i_pose][:, mech.ee_components]
+    ee = mech.ee_of(pose.values["position"][i_pose])
     forces = {b.name: bf.column("force", b.name)[i_bf] for b in model.branches}
     gap = np.array([mech.gap(x) for x in q])
 

@@ -56,7 +56,7 @@ class StateMessages:
         self.ee_pose = PoseStamped()
         self.ee_pose.header.frame_id = base_frame
         self.ee_pose.pose.orientation.w = 1.0  # a point end effector: orientation not modelled
-        self._ee_components = [int(c) for c in mech.ee_components]
+        self._ee_unit, self._ee_axes = mech.ee_unit, mech.ee_axes
 
     def _set_stamp(self, ns: int, headers: Sequence) -> None:
         sec, nanosec = divmod(ns, NS)
@@ -75,10 +75,20 @@ class StateMessages:
         bf.deflection = doubles(deflection)
         bf.deflection_rate = doubles(rate)
         pos = self.ee_pose.pose.position
+        pos.x, pos.y, pos.z = ee_in_base(ee, self._ee_unit, self._ee_axes)
+
+
+def ee_in_base(ee: np.ndarray, unit: list[int] | None, axes: np.ndarray) -> tuple[float, float, float]:
+    """The end effector's components (``axes``' directions) as a point of the base frame: the
+    coordinates themselves where they are base axes (0 for the others), else sum ee_k axes_k,
+    the point's projection on the machine's plane through the origin (a tilted planar machine)."""
+    if unit is not None:
         xyz = [0.0, 0.0, 0.0]
-        for c, v in zip(self._ee_components, ee, strict=True):
+        for c, v in zip(unit, ee, strict=True):
             xyz[c] = float(v)
-        pos.x, pos.y, pos.z = xyz
+        return xyz[0], xyz[1], xyz[2]
+    x, y, z = (float(c) for c in np.asarray(ee, dtype=float) @ axes)
+    return x, y, z
 
 
 _STAMP = struct.Struct("<iI")  # builtin_interfaces/Time right after the 4-byte CDR encapsulation
@@ -145,7 +155,9 @@ class PlantMessages:
         self._origins, self._coms = np.empty((n, 3)), np.empty((n, 3))
         self._tips = np.empty((mech.n_points, 3))
         self._ee_chain = mech.model.end_effector_chain
-        self._ee_components = np.asarray(mech.ee_components, dtype=np.int64)
+        self._ee_unit = np.asarray(mech.ee_unit if mech.ee_unit is not None else [], dtype=np.int64)
+        # world point -> its in-plane components -> back in the base frame (a tilted plane's)
+        self._ee_projector = np.ascontiguousarray(mech.ee_axes.T @ mech.ee_axes)
         self.stamp_ns = 0
 
     def fill(self, ns: int) -> None:
@@ -166,7 +178,10 @@ class PlantMessages:
         ma = mech.arrays
         chain_points(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_body, q, self._origins, self._coms,
                      self._tips)
-        self.ee_xyz[self._ee_components] = self._tips[self._ee_chain, self._ee_components]
+        if len(self._ee_unit):
+            self.ee_xyz[self._ee_unit] = self._tips[self._ee_chain, self._ee_unit]
+        else:
+            np.dot(self._ee_projector, self._tips[self._ee_chain], out=self.ee_xyz)
 
     # What to publish: the bytes of each message as last filled.
     @property

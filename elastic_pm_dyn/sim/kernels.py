@@ -48,9 +48,9 @@ DIVERGED = 2
 @njit(cache=True)
 def _closure(ma, q, qd, M, h, J, a_pt, p_pt, A, gamma, res):
     tree_terms(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_body, ma.gravity, q, qd, M, h, J, a_pt, p_pt)
-    closure_rows(ma.closure_pairs, ma.closure_components, J, a_pt, p_pt, A, gamma, res)
+    closure_rows(ma.closure_pairs, ma.closure_axes, J, a_pt, p_pt, A, gamma, res)
     if ma.points.shape[1] == 12:  # welds: their points carry frames
-        weld_rows(ma.closure_pairs, ma.closure_components, J, a_pt, p_pt, A, gamma, res)
+        weld_rows(ma.closure_pairs, ma.closure_axes, J, a_pt, p_pt, A, gamma, res)
     return np.sqrt(np.sum(res * res))
 
 
@@ -350,12 +350,12 @@ def _diverged(ma, qs, vs, tau, a, b, qdd_prev, acc, lam, ws, form, info):
 
 
 @njit(cache=True)
-def rk4_steps_flat(form, jf, ji, chain_start, points, point_body, gravity, closure_pairs, closure_components,
+def rk4_steps_flat(form, jf, ji, chain_start, points, point_body, gravity, closure_pairs, closure_axes,
                    hub, ae_index, p_index, q, qd, tau_coef, dt, n_steps, stab, alpha, beta, tol, singular_tol,
                    qdd_prev, lam, info):
     """:func:`rk4_steps` with the model as separate arrays (``*mech.arrays``): the cheap
     entry point from Python (see ``accelerations_flat``)."""
-    ma = ModelArrays(jf, ji, chain_start, points, point_body, gravity, closure_pairs, closure_components,
+    ma = ModelArrays(jf, ji, chain_start, points, point_body, gravity, closure_pairs, closure_axes,
                      hub, ae_index, p_index)
     return rk4_steps(form, ma, q, qd, tau_coef, dt, n_steps, stab, alpha, beta, tol, singular_tol,
                      qdd_prev, lam, info)

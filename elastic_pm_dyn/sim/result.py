@@ -30,7 +30,7 @@ class SimulationResult:
     def header(self) -> list[str]:
         mech = self.mech
         names = mech.joint_names
-        ee = ["ee_x", "ee_y", "ee_z"][: len(mech.ee_components)]
+        ee = [f"ee_{c}" for c in mech.ee_names]
         return (["t", *names, *[f"{n}_vel" for n in names], *ee,
                  *[f"F_{b.name}" for b in mech.model.branches], "gap",
                  *[f"tau_{n}" for n in mech.active_names]])
