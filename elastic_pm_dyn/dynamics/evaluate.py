@@ -44,7 +44,7 @@ def workspace(ma):
             np.empty(n), np.empty((n, m)), np.empty((m, m)), np.empty((nmax, nmax)), np.empty(nmax),
             np.empty((nmax, 1 + m)), np.empty(m, dtype=np.int64), np.empty(m), np.empty(n), np.empty(m),
             _point_chains(ma.ji, ma.point_body),
-            platform_workspace(ma.chain_start, ma.closure_pairs, ma.closure_components.shape[0], ma.hub, n))
+            platform_workspace(ma.chain_start, ma.closure_pairs, ma.closure_axes.shape[0], ma.hub, n))
 
 
 @njit(cache=True)
@@ -90,7 +90,7 @@ def accelerations_into(form, ma, q, qd, tau, baumgarte_alpha, baumgarte_beta, qd
         return cond, gap
     if form == SCDD:  # with a platform hub
         return scdd_platform_into(M, h, A, gamma, tau, ma.chain_start, pc, ma.closure_pairs,
-                                  ma.closure_components.shape[0], ma.hub, qdd, lam, pw), gap
+                                  ma.closure_axes.shape[0], ma.hub, qdd, lam, pw), gap
     return _other_formulations(form, ma, M, h, A, gamma, tau, qdd_prev, qdd, lam), gap
 
 

@@ -190,18 +190,26 @@ class Mechanism:
         ma = self.arrays
         tips = np.empty((len(q), self.n_points, 3))
         chain_points_many(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_body, q, tips)
-        ee = tips[:, self.model.end_effector_chain][:, self.ee_components]
+        end = tips[:, self.model.end_effector_chain]
+        # unit axes pick coordinates (exact in any order); others as end_effector() and gap() do,
+        # row by row (a stacked matmul may round differently)
+        ee = self.ee_of(end) if self.ee_unit is not None else np.array([self.ee_of(e) for e in end])
+        ee = ee.reshape(len(q), len(self.ee_axes))
         j = self.branch_joints
         forces = self.stiffness[j] * (q[:, j] - self.rest[j]) + self.damping[j] * qd[:, j]
         closure = self.model.closure
+        axes = self.closure_axes
         if closure is None:
             gap = np.zeros(len(q))
         elif closure.welds:  # the orientation residual needs the frames' rotations
             gap = np.array([self.gap(qk) for qk in q])
         else:
             pairs = np.asarray(closure.pairs)
-            comps = self.closure_components
-            d = (tips[:, pairs[:, 0]][:, :, comps] - tips[:, pairs[:, 1]][:, :, comps]).reshape(len(q), -1)
+            diff = tips[:, pairs[:, 0]] - tips[:, pairs[:, 1]]
+            if np.all((axes == 0.0) | (axes == 1.0)) and np.all(np.count_nonzero(axes, axis=1) == 1):
+                d = diff[:, :, np.argmax(axes, axis=1)].reshape(len(q), -1)
+            else:
+                d = np.array([(dk @ axes.T).ravel() for dk in diff]).reshape(len(q), -1)
             # as gap(): the BLAS dot of each row (a vectorised sum would round differently)
             gap = np.array([np.sqrt(dk.dot(dk)) for dk in d])
         return ee, forces, gap

@@ -172,9 +172,9 @@ def project_into(ma, q, qd, tol, max_iter, pws):
     for it in range(max_iter + 1):
         tree_terms_into(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_body, ma.gravity, q, zero, M, h, J, a_pt,
                         p_pt, wz, wo, jv, jw, fr)
-        closure_rows(ma.closure_pairs, ma.closure_components, J, a_pt, p_pt, A, gamma, res)
+        closure_rows(ma.closure_pairs, ma.closure_axes, J, a_pt, p_pt, A, gamma, res)
         if ma.points.shape[1] == 12:  # welds: their points carry frames
-            weld_rows(ma.closure_pairs, ma.closure_components, J, a_pt, p_pt, A, gamma, res)
+            weld_rows(ma.closure_pairs, ma.closure_axes, J, a_pt, p_pt, A, gamma, res)
         gap = np.sqrt(np.sum(res * res))
         if gap0 < 0.0:
             gap0 = gap
