@@ -158,6 +158,8 @@ def cmd_check(args: argparse.Namespace) -> int:
         print(f"  free     {len(free)}: {', '.join(mech.joint_names[i] for i in free)} "
               "(left free by the closures: unactuated, no spring)")
     print(f"  closure equations {mech.m}; non-redundant coordinates q_ae: {len(mech.ae)}")
+    for line in _dropped_rows(model):
+        print(line)
     q = initial_state(mech)
     print("start pose:")
     for name, value in zip(mech.joint_names, q, strict=True):
@@ -175,9 +177,10 @@ def cmd_check(args: argparse.Namespace) -> int:
         modes = elastic_modes(mech, q, clamp_motors=True)
         print("elastic modes at the start pose (motors clamped"
               + (", free joints included at 0 Hz):" if len(free) else "):"))
-        for k, f in enumerate(modes.natural_hz):
-            zeta = modes.damping_ratio[k] if k < len(modes.damping_ratio) else float("nan")
-            print(f"  mode {k + 1}: {f:9.2f} Hz undamped, damping ratio {zeta:.4f}")
+        for k, (f, zeta) in enumerate(zip(modes.natural_hz, modes.damping_ratio, strict=True)):
+            print(f"  mode {k + 1}: {f:9.2f} Hz undamped, "
+                  + (f"damping ratio {zeta:.4f}" if zeta == zeta
+                     else "no oscillation" + (" (a free joint: no spring)" if f == 0 else " (overdamped)")))
         # RK4 is stable for undamped modes while |h omega| <= 2 sqrt(2).
         dt_max = 2 * np.sqrt(2) / (2 * np.pi * modes.natural_hz.max())
         print(f"  fixed-step RK4 needs dt < {dt_max:.3g} s for the fastest mode (use about a quarter "
@@ -186,6 +189,26 @@ def cmd_check(args: argparse.Namespace) -> int:
     else:
         print("no elastic joints: no elastic modes")
     return 0
+
+
+def _dropped_rows(model) -> list[str]:
+    """One line per closure row dropped because it holds by itself (Closure.reduced)."""
+    closure = model.closure
+    if closure is None:
+        return []
+    bodies = model.point_bodies()
+
+    def on(i: int) -> str:
+        return f"body of joint {model.joints[bodies[i]].name}" if bodies[i] >= 0 else "base"
+
+    out = []
+    for k, frame in closure.reduced:
+        a, b = closure.pairs[k]
+        n = np.round(np.asarray(frame)[:, 2], 6).tolist()
+        out.append(f"  dropped  row {n} of closure {k + 1} ({on(a)} = {on(b)}; the direction in the frame of the "
+                   f"first): it holds by itself, every joint moving both points alike along it (a loop of hinges "
+                   "parallel to it, closed by a 3-D point); the two rows across it are kept")
+    return out
 
 
 def _print_integrator_steps(mech, q: np.ndarray, rk4_limit: float) -> None:

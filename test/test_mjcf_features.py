@@ -148,57 +148,7 @@ def test_free_joint_is_refused_with_its_line_unless_the_base_is_fixed(tmp_path):
         load_model(Path(__file__).parent / "robots" / "five_bar_urdf" / "robot.urdf", fix_base=True)
 
 
-# As Cassie's legs: on a yoke turned by a motor about x, a planar four-bar (hinges along z,
-# its connect's row along z repeats) and a lever held by a rod on a ball (the rod's spin is
-# free): as many passive joints as equations, one equation short in rank.
-TILTED = """<mujoco model="tilted_four_bar">
-  <compiler angle="radian"/>
-  <worldbody>
-    <body name="yoke">
-      <joint name="roll" type="hinge" axis="1 0 0"/>
-      <inertial pos="0 0 0" mass="1" diaginertia="1e-2 1e-2 1e-2"/>
-      <body name="crank">
-        <joint name="crank" type="hinge" axis="0 0 1"/>
-        <inertial pos="0.05 0 0" mass="0.5" diaginertia="1e-4 1e-3 1e-3"/>
-        <body name="coupler" pos="0.1 0 0" euler="0 0 1.2">
-          <joint name="coupler" type="hinge" axis="0 0 1"/>
-          <inertial pos="0.1 0 0" mass="0.3" diaginertia="1e-5 1e-3 1e-3"/>
-        </body>
-      </body>
-      <body name="rocker" pos="0.3 0 0" euler="0 0 1.9">
-        <joint name="rocker" type="hinge" axis="0 0 1"/>
-        <inertial pos="0.1 0 0" mass="0.3" diaginertia="1e-5 1e-3 1e-3"/>
-      </body>
-      <body name="lever" pos="0 0.3 0">
-        <joint name="lever" type="hinge" axis="0 0 1"/>
-        <inertial pos="0.1 0 0" mass="0.2" diaginertia="1e-5 1e-3 1e-3"/>
-      </body>
-      <body name="rod" pos="0.2 0.3 0.1">
-        <joint name="rod" type="ball"/>
-        <inertial pos="0 -0.05 -0.05" mass="0.1" diaginertia="1e-5 1e-5 1e-5"/>
-      </body>
-    </body>
-  </worldbody>
-  <equality>
-    <connect body1="coupler" body2="rocker" anchor="0.2 0 0"/>
-    <connect body1="rod" body2="lever" anchor="0 -0.05 -0.1"/>
-  </equality>
-  <actuator>
-    <motor name="roll" joint="roll"/>
-    <motor name="crank" joint="crank"/>
-  </actuator>
-</mujoco>
-"""
-
-
-def test_redundant_point_closure_is_named(tmp_path):
-    path = _write(tmp_path, TILTED)
-    with pytest.raises(ModelError) as err:
-        load_model(path)
-    line = TILTED.splitlines().index('    <connect body1="coupler" body2="rocker" anchor="0.2 0 0"/>') + 1
-    message = str(err.value)
-    assert message.startswith(f"{path}:{line}: connect coupler-rocker: not supported yet"), message
-    assert "6 equations have rank 5" in message
+# Cassie's planar four-bar closed by a 3-D connect (a row that holds by itself): test_redundant_rows.py.
 
 
 FOUR_BAR_XY = """<mujoco model="four_bar">

@@ -79,21 +79,28 @@ def test_encoders_and_accelerometer_meet_the_targets(scores, label) -> None:
 def test_every_sensor_set_tracks_motors_consistently(scores, label, name) -> None:
     s = scores[label, name]
     assert s["motor_rmse_rad"] < 2e-5, s  # below the encoder noise
-    # Target 0.9: 35 of 36 bench runs (6 seeds) reach it, the lowest 0.896.
-    assert s["nees_in_band"] >= 0.88, s
+    # Target 0.9 (0.88 here: one seed's margin). Without the accelerometer on the chirp the
+    # filter is cautious, never over-confident: the spring states' uncertainty comes from the
+    # process noise no encoder sees (bench/observer_identifiability.py); with the RK4 substep
+    # from the model's modes (process.dt: 0) its error fell 3x there and its NEES mean is 5.7 of 8.
+    cautious = label == "chirp" and name != "encoders+imu"
+    assert s["nees_in_band"] >= (0.8 if cautious else 0.88), s
+    assert s["nees_mean"] <= 8.8, s  # dof 8 (2 motors, 2 springs, their rates): never over-confident
     # Never worse than running the model open loop (the disturbance is unknown to both).
     assert s["F_ratio"] <= 1.05 * s["F_ratio_open_loop"], s
     assert sum(s["rejected"].values()) <= 0.02 * 500 * len(SETS[name]), s
 
 
 def test_encoders_see_the_slow_disturbance(scores) -> None:
+    # 0.17 measured; 0.56 with the RK4 substep at 1e-4 s, whose phase error at the 557 Hz
+    # modes the chirp rings (omega h = 0.35) the filter cannot tell from the disturbance
     s = scores["chirp", "encoders"]
-    assert s["F_ratio"] <= 0.7 * s["F_ratio_open_loop"], s
+    assert s["F_ratio"] <= 0.3 * s["F_ratio_open_loop"], s
 
 
 def test_gauges_resolve_strong_vibration(scores) -> None:
     s = scores["chirp", "encoders+gauges"]
-    assert s["F_ratio"] <= 0.5 * s["F_ratio_open_loop"], s
+    assert s["F_ratio"] <= 0.3 * s["F_ratio_open_loop"], s  # 0.17 measured
 
 
 def test_encoders_halve_the_error_of_a_slow_disturbance(five_bar) -> None:

@@ -74,3 +74,17 @@ def test_a_model_serves_only_configurations_of_its_key(five_bar) -> None:
         Observer(model, ObserverConfig.from_parameters({"sensors": ["encoders"]}))
     with pytest.raises(InputError, match="not its model's"):
         Observer(model, _cfg({"process.disturbance_joints": ["left_motor"]}))
+
+
+def test_the_rk4_substep_from_the_model_resolves_its_fastest_mode(five_bar) -> None:
+    """process.dt: 0 halves 1e-4 s until omega h <= 0.2 for the fastest elastic mode (motors
+    free). The reference five-bar's spring modes are ~520-570 Hz (docs/five_bar.md: 523 / 557 Hz
+    with the motors held): omega h = 0.35 at 1e-4 s, 0.18 at 5e-5 s."""
+    model = ObserverModel.build(five_bar, ObserverConfig.from_parameters())
+    f = model.fastest_mode_hz
+    assert 520.0 < f < 620.0
+    assert model.substep(0.0) == 5e-5 and 2 * np.pi * f * 5e-5 <= 0.2 < 2 * np.pi * f * 1e-4
+    assert model.substep(3e-5) == 3e-5  # given: kept
+    obs = Observer(model, ObserverConfig.from_parameters())
+    assert obs.dt == 5e-5 and obs.fast_timing()[1] == 5e-5
+    assert obs.diagnostics()["process.dt_in_use"] == "5e-05"

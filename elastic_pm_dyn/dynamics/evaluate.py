@@ -100,7 +100,7 @@ def _closure_terms(ma, qd, J, a_pt, p_pt, A, gamma, res, baumgarte_alpha, baumga
     if ma.p_index.shape[0] == 0:
         return 0.0
     closure_rows(ma.closure_pairs, ma.closure_axes, J, a_pt, p_pt, A, gamma, res)
-    if ma.points.shape[1] == 12:  # welds: their points carry frames
+    if ma.points.shape[1] == 12:  # welds, reduced pairs: their points carry frames
         weld_rows(ma.closure_pairs, ma.closure_axes, J, a_pt, p_pt, A, gamma, res)
     if baumgarte_alpha > 0.0 or baumgarte_beta > 0.0:
         gamma -= 2.0 * baumgarte_alpha * matvec(A, qd, work) + baumgarte_beta * baumgarte_beta * res

@@ -16,8 +16,8 @@ class Modes:
     """Linear modes about a pose; frequencies in Hz, shapes in q_ae coordinates."""
 
     natural_hz: np.ndarray  # undamped natural frequencies
-    damped_hz: np.ndarray  # imaginary parts of the damped eigenvalues / 2 pi
-    damping_ratio: np.ndarray
+    damped_hz: np.ndarray  # imaginary parts of the damped eigenvalues / 2 pi (NaN: none oscillates)
+    damping_ratio: np.ndarray  # per natural_hz entry (NaN at 0 Hz)
     shapes: np.ndarray  # columns: mode shapes over the free coordinates
     coordinates: list[str]  # names of the free coordinates
 
@@ -79,8 +79,15 @@ def elastic_modes(mech: Mechanism, q: np.ndarray, clamp_motors: bool = True,
     state = np.block([[np.zeros((n, n)), np.eye(n)],
                       [-np.linalg.solve(M, Kk), -np.linalg.solve(M, D)]])
     eig = np.linalg.eigvals(state)
-    eig = eig[np.argsort(np.abs(eig))]
-    osc = eig[eig.imag > 0]
-    damped = osc.imag / (2 * np.pi)
-    ratio = -osc.real / np.maximum(np.abs(osc), 1e-300)
+    osc = list(eig[eig.imag > 0])
+    # Each undamped mode with the oscillating eigenvalue nearest to it (|lambda| = omega_n for a
+    # light damping); a mode at 0 Hz (a free joint: no spring) or one damped past oscillating
+    # gets NaN, so the three arrays stay aligned with natural_hz.
+    damped, ratio = np.full(n, np.nan), np.full(n, np.nan)
+    for k in np.argsort(-natural):
+        if natural[k] <= 0 or not osc:
+            continue
+        i = int(np.argmin([abs(abs(lam) - 2 * np.pi * natural[k]) for lam in osc]))
+        lam = osc.pop(i)
+        damped[k], ratio[k] = lam.imag / (2 * np.pi), -lam.real / abs(lam)
     return Modes(natural, damped, ratio, shapes, [names[i] for i in keep])

@@ -28,13 +28,13 @@ def _weld_angles(mech: Mechanism, terms) -> np.ndarray:
     res = terms.residual.copy()
     ma = mech.arrays
     pairs = ma.closure_pairs
-    if not len(pairs) or not np.any(pairs[:, 2]):
+    if not len(pairs) or not np.any(pairs[:, 2] == 1):
         return res
     closure = mech.model.closure
     axes = closure.weld_axes  # the normal alone on a planar machine
-    r = len(pairs) * len(ma.closure_axes)
-    for a, b, weld in pairs:
-        if not weld:
+    r = int(np.sum(pairs[:, 2] != 2)) * len(ma.closure_axes)  # after the point rows
+    for a, b, kind in pairs:
+        if kind != 1:
             continue
         Ra = terms.p_tip[a, 3:12].reshape(3, 3)
         Rb = terms.p_tip[b, 3:12].reshape(3, 3)

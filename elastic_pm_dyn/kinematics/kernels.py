@@ -350,16 +350,22 @@ def closure_rows(closure_pairs, closure_axes, J, a_pt, p_pt, A, gamma, res):
 
     Row block k holds S (p_a - p_b) for the k-th point pair (a, b), so that
     A qdd_t = gamma holds on the constraint manifold. S's rows are ``closure_axes``:
-    x, y[, z], or a planar machine's in-plane directions.
+    x, y[, z], or a planar machine's in-plane directions. Pairs projected on a body's
+    directions (``closure_pairs[k, 2] == 2``) have no block here: :func:`weld_rows` writes
+    their rows.
     """
     nc = closure_axes.shape[0]
     for i in range(nc):
         comp = unit_axis(closure_axes, i)
         e0, e1, e2 = closure_axes[i, 0], closure_axes[i, 1], closure_axes[i, 2]
+        kk = 0  # the block: pairs before k less the projected ones
         for k in range(closure_pairs.shape[0]):
+            if closure_pairs[k, 2] == 2:
+                continue
             pa = closure_pairs[k, 0]
             pb = closure_pairs[k, 1]
-            r = k * nc + i
+            r = kk * nc + i
+            kk += 1
             if comp >= 0:
                 for j in range(A.shape[1]):  # element-wise: a row expression would allocate
                     A[r, j] = J[pa, comp, j] - J[pb, comp, j]
@@ -387,6 +393,12 @@ def weld_rows(closure_pairs, closure_axes, J, a_pt, p_pt, A, gamma, res):
     vee(E - E^T) / 2, which vanishes with the rotation and whose rate at E = I is w_a - w_b.
     The directions constrained are the world's three, or on a planar machine (point rows
     along its two in-plane directions) the plane's normal alone.
+
+    Then the point pairs projected on a body's directions (``closure_pairs[k, 2] == 2``):
+    two rows each, p_a - p_b along the first two columns u, v of point a's world frame (its
+    body's orientation times the frame the model gives it), the row along the third holding
+    by itself. On the manifold (p_a = p_b, and so also their rates) u's own rate drops out:
+    the rows are u^T (J_a - J_b), gamma = -u^T (a_a - a_b), the residual u^T (p_a - p_b).
     """
     planar = closure_axes.shape[0] == 2
     nc = 1 if planar else 3
@@ -396,9 +408,12 @@ def weld_rows(closure_pairs, closure_axes, J, a_pt, p_pt, A, gamma, res):
         n1 = closure_axes[0, 2] * closure_axes[1, 0] - closure_axes[0, 0] * closure_axes[1, 2]
         n2 = closure_axes[0, 0] * closure_axes[1, 1] - closure_axes[0, 1] * closure_axes[1, 0]
     normal = 2 if n0 == 0.0 and n1 == 0.0 and n2 == 1.0 else 0 if n0 == 1.0 and n1 == 0.0 and n2 == 0.0 else -1
-    r = closure_pairs.shape[0] * closure_axes.shape[0]
+    n_proj = 0
     for k in range(closure_pairs.shape[0]):
-        if closure_pairs[k, 2] == 0:
+        n_proj += closure_pairs[k, 2] == 2
+    r = (closure_pairs.shape[0] - n_proj) * closure_axes.shape[0]
+    for k in range(closure_pairs.shape[0]):
+        if closure_pairs[k, 2] != 1:
             continue
         pa = closure_pairs[k, 0]
         pb = closure_pairs[k, 1]
@@ -420,6 +435,21 @@ def weld_rows(closure_pairs, closure_axes, J, a_pt, p_pt, A, gamma, res):
                 res[r] = n0 * err[0] + n1 * err[1] + n2 * err[2]
                 gamma[r] = -(n0 * (a_pt[pa, 3] - a_pt[pb, 3]) + n1 * (a_pt[pa, 4] - a_pt[pb, 4])
                              + n2 * (a_pt[pa, 5] - a_pt[pb, 5]))
+            r += 1
+    for k in range(closure_pairs.shape[0]):
+        if closure_pairs[k, 2] != 2:
+            continue
+        pa = closure_pairs[k, 0]
+        pb = closure_pairs[k, 1]
+        for i in range(2):  # column i of the row-major world frame in p_pt[pa, 3:12]
+            e0, e1, e2 = p_pt[pa, 3 + i], p_pt[pa, 6 + i], p_pt[pa, 9 + i]
+            for j in range(A.shape[1]):
+                A[r, j] = (e0 * (J[pa, 0, j] - J[pb, 0, j]) + e1 * (J[pa, 1, j] - J[pb, 1, j])
+                           + e2 * (J[pa, 2, j] - J[pb, 2, j]))
+            res[r] = e0 * (p_pt[pa, 0] - p_pt[pb, 0]) + e1 * (p_pt[pa, 1] - p_pt[pb, 1]) \
+                + e2 * (p_pt[pa, 2] - p_pt[pb, 2])
+            gamma[r] = -(e0 * (a_pt[pa, 0] - a_pt[pb, 0]) + e1 * (a_pt[pa, 1] - a_pt[pb, 1])
+                         + e2 * (a_pt[pa, 2] - a_pt[pb, 2]))
             r += 1
 
 

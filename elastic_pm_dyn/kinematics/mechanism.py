@@ -80,7 +80,7 @@ class Mechanism:
         A, gamma, res = np.zeros((m, n)), np.zeros(m), np.zeros(m)
         if m:
             closure_rows(ma.closure_pairs, ma.closure_axes, J, a_tip, p_tip, A, gamma, res)
-            if ma.points.shape[1] == 12:  # welds: their points carry frames
+            if ma.points.shape[1] == 12:  # welds, reduced pairs: their points carry frames
                 weld_rows(ma.closure_pairs, ma.closure_axes, J, a_tip, p_tip, A, gamma, res)
         return TreeTerms(M, h, J, a_tip, p_tip, A, gamma, res)
 
@@ -118,7 +118,7 @@ class Mechanism:
         closure = self.model.closure
         if closure is None:
             return 0.0
-        if closure.welds:  # the orientation residual needs the frames' rotations
+        if closure.welds or closure.reduced:  # those rows need the frames' rotations
             return float(np.linalg.norm(self.terms(q).residual))
         _, _, p = self.points(q)
         pairs = np.asarray(closure.pairs)

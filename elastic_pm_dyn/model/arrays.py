@@ -22,10 +22,12 @@ class ModelArrays(NamedTuple):
     ji: np.ndarray  # (n_t, JI_WIDTH) int
     chain_start: np.ndarray  # (n_chains + 1,) int: tree index of each subtree's first joint
     points: np.ndarray  # (n_points, 3) float: attachment points in their body's frame (fixed: world);
-    # (n_points, 12) with welds: then also each point's frame orientation in that frame, row-major
+    # (n_points, 12) with welds or reduced pairs: then also each point's frame orientation in that frame,
+    # row-major
     point_body: np.ndarray  # (n_points,) int: tree index of the joint carrying each point (-1: the base)
     gravity: np.ndarray  # (3,)
-    closure_pairs: np.ndarray  # (n_pairs, 3) int: point indices a, b with S (p_a - p_b) = 0; 1 for a weld
+    closure_pairs: np.ndarray  # (n_pairs, 3) int: point indices a, b with S (p_a - p_b) = 0; 1 for a weld,
+    # 2 for a pair projected on the first two directions of point a's frame (Closure.reduced)
     closure_axes: np.ndarray  # (c, 3) float: world direction of each pair's rows (the identity's x, y[, z]
     # rows unless planar off x-y); c == 2: planar, welds turn about closure_axes[0] x closure_axes[1]
     hub: int  # platform chain onto which SCDD reduces, -1 for none
@@ -73,14 +75,18 @@ def pack(model: Model) -> ModelArrays:
     for b in model.point_bodies():
         if b >= 0 and b not in last:
             ji[b, L.JI_KEEP] = 1
-    # A subtree with a stored frame, or any with weld frames, takes the general sweep.
-    welds = model.closure is not None and len(model.closure.welds) > 0
+    # A subtree with a stored frame, or any with point frames (welds, reduced pairs), takes the general sweep.
+    closure = model.closure
+    framed = closure is not None and (len(closure.welds) > 0 or len(closure.reduced) > 0)
     for s, e in itertools.pairwise(starts):
         serial = parents[s:e] == [-1, *range(s, e - 1)]
-        ji[s:e, L.JI_SUBTREE] = int(welds or not serial or ji[s:e, L.JI_KEEP].any())
-    closure = model.closure
+        ji[s:e, L.JI_SUBTREE] = int(framed or not serial or ji[s:e, L.JI_KEEP].any())
     if closure is not None:
-        pairs = np.array([(a, b, int((a, b) in closure.welds)) for a, b in closure.pairs], dtype=np.int64)
+        if closure.reduced and closure.hub >= 0:
+            raise ValueError("a closure pair projected on a body's directions with a platform hub")
+        reduced = set(closure.reduced_pairs)
+        pairs = np.array([(a, b, 2 if k in reduced else int((a, b) in closure.welds))
+                          for k, (a, b) in enumerate(closure.pairs)], dtype=np.int64)
         cl_axes = np.ascontiguousarray(closure.axes, dtype=float)
         hub = closure.hub
     else:
@@ -89,13 +95,15 @@ def pack(model: Model) -> ModelArrays:
         hub = -1
     plist = model.point_list()
     points = np.array([xyz for _, xyz, _ in plist], dtype=float).reshape(-1, 3)
-    if closure is not None and closure.welds:  # the frames' orientations ride along with the points
+    if framed:  # the frames' orientations ride along with the points
         frames = np.tile(np.eye(3).ravel(), (len(plist), 1))
-        for (a, b), (Ra, Rb) in zip(closure.welds, closure.weld_rotations, strict=True):
-            for i, R in ((a, Ra), (b, Rb)):
-                if not np.allclose(frames[i], np.eye(3).ravel()) and not np.allclose(frames[i], R.ravel()):
-                    raise ValueError(f"point {plist[i][2]} carries two weld frames of different orientation")
-                frames[i] = np.asarray(R, dtype=float).ravel()
+        welds = zip(closure.welds, closure.weld_rotations, strict=True)
+        given = [(i, np.asarray(R, dtype=float)) for (a, b), (Ra, Rb) in welds for i, R in ((a, Ra), (b, Rb))]
+        given += [(closure.pairs[k][0], np.asarray(R, dtype=float)) for k, R in closure.reduced]
+        for i, R in given:
+            if not np.allclose(frames[i], np.eye(3).ravel()) and not np.allclose(frames[i], R.ravel()):
+                raise ValueError(f"point {plist[i][2]} carries two frames of different orientation")
+            frames[i] = R.ravel()
         points = np.hstack([points, frames])
     return ModelArrays(
         jf=jf, ji=ji, chain_start=np.array(starts, dtype=np.int64),

@@ -127,6 +127,13 @@ class Closure:
     world directions; the identity unless the machine is planar in another plane than x-y):
     a planar machine closes along its in-plane directions ``basis[0]``, ``basis[1]`` and its
     welds turn about the normal ``basis[2]``.
+
+    ``reduced`` lists point pairs (indices into ``pairs``) whose row along one direction holds
+    by itself (a loop of parallel hinges closed by a 3-D point: the points never part along
+    the hinges): each with a frame (rows of a 3 x 3 rotation) in the frame of the body
+    carrying the pair's point a, whose third column is that direction. Such a pair keeps two
+    rows, p_a - p_b along the frame's first two columns as the body turns them, after the
+    welds' rows; its three world rows are not among the point rows.
     """
 
     pairs: tuple[tuple[int, int], ...]
@@ -137,6 +144,7 @@ class Closure:
     weld_rotations: tuple[tuple[np.ndarray, np.ndarray], ...] = ()
     # rows as tuples: closures compare by value (a model read twice is the same model)
     basis: tuple[tuple[float, float, float], ...] = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
+    reduced: tuple[tuple[int, tuple[tuple[float, float, float], ...]], ...] = ()
 
     @property
     def weld_components(self) -> tuple[int, ...]:
@@ -155,7 +163,22 @@ class Closure:
 
     @property
     def size(self) -> int:
-        return len(self.pairs) * len(self.components) + len(self.welds) * len(self.weld_components)
+        return (len(self.pairs) - len(self.reduced)) * len(self.components) \
+            + len(self.welds) * len(self.weld_components) + 2 * len(self.reduced)
+
+    @property
+    def reduced_pairs(self) -> tuple[int, ...]:
+        """Indices into ``pairs`` of the pairs that keep two rows in a body's frame."""
+        return tuple(k for k, _ in self.reduced)
+
+    def row_pairs(self) -> list[int]:
+        """Per closure row, in order, the index into ``pairs`` of the pair it belongs to: the
+        point rows, then the welds' orientation rows, then the reduced pairs' two each."""
+        skip = set(self.reduced_pairs)
+        out = [k for k in range(len(self.pairs)) if k not in skip for _ in self.components]
+        out += [self.pairs.index(w) for w in self.welds for _ in self.weld_components]
+        out += [k for k in self.reduced_pairs for _ in range(2)]
+        return out
 
 
 @dataclass(frozen=True)

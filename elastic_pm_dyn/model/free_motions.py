@@ -18,10 +18,11 @@ import numpy as np
 import scipy.linalg
 from scipy.spatial.transform import Rotation
 
-from elastic_pm_dyn.model.description import ELASTIC, PASSIVE, Model
+from elastic_pm_dyn.model.description import ELASTIC, PASSIVE, Closure, Model
 
 RANK_TOL = 1e-9  # relative to the largest pivot: below it a column adds nothing new
 CLOSED = 1e-10  # [m, rad] closure residual taken as assembled for choosing the free joints
+SNAP = 1e-12  # a direction's component below it is round-off of a zero (an axis of the file)
 
 
 def _axis_rotation(axis: np.ndarray, angle: float) -> np.ndarray:
@@ -91,7 +92,10 @@ def closure_terms(model: Model, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
     res, rows = [], []
     S, S_weld = c.axes, c.weld_axes  # in the plane and about its normal if planar
-    for a, b in c.pairs:
+    reduced = set(c.reduced_pairs)
+    for k, (a, b) in enumerate(c.pairs):
+        if k in reduced:
+            continue
         (xa, _, Ja), (xb, _, Jb) = point(a), point(b)
         res.append(S @ (xa - xb))
         rows.append(S @ (Ja - Jb)[:3])
@@ -100,6 +104,12 @@ def closure_terms(model: Model, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         phi = Rotation.from_matrix((Rba @ Ra) @ (Rbb @ Rb).T).as_rotvec()
         res.append(S_weld @ phi)
         rows.append(S_weld @ (Ja - Jb)[3:])
+    for k, frame in c.reduced:  # along the first two directions of point a's frame, as its body turns them
+        a, b = c.pairs[k]
+        (xa, Rba, Ja), (xb, _, Jb) = point(a), point(b)
+        U = (Rba @ np.asarray(frame, dtype=float))[:, :2].T
+        res.append(U @ (xa - xb))
+        rows.append(U @ (Ja - Jb)[:3])
     return np.concatenate(res), np.vstack(rows)
 
 
@@ -174,6 +184,100 @@ def free_passive_motions(model: Model) -> Model:
         chains.append(replace(ch, joints=joints))
         start += len(ch.joints)
     return replace(model, chains=tuple(chains))
+
+
+def _across(n: np.ndarray) -> np.ndarray:
+    """A rotation whose third column is the unit vector n, its first two spanning the plane
+    across n: base axes where n is one (the same numbers in every row, no products)."""
+    for i in range(3):
+        if abs(abs(n[i]) - 1.0) < SNAP:
+            e = np.eye(3)[[(i + 1) % 3, (i + 2) % 3, i]].T  # x, y, z cyclic: right-handed
+            return e if n[i] > 0 else e @ np.diag([1.0, -1.0, -1.0])
+    e = np.eye(3)[int(np.argmin(np.abs(n)))]
+    u = e - (e @ n) * n
+    u /= np.linalg.norm(u)
+    return np.column_stack([u, np.cross(n, u), n])
+
+
+def _pair_rows(model: Model, q: np.ndarray) -> tuple[np.ndarray, list[np.ndarray]]:
+    """Every pair's three point rows at q in all joints (world directions; (n_pairs, 3, n_t)),
+    and the orientation of the body carrying each pair's point a (the identity on the base):
+    one forward kinematics for all."""
+    c = model.closure
+    probe = replace(model, closure=replace(c, components=(0, 1, 2), welds=(), weld_rotations=(), reduced=(),
+                                           basis=Closure.basis))
+    _, J = closure_terms(probe, q)
+    R_body = _forward(model, q)[2]
+    bodies = model.point_bodies()
+    return J.reshape(len(c.pairs), 3, -1), [R_body[bodies[a]] if bodies[a] >= 0 else np.eye(3) for a, _ in c.pairs]
+
+
+def _full_rank(J: np.ndarray) -> bool:
+    """Whether the rows of J are independent (QR with column pivoting, as the free joints are chosen)."""
+    if J.shape[0] > J.shape[1]:
+        return False
+    _, r, _ = scipy.linalg.qr(J.T, pivoting=True, mode="economic")
+    diag = np.abs(np.diag(r))
+    return bool(len(diag)) and int(np.sum(diag > RANK_TOL * max(diag[0], 1e-300))) == J.shape[0]
+
+
+def drop_still_rows(model: Model) -> tuple[Model, bool]:
+    """``model`` with each point pair whose row along one direction holds by itself reduced to
+    the two rows across it (:attr:`Closure.reduced`; the same model when there is none), and
+    whether the closure rows were found independent in the passive joints at the assembled
+    pose (then nothing repeats, and :func:`repeated_rows` need not look).
+
+    A loop whose hinges are all parallel, closed by a 3-D point: every joint, in the loop or
+    before it, moves the two points alike along the hinges, so that row of the pair's Jacobian
+    is zero in all joints, and the passive block loses rank. Found at an assembled pose (from
+    the file's zero pose) by the pair's singular values, and confirmed at poses the other
+    joints reach from it (a pose folded onto a singularity may zero a row that is not zero
+    nearby). The direction is fixed in the body of the pair's point a, not in the world: the
+    loop's plane turns with the joints before it (Cassie's hips)."""
+    c = model.closure
+    if c is None or c.hub >= 0:
+        return model, False
+    passive = [i for i, j in enumerate(model.joints) if j.role == PASSIVE]
+    q = _assembled(model, passive)
+    if q is None:
+        return model, False
+    if _full_rank(closure_terms(model, q)[1][:, passive]):
+        return model, True  # a row that holds by itself would be a zero row
+    if tuple(c.components) != (0, 1, 2):
+        return model, False  # planar: the rows along the normal are gone already
+    welded = set(c.welds)
+    found: list[tuple[int, np.ndarray]] = []
+    rows, R = _pair_rows(model, q)
+    for k, pair in enumerate(c.pairs):
+        if pair in welded:
+            continue  # a weld's position with its turn: not a point closure
+        u, sv, _ = np.linalg.svd(rows[k])
+        if sv[0] == 0.0 or sv[1] <= RANK_TOL * sv[0] or sv[2] > RANK_TOL * sv[0]:
+            continue  # no row, or none alone: a pair that says nothing along two directions is refused later
+        n_body = R[k].T @ u[:, 2]
+        n_body = np.where(np.abs(n_body) < SNAP, 0.0, n_body)
+        found.append((k, n_body / np.linalg.norm(n_body)))
+    # Confirmed at two poses near (at most four tries): none that assembles, and the row is not
+    # shown to hold by itself (a locked loop, whose other joints cannot move, is refused).
+    others = [i for i in range(len(model.joints)) if i not in passive]
+    rng = np.random.default_rng(0)  # seeded: the same answer every load
+    confirmed = 0
+    for _ in range(4 if found else 0):
+        start = q.copy()
+        start[others] += rng.uniform(-0.1, 0.1, len(others))
+        moved = _assembled(model, passive, start)
+        if moved is None:
+            continue
+        rows, R = _pair_rows(model, moved)
+        found = [(k, n) for k, n in found
+                 if np.abs((R[k] @ n) @ rows[k]).max() <= RANK_TOL * np.linalg.norm(rows[k], 2)]
+        confirmed += 1
+        if confirmed == 2:
+            break
+    if not found or not confirmed:
+        return model, False
+    reduced = tuple((k, tuple(tuple(float(x) for x in row) for row in _across(n))) for k, n in found)
+    return replace(model, closure=replace(c, reduced=reduced)), False
 
 
 def repeated_rows(model: Model) -> tuple[list[int], int] | None:

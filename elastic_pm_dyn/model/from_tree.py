@@ -30,7 +30,7 @@ from elastic_pm_dyn.model.description import (
     Model,
     matrix_to_rpy,
 )
-from elastic_pm_dyn.model.free_motions import free_passive_motions, repeated_rows
+from elastic_pm_dyn.model.free_motions import drop_still_rows, free_passive_motions, repeated_rows
 from elastic_pm_dyn.model.kinematic_tree import (
     BALL,
     CARDAN,
@@ -89,9 +89,11 @@ def build_model(tree: KinematicTree, sidecar: Sidecar | None = None) -> Model:
     model = Model(name=tree.name, chains=tuple(chains), closure=closure, gravity=gravity,
                   end_effector_mass=ee_mass, initial=initial, branches=branches, source=tree.file, planar=planar,
                   fixed_points=fixed)
-    model = free_passive_motions(model)
+    model, independent = drop_still_rows(model)
+    model = free_passive_motions(model)  # after: a still row would hide a free spin from the rank
     _check_counts(tree, model, sidecar, closures)
-    _check_repeated(model, closures)
+    if not independent:  # found independent at the assembled pose: freeing joints keeps them so
+        _check_repeated(model, closures)
     return model
 
 
@@ -102,13 +104,10 @@ def _check_repeated(model: Model, closures: list) -> None:
         return
     rows, rank = found
     c = model.closure
-    n_point = len(c.pairs) * len(c.components)
-    welds = [k for k, spec in enumerate(closures) if spec.kind == "6d"]
-    spec = closures[rows[0] // len(c.components)] if rows[0] < n_point \
-        else closures[welds[(rows[0] - n_point) // len(c.weld_components)]]
+    spec = closures[c.row_pairs()[rows[0]]]  # closures and pairs in one order
     raise spec.where.error(f"not supported yet: the closures' {c.size} equations have rank {rank} in the passive "
-                           f"joints at the start pose and near it; this one repeats the others (a loop whose hinges "
-                           f"are all parallel, closed by a 3-D point: its row along them holds by itself)")
+                           f"joints at the start pose and near it; this one repeats the others (not a row that holds "
+                           f"by itself, which would be dropped: a loop closed twice, or one that locks a joint)")
 
 
 # ------------------------------------------------------------------------ joints

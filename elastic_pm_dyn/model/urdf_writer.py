@@ -16,7 +16,7 @@ from xml.sax.saxutils import quoteattr
 import numpy as np
 import yaml
 
-from elastic_pm_dyn.model.description import ACTIVE, ELASTIC, PRISMATIC, Model, matrix_to_rpy
+from elastic_pm_dyn.model.description import ACTIVE, ELASTIC, PRISMATIC, Joint, Model, matrix_to_rpy
 
 BASE = "world"
 _INERTIA = {"ixx": (0, 0), "ixy": (0, 1), "ixz": (0, 2), "iyy": (1, 1), "iyz": (1, 2), "izz": (2, 2)}
@@ -47,8 +47,9 @@ def model_to_urdf(model: Model) -> str:
             out.append(f"    {_origin(j.origin_xyz, j.origin_rpy)}\n    <axis xyz=\"{_fmt(j.axis)}\"/>")
             if j.type == PRISMATIC:
                 out.append('    <limit lower="-1" upper="1" effort="1e6" velocity="1e3"/>')
-            if j.friction > 0 and j.role != ELASTIC:
-                out.append(f'    <dynamics damping="{float(j.friction)!r}"/>')
+            damping = j.damping if _free(j) else j.friction if j.role != ELASTIC else 0.0
+            if damping > 0:
+                out.append(f'    <dynamics damping="{float(damping)!r}"/>')
             out.append("  </joint>")
             ends = [c.origin_xyz for c, p in zip(chain.joints, parents, strict=True) if p == k] + \
                 [xyz for _, xyz, b, _ in frames if b == k]
@@ -96,7 +97,7 @@ def closure_sidecar(model: Model) -> str:
         data["type"] = ["6d" if pair in welds else "3d" for pair in model.closure.pairs]
     data["name_mot"] = [j.name for j in model.joints if j.role == ACTIVE]
     elastic = {j.name: {"stiffness": j.stiffness, "damping": j.damping, "rest": j.rest}
-               for j in model.joints if j.role == ELASTIC}
+               for j in model.joints if j.role == ELASTIC and not _free(j)}
     if elastic:
         data["elastic"] = elastic
     rotor = {j.name: j.rotor_inertia for j in model.joints if j.rotor_inertia > 0}
@@ -118,6 +119,12 @@ def closure_sidecar(model: Model) -> str:
     if state:
         data["initial_state"] = state
     return yaml.safe_dump(data, sort_keys=False)
+
+
+def _free(joint: Joint) -> bool:
+    """A motion the closures leave free (model/free_motions.py): written as the passive joint it
+    was in the file, its damping the joint's; read back, it is found free again."""
+    return joint.role == ELASTIC and joint.stiffness == 0.0
 
 
 def _link_name(joint: str) -> str:

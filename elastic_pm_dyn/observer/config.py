@@ -53,7 +53,7 @@ DEFAULT_PARAMETERS: dict[str, Any] = {
     "branch_forces.stddev": [0.5],  # [N]
     "command_delay": 0.0,  # [s] actuation latency: the command stamped t_k acts from t_k + command_delay
     # --- process model
-    "process.dt": 1.0e-4,  # [s] RK4 substep of the SCDD model
+    "process.dt": 0.0,  # [s] RK4 substep of the SCDD model; 0: from the model (fastest elastic mode)
     "process.max_interval": 1.0e-3,  # [s] longest prediction piece
     "process.relinearize_every": 8,  # prediction pieces per linearisation (Phi, Q and the accelerometer's H)
     "process.disturbance": "bias_band_limited",  # see DISTURBANCE_MODELS
@@ -66,7 +66,7 @@ DEFAULT_PARAMETERS: dict[str, Any] = {
     "process.disturbance_time_constant": 0.02,  # gauss_markov: correlation time [s]
     "process.torque_noise_psd": 1.0e-10,  # white torque on active joints [(N m)^2 s]
     "process.elastic_force_psd": 1.0e-12,  # white force on elastic joints (model error) [N^2 s]
-    "process.vibration_noise": 3.0e-10,  # ... plus this times the vibration-force amplitude^2 [s]
+    "process.vibration_noise": 2.0e-11,  # ... plus this times the vibration-force amplitude^2 [s]
     # --- initial uncertainty (1 sigma)
     "initial.source": "measurement",  # measurement (first joint state) | model (its initial_state)
     "initial.active_position_stddev": 1.0e-4,  # [rad]
@@ -255,7 +255,7 @@ class ObserverConfig:
                 raise bad("sensors", f"unknown sensor {s!r} (expected some of {', '.join(SENSOR_KINDS)})")
         if len(set(self.sensors)) != len(self.sensors):
             raise bad("sensors", "a sensor is listed twice")
-        positive = {"process.dt": self.process.dt, "process.max_interval": self.process.max_interval,
+        positive = {"process.max_interval": self.process.max_interval,
                     "process.disturbance_time_constant": self.process.disturbance_time_constant,
                     "initial.active_position_stddev": self.initial.active_position_stddev,
                     "initial.elastic_position_stddev": self.initial.elastic_position_stddev,
@@ -275,7 +275,7 @@ class ObserverConfig:
                         "process.elastic_force_psd": self.process.elastic_force_psd,
                         "process.vibration_noise": self.process.vibration_noise,
                         "timing.command_timeout": self.timing.command_timeout,
-                        "command_delay": self.command_delay}
+                        "command_delay": self.command_delay, "process.dt": self.process.dt}
         for key, value in non_negative.items():
             if not value >= 0:
                 raise bad(key, f"must be >= 0, got {value!r}")

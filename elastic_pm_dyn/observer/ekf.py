@@ -252,6 +252,7 @@ class Observer:
         self._proc = tuple(kernels.Process(self.dist_idx, self.dist_col, self.Lz, self.Fz, self.psd_ae, self.rel_ae,
                                            self.psd_z))
         self.period = pc.max_interval
+        self.dt = model.substep(pc.dt)  # the RK4 substep in use (process.dt, or from the model if 0)
         # Sensors: the model's geometry with this configuration's noise levels
         self.encoders = model.encoders.with_noise(cfg) if model.encoders is not None else None
         self.imu = model.imu.with_noise(cfg) if model.imu is not None else None
@@ -433,7 +434,7 @@ class Observer:
                 end = self._pending[0][0]  # a delayed command starts to act there
             T = end - self.t
             tau = self._torque_at(self.t)
-            n_sub = max(1, int(np.ceil(T / pc.dt - 1e-9)))
+            n_sub = max(1, int(np.ceil(T / self.dt - 1e-9)))
             relin = self._lin_age >= pc.relinearize_every or abs(T - self._lin_T) > 1e-12
             status = kernels.predict_checked(self.mech.arrays, self.model.fixed, self._proc, self._state(),
                                              self._tree_tau(tau), relin, T, n_sub)
@@ -806,7 +807,7 @@ class Observer:
     def fast_timing(self) -> np.ndarray:
         """``kernels.run_periods``' timing array (fixed for the observer's life)."""
         p, tm = self.cfg.process, self.cfg.timing
-        return np.array([p.max_interval, p.dt, tm.stamp_tolerance, p.relinearize_every, tm.command_timeout,
+        return np.array([p.max_interval, self.dt, tm.stamp_tolerance, p.relinearize_every, tm.command_timeout,
                          self.delay, float(self.imu_mode), float(self._no_delay)])
 
     def fast_state(self, periods: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -1013,6 +1014,7 @@ class Observer:
         if self.recoveries:
             out["recovery_last"] = self.recoveries[-1].text()
         out["command_delay"] = f"{self.delay:g}"
+        out["process.dt_in_use"] = f"{self.dt:g}"
         return out
 
     def observability(self, horizon: float | None = None):

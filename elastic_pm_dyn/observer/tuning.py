@@ -67,6 +67,9 @@ GRID_TOPS = (5.0, 10.0, 20.0, 40.0, 80.0, 160.0, 320.0)  # [Hz]
 GRID_LEVELS = (0.1, 1.0, 10.0)  # times the base's disturbance stddev
 GRID_SECONDS = 1.0
 GRID_FINALISTS = 3  # the grid's likeliest, judged again on the whole recording
+# The search's RK4 substep at least this [s]; the tuned file keeps process.dt as it was (0: from
+# the model), and the NLL before / after are the model's own step's
+SEARCH_DT = 1e-4
 
 
 @dataclass(frozen=True)
@@ -220,13 +223,19 @@ def tune(mech: Mechanism, base: ObserverConfig, events: list[Event], explicit: s
     prepared = prepare(mech, base, events)  # the tuned knobs leave the observer model as it is
     pool = ThreadPoolExecutor(max(1, threads))
 
+    # The search ranks noise models at a substep of at least SEARCH_DT; the result is judged at
+    # the model's own (process.dt: 0 halves it for fast spring modes, which doubles every pass).
+    fine_dt = prepared.model.substep(base.process.dt)
+    search = {"process.dt": SEARCH_DT} if fine_dt < SEARCH_DT and "process.dt" not in explicit else {}
+
     def run(params_list: list[dict]) -> list[Evaluation]:
         count[0] += len(params_list)
-        return list(pool.map(lambda p: evaluate(mech, p, events, prepared=prepared), params_list))
+        return list(pool.map(lambda p: evaluate(mech, dict(p, **search), events, prepared=prepared), params_list))
 
     try:
         before = run([theta])[0]  # alone: compiles and caches the kernels once
-        log(f"base: NLL {before.nll:.6g} ({before.wall_s:.2f} s per pass)")
+        log(f"base: NLL {before.nll:.6g} ({before.wall_s:.2f} s per pass"
+            + (f"; the search at a {SEARCH_DT:g} s substep, the result at {fine_dt:g} s)" if search else ")"))
         best = before
         history = [("base", before.nll)]
         if delay:
@@ -236,9 +245,9 @@ def tune(mech: Mechanism, base: ObserverConfig, events: list[Event], explicit: s
         band = base.process.disturbance in ("band_limited", "bias_band_limited")
         orders = BAND_ORDERS if band and "process.disturbance_band_order" not in explicit else ()
         if band and grid:
-            best, theta = _grid(mech, base, events, run, theta, best, first, orders, threads, history, log)
-        # passes kept for the end: the delay checked again, the two with the gate on
-        budget = max_evaluations - (len(DELAY_STEPS) - 1 if delay else 0) - 2
+            best, theta = _grid(mech, base, events, run, theta, best, first, orders, threads, history, log, search)
+        # passes kept for the end: the delay checked again, the two with the gate on (and two at the fine step)
+        budget = max_evaluations - (len(DELAY_STEPS) - 1 if delay else 0) - (4 if search else 2)
         # First the disturbance spectrum alone, from factors of 10, then every knob from a factor
         # of ~1.8: tried together from the start, the sensor noise and the white torque noise
         # take what the disturbance band should explain and the search ends in a worse optimum.
@@ -249,10 +258,14 @@ def tune(mech: Mechanism, base: ObserverConfig, events: list[Event], explicit: s
         best, theta = _compass(run, count, theta, best, ks, math.log(10.0) / 4, min_step, budget, history, log)
         if delay:
             best, theta = _scan_delay(run, theta, events, best, history, log)
-        # the gate on, as observe runs: what the tuning does to the gated counts
-        g_before, g_after = pool.map(lambda p: evaluate(mech, p, events, gating=True, prepared=prepared),
-                                     (base_params, theta))
-        count[0] += 2
+        # the gate on, as observe runs: what the tuning does to the gated counts; and, if the
+        # search ran at a coarser substep, the likelihoods at the model's own
+        final = [(base_params, True), (theta, True)] + ([(base_params, False), (theta, False)] if search else [])
+        judged = list(pool.map(lambda pg: evaluate(mech, pg[0], events, gating=pg[1], prepared=prepared), final))
+        g_before, g_after = judged[:2]
+        if search:
+            before, best = judged[2:]
+        count[0] += len(final)
     finally:
         pool.shutdown()
     changed = {name: (base_params[name], theta[name]) for name in theta if theta[name] != base_params[name]}
@@ -261,7 +274,8 @@ def tune(mech: Mechanism, base: ObserverConfig, events: list[Event], explicit: s
 
 
 def _grid(mech: Mechanism, base: ObserverConfig, events: list[Event], run, theta: dict, best: Evaluation,
-          first: list[Knob], orders: tuple[int, ...], threads: int, history: list, log) -> tuple[Evaluation, dict]:
+          first: list[Knob], orders: tuple[int, ...], threads: int, history: list, log,
+          search: dict) -> tuple[Evaluation, dict]:
     """Start the search in the likeliest basin: the band's top corner (:data:`GRID_TOPS`, the other
     corners scaled with it), the disturbance stddev (:data:`GRID_LEVELS`) and the band ``orders``
     on a coarse grid, each point judged on the first :data:`GRID_SECONDS` of the recording, the
@@ -293,7 +307,7 @@ def _grid(mech: Mechanism, base: ObserverConfig, events: list[Event], run, theta
     short = select(events, GRID_SECONDS)
     prep = prepare(mech, base, short)
     with ThreadPoolExecutor(max(1, threads)) as pool:
-        coarse = list(pool.map(lambda p: evaluate(mech, p, short, prepared=prep).nll, trials))
+        coarse = list(pool.map(lambda p: evaluate(mech, dict(p, **search), short, prepared=prep).nll, trials))
     finalists = [trials[i] for i in np.argsort(coarse)[:GRID_FINALISTS]]
     results = run(finalists)
     log(f"  grid of {len(trials)} spectra on the first {GRID_SECONDS:g} s; finalists: "

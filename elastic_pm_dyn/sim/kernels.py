@@ -49,7 +49,7 @@ DIVERGED = 2
 def _closure(ma, q, qd, M, h, J, a_pt, p_pt, A, gamma, res):
     tree_terms(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_body, ma.gravity, q, qd, M, h, J, a_pt, p_pt)
     closure_rows(ma.closure_pairs, ma.closure_axes, J, a_pt, p_pt, A, gamma, res)
-    if ma.points.shape[1] == 12:  # welds: their points carry frames
+    if ma.points.shape[1] == 12:  # welds, reduced pairs: their points carry frames
         weld_rows(ma.closure_pairs, ma.closure_axes, J, a_pt, p_pt, A, gamma, res)
     return np.sqrt(np.sum(res * res))
 
