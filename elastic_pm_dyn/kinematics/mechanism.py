@@ -201,7 +201,7 @@ class Mechanism:
         axes = self.closure_axes
         if closure is None:
             gap = np.zeros(len(q))
-        elif closure.welds:  # the orientation residual needs the frames' rotations
+        elif closure.welds or closure.reduced:  # as gap(): those rows need the frames' rotations
             gap = np.array([self.gap(qk) for qk in q])
         else:
             pairs = np.asarray(closure.pairs)
