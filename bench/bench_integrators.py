@@ -2,7 +2,8 @@
 
     .venv/bin/python bench/bench_integrators.py                 # all machines, ~15-25 min
     .venv/bin/python bench/bench_integrators.py --machines five_bar:1 triglide:2 --quick
-    .venv/bin/python bench/bench_integrators.py --simulate-rtf   # offline simulate: RK4 vs ETD2, ~2 min
+    .venv/bin/python bench/bench_integrators.py --simulate-rtf --repeats 3   # offline simulate: RK4 vs ETD2
+    .venv/bin/python bench/bench_integrators.py --simulate-profile --repeats 3   # where its time goes
 
 Methods: RK4 (the baseline, at steps up to its stability limit), ETD2 (sim/exponential.py:
 exponential Runge-Kutta with the elastic springs integrated on sub-steps of their frozen linear
@@ -268,7 +269,9 @@ SIMULATE_STEPS = {"five_bar:1": {"rk4": 5e-5, "etd2": 5e-4}, "triglide:2": {"rk4
 
 def simulate_rtf(repeats: int, duration: float = 2.0) -> dict:
     """What ``elastic-pm-dyn simulate`` does after start-up (Simulator.run over the manoeuvre's
-    torques held to ``duration``, output every 1 ms, CSV written), interleaved over the methods."""
+    torques held to ``duration``, output every 1 ms, CSV written), interleaved over the methods.
+    Real-time factors from the median wall time and, less sensitive to other users' load on a
+    shared machine, from the median CPU time of this process."""
     import tempfile
     out: dict = {}
     with tempfile.TemporaryDirectory() as tmp:
@@ -277,17 +280,74 @@ def simulate_rtf(repeats: int, duration: float = 2.0) -> dict:
             mech = machine(name, int(n_ek))
             table, _ = manoeuvre(mech, name)
             walls: dict[str, list[float]] = {m: [] for m in steps}
+            cpus: dict[str, list[float]] = {m: [] for m in steps}
             for m, dt in steps.items():
                 simulate(mech, m, dt, table, 0.01)  # compile / warm
             for _ in range(repeats):
                 for m, dt in steps.items():
-                    t = time.perf_counter()
+                    t, c = time.perf_counter(), time.process_time()
                     simulate(mech, m, dt, table, duration).to_csv(Path(tmp) / "run.csv")
                     walls[m].append(time.perf_counter() - t)
-            out[spec] = {f"{m}@{steps[m]:g}": {"rtf": duration / float(np.median(w)), "wall_s": w}
-                         for m, w in walls.items()}
-            print(f"simulate {spec}: " + ", ".join(f"{k} RTF {v['rtf']:.1f}" for k, v in out[spec].items()),
-                  flush=True)
+                    cpus[m].append(time.process_time() - c)
+            out[spec] = {f"{m}@{steps[m]:g}": {"rtf": duration / float(np.median(walls[m])),
+                                               "rtf_cpu": duration / float(np.median(cpus[m])),
+                                               "wall_s": walls[m], "cpu_s": cpus[m]} for m in steps}
+            print(f"simulate {spec}: " + ", ".join(f"{k} RTF {v['rtf']:.1f} (CPU {v['rtf_cpu']:.1f})"
+                                                   for k, v in out[spec].items()), flush=True)
+    return out
+
+
+def simulate_profile(repeats: int, duration: float = 2.0) -> dict:
+    """Where the CPU time of an offline ETD2 run (as :func:`simulate_rtf`) goes, min of repeats:
+    the compiled steps (timed around their calls), the derived outputs (the result rebuilt from
+    its samples), the CSV, and the rest of Simulator.run (its Python loop, records, set-up)."""
+    import tempfile
+
+    from elastic_pm_dyn.sim import simulator
+    from elastic_pm_dyn.sim.result import SimulationResult
+    try:
+        from elastic_pm_dyn.sim import batch
+        owner, name = batch, "run_pieces_flat"
+    except ImportError:  # a tree before sim/batch.py (the comparison with main): one call per piece
+        owner, name = simulator.Simulator, "fixed_steps"
+    compiled = getattr(owner, name)
+    spent = [0.0]
+
+    def timed(*args, **kwargs):
+        c = time.process_time()
+        try:
+            return compiled(*args, **kwargs)
+        finally:
+            spent[0] += time.process_time() - c
+
+    setattr(owner, name, timed)
+    out: dict = {}
+    try:
+        with tempfile.TemporaryDirectory() as tmp:
+            for spec, steps in SIMULATE_STEPS.items():
+                m_name, n_ek = spec.split(":")
+                mech = machine(m_name, int(n_ek))
+                table, _ = manoeuvre(mech, m_name)
+                simulate(mech, "etd2", steps["etd2"], table, 0.01).to_csv(Path(tmp) / "run.csv")
+                best: dict | None = None
+                for _ in range(repeats):
+                    spent[0] = 0.0
+                    c0 = time.process_time()
+                    r = simulate(mech, "etd2", steps["etd2"], table, duration)
+                    c1 = time.process_time()
+                    r.to_csv(Path(tmp) / "run.csv")
+                    c2 = time.process_time()
+                    SimulationResult(mech, r.t, r.q, r.qd, r.tau, r.formulation, r.info)
+                    outputs = time.process_time() - c2
+                    row = {"total_s": c2 - c0, "compiled_steps_s": spent[0], "derived_outputs_s": outputs,
+                           "csv_s": c2 - c1, "rest_of_run_s": c1 - c0 - spent[0] - outputs}
+                    if best is None or row["total_s"] < best["total_s"]:
+                        best = row
+                out[spec] = best
+                print(f"profile {spec}: " + ", ".join(f"{k[:-2]} {v * 1e3:.1f} ms" for k, v in best.items()),
+                      flush=True)
+    finally:
+        setattr(owner, name, compiled)
     return out
 
 
@@ -310,9 +370,17 @@ def main() -> None:
     p.add_argument("--energy-only", action="store_true", help="with --append: redo only the energy runs")
     p.add_argument("--simulate-rtf", action="store_true",
                    help="only the offline simulate comparison (five-bar, Triglide and Hexa at n_ek = 2)")
+    p.add_argument("--simulate-profile", action="store_true",
+                   help="only where an offline ETD2 simulate run's CPU time goes (the same three machines)")
     args = p.parse_args()
+    if args.simulate_profile:
+        res = {"load_start": load(), "profile": simulate_profile(args.repeats), "load_end": load()}
+        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.out).with_name("integrators_simulate_profile.json").write_text(json.dumps(res, indent=1))
+        return
     if args.simulate_rtf:
         res = {"load_start": load(), "simulate": simulate_rtf(args.repeats), "load_end": load()}
+        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
         Path(args.out).with_name("integrators_simulate.json").write_text(json.dumps(res, indent=1))
         print(f"load average {res['load_start']:.2f} at start, {res['load_end']:.2f} at end")
         return

@@ -183,6 +183,35 @@ def lu_solve(LU, piv, b):
 
 
 @njit(cache=True)
+def lu_solve_rows(LU, piv, B):
+    """Solve A X = B in place for all columns of B at once, row by row (the columns' sweeps
+    overlap instead of waiting on each other); each column sees exactly the operations of
+    :func:`lu_solve`, so the result is the same to the bit."""
+    n = LU.shape[0]
+    nc = B.shape[1]
+    for k in range(n):
+        p = piv[k]
+        if p != k:
+            for j in range(nc):
+                t = B[k, j]
+                B[k, j] = B[p, j]
+                B[p, j] = t
+    for i in range(n):
+        for k in range(i):
+            lik = LU[i, k]
+            for j in range(nc):
+                B[i, j] -= lik * B[k, j]
+    for i in range(n - 1, -1, -1):
+        for k in range(i + 1, n):
+            lik = LU[i, k]
+            for j in range(nc):
+                B[i, j] -= lik * B[k, j]
+        d = LU[i, i]
+        for j in range(nc):
+            B[i, j] = B[i, j] / d
+
+
+@njit(cache=True)
 def lu_solve_columns(LU, piv, B):
     """Solve A X = B in place, column by column."""
     for c in range(B.shape[1]):

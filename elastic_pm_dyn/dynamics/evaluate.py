@@ -10,10 +10,12 @@ from elastic_pm_dyn.dynamics.kernels import (
     chain_size_max,
     lagrange_dalembert,
     multipliers,
+    platform_workspace,
     scdd,
     scdd_into,
     scdd_one_pass,
     scdd_platform,
+    scdd_platform_into,
 )
 from elastic_pm_dyn.kinematics.kernels import closure_rows, point_buffers, tree_terms, tree_terms_into, weld_rows
 from elastic_pm_dyn.model.arrays import ModelArrays
@@ -40,7 +42,9 @@ def workspace(ma):
             np.empty((m, n)), np.empty(m), np.empty(m),
             np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 18)),
             np.empty(n), np.empty((n, m)), np.empty((m, m)), np.empty((nmax, nmax)), np.empty(nmax),
-            np.empty((nmax, 1 + m)), np.empty(m, dtype=np.int64), np.empty(m), np.empty(n), np.empty(m))
+            np.empty((nmax, 1 + m)), np.empty(m, dtype=np.int64), np.empty(m), np.empty(n), np.empty(m),
+            _point_chains(ma.ji, ma.point_body),
+            platform_workspace(ma.chain_start, ma.closure_pairs, ma.closure_axes.shape[0], ma.hub, n))
 
 
 @njit(cache=True)
@@ -73,16 +77,20 @@ def accelerations(form, ma, q, qd, tau, baumgarte_alpha, baumgarte_beta, qdd_pre
 @njit(cache=True)
 def accelerations_into(form, ma, q, qd, tau, baumgarte_alpha, baumgarte_beta, qdd_prev, qdd, lam, ws):
     """:func:`accelerations` on the work arrays ``ws`` of :func:`workspace`: SCDD on a
-    serial-chain closure allocates nothing (allocation was a third of an evaluation on the
-    five-bar). The tree terms (M, h, J, a_pt, p_pt = ws[:5]) and the closure rows
-    (A, gamma, res = ws[5:8]) of (q, qd) stay in ``ws`` for the caller."""
-    M, h, J, a_pt, p_pt, A, gamma, res, wz, wo, jv, jw, fr, x, Y, S, L, dinv, XY, piv, r, tmh, bm = ws
+    serial-chain closure or on a platform allocates nothing (allocation was a third of an
+    evaluation on the five-bar, 17 arrays of the platform SCDD's per call). The tree terms
+    (M, h, J, a_pt, p_pt = ws[:5]) and the closure rows (A, gamma, res = ws[5:8]) of (q, qd)
+    stay in ``ws`` for the caller."""
+    M, h, J, a_pt, p_pt, A, gamma, res, wz, wo, jv, jw, fr, x, Y, S, L, dinv, XY, piv, r, tmh, bm, pc, pw = ws
     tree_terms_into(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_body, ma.gravity, q, qd, M, h, J, a_pt,
                     p_pt, wz, wo, jv, jw, fr)
     gap = _closure_terms(ma, qd, J, a_pt, p_pt, A, gamma, res, baumgarte_alpha, baumgarte_beta, bm)
     if form in (SCDD, SCDD_STACKED) and not (form == SCDD and ma.hub >= 0):
         cond = scdd_into(M, h, A, gamma, tau, ma.chain_start, qdd, lam, x, Y, S, L, dinv, XY, piv, r, tmh)
         return cond, gap
+    if form == SCDD:  # with a platform hub
+        return scdd_platform_into(M, h, A, gamma, tau, ma.chain_start, pc, ma.closure_pairs,
+                                  ma.closure_axes.shape[0], ma.hub, qdd, lam, pw), gap
     return _other_formulations(form, ma, M, h, A, gamma, tau, qdd_prev, qdd, lam), gap
 
 

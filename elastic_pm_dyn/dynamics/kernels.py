@@ -297,29 +297,36 @@ def scdd_platform(M, h, A, gamma, tau, chain_start, point_chain, closure_pairs, 
     Scratch is allocated once and factors keep 1 / diag(L), so the solves multiply.
     Returns a conditioning indicator (0 if a leg or the platform system is singular).
     """
+    return scdd_platform_into(M, h, A, gamma, tau, chain_start, point_chain, closure_pairs, n_comp, hub, qdd, lam,
+                              platform_workspace(chain_start, closure_pairs, n_comp, hub, M.shape[0]))
+
+
+@njit(cache=True)
+def platform_workspace(chain_start, closure_pairs, n_comp, hub, n):
+    """Work arrays of :func:`scdd_platform_into` (allocate once, reuse every evaluation)."""
     c = n_comp
-    n = M.shape[0]
+    n_ch = chain_start.shape[0] - 1
+    n_pairs = closure_pairs.shape[0]
+    nh = chain_start[hub + 1] - chain_start[hub] if hub >= 0 else 0
+    nmax = 0
+    for ch in range(n_ch):
+        nmax = max(nmax, chain_start[ch + 1] - chain_start[ch])
+    return (np.empty((nmax, nmax)), np.empty((nh, nh)), np.empty((nh, 1)), np.empty((n, 1 + c)),
+            np.empty((n_pairs, c, c)), np.empty((n_pairs, c)), np.empty((c, c)), np.empty((c, nh)), np.empty(c),
+            np.empty(c), np.empty(max(nmax, nh)), np.empty(c), np.empty(n_ch, dtype=np.bool_))
+
+
+@njit(cache=True)
+def scdd_platform_into(M, h, A, gamma, tau, chain_start, point_chain, closure_pairs, n_comp, hub, qdd, lam, pw):
+    """:func:`scdd_platform` on the work arrays ``pw`` of :func:`platform_workspace`."""
+    L, N, R, XY, Lam, g, Li, LB, Lg, lk, dinv, dinv_c, in_pair = pw
+    c = n_comp
     n_ch = chain_start.shape[0] - 1
     n_pairs = closure_pairs.shape[0]
     hs = chain_start[hub]
     he = chain_start[hub + 1]
     nh = he - hs
-    nmax = 0
-    for ch in range(n_ch):
-        nmax = max(nmax, chain_start[ch + 1] - chain_start[ch])
-    L = np.empty((nmax, nmax))
-    N = np.empty((nh, nh))
-    R = np.empty((nh, 1))
-    XY = np.empty((n, 1 + c))
-    Lam = np.empty((n_pairs, c, c))
-    g = np.empty((n_pairs, c))
-    Li = np.empty((c, c))
-    LB = np.empty((c, nh))
-    Lg = np.empty(c)
-    lk = np.empty(c)
-    dinv = np.empty(max(nmax, nh))
-    dinv_c = np.empty(c)
-    in_pair = np.zeros(n_ch, dtype=np.bool_)
+    in_pair[:] = False
     in_pair[hub] = True
     for i in range(nh):
         R[i, 0] = tau[hs + i] - h[hs + i]

@@ -498,3 +498,13 @@ def chain_points(jf, ji, chain_start, points, point_body, q, origins, coms, p_pt
     for ip in range(points.shape[0]):
         if point_body[ip] < 0:
             _store(p_pt, ip, (points[ip, 0], points[ip, 1], points[ip, 2]))
+
+
+@njit(cache=True)
+def chain_points_many(jf, ji, chain_start, points, point_body, Q, p_out):
+    """Attachment points p_out[k] (n_points x 3) of :func:`chain_points` at each row Q[k]: the
+    per-sample outputs of a run in one call."""
+    n = Q.shape[1]
+    origins, coms = np.empty((n, 3)), np.empty((n, 3))
+    for k in range(Q.shape[0]):
+        chain_points(jf, ji, chain_start, points, point_body, Q[k], origins, coms, p_out[k])

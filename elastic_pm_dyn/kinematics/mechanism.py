@@ -7,7 +7,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from elastic_pm_dyn.errors import SingularConfigurationError
-from elastic_pm_dyn.kinematics.kernels import chain_points, closure_rows, point_buffers, tree_terms, weld_rows
+from elastic_pm_dyn.kinematics.kernels import (
+    chain_points,
+    chain_points_many,
+    closure_rows,
+    point_buffers,
+    tree_terms,
+    weld_rows,
+)
 from elastic_pm_dyn.model.arrays import ModelArrays, pack
 from elastic_pm_dyn.model.description import ACTIVE, ELASTIC, PASSIVE, Model
 from elastic_pm_dyn.model.layout import JF_MASS
@@ -173,6 +180,39 @@ class Mechanism:
         np.multiply(self.damping, qd, out=work)
         np.add(out, work, out=out)
         return out
+
+    def sample_outputs(self, q: np.ndarray, qd: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(end effector, branch forces, gap) at each row of q, qd (N x n_t): the values of
+        :meth:`end_effector`, :meth:`branch_forces` and :meth:`gap` row by row, with the
+        forward kinematics of all rows in one compiled call."""
+        q = np.ascontiguousarray(q, dtype=float).reshape(-1, self.n)
+        qd = np.asarray(qd, dtype=float).reshape(-1, self.n)
+        ma = self.arrays
+        tips = np.empty((len(q), self.n_points, 3))
+        chain_points_many(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_body, q, tips)
+        end = tips[:, self.model.end_effector_chain]
+        # unit axes pick coordinates (exact in any order); others as end_effector() and gap() do,
+        # row by row (a stacked matmul may round differently)
+        ee = self.ee_of(end) if self.ee_unit is not None else np.array([self.ee_of(e) for e in end])
+        ee = ee.reshape(len(q), len(self.ee_axes))
+        j = self.branch_joints
+        forces = self.stiffness[j] * (q[:, j] - self.rest[j]) + self.damping[j] * qd[:, j]
+        closure = self.model.closure
+        axes = self.closure_axes
+        if closure is None:
+            gap = np.zeros(len(q))
+        elif closure.welds or closure.reduced:  # as gap(): those rows need the frames' rotations
+            gap = np.array([self.gap(qk) for qk in q])
+        else:
+            pairs = np.asarray(closure.pairs)
+            diff = tips[:, pairs[:, 0]] - tips[:, pairs[:, 1]]
+            if np.all((axes == 0.0) | (axes == 1.0)) and np.all(np.count_nonzero(axes, axis=1) == 1):
+                d = diff[:, :, np.argmax(axes, axis=1)].reshape(len(q), -1)
+            else:
+                d = np.array([(dk @ axes.T).ravel() for dk in diff]).reshape(len(q), -1)
+            # as gap(): the BLAS dot of each row (a vectorised sum would round differently)
+            gap = np.array([np.sqrt(dk.dot(dk)) for dk in d])
+        return ee, forces, gap
 
     def branch_forces(self, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
         """F = K u + D du/dt for each named branch, tension positive [N]."""

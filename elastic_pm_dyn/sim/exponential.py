@@ -55,10 +55,11 @@ from elastic_pm_dyn.sim.kernels import (
     STAB_PROJECTION,
     _sane,
     _step_motion,
-    project,
+    project_into,
+    projection_workspace,
     unsound_step,
 )
-from elastic_pm_dyn.small_linalg import cholesky_recip, cholesky_solve_rows, lu_factor, lu_solve
+from elastic_pm_dyn.small_linalg import cholesky_recip, cholesky_solve_rows, lu_factor, lu_solve_rows
 
 ROLE_ELASTIC = 1
 
@@ -184,8 +185,7 @@ def elastic_gains(ma, fast, M, A, extra, G, gws):
     ratio = lu_factor(S, piv)
     if ratio == 0.0:
         return 0.0
-    for j in range(nc):
-        lu_solve(S, piv, C[:, j])
+    lu_solve_rows(S, piv, C)
     for c in range(ma.chain_start.shape[0] - 1):  # G -= Y C, Y's row i only in its chain's closure rows
         for i in range(ma.chain_start[c], ma.chain_start[c + 1]):
             for j in range(nc):
@@ -332,6 +332,33 @@ def exponential_steps(scheme, form, ma, q, qd, tau_coef, dt, n_steps, stab, alph
     fastest mode. L-D'A (an ODE in q_ae with Newton on q_p) is not supported: SINGULAR
     with info[1] = -1.
     """
+    return exponential_steps_ws(scheme, form, ma, q, qd, tau_coef, dt, n_steps, stab, alpha, beta, tol,
+                                singular_tol, phase_step, qdd_prev, lam, info, etd2_workspace(ma))
+
+
+@njit(cache=True)
+def etd2_workspace(ma):
+    """The spring data and work arrays of :func:`exponential_steps_ws`, allocated once for
+    many calls (sim/batch.py): every array is written before it is read in each step, or
+    never written, so reusing them changes no result."""
+    n = ma.jf.shape[0]
+    fast = fast_joints(ma)
+    nf = fast.shape[0]
+    kf, df, rest = np.empty(nf), np.empty(nf), np.empty(nf)
+    for j in range(nf):
+        kf[j] = ma.jf[fast[j], JF_STIFFNESS]
+        df[j] = ma.jf[fast[j], JF_DAMPING]
+        rest[j] = ma.jf[fast[j], JF_REST]
+    vectors = np.empty((11, n))  # tau, acc0, acc1, q1, v1, xq, xv, bq, bv, u1, u2
+    return (fast, kf, df, rest, workspace(ma), gains_workspace(ma, fast), projection_workspace(ma),
+            np.empty((n, nf + 2)), np.zeros((2, n)), vectors, np.empty((5, 4, nf)), np.empty((nf, nf)),
+            np.empty((2, nf)), np.zeros(n))
+
+
+@njit(cache=True)
+def exponential_steps_ws(scheme, form, ma, q, qd, tau_coef, dt, n_steps, stab, alpha, beta, tol, singular_tol,
+                         phase_step, qdd_prev, lam, info, ew):
+    """:func:`exponential_steps` on the work arrays ``ew`` of :func:`etd2_workspace`."""
     n = q.shape[0]
     info[0] = 0.0
     if form == LDA:
@@ -340,25 +367,12 @@ def exponential_steps(scheme, form, ma, q, qd, tau_coef, dt, n_steps, stab, alph
         return SINGULAR
     a = alpha if stab & STAB_BAUMGARTE else 0.0
     b = beta if stab & STAB_BAUMGARTE else 0.0
-    fast = fast_joints(ma)
+    fast, kf, df, rest, ws, gws, pws, G, extra, vectors, fw, B, ff, zero = ew
     nf = fast.shape[0]
-    kf, df, rest = np.empty(nf), np.empty(nf), np.empty(nf)
-    for j in range(nf):
-        kf[j] = ma.jf[fast[j], JF_STIFFNESS]
-        df[j] = ma.jf[fast[j], JF_DAMPING]
-        rest[j] = ma.jf[fast[j], JF_REST]
-    ws = workspace(ma)
-    gws = gains_workspace(ma, fast)
-    G = np.empty((n, nf + 2))
-    extra = np.zeros((2, n))
-    u1, u2 = np.empty(n), np.empty(n)
-    fw = np.empty((5, 4, nf))
-    B = np.empty((nf, nf))
-    tau = np.empty(n)
-    acc0, acc1 = np.empty(n), np.empty(n)
-    q1, v1, xq, xv, bq, bv = np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(n)
-    f0, f1 = np.empty(nf), np.empty(nf)
-    zero = np.zeros(n)
+    tau, acc0, acc1, q1, v1, xq, xv, bq, bv, u1, u2 = (vectors[0], vectors[1], vectors[2], vectors[3], vectors[4],
+                                                       vectors[5], vectors[6], vectors[7], vectors[8], vectors[9],
+                                                       vectors[10])
+    f0, f1 = ff[0], ff[1]
     worst = 1.0
     gap = 0.0
     limit = MAX_STEP_MOTION / dt
@@ -457,7 +471,7 @@ def exponential_steps(scheme, form, ma, q, qd, tau_coef, dt, n_steps, stab, alph
         q[:] = q1
         qd[:] = v1
         if stab & STAB_PROJECTION:
-            project(ma, q, qd, tol, 3)
+            project_into(ma, q, qd, tol, 3, pws)
         info[0] = step + 1
     info[1] = worst
     info[2] = gap

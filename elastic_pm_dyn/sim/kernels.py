@@ -18,10 +18,10 @@ import numpy as np
 from numba import njit
 
 from elastic_pm_dyn.dynamics.evaluate import LDA, accelerations_into, workspace
-from elastic_pm_dyn.dynamics.kernels import chain_responses
-from elastic_pm_dyn.kinematics.kernels import closure_rows, point_buffers, tree_terms, weld_rows
+from elastic_pm_dyn.dynamics.kernels import chain_size_max
+from elastic_pm_dyn.kinematics.kernels import closure_rows, point_buffers, tree_terms, tree_terms_into, weld_rows
 from elastic_pm_dyn.model.arrays import ModelArrays
-from elastic_pm_dyn.small_linalg import lu_factor, lu_solve, matvec
+from elastic_pm_dyn.small_linalg import cholesky_recip, cholesky_solve_rows, lu_factor, lu_solve, matvec
 
 STAB_BAUMGARTE = 1
 STAB_PROJECTION = 2
@@ -95,6 +95,21 @@ def partition(ma, q, qd, tol, max_iter):
 
 
 @njit(cache=True)
+def projection_workspace(ma):
+    """Work arrays of :func:`project_into` (allocate once, reuse every step)."""
+    n = ma.jf.shape[0]
+    m = ma.p_index.shape[0]
+    n_ch = ma.chain_start.shape[0] - 1
+    nmax = chain_size_max(ma.chain_start)
+    J, a_pt, p_pt = point_buffers(ma.points, n)
+    return (np.empty((n, n)), np.empty(n), J, a_pt, p_pt, np.empty((m, n)), np.empty(m), np.empty(m),
+            np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 18)),
+            np.empty((n, m)), np.zeros(n), np.empty((m, m)), np.empty(m, dtype=np.int64), np.empty((nmax, nmax)),
+            np.empty(nmax), np.empty((nmax, m)), np.empty((n_ch, m), dtype=np.int64), np.empty(n_ch, dtype=np.int64),
+            np.empty(m))
+
+
+@njit(cache=True)
 def project(ma, q, qd, tol, max_iter):
     """Project (q, qd) onto h = 0, A qd = 0 in the mass metric; returns the gap before.
 
@@ -102,36 +117,84 @@ def project(ma, q, qd, tol, max_iter):
     same operator applied to A qd. M^-1 A^T and its Schur complement are exactly SCDD's
     per-chain responses, so this costs one tree evaluation per iteration.
     """
-    n = q.shape[0]
+    return project_into(ma, q, qd, tol, max_iter, projection_workspace(ma))
+
+
+@njit(cache=True)
+def _chain_responses_sparse(M, A, chain_start, Y, S, L, dinv, XY, rows, n_rows):
+    """Y = M^-1 A^T and S = A M^-1 A^T chain by chain, each chain solved and summed only in
+    the closure rows it takes part in (a hexapod leg in 3 of 18): the terms skipped are exact
+    zeros, so Y (in those rows: the others are left as they were) and S equal
+    :func:`chain_responses`' bit for bit. False if a chain mass matrix is not positive definite."""
+    m = A.shape[0]
+    S[:, :] = 0.0
+    for c in range(chain_start.shape[0] - 1):
+        s = chain_start[c]
+        ne = chain_start[c + 1] - s
+        k = 0
+        for r in range(m):
+            for i in range(ne):
+                if A[r, s + i] != 0.0:
+                    rows[c, k] = r
+                    k += 1
+                    break
+        n_rows[c] = k
+        for i in range(ne):
+            for j in range(ne):
+                L[i, j] = M[s + i, s + j]
+        if not cholesky_recip(L, ne, dinv):
+            return False
+        for i in range(ne):
+            for j in range(k):
+                XY[i, j] = A[rows[c, j], s + i]
+        cholesky_solve_rows(L, dinv, ne, XY, 0, k)
+        for i in range(ne):
+            for j in range(k):
+                Y[s + i, rows[c, j]] = XY[i, j]
+        for a in range(k):
+            for b in range(k):
+                acc = 0.0
+                for t in range(ne):
+                    acc += A[rows[c, a], s + t] * XY[t, b]
+                S[rows[c, a], rows[c, b]] += acc
+    return True
+
+
+@njit(cache=True)
+def project_into(ma, q, qd, tol, max_iter, pws):
+    """:func:`project` on the work arrays ``pws`` of :func:`projection_workspace`: allocates
+    nothing, and solves each chain only in its own closure rows (bit-identical)."""
+    M, h, J, a_pt, p_pt, A, gamma, res, wz, wo, jv, jw, fr, Y, zero, S, piv, L, dinv, XY, rows, n_rows, v = pws
     m = ma.p_index.shape[0]
     if m == 0:
         return 0.0
-    M, h = np.empty((n, n)), np.empty(n)
-    J, a_pt, p_pt = point_buffers(ma.points, n)
-    A, gamma, res = np.empty((m, n)), np.empty(m), np.empty(m)
-    x = np.empty(n)
-    Y = np.empty((n, m))
-    zero = np.zeros(n)
-    piv = np.empty(m, dtype=np.int64)
     gap0 = -1.0
     for it in range(max_iter + 1):
-        gap = _closure(ma, q, zero, M, h, J, a_pt, p_pt, A, gamma, res)
+        tree_terms_into(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_body, ma.gravity, q, zero, M, h, J, a_pt,
+                        p_pt, wz, wo, jv, jw, fr)
+        closure_rows(ma.closure_pairs, ma.closure_axes, J, a_pt, p_pt, A, gamma, res)
+        if ma.points.shape[1] == 12:  # welds: their points carry frames
+            weld_rows(ma.closure_pairs, ma.closure_axes, J, a_pt, p_pt, A, gamma, res)
+        gap = np.sqrt(np.sum(res * res))
         if gap0 < 0.0:
             gap0 = gap
-        S = chain_responses(M, A, ma.chain_start, zero, x, Y)
+        if not _chain_responses_sparse(M, A, ma.chain_start, Y, S, L, dinv, XY, rows, n_rows):
+            S[:, :] = np.nan
         if lu_factor(S, piv) == 0.0:
             return gap0
         if gap <= tol or it == max_iter:
             break
         lu_solve(S, piv, res)
-        for i in range(n):
-            for j in range(m):
-                q[i] -= Y[i, j] * res[j]
-    v = matvec(A, qd, np.empty(m))
+        for c in range(ma.chain_start.shape[0] - 1):  # Y's row i is zero outside its chain's rows
+            for i in range(ma.chain_start[c], ma.chain_start[c + 1]):
+                for a in range(n_rows[c]):
+                    q[i] -= Y[i, rows[c, a]] * res[rows[c, a]]
+    matvec(A, qd, v)
     lu_solve(S, piv, v)
-    for i in range(n):
-        for j in range(m):
-            qd[i] -= Y[i, j] * v[j]
+    for c in range(ma.chain_start.shape[0] - 1):
+        for i in range(ma.chain_start[c], ma.chain_start[c + 1]):
+            for a in range(n_rows[c]):
+                qd[i] -= Y[i, rows[c, a]] * v[rows[c, a]]
     return gap0
 
 

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
+from elastic_pm_dyn.sim.csv_text import table_bytes
 
 
 @dataclass
@@ -24,14 +25,7 @@ class SimulationResult:
     info: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        mech, n = self.mech, len(self.t)
-        self.ee = np.empty((n, len(mech.ee_components)))
-        self.branch_forces = np.empty((n, len(mech.model.branches)))
-        self.gap = np.empty(n)
-        for k in range(n):
-            self.ee[k] = mech.end_effector(self.q[k])
-            self.branch_forces[k] = mech.branch_forces(self.q[k], self.qd[k])
-            self.gap[k] = mech.gap(self.q[k])
+        self.ee, self.branch_forces, self.gap = self.mech.sample_outputs(self.q, self.qd)
 
     def header(self) -> list[str]:
         mech = self.mech
@@ -45,16 +39,19 @@ class SimulationResult:
         return np.column_stack([self.t, self.q, self.qd, self.ee, self.branch_forces, self.gap, self.tau])
 
     def to_csv(self, path: str | Path) -> None:
-        """Write the table; through a temporary file renamed at the end, so an interrupted
-        write never leaves a cut CSV (or destroys the one that was there)."""
+        """Write the table (numbers as '%.17g': every double round-trips); through a temporary
+        file renamed at the end, so an interrupted write never leaves a cut CSV (or destroys the
+        one that was there)."""
         path = Path(path)
+        # what np.savetxt(fmt="%.17g", delimiter=",", comments="") wrote, formatted compiled
+        text = (",".join(self.header()) + "\n").encode("latin-1") + table_bytes(self.table())
         if path.exists() and not path.is_file():  # a device or pipe (/dev/stdout): no rename
-            np.savetxt(path, self.table(), delimiter=",", header=",".join(self.header()), comments="", fmt="%.17g")
+            with open(path, "wb") as f:
+                f.write(text)
             return
         tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
         try:
-            np.savetxt(tmp, self.table(), delimiter=",", header=",".join(self.header()), comments="",
-                       fmt="%.17g")
+            tmp.write_bytes(text)
             os.replace(tmp, path)
         finally:
             tmp.unlink(missing_ok=True)

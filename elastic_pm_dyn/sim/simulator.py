@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
 
@@ -12,7 +13,7 @@ from elastic_pm_dyn.dynamics.evaluate import FORMULATION_CODES, LDA, acceleratio
 from elastic_pm_dyn.errors import InputError, RunInterrupted, SingularConfigurationError
 from elastic_pm_dyn.kinematics.assembly import initial_state
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
-from elastic_pm_dyn.sim import exponential, kernels
+from elastic_pm_dyn.sim import batch, exponential, kernels
 from elastic_pm_dyn.sim.result import SimulationResult
 from elastic_pm_dyn.sim.stopped import integration_error
 from elastic_pm_dyn.sim.torque import TorqueSource
@@ -33,6 +34,9 @@ MAX_DURATION = 1e6  # [s] of simulated time, also for DOP853, whose steps are no
 # RK4 steps per compiled call: a Ctrl-C is seen between calls (within ~0.1 s of simulated
 # time at the default dt), and the call overhead stays far below 1 %.
 STEPS_PER_CALL = 1000
+# Intervals between output samples and torque breakpoints planned at once by an offline run
+# (a few arrays of this length): bounds its memory on long runs.
+INTERVALS_PER_BLOCK = 2**16
 
 @dataclass
 class SimulationOptions:
@@ -209,6 +213,10 @@ class Simulator:
         grid = grid[np.concatenate([[True], np.diff(grid) > 1e-12])]
         is_out = np.isin(np.round(grid / 1e-12), np.round(out_times / 1e-12))
 
+        if o.integrator in FIXED_STEP and not torque.smooth:
+            # a function's fits cost more than the loop (3 Python calls a step): it stays below,
+            # called in time order as each step needs it
+            return self._run_pieces(torque, grid, is_out, q, qd, t_end)
         samples: list[tuple[float, np.ndarray, np.ndarray, np.ndarray]] = []
 
         def record(t: float) -> None:
@@ -229,6 +237,68 @@ class Simulator:
             t_last = float(partial.t[-1]) if len(partial.t) else t0
             raise RunInterrupted(f"interrupted at t = {t_last:.6g} s of {t_end:.6g} s", t_last, partial) from None
         return self._result(samples)
+
+    def _run_pieces(self, torque: TorqueSource, grid: np.ndarray, is_out: np.ndarray, q: np.ndarray,
+                    qd: np.ndarray, t_end: float) -> SimulationResult:
+        """:meth:`run` of a fixed-step integrator: the pieces :meth:`advance` would integrate one
+        call at a time (the grid's intervals, split as it splits them), integrated chunk by chunk
+        in compiled code (sim/batch.py) with the samples written into preallocated rows.
+        Bit-identical to the per-interval loop; a Ctrl-C is seen between chunks."""
+        o, mech = self.options, self.mech
+        rows = 1 + int(np.count_nonzero(is_out[1:]))
+        t_out = np.concatenate([grid[:1], grid[1:][is_out[1:]]])
+        q_out, qd_out = np.empty((rows, mech.n)), np.empty((rows, mech.n))
+        q_out[0], qd_out[0] = q, qd
+        method = batch.ETD2 if o.integrator == "etd2" else batch.RK4
+        active = np.asarray(mech.active, dtype=np.int64)
+        row = 1
+
+        def result(n_rows: int) -> SimulationResult:
+            t = t_out[:n_rows]
+            return SimulationResult(mech, t, q_out[:n_rows], qd_out[:n_rows],
+                                    torque.values_at(t).reshape(n_rows, len(mech.active)), o.formulation,
+                                    {"integrator": o.integrator, "dt": o.dt, "stabilization": o.stabilization})
+
+        try:
+            for i0 in range(0, len(grid) - 1, INTERVALS_PER_BLOCK):
+                i1 = min(i0 + INTERVALS_PER_BLOCK, len(grid) - 1)
+                starts, hs, steps, record = self._calls(grid[i0:i1 + 1], is_out[i0 + 1:i1 + 1])
+                # chunks of about STEPS_PER_CALL steps (at least one call each)
+                marks = STEPS_PER_CALL * np.arange(1, steps.sum() // STEPS_PER_CALL + 1)
+                ends = np.searchsorted(np.cumsum(steps), marks, side="right")
+                for c0, c1 in itertools.pairwise(np.unique(np.concatenate([[0], ends, [len(hs)]]))):
+                    coefs = torque.coefficients_many(starts[c0:c1], steps[c0:c1] * hs[c0:c1])
+                    status, done, row = batch.run_pieces_flat(
+                        method, self.scheme, self.code, *self._args, active, q, qd, coefs, hs[c0:c1], steps[c0:c1],
+                        record[c0:c1], q_out, qd_out, row, self.stab, o.baumgarte_alpha, o.baumgarte_beta,
+                        o.closure_tol, o.singular_tol, o.phase_step, self.qdd_prev, self.lam, self.info)
+                    if status != kernels.OK:  # a singular configuration or a blow-up, told apart
+                        p = c0 + done
+                        err = integration_error(status, o.formulation, starts[p] + self.info[0] * hs[p], self.info)
+                        err.partial = result(row)
+                        raise err
+        except KeyboardInterrupt:
+            partial = result(row)
+            t_last = float(partial.t[-1])
+            raise RunInterrupted(f"interrupted at t = {t_last:.6g} s of {t_end:.6g} s", t_last, partial) from None
+        return result(row)
+
+    def _calls(self, grid: np.ndarray, out: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The compiled calls :meth:`advance` makes over the intervals of ``grid`` for a torque
+        that is not a function (STEPS_PER_CALL steps at most): their start times, steps h,
+        step counts, and whether the state after them is a sample (``out``: per interval)."""
+        a, b = grid[:-1], grid[1:]
+        n_steps = np.maximum(1, np.ceil((b - a) / self.options.dt - 1e-9).astype(np.int64))
+        h = (b - a) / n_steps
+        per_call = STEPS_PER_CALL
+        n_calls = -(-n_steps // per_call)
+        interval = np.repeat(np.arange(len(a)), n_calls)
+        last = np.cumsum(n_calls) - 1
+        k = (np.arange(len(interval)) - (last - n_calls + 1)[interval]) * per_call
+        record = np.zeros(len(interval), dtype=bool)
+        record[last] = out
+        return a[interval] + k * h[interval], h[interval], np.minimum(per_call, n_steps[interval] - k), record
 
     def _result(self, samples: list[tuple[float, np.ndarray, np.ndarray, np.ndarray]]) -> SimulationResult:
         n, n_a = self.mech.n, len(self.mech.active)

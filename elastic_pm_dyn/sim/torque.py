@@ -37,6 +37,15 @@ class TorqueSource:
         """(3, n_a): tau(t + s) = c0 + c1 s + c2 s^2 for s in [0, h], h within one piece."""
         raise NotImplementedError
 
+    def coefficients_many(self, t: np.ndarray, h: np.ndarray) -> np.ndarray:
+        """(len(t), 3, n_a): :meth:`coefficients` of each (t[k], h[k]); tables answer in one
+        vectorised pass with the same values."""
+        return np.array([self.coefficients(tk, hk) for tk, hk in zip(t, h, strict=True)])
+
+    def values_at(self, t: np.ndarray) -> np.ndarray:
+        """(len(t), n_a): :meth:`value` at each t[k]."""
+        return np.array([self.value(tk) for tk in t])
+
 
 class ConstantTorque(TorqueSource):
     def __init__(self, values: np.ndarray):
@@ -47,6 +56,14 @@ class ConstantTorque(TorqueSource):
 
     def coefficients(self, t: float, h: float) -> np.ndarray:
         return np.vstack([self.values, np.zeros_like(self.values), np.zeros_like(self.values)])
+
+    def coefficients_many(self, t: np.ndarray, h: np.ndarray) -> np.ndarray:
+        out = np.zeros((len(t), 3, len(self.values)))
+        out[:, 0] = self.values
+        return out
+
+    def values_at(self, t: np.ndarray) -> np.ndarray:
+        return np.tile(self.values, (len(t), 1))
 
 
 class FunctionTorque(TorqueSource):
@@ -101,6 +118,26 @@ class TorqueTable(TorqueSource):
             return np.vstack([v, np.zeros_like(v), np.zeros_like(v)])
         v0, v1 = self.value(t), self.value(t + h)
         return np.vstack([v0, (v1 - v0) / h, np.zeros_like(v0)])
+
+    def values_at(self, t: np.ndarray) -> np.ndarray:
+        t = np.asarray(t, dtype=float)
+        if len(t) and t.min() < self.times[0] - 1e-12:
+            self.value(float(t.min()))  # its error
+        if self.hold == "zoh":
+            k = np.searchsorted(self.times, t + 1e-12, side="right") - 1
+            return self.values[np.maximum(k, 0)]
+        return np.column_stack([np.interp(t, self.times, col) for col in self.values.T]).reshape(len(t), -1)
+
+    def coefficients_many(self, t: np.ndarray, h: np.ndarray) -> np.ndarray:
+        t, h = np.asarray(t, dtype=float), np.asarray(h, dtype=float)
+        out = np.zeros((len(t), 3, self.values.shape[1]))
+        if self.hold == "zoh":
+            out[:, 0] = self.values_at(t + 0.5 * h)  # the midpoint: a step never crosses a sample time
+            return out
+        v0, v1 = self.values_at(t), self.values_at(t + h)
+        out[:, 0] = v0
+        out[:, 1] = (v1 - v0) / h[:, None]
+        return out
 
 
 def _finite(values: np.ndarray, what: str) -> np.ndarray:
