@@ -344,6 +344,18 @@ def unit_axis(axes, i):
     return -1
 
 
+@njit(cache=True, inline="always")
+def _directed_row(A, gamma, res, r, J, a_pt, p_pt, pa, pb, e0, e1, e2):
+    """Row r: the point pair (pa, pb)'s residual, Jacobian and bias along the direction (e0, e1, e2)."""
+    for j in range(A.shape[1]):  # element-wise: a row expression would allocate
+        A[r, j] = (e0 * (J[pa, 0, j] - J[pb, 0, j]) + e1 * (J[pa, 1, j] - J[pb, 1, j])
+                   + e2 * (J[pa, 2, j] - J[pb, 2, j]))
+    res[r] = e0 * (p_pt[pa, 0] - p_pt[pb, 0]) + e1 * (p_pt[pa, 1] - p_pt[pb, 1]) \
+        + e2 * (p_pt[pa, 2] - p_pt[pb, 2])
+    gamma[r] = -(e0 * (a_pt[pa, 0] - a_pt[pb, 0]) + e1 * (a_pt[pa, 1] - a_pt[pb, 1])
+                 + e2 * (a_pt[pa, 2] - a_pt[pb, 2]))
+
+
 @njit(cache=True)
 def closure_rows(closure_pairs, closure_axes, J, a_pt, p_pt, A, gamma, res):
     """Closure residual h(q_t) (eq 8), its Jacobian A = dh/dq_t and gamma = -Adot qd_t.
@@ -372,13 +384,7 @@ def closure_rows(closure_pairs, closure_axes, J, a_pt, p_pt, A, gamma, res):
                 res[r] = p_pt[pa, comp] - p_pt[pb, comp]
                 gamma[r] = -(a_pt[pa, comp] - a_pt[pb, comp])
             else:
-                for j in range(A.shape[1]):
-                    A[r, j] = (e0 * (J[pa, 0, j] - J[pb, 0, j]) + e1 * (J[pa, 1, j] - J[pb, 1, j])
-                               + e2 * (J[pa, 2, j] - J[pb, 2, j]))
-                res[r] = e0 * (p_pt[pa, 0] - p_pt[pb, 0]) + e1 * (p_pt[pa, 1] - p_pt[pb, 1]) \
-                    + e2 * (p_pt[pa, 2] - p_pt[pb, 2])
-                gamma[r] = -(e0 * (a_pt[pa, 0] - a_pt[pb, 0]) + e1 * (a_pt[pa, 1] - a_pt[pb, 1])
-                             + e2 * (a_pt[pa, 2] - a_pt[pb, 2]))
+                _directed_row(A, gamma, res, r, J, a_pt, p_pt, pa, pb, e0, e1, e2)
 
 
 @njit(cache=True)
@@ -443,13 +449,7 @@ def weld_rows(closure_pairs, closure_axes, J, a_pt, p_pt, A, gamma, res):
         pb = closure_pairs[k, 1]
         for i in range(2):  # column i of the row-major world frame in p_pt[pa, 3:12]
             e0, e1, e2 = p_pt[pa, 3 + i], p_pt[pa, 6 + i], p_pt[pa, 9 + i]
-            for j in range(A.shape[1]):
-                A[r, j] = (e0 * (J[pa, 0, j] - J[pb, 0, j]) + e1 * (J[pa, 1, j] - J[pb, 1, j])
-                           + e2 * (J[pa, 2, j] - J[pb, 2, j]))
-            res[r] = e0 * (p_pt[pa, 0] - p_pt[pb, 0]) + e1 * (p_pt[pa, 1] - p_pt[pb, 1]) \
-                + e2 * (p_pt[pa, 2] - p_pt[pb, 2])
-            gamma[r] = -(e0 * (a_pt[pa, 0] - a_pt[pb, 0]) + e1 * (a_pt[pa, 1] - a_pt[pb, 1])
-                         + e2 * (a_pt[pa, 2] - a_pt[pb, 2]))
+            _directed_row(A, gamma, res, r, J, a_pt, p_pt, pa, pb, e0, e1, e2)
             r += 1
 
 

@@ -55,11 +55,13 @@ from elastic_pm_dyn.sim.kernels import (
     STAB_PROJECTION,
     _sane,
     _step_motion,
+    add_chain_schur,
+    chain_block,
     project_into,
     projection_workspace,
     unsound_step,
 )
-from elastic_pm_dyn.small_linalg import cholesky_recip, cholesky_solve_rows, lu_factor, lu_solve_rows
+from elastic_pm_dyn.small_linalg import cholesky_solve_rows, lu_factor, lu_solve_rows
 
 ROLE_ELASTIC = 1
 
@@ -132,18 +134,8 @@ def elastic_gains(ma, fast, M, A, extra, G, gws):
     for c in range(ma.chain_start.shape[0] - 1):
         s = ma.chain_start[c]
         ne = ma.chain_start[c + 1] - s
-        k = 0
-        for r in range(m):
-            for i in range(ne):
-                if A[r, s + i] != 0.0:
-                    rows[c, k] = r
-                    k += 1
-                    break
-        n_rows[c] = k
-        for i in range(ne):
-            for j in range(ne):
-                L[i, j] = M[s + i, s + j]
-        if not cholesky_recip(L, ne, dinv):
+        k = chain_block(M, A, s, ne, c, rows, n_rows, L, dinv)
+        if k < 0:
             return 0.0
         for i in range(ne):
             for j in range(k):
@@ -158,12 +150,7 @@ def elastic_gains(ma, fast, M, A, extra, G, gws):
                 Y[s + i, rows[c, j]] = XY[i, j]
             for j in range(nc):
                 X[s + i, j] = XY[i, k + j]  # for j < n_f zero outside the chain of fast joint j
-        for a in range(k):
-            for b in range(k):
-                acc = 0.0
-                for t in range(ne):
-                    acc += A[rows[c, a], s + t] * XY[t, b]
-                S[rows[c, a], rows[c, b]] += acc
+        add_chain_schur(A, XY, s, ne, c, k, rows, S)
     for i in range(n):
         for j in range(nc):
             G[i, j] = X[i, j]

@@ -120,29 +120,50 @@ def project(ma, q, qd, tol, max_iter):
     return project_into(ma, q, qd, tol, max_iter, projection_workspace(ma))
 
 
+@njit(cache=True, inline="always")
+def chain_block(M, A, s, ne, c, rows, n_rows, L, dinv) -> int:
+    """Chain c (tree columns s .. s + ne): the closure rows its columns of A touch (into
+    ``rows[c]``, their count into ``n_rows[c]`` and returned) and its mass-matrix block's
+    Cholesky factors in L, dinv; -1 if the block is not positive definite."""
+    k = 0
+    for r in range(A.shape[0]):
+        for i in range(ne):
+            if A[r, s + i] != 0.0:
+                rows[c, k] = r
+                k += 1
+                break
+    n_rows[c] = k
+    for i in range(ne):
+        for j in range(ne):
+            L[i, j] = M[s + i, s + j]
+    if not cholesky_recip(L, ne, dinv):
+        return -1
+    return k
+
+
+@njit(cache=True, inline="always")
+def add_chain_schur(A, XY, s, ne, c, k, rows, S) -> None:
+    """S += A_c M_c^-1 A_c^T in chain c's k closure rows, XY's first k columns holding M_c^-1 A_c^T."""
+    for a in range(k):
+        for b in range(k):
+            acc = 0.0
+            for t in range(ne):
+                acc += A[rows[c, a], s + t] * XY[t, b]
+            S[rows[c, a], rows[c, b]] += acc
+
+
 @njit(cache=True)
 def _chain_responses_sparse(M, A, chain_start, Y, S, L, dinv, XY, rows, n_rows):
     """Y = M^-1 A^T and S = A M^-1 A^T chain by chain, each chain solved and summed only in
     the closure rows it takes part in (a hexapod leg in 3 of 18): the terms skipped are exact
     zeros, so Y (in those rows: the others are left as they were) and S equal
     :func:`chain_responses`' bit for bit. False if a chain mass matrix is not positive definite."""
-    m = A.shape[0]
     S[:, :] = 0.0
     for c in range(chain_start.shape[0] - 1):
         s = chain_start[c]
         ne = chain_start[c + 1] - s
-        k = 0
-        for r in range(m):
-            for i in range(ne):
-                if A[r, s + i] != 0.0:
-                    rows[c, k] = r
-                    k += 1
-                    break
-        n_rows[c] = k
-        for i in range(ne):
-            for j in range(ne):
-                L[i, j] = M[s + i, s + j]
-        if not cholesky_recip(L, ne, dinv):
+        k = chain_block(M, A, s, ne, c, rows, n_rows, L, dinv)
+        if k < 0:
             return False
         for i in range(ne):
             for j in range(k):
@@ -151,12 +172,7 @@ def _chain_responses_sparse(M, A, chain_start, Y, S, L, dinv, XY, rows, n_rows):
         for i in range(ne):
             for j in range(k):
                 Y[s + i, rows[c, j]] = XY[i, j]
-        for a in range(k):
-            for b in range(k):
-                acc = 0.0
-                for t in range(ne):
-                    acc += A[rows[c, a], s + t] * XY[t, b]
-                S[rows[c, a], rows[c, b]] += acc
+        add_chain_schur(A, XY, s, ne, c, k, rows, S)
     return True
 
 
