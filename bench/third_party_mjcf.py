@@ -34,14 +34,13 @@ import warnings
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from elastic_pm_dyn.dynamics.linear import elastic_modes
 from elastic_pm_dyn.errors import ModelError
 from elastic_pm_dyn.kinematics.assembly import initial_state
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.model.loader import load_model
-from elastic_pm_dyn.model.mjcf import compile_mjcf
+from elastic_pm_dyn.model.mjcf import compile_mjcf, mujoco_qpos
 from elastic_pm_dyn.model.urdf_writer import closure_sidecar, model_to_urdf
 from elastic_pm_dyn.sim.simulator import SimulationOptions, Simulator
 from elastic_pm_dyn.sim.torque import ConstantTorque
@@ -113,24 +112,6 @@ def load(path: Path) -> tuple[dict, Mechanism | None, dict]:
     return out, mech, options
 
 
-def _qpos(m, mech: Mechanism, q: np.ndarray) -> np.ndarray:
-    """MuJoCo's qpos for our tree coordinates: hinges and slides by name (the same coordinate,
-    'ref' included), a ball from its three revolutes x, y, z (R = Rx Ry Rz in the joint frame)."""
-    import mujoco
-    qpos = m.qpos0.copy()
-    value = dict(zip(mech.joint_names, q, strict=True))
-    for j in range(m.njnt):
-        name = mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, j)
-        adr = m.jnt_qposadr[j]
-        if m.jnt_type[j] == mujoco.mjtJoint.mjJNT_BALL:
-            x, y, z = (value[f"{name}_{a}"] for a in "xyz")
-            qx, qy, qz, qw = Rotation.from_euler("XYZ", [x, y, z]).as_quat()
-            qpos[adr:adr + 4] = [qw, qx, qy, qz]
-        elif name in value:
-            qpos[adr] = value[name]
-    return qpos
-
-
 def mujoco_run(path: Path, fix_base: bool, mech: Mechanism, q0: np.ndarray, t: np.ndarray,
                tight: bool) -> tuple[np.ndarray, float, float]:
     """MuJoCo's trajectory of our hinge/slide coordinates at the times t, its largest
@@ -145,7 +126,7 @@ def mujoco_run(path: Path, fix_base: bool, mech: Mechanism, q0: np.ndarray, t: n
         m.eq_solref[:] = TIGHT[0]
         m.eq_solimp[:] = TIGHT[1]
     d = mujoco.MjData(m)
-    d.qpos[:] = _qpos(m, mech, q0)
+    d.qpos[:] = mujoco_qpos(m, mech.joint_names, q0)
     d.qvel[:] = 0.0
     adr = [m.jnt_qposadr[m.joint(n).id] for n in mech.joint_names if _is_mj_joint(m, n)]
     out = np.empty((len(t), len(adr)))

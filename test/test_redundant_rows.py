@@ -20,13 +20,13 @@ import numpy as np
 import pytest
 from pinocchio_urdf import PinocchioMachine
 from scipy.integrate import solve_ivp
-from scipy.spatial.transform import Rotation
 
 from elastic_pm_dyn.dynamics.evaluate import FORMULATION_CODES, accelerations_flat
 from elastic_pm_dyn.errors import ModelError
 from elastic_pm_dyn.kinematics.assembly import initial_state, random_consistent_state
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.model.loader import load_model
+from elastic_pm_dyn.model.mjcf import mujoco_qpos
 from elastic_pm_dyn.model.urdf_writer import closure_sidecar, model_to_urdf
 from elastic_pm_dyn.sim.simulator import SimulationOptions, Simulator
 from elastic_pm_dyn.sim.torque import ConstantTorque
@@ -176,22 +176,6 @@ def test_matches_pinocchio_on_the_urdf_export(leg, tmp_path):
     assert err < 1e-6
 
 
-def _qpos(m, mech: Mechanism, q: np.ndarray) -> np.ndarray:
-    """MuJoCo's qpos for our coordinates: hinges by name, the ball from its revolutes x, y, z."""
-    import mujoco
-    qpos = m.qpos0.copy()
-    value = dict(zip(mech.joint_names, q, strict=True))
-    for j in range(m.njnt):
-        name = mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, j)
-        adr = m.jnt_qposadr[j]
-        if m.jnt_type[j] == mujoco.mjtJoint.mjJNT_BALL:
-            qx, qy, qz, qw = Rotation.from_euler("XYZ", [value[f"{name}_{a}"] for a in "xyz"]).as_quat()
-            qpos[adr:adr + 4] = [qw, qx, qy, qz]
-        else:
-            qpos[adr] = value[name]
-    return qpos
-
-
 def test_matches_mujoco_within_its_softness(leg):
     """MuJoCo's connect takes the three rows, softly: with solref at its floor (2 dt) and solimp
     0.9999 the hinge angles agree with ours over 0.2 s to within its constraint violation."""
@@ -206,7 +190,7 @@ def test_matches_mujoco_within_its_softness(leg):
     m.eq_solref[:] = (2e-5, 1.0)
     m.eq_solimp[:] = (0.9999, 0.9999, 0.001, 0.5, 2.0)
     d = mujoco.MjData(m)
-    d.qpos[:] = _qpos(m, mech, q0)
+    d.qpos[:] = mujoco_qpos(m, mech.joint_names, q0)
     hinges = [i for i, name in enumerate(mech.joint_names) if not name.startswith("rod_")]
     adr = [m.jnt_qposadr[m.joint(mech.joint_names[i]).id] for i in hinges]
     steps = round(SAMPLE / m.opt.timestep)

@@ -97,6 +97,26 @@ def compile_mjcf(path: str | Path, fix_base: bool = False):
         raise _compiler_error(file, str(exc)) from None
 
 
+def mujoco_qpos(m, joint_names: list[str], q: np.ndarray) -> np.ndarray:
+    """MuJoCo's qpos of ``m`` (:func:`compile_mjcf`) for our tree coordinates ``q`` named by
+    ``joint_names``: hinges and slides by name (the same coordinate, ``ref`` included), a ball
+    from its three revolutes x, y, z (R = Rx Ry Rz in the joint frame); joints we do not have
+    (a free joint welded away) keep ``qpos0``."""
+    from scipy.spatial.transform import Rotation
+    mujoco = _mujoco("<model>")
+    qpos = m.qpos0.copy()
+    value = dict(zip(joint_names, q, strict=True))
+    for j in range(m.njnt):
+        name = mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, j)
+        adr = m.jnt_qposadr[j]
+        if m.jnt_type[j] == mujoco.mjtJoint.mjJNT_BALL:
+            qx, qy, qz, qw = Rotation.from_euler("XYZ", [value[f"{name}_{a}"] for a in "xyz"]).as_quat()
+            qpos[adr:adr + 4] = [qw, qx, qy, qz]
+        elif name in value:
+            qpos[adr] = value[name]
+    return qpos
+
+
 def _element_lines(src: XmlSource) -> dict[tuple[str, str], int]:
     """(tag, name) -> line of the named elements of the main file (includes are not followed);
     an unnamed joint as ("body joint", "<body name>#<k>"): the k-th joint element of the body."""
