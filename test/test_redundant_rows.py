@@ -288,3 +288,13 @@ def test_modes_keep_their_damping_ratio_beside_a_free_spin(tmp_path):
     out = subprocess.run([sys.executable, "-m", "elastic_pm_dyn", "check", str(path)], capture_output=True,
                          text=True, timeout=300)
     assert "no oscillation (a free joint: no spring)" in out.stdout and "nan" not in out.stdout, out.stdout + out.stderr
+
+
+def test_a_damped_ball_says_how_its_damping_is_read(tmp_path):
+    """Our ball is three revolutes, each damped on its own rate; MuJoCo damps the angular
+    velocity: a warning naming the file, line and joint, not a silent difference."""
+    path = tmp_path / "damped.xml"
+    path.write_text(LEG.replace('<joint name="rod" type="ball"/>', '<joint name="rod" type="ball" damping="0.01"/>'))
+    line = path.read_text().splitlines().index('        <joint name="rod" type="ball" damping="0.01"/>') + 1
+    with pytest.warns(UserWarning, match=f"damped.xml:{line}: joint 'rod': a ball's damping acts here"):
+        load_model(path)

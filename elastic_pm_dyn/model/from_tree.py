@@ -195,6 +195,11 @@ def _expand(j: TreeJoint, R: np.ndarray, p: np.ndarray, motors: set[str],
         # Three revolutes about the joint frame's x, y, z (singular where the middle one
         # reaches +-90 degrees: a start pose away from that is the user's to choose).
         axes = [("x", np.array([1.0, 0, 0])), ("y", np.array([0, 1.0, 0])), ("z", np.array([0, 0, 1.0]))]
+        if j.damping > 0:
+            w = j.where
+            warnings.warn(f"{w.file}:{w.line}: joint {j.name!r}: a ball's damping acts here on each of its three "
+                          "angles' rates, not on its angular velocity as in MuJoCo (the two differ as the ball turns "
+                          "away from its reference: 5e-7 rad over 0.2 s on Cassie's achilles rods)", stacklevel=2)
     elif j.type == CARDAN:
         axes = [("X", j.axis), ("Y", j.axis2)]  # the names Gepetto's loader gives them
     else:
