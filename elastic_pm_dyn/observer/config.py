@@ -27,6 +27,7 @@ PREFIX = "observer."
 SENSOR_KINDS = ("encoders", "imu", "branch_forces")
 DISTURBANCE_MODELS = ("none", "random_walk", "gauss_markov", "integrated_random_walk", "band_limited",
                       "bias_band_limited")
+BAND_MODELS = ("band_limited", "bias_band_limited")  # the disturbance models with band corners and an order
 BAND_ORDERS = (2, 4)  # Butterworth orders of a disturbance band
 BRANCH_SOURCES = ("branch_forces", "joint_state_effort")
 SAMPLE_TIMINGS = ("before_command", "after_command", "auto")

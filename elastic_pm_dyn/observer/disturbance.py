@@ -30,7 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from elastic_pm_dyn.observer.config import InitialConfig, ProcessConfig
+from elastic_pm_dyn.observer.config import BAND_MODELS, InitialConfig, ProcessConfig
 
 ZETA = 1.0 / np.sqrt(2.0)
 
@@ -114,7 +114,7 @@ def build(pc: ProcessConfig, initial: InitialConfig, names: list[str]) -> Distur
     nd = len(names)
     eye = np.eye(nd)
     kind = pc.disturbance
-    if kind in ("band_limited", "bias_band_limited"):
+    if kind in BAND_MODELS:
         L, F, psd, sd, zn = _bands(pc, nd, names)
         if kind == "bias_band_limited":
             L = [eye] + L

@@ -47,7 +47,7 @@ from elastic_pm_dyn.errors import InputError
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.model import yaml12
 from elastic_pm_dyn.observer.bag_input import Event
-from elastic_pm_dyn.observer.config import BAND_ORDERS, DEFAULT_PARAMETERS, PREFIX, ObserverConfig, flatten
+from elastic_pm_dyn.observer.config import BAND_MODELS, BAND_ORDERS, DEFAULT_PARAMETERS, PREFIX, ObserverConfig, flatten
 from elastic_pm_dyn.observer.ekf import Observer
 from elastic_pm_dyn.observer.event_filter import order_key, run_events
 from elastic_pm_dyn.observer.prepared import PreparedRecording, prepare
@@ -124,14 +124,13 @@ def knobs(cfg: ObserverConfig, explicit: set[str]) -> list[Knob]:
     out = []
     model = cfg.process.disturbance
     for name, (lo, hi) in PROCESS_KNOBS.items():
-        if name == "process.disturbance_stddev" and model not in ("band_limited", "bias_band_limited",
-                                                                  "gauss_markov"):
+        if name == "process.disturbance_stddev" and model not in (*BAND_MODELS, "gauss_markov"):
             continue
         if name == "process.disturbance_intensity" and model not in ("bias_band_limited", "random_walk",
                                                                      "integrated_random_walk"):
             continue
         out.append(Knob(name, lo, hi))
-    if model in ("band_limited", "bias_band_limited"):
+    if model in BAND_MODELS:
         out += [Knob("process.disturbance_bandwidth", *BANDWIDTH_BOUNDS, index=i)
                 for i in range(len(cfg.process.disturbance_bandwidth))]
     for name, (sensor, (lo, hi)) in SENSOR_KNOBS.items():
@@ -228,9 +227,14 @@ def tune(mech: Mechanism, base: ObserverConfig, events: list[Event], explicit: s
     fine_dt = prepared.model.substep(base.process.dt)
     search = {"process.dt": SEARCH_DT} if fine_dt < SEARCH_DT and "process.dt" not in explicit else {}
 
+    def passes(params_list: list[dict], evs: list[Event] = events,
+               prep: PreparedRecording = prepared) -> list[Evaluation]:
+        """Filter passes over ``evs`` at the search's substep, two at once."""
+        return list(pool.map(lambda p: evaluate(mech, dict(p, **search), evs, prepared=prep), params_list))
+
     def run(params_list: list[dict]) -> list[Evaluation]:
         count[0] += len(params_list)
-        return list(pool.map(lambda p: evaluate(mech, dict(p, **search), events, prepared=prepared), params_list))
+        return passes(params_list)
 
     try:
         before = run([theta])[0]  # alone: compiles and caches the kernels once
@@ -242,10 +246,12 @@ def tune(mech: Mechanism, base: ObserverConfig, events: list[Event], explicit: s
             best, theta = _scan_delay(run, theta, events, best, history, log)
         ks = knobs(base, explicit)
         first = [k for k in ks if k.name in DISTURBANCE_KNOBS]
-        band = base.process.disturbance in ("band_limited", "bias_band_limited")
+        band = base.process.disturbance in BAND_MODELS
         orders = BAND_ORDERS if band and "process.disturbance_band_order" not in explicit else ()
         if band and grid:
-            best, theta = _grid(mech, base, events, run, theta, best, first, orders, threads, history, log, search)
+            short = select(events, GRID_SECONDS)
+            best, theta = _grid(run, lambda ps: passes(ps, short, prepare(mech, base, short)), theta, best, first,
+                                orders, history, log)
         # passes kept for the end: the delay checked again, the two with the gate on (and two at the fine step)
         budget = max_evaluations - (len(DELAY_STEPS) - 1 if delay else 0) - (4 if search else 2)
         # First the disturbance spectrum alone, from factors of 10, then every knob from a factor
@@ -273,41 +279,38 @@ def tune(mech: Mechanism, base: ObserverConfig, events: list[Event], explicit: s
                       time.perf_counter() - wall0, history)
 
 
-def _grid(mech: Mechanism, base: ObserverConfig, events: list[Event], run, theta: dict, best: Evaluation,
-          first: list[Knob], orders: tuple[int, ...], threads: int, history: list, log,
-          search: dict) -> tuple[Evaluation, dict]:
+def _grid(run, run_short, theta: dict, best: Evaluation, first: list[Knob], orders: tuple[int, ...],
+          history: list, log) -> tuple[Evaluation, dict]:
     """Start the search in the likeliest basin: the band's top corner (:data:`GRID_TOPS`, the other
     corners scaled with it), the disturbance stddev (:data:`GRID_LEVELS`) and the band ``orders``
-    on a coarse grid, each point judged on the first :data:`GRID_SECONDS` of the recording, the
-    :data:`GRID_FINALISTS` likeliest on all of it; one is kept if it gains :data:`MIN_GAIN` over
-    ``best``. Without it the compass, started from the defaults, can walk into a worse optimum
-    (a random walk of large intensity explaining tones at 20-100 Hz through a band that ends at
-    5 Hz, 200 nats less likely than the tones' band; a second-order band where a fourth-order
-    one at another corner is 100 nats likelier)."""
-    axes: list[list[tuple[str, float]]] = [[("process.disturbance_band_order", o) for o in orders]] if orders else []
+    on a coarse grid, each point judged on the first :data:`GRID_SECONDS` of the recording
+    (``run_short``), the :data:`GRID_FINALISTS` likeliest on all of it (``run``); one is kept if it
+    gains :data:`MIN_GAIN` over ``best``. Without it the compass, started from the defaults, can
+    walk into a worse optimum (a random walk of large intensity explaining tones at 20-100 Hz
+    through a band that ends at 5 Hz, 200 nats less likely than the tones' band; a second-order
+    band where a fourth-order one at another corner is 100 nats likelier)."""
+    def top_corner(p: dict, top: float) -> None:  # the other corners keep their ratios to it
+        corners = theta["process.disturbance_bandwidth"]
+        lo, hi = BANDWIDTH_BOUNDS
+        p["process.disturbance_bandwidth"] = [float(min(max(c * top / max(corners), lo), hi)) for c in corners]
+
+    def order(p: dict, value: int) -> None:
+        p["process.disturbance_band_order"] = value
+
+    axes = [[(order, o) for o in orders]] if orders else []
     for k in first:
         if k.name == "process.disturbance_bandwidth" and k.index == int(np.argmax(theta[k.name])):
-            axes.append([(k.name, top) for top in GRID_TOPS])
+            axes.append([(top_corner, top) for top in GRID_TOPS])
         elif k.name == "process.disturbance_stddev":
-            axes.append([(k.name, k.get(theta) * f) for f in GRID_LEVELS])
+            axes.append([(k.set, k.get(theta) * f) for f in GRID_LEVELS])
     trials = []
     for point in itertools.product(*axes):
         p = dict(theta)
-        for name, value in point:
-            if name == "process.disturbance_bandwidth":  # the top corner; the others keep their ratios
-                lo, hi = BANDWIDTH_BOUNDS
-                p[name] = [float(min(max(c * value / max(theta[name]), lo), hi)) for c in theta[name]]
-            elif name == "process.disturbance_stddev":
-                lo, hi = PROCESS_KNOBS[name]
-                p[name] = float(min(max(value, lo), hi))
-            else:
-                p[name] = value
+        for set_value, value in point:
+            set_value(p, value)
         if _valid(p) and p not in trials:
             trials.append(p)
-    short = select(events, GRID_SECONDS)
-    prep = prepare(mech, base, short)
-    with ThreadPoolExecutor(max(1, threads)) as pool:
-        coarse = list(pool.map(lambda p: evaluate(mech, dict(p, **search), short, prepared=prep).nll, trials))
+    coarse = [r.nll for r in run_short(trials)]
     finalists = [trials[i] for i in np.argsort(coarse)[:GRID_FINALISTS]]
     results = run(finalists)
     log(f"  grid of {len(trials)} spectra on the first {GRID_SECONDS:g} s; finalists: "
