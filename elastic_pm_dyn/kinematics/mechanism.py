@@ -35,6 +35,16 @@ class TreeTerms:
     residual: np.ndarray  # (m,) h(q_t)
 
 
+def unit_indices(axes: np.ndarray) -> list[int] | None:
+    """The base axis each row of ``axes`` (k, 3) is, if every row is one (x-y, y-z, spatial:
+    their components are then picked, the same numbers, no products), else None. What
+    :func:`~elastic_pm_dyn.kinematics.kernels.unit_axis` tells the kernels row by row."""
+    axes = np.asarray(axes)
+    if all(np.count_nonzero(a) == 1 and a.max() == 1.0 for a in axes):
+        return [int(np.argmax(a)) for a in axes]
+    return None
+
+
 class Mechanism:
     """A model compiled for evaluation. Coordinates are tree coordinates q_t (n_t,).
 
@@ -59,8 +69,7 @@ class Mechanism:
         self.ee_names = model.ee_names
         # the base axes the end effector's components are (x-y, y-z, spatial), None if in-plane
         # u, v: those take the coordinates themselves (the same numbers, no products)
-        self.ee_unit: list[int] | None = [int(np.argmax(a)) for a in self.ee_axes] if all(
-            np.count_nonzero(a) == 1 and a.max() == 1.0 for a in self.ee_axes) else None
+        self.ee_unit = unit_indices(self.ee_axes)
         self.closure_axes = model.closure.axes if model.closure is not None else np.zeros((0, 3))
         joints = model.joints
         self.stiffness = np.array([j.stiffness for j in joints])
@@ -206,8 +215,9 @@ class Mechanism:
         else:
             pairs = np.asarray(closure.pairs)
             diff = tips[:, pairs[:, 0]] - tips[:, pairs[:, 1]]
-            if np.all((axes == 0.0) | (axes == 1.0)) and np.all(np.count_nonzero(axes, axis=1) == 1):
-                d = diff[:, :, np.argmax(axes, axis=1)].reshape(len(q), -1)
+            unit = unit_indices(axes)
+            if unit is not None:
+                d = diff[:, :, unit].reshape(len(q), -1)
             else:
                 d = np.array([(dk @ axes.T).ravel() for dk in diff]).reshape(len(q), -1)
             # as gap(): the BLAS dot of each row (a vectorised sum would round differently)
