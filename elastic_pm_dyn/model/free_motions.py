@@ -170,9 +170,7 @@ def free_passive_motions(model: Model) -> Model:
     Jp = closure_terms(model, q)[1][:, passive]
     if not _only_spins(model, q, passive, Jp):
         return model  # a motion that moves the machine (a motor missing?): _check_counts names it
-    _, r, piv = scipy.linalg.qr(Jp, pivoting=True, mode="economic")
-    diag = np.abs(np.diag(r))
-    rank = int(np.sum(diag > RANK_TOL * max(diag[0], 1e-300)))
+    rank, piv = _pivoted_rank(Jp)
     if rank < m:
         return model  # redundant closures: not a free motion, _check_counts says so
     free = {passive[k] for k in piv[m:]}
@@ -212,13 +210,32 @@ def _pair_rows(model: Model, q: np.ndarray) -> tuple[np.ndarray, list[np.ndarray
     return J.reshape(len(c.pairs), 3, -1), [R_body[bodies[a]] if bodies[a] >= 0 else np.eye(3) for a, _ in c.pairs]
 
 
-def _full_rank(J: np.ndarray) -> bool:
-    """Whether the rows of J are independent (QR with column pivoting, as the free joints are chosen)."""
-    if J.shape[0] > J.shape[1]:
-        return False
-    _, r, _ = scipy.linalg.qr(J.T, pivoting=True, mode="economic")
+def _pivoted_rank(X: np.ndarray) -> tuple[int, np.ndarray]:
+    """The rank of X by QR with column pivoting (relative tolerance :data:`RANK_TOL`) and the
+    pivot order of its columns: the leading ``rank`` columns are independent."""
+    _, r, piv = scipy.linalg.qr(X, pivoting=True, mode="economic")
     diag = np.abs(np.diag(r))
-    return bool(len(diag)) and int(np.sum(diag > RANK_TOL * max(diag[0], 1e-300))) == J.shape[0]
+    if not len(diag):
+        return 0, piv
+    return int(np.sum(diag > RANK_TOL * max(diag[0], 1e-300))), piv
+
+
+def _nearby_poses(model: Model, q: np.ndarray, passive: list[int], tries: int):
+    """Assembled poses the non-passive joints reach from q, each moved by up to 0.1 (seeded:
+    the same poses every load); a try whose loop does not close yields nothing."""
+    others = [i for i in range(len(model.joints)) if i not in passive]
+    rng = np.random.default_rng(0)
+    for _ in range(tries):
+        start = q.copy()
+        start[others] += rng.uniform(-0.1, 0.1, len(others))
+        moved = _assembled(model, passive, start)
+        if moved is not None:
+            yield moved
+
+
+def _full_rank(J: np.ndarray) -> bool:
+    """Whether the rows of J are independent (as the free joints are chosen)."""
+    return J.shape[0] <= J.shape[1] and J.shape[0] > 0 and _pivoted_rank(J.T)[0] == J.shape[0]
 
 
 def drop_still_rows(model: Model) -> tuple[Model, bool]:
@@ -259,15 +276,8 @@ def drop_still_rows(model: Model) -> tuple[Model, bool]:
         found.append((k, n_body / np.linalg.norm(n_body)))
     # Confirmed at two poses near (at most four tries): none that assembles, and the row is not
     # shown to hold by itself (a locked loop, whose other joints cannot move, is refused).
-    others = [i for i in range(len(model.joints)) if i not in passive]
-    rng = np.random.default_rng(0)  # seeded: the same answer every load
     confirmed = 0
-    for _ in range(4 if found else 0):
-        start = q.copy()
-        start[others] += rng.uniform(-0.1, 0.1, len(others))
-        moved = _assembled(model, passive, start)
-        if moved is None:
-            continue
+    for moved in _nearby_poses(model, q, passive, 4 if found else 0):
         rows, R = _pair_rows(model, moved)
         found = [(k, n) for k, n in found
                  if np.abs((R[k] @ n) @ rows[k]).max() <= RANK_TOL * np.linalg.norm(rows[k], 2)]
@@ -292,22 +302,15 @@ def repeated_rows(model: Model) -> tuple[list[int], int] | None:
     if q is None:
         return None
 
-    def rank_at(q: np.ndarray) -> tuple[int, np.ndarray]:
-        _, r, piv = scipy.linalg.qr(closure_terms(model, q)[1][:, passive].T, pivoting=True, mode="economic")
-        diag = np.abs(np.diag(r))
-        return int(np.sum(diag > RANK_TOL * max(diag[0], 1e-300))), piv
+    def rank_at(q: np.ndarray) -> tuple[int, np.ndarray]:  # of the rows, in the passive joints
+        return _pivoted_rank(closure_terms(model, q)[1][:, passive].T)
 
     rank, piv = rank_at(q)
     if rank == m:
         return None
     # Repeated everywhere, or only at this pose (a zero pose folded onto a singularity)? Look
-    # again at poses the other joints reach from it (seeded: the same answer every load).
-    others = [i for i in range(len(model.joints)) if i not in passive]
-    rng = np.random.default_rng(0)
-    for _ in range(2):
-        start = q.copy()
-        start[others] += rng.uniform(-0.1, 0.1, len(others))
-        moved = _assembled(model, passive, start)
-        if moved is not None and rank_at(moved)[0] == m:
+    # again at poses the other joints reach from it.
+    for moved in _nearby_poses(model, q, passive, 2):
+        if rank_at(moved)[0] == m:
             return None
     return sorted(int(i) for i in piv[rank:]), rank
