@@ -22,12 +22,13 @@ of the frozen system too, through the gains P M^-1 d1, P M^-1 d2.
 Second order for any fixed J; exact for the frozen linear spring system, so an undamped
 mode keeps its frequency and energy at any H, and a stiff spring under a slow load sits at
 its quasi-static deflection instead of ringing. After each macro step (q, qd) is
-projected onto the constraint manifold as RK4 does.
+projected onto the constraint manifold, positions in the metric M + H^2 K so that the
+correction does not shift the stiff springs (:func:`elastic_pm_dyn.sim.kernels.project_springs`).
 
 phi1 and phi2 applied to a vector are the responses of the linear system from rest to a
 constant and to a ramp forcing. Only the elastic coordinates are dynamic in it (their
 n_f x n_f block B = E^T G), the others integrate their forcing: those responses are
-Taylor-series sub-steps (order TAYLOR_ORDER) of the 2 n_f elastic states plus the integrals
+Taylor-series sub-steps (order from :func:`taylor_order`) of the 2 n_f elastic states plus the integrals
 of f, at most
 ``phase_step`` rad of the fastest frozen mode each (an upper bound of its frequency from
 Gershgorin's circles), i.e. O(n_f^2) operations per sub-step against a formulation
@@ -57,7 +58,7 @@ from elastic_pm_dyn.sim.kernels import (
     _step_motion,
     add_chain_schur,
     chain_block,
-    project_into,
+    project_springs,
     projection_workspace,
     unsound_step,
 )
@@ -65,15 +66,16 @@ from elastic_pm_dyn.small_linalg import cholesky_solve_rows, lu_factor, lu_solve
 
 ROLE_ELASTIC = 1
 
-# Terms of the sub-steps' Taylor series: at 3 rad of the fastest mode per sub-step the
-# truncation error is 3^21 / 21! = 2e-10 per sub-step, and the largest term 3^3 / 3! = 4.5
-# costs no precision. RK4 sub-steps would lose (h omega)^6 / 144 of a mode's energy each
-# (all of an undamped kHz mode's within seconds); order 20 at 3 rad costs 6.7 terms per
-# rad, order 12 at 1 rad 12.
-TAYLOR_ORDER = 20
+# Truncation of the sub-steps' Taylor series: the first term left out, theta^(K+1) / (K+1)!
+# at theta rad of the fastest mode per sub-step, is below this (order 20 at 3 rad, 30 at
+# 6 rad; 3 rad at order 20 was the fixed rule before). RK4 sub-steps would lose
+# (h omega)^6 / 144 of a mode's energy each (all of an undamped kHz mode's within seconds).
+TAYLOR_TOL = 2.1e-10
 # [rad] per sub-step (SimulationOptions.phase_step) against a Gershgorin bound of the fastest
-# rate, 1-11 % above the fastest mode on the shipped machines
-DEFAULT_PHASE_STEP = 3.0
+# rate, 1-11 % above the fastest mode on the shipped machines. The terms per rad fall with
+# the sub-step (6.7 at 3 rad, 5 at 6 rad); the largest term, theta^theta / theta! (65 at
+# 6 rad), costs that many units of round-off.
+DEFAULT_PHASE_STEP = 6.0
 
 # [s] the step `check` suggests: it met the 1 % branch-force criterion for ZOH torques at
 # 1 kHz on 6 of the 7 machines of bench/bench_integrators.py (bench/README_integrators.md)
@@ -204,14 +206,27 @@ def fastest_rate(G, fast, kf, df):
 
 
 @njit(cache=True)
-def phi_response(G, fast, kf, df, H, n_sub, bq, bv, u1, u2, xq, xv, fw, B):
+def taylor_order(theta):
+    """Terms K of a sub-step's Taylor series at theta rad of the fastest mode: the smallest K
+    with theta^(K+1) / (K+1)! <= TAYLOR_TOL, at least 6 (the torque's quadratic forcing and
+    its two integrals, exact whatever the springs)."""
+    k = 1
+    term = theta * theta / 2.0
+    while (term > TAYLOR_TOL or k < 6) and k < 200:
+        k += 1
+        term *= theta / (k + 1)
+    return k
+
+
+@njit(cache=True)
+def phi_response(G, fast, kf, df, H, n_sub, order, bq, bv, u1, u2, xq, xv, fw, B):
     """Deviation (xq, xv) after H of the frozen system from rest, forced by bq on q' and by
     bv + t u1 + t^2 u2 on qd' (t the time into the step): with u2 = 0, u1 = w / H this is
     H phi1(H J) (bq, bv) + H phi2(H J) (0, w).
 
     fw: (5, 4, n_f) and B (n_f x n_f) scratch. The elastic states and the integrals
     p = int f, r = int p (f = -K dq_e - D dqd_e) take n_sub sub-steps of the Taylor series
-    of the linear system's exact solution to order TAYLOR_ORDER (the derivatives by its own
+    of the linear system's exact solution to ``order`` (the derivatives by its own
     recursion: d_k+1 = L d_k + the k-th derivative of the forcing); every coordinate then
     follows in closed form: xv = H bv + H^2 u1 / 2 + H^3 u2 / 3 + G p(H),
     xq = H bq + H^2 bv / 2 + H^3 u1 / 6 + H^4 u2 / 12 + G r(H).
@@ -236,7 +251,7 @@ def phi_response(G, fast, kf, df, H, n_sub, bq, bv, u1, u2, xq, xv, fw, B):
             for j in range(nf):
                 d[a, j] = y[a, j]
         coef = 1.0
-        for k in range(TAYLOR_ORDER):
+        for k in range(order):
             for j in range(nf):
                 f[j] = -kf[j] * d[0, j] - df[j] * d[1, j]
             for i in range(nf):
@@ -339,7 +354,7 @@ def etd2_workspace(ma):
     vectors = np.empty((11, n))  # tau, acc0, acc1, q1, v1, xq, xv, bq, bv, u1, u2
     return (fast, kf, df, rest, workspace(ma), gains_workspace(ma, fast), projection_workspace(ma),
             np.empty((n, nf + 2)), np.zeros((2, n)), vectors, np.empty((5, 4, nf)), np.empty((nf, nf)),
-            np.empty((2, nf)), np.zeros(n))
+            np.empty((3, nf)), np.zeros(n))
 
 
 @njit(cache=True)
@@ -359,7 +374,9 @@ def exponential_steps_ws(scheme, form, ma, q, qd, tau_coef, dt, n_steps, stab, a
     tau, acc0, acc1, q1, v1, xq, xv, bq, bv, u1, u2 = (vectors[0], vectors[1], vectors[2], vectors[3], vectors[4],
                                                        vectors[5], vectors[6], vectors[7], vectors[8], vectors[9],
                                                        vectors[10])
-    f0, f1 = ff[0], ff[1]
+    f0, f1, kdt2 = ff[0], ff[1], ff[2]
+    for j in range(nf):
+        kdt2[j] = dt * dt * kf[j]
     worst = 1.0
     gap = 0.0
     limit = MAX_STEP_MOTION / dt
@@ -385,13 +402,14 @@ def exponential_steps_ws(scheme, form, ma, q, qd, tau_coef, dt, n_steps, stab, a
             info[1] = np.max(np.abs(acc0))
             info[2] = gap
             return DIVERGED
+        order = taylor_order(dt * rate / n_sub)
         if scheme == ETD2:
             # exponential Euler a = z0 + H phi1(HJ) F(z0), the torque's change over the step
             # (P M^-1 (t d1 + t^2 d2), frozen like J) integrated with it
             for i in range(n):
                 u1[i] = G[i, nf]
                 u2[i] = G[i, nf + 1]
-            phi_response(G, fast, kf, df, dt, n_sub, qd, acc0, u1, u2, xq, xv, fw, B)
+            phi_response(G, fast, kf, df, dt, n_sub, order, qd, acc0, u1, u2, xq, xv, fw, B)
             for i in range(n):
                 q1[i] = q[i] + xq[i]
                 v1[i] = qd[i] + xv[i]
@@ -409,7 +427,7 @@ def exponential_steps_ws(scheme, form, ma, q, qd, tau_coef, dt, n_steps, stab, a
                 for j in range(nf):
                     acc -= G[i, j] * f0[j]
                 u1[i] = acc / dt
-            phi_response(G, fast, kf, df, dt, n_sub, zero, zero, u1, zero, xq, xv, fw, B)
+            phi_response(G, fast, kf, df, dt, n_sub, order, zero, zero, u1, zero, xq, xv, fw, B)
             for i in range(n):
                 q1[i] += xq[i]
                 v1[i] += xv[i]
@@ -433,7 +451,7 @@ def exponential_steps_ws(scheme, form, ma, q, qd, tau_coef, dt, n_steps, stab, a
                 for j in range(nf):
                     s += G[i, j] * f0[j]
                 bv[i] += s
-            phi_response(G, fast, kf, df, dt, n_sub, bq, bv, zero, zero, xq, xv, fw, B)
+            phi_response(G, fast, kf, df, dt, n_sub, order, bq, bv, zero, zero, xq, xv, fw, B)
             for i in range(n):
                 q1[i] = q[i] + xq[i]
                 v1[i] = bq[i] + xv[i]
@@ -458,7 +476,8 @@ def exponential_steps_ws(scheme, form, ma, q, qd, tau_coef, dt, n_steps, stab, a
         q[:] = q1
         qd[:] = v1
         if stab & STAB_PROJECTION:
-            project_into(ma, q, qd, tol, 3, pws)
+            # with the gains' Y, S^-1 (at the step's start; IMPULSE's at its end): no factorisation
+            project_springs(ma, q, qd, tol, 3, pws, fast, kdt2, gws[1], gws[2], gws[7], gws[8], gws[9])
         info[0] = step + 1
     info[1] = worst
     info[2] = gap
