@@ -16,6 +16,7 @@ else d.ddd e+XX, trailing zeros dropped.
 from __future__ import annotations
 
 import math
+from typing import BinaryIO
 
 import numpy as np
 from llvmlite import ir
@@ -77,11 +78,15 @@ def _exponent_table() -> tuple[np.ndarray, np.ndarray]:
     return np.array(ks, dtype=np.int64), np.array(thr, dtype=np.float64)
 
 
-T_HI, T_LO, T_EXP, T_EXACT = _pow10_table()
-K_LOW, K_UP = _exponent_table()
+# row p - P_MIN: 10^p's words hi, lo, exponent E (two's complement) and d == 0 (1 or 0)
+POW10 = np.ascontiguousarray(np.stack([a.astype(np.int64).view(np.uint64) if a.dtype != np.uint64 else a
+                                       for a in _pow10_table()], axis=1))
+# row top - TOP_MIN: floor(log10 2^top) (two's complement) and the bits of the double >= 10 times that power
+DECADE = np.ascontiguousarray(np.stack([a.view(np.uint64) for a in _exponent_table()], axis=1))
 TWO_DIGITS = np.frombuffer("".join(f"{i:02d}" for i in range(100)).encode("ascii"), dtype=np.uint8).copy()
 U32 = np.uint64(32)
 NEAR = np.uint64(2**64 - 2**53)  # the low word of 2^(s-1) - 2^53
+ABS = np.uint64(2**63 - 1)
 POW10_16 = np.uint64(10**16)
 POW10_17 = np.uint64(10**17)
 E8 = np.uint64(10**8)
@@ -90,6 +95,7 @@ E2 = np.uint64(100)
 ZEROS = np.uint64(0x3030303030303030)  # "00000000"
 ZERO_POINT = np.uint64(0x303030303030_2E30)  # "0.000000"
 SLACK = 40  # bytes past the end that the 8-byte stores of the last number may touch
+CHUNK_BYTES = 1 << 18  # write_table's buffer: stays in cache, and few write calls
 
 
 @intrinsic
@@ -112,6 +118,23 @@ def _mul64(typingctx, a, b):
 def _byte_pointer(context, builder, aryty, ary, idx):
     data = context.make_array(aryty)(context, builder, value=ary).data
     return builder.bitcast(builder.gep(data, [idx]), ir.IntType(64).as_pointer())
+
+
+@intrinsic
+def _put1(typingctx, ary, idx, val):
+    """ary[idx] = val for a uint8 array, without the negative-index wraparound."""
+    if not (isinstance(ary, types.Array) and ary.dtype == types.uint8 and isinstance(idx, types.Integer)
+            and isinstance(val, types.Integer)):
+        return None
+
+    def codegen(context, builder, signature, args):
+        data = context.make_array(signature.args[0])(context, builder, value=args[0]).data
+        byte = ir.IntType(8)
+        v = args[2] if args[2].type == byte else builder.trunc(args[2], byte)
+        builder.store(v, builder.gep(data, [args[1]]))
+        return context.get_dummy_value()
+
+    return types.none(ary, idx, val), codegen
 
 
 @intrinsic
@@ -226,39 +249,38 @@ def _subnormal_top(m):
 
 
 @njit(cache=True)
-def _table_bytes(table, bits, t_hi, t_lo, t_exp, t_exact, k_low, k_up, two):
-    """'%.17g' of every number, ',' between, a newline after each row. One flat loop (no array
+def _rows_text(table, bits, start, stop, buf, pow10, decade, two):
+    """Rows start..stop-1: '%.17g' of every number, ',' between, a newline after each row, at
+    buf[0:], which holds row_bytes(columns) a row; returns the length. One flat loop (no array
     passed to an inlined helper: each such pass costs reference counting per number)."""
-    buf = np.empty(table.shape[0] * (table.shape[1] * CHARS_PER_NUMBER + 1) + SLACK, dtype=np.uint8)
     dg = np.empty(33, dtype=np.uint8)  # the 17 digits of one number (read 8 bytes at a time)
     pos = 0
-    for i in range(table.shape[0]):
+    for i in range(start, stop):
         for j in range(table.shape[1]):
             if j:
-                buf[pos] = 44  # ','
+                _put1(buf, pos, 44)  # ','
                 pos += 1
-            x = table[i, j]
             b = bits[i, j]
-            if x != x:
-                buf[pos] = 110  # 'nan'
-                buf[pos + 1] = 97
-                buf[pos + 2] = 110
+            be = np.int64((b >> np.uint64(52)) & np.uint64(0x7FF))
+            m = b & np.uint64(0xFFFFFFFFFFFFF)
+            if be == 0x7FF and m:
+                _put1(buf, pos, 110)  # 'nan', of either sign
+                _put1(buf, pos + 1, 97)
+                _put1(buf, pos + 2, 110)
                 pos += 3
                 continue
             if b >> np.uint64(63):
-                buf[pos] = 45  # '-'
+                _put1(buf, pos, 45)  # '-'
                 pos += 1
-            be = np.int64((b >> np.uint64(52)) & np.uint64(0x7FF))
-            m = b & np.uint64(0xFFFFFFFFFFFFF)
             if be == 0x7FF:
-                buf[pos] = 105  # 'inf'
-                buf[pos + 1] = 110
-                buf[pos + 2] = 102
+                _put1(buf, pos, 105)  # 'inf'
+                _put1(buf, pos + 1, 110)
+                _put1(buf, pos + 2, 102)
                 pos += 3
                 continue
             if be == 0:
                 if m == 0:
-                    buf[pos] = 48
+                    _put1(buf, pos, 48)
                     pos += 1
                     continue
                 e = -1074
@@ -267,14 +289,14 @@ def _table_bytes(table, bits, t_hi, t_lo, t_exp, t_exact, k_low, k_up, two):
                 m |= np.uint64(1) << np.uint64(52)
                 e = be - 1075
                 top = be - 1023
-            t = top - TOP_MIN
-            k = k_low[t]  # floor(log10 |x|)
-            if abs(x) >= k_up[t]:
+            t = np.uint64(top - TOP_MIN)  # unsigned indices: no wraparound code
+            k = np.int64(decade[t, 0])  # floor(log10 |x|): compared as bits, as doubles
+            if (b & ABS) >= decade[t, 1]:
                 k += 1
-            r = 16 - k - P_MIN
-            d = _digits(m, e, t_hi[r], t_lo[r], t_exp[r], t_exact[r])
+            r = np.uint64(16 - k - P_MIN)
+            d = _digits(m, e, pow10[r, 0], pow10[r, 1], np.int64(pow10[r, 2]), pow10[r, 3])
             if d == 0:  # undecided (a near tie): Python's formatting
-                pos = _python_format(x, buf, pos)
+                pos = _python_format(table[i, j], buf, pos)
                 continue
             if d == POW10_17:  # rounded up to the next power of ten
                 d = POW10_16
@@ -297,14 +319,14 @@ def _table_bytes(table, bits, t_hi, t_lo, t_exp, t_exact, k_low, k_up, two):
             w2 = u2 + ZEROS
             if -4 <= k < 17:
                 if k >= 0:  # the digits, then from the scratch copy '.' and digits k+1..
-                    buf[pos] = c0
+                    _put1(buf, pos, c0)
                     _store8(buf, pos + 1, w1)
                     _store8(buf, pos + 9, w2)
                     if last > k:
-                        dg[0] = c0
+                        _put1(dg, 0, c0)
                         _store8(dg, 1, w1)
                         _store8(dg, 9, w2)
-                        buf[pos + k + 1] = 46
+                        _put1(buf, pos + k + 1, 46)
                         _store8(buf, pos + k + 2, _load8(dg, k + 1))
                         _store8(buf, pos + k + 10, _load8(dg, k + 9))
                         pos += last + 2
@@ -313,34 +335,34 @@ def _table_bytes(table, bits, t_hi, t_lo, t_exp, t_exact, k_low, k_up, two):
                 else:  # 0.000ddd
                     _store8(buf, pos, ZERO_POINT)
                     p = pos + 1 - k
-                    buf[p] = c0
+                    _put1(buf, p, c0)
                     _store8(buf, p + 1, w1)
                     _store8(buf, p + 9, w2)
                     pos = p + last + 1
                 continue
-            buf[pos] = c0
-            buf[pos + 1] = 46
+            _put1(buf, pos, c0)
+            _put1(buf, pos + 1, 46)
             _store8(buf, pos + 2, w1)
             _store8(buf, pos + 10, w2)
             pos += last + 2 if last > 0 else 1
-            buf[pos] = 101  # 'e'
+            _put1(buf, pos, 101)  # 'e'
             if k < 0:
-                buf[pos + 1] = 45
+                _put1(buf, pos + 1, 45)
                 a = -k
             else:
-                buf[pos + 1] = 43
+                _put1(buf, pos + 1, 43)
                 a = k
             pos += 2
             if a >= 100:
-                buf[pos] = 48 + a // 100
+                _put1(buf, pos, 48 + a // 100)
                 a %= 100
                 pos += 1
-            buf[pos] = two[2 * a]
-            buf[pos + 1] = two[2 * a + 1]
+            _put1(buf, pos, two[np.uint64(2 * a)])
+            _put1(buf, pos + 1, two[np.uint64(2 * a + 1)])
             pos += 2
-        buf[pos] = 10
+        _put1(buf, pos, 10)
         pos += 1
-    return buf[:pos]
+    return pos
 
 
 def format_float(x: float) -> str:
@@ -355,12 +377,28 @@ def table_text(table: np.ndarray) -> str:
 
 def table_bytes(table: np.ndarray) -> bytes:
     """:func:`table_text` as ASCII bytes."""
-    return table_array(table).tobytes()
+    table = _as_table(table)
+    buf = np.empty(len(table) * _row_bytes(table.shape[1]) + SLACK, dtype=np.uint8)
+    n = _rows_text(table, table.view(np.uint64), 0, len(table), buf, POW10, DECADE, TWO_DIGITS)
+    return buf[:n].tobytes()
 
 
-def table_array(table: np.ndarray) -> np.ndarray:
-    """:func:`table_bytes` as a uint8 array (no copy: what a file's write takes as it is)."""
+def write_table(f: BinaryIO, table: np.ndarray) -> None:
+    """Write :func:`table_bytes` to the binary file ``f``, formatted CHUNK_BYTES at a time into
+    one reused buffer (cache-warm, no page faults of a whole-table buffer, no copies)."""
+    table = _as_table(table)
+    bits = table.view(np.uint64)
+    rows = max(1, CHUNK_BYTES // _row_bytes(table.shape[1]))
+    buf = np.empty(min(rows, len(table)) * _row_bytes(table.shape[1]) + SLACK, dtype=np.uint8)
+    for start in range(0, len(table), rows):
+        n = _rows_text(table, bits, start, min(start + rows, len(table)), buf, POW10, DECADE, TWO_DIGITS)
+        f.write(buf[:n])
+
+
+def _as_table(table: np.ndarray) -> np.ndarray:
     table = np.ascontiguousarray(table, dtype=float)
-    if table.ndim != 2:
-        table = table.reshape(len(table), -1)
-    return _table_bytes(table, table.view(np.uint64), T_HI, T_LO, T_EXP, T_EXACT, K_LOW, K_UP, TWO_DIGITS)
+    return table if table.ndim == 2 else table.reshape(len(table), -1)
+
+
+def _row_bytes(columns: int) -> int:
+    return columns * CHARS_PER_NUMBER + 1

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
-from elastic_pm_dyn.sim.csv_text import table_array
+from elastic_pm_dyn.sim.csv_text import write_table
 
 
 @dataclass
@@ -45,17 +45,17 @@ class SimulationResult:
         path = Path(path)
         # what np.savetxt(fmt="%.17g", delimiter=",", comments="") wrote, formatted compiled
         head = (",".join(self.header()) + "\n").encode("latin-1")
-        body = table_array(self.table())  # written as it is: no copy into one bytes object
+        table = self.table()
         if path.exists() and not path.is_file():  # a device or pipe (/dev/stdout): no rename
             with open(path, "wb") as f:
                 f.write(head)
-                f.write(body)
+                write_table(f, table)
             return
         tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
         try:
             with open(tmp, "wb") as f:
                 f.write(head)
-                f.write(body)
+                write_table(f, table)
             os.replace(tmp, path)
         finally:
             tmp.unlink(missing_ok=True)
