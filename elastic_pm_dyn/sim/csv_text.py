@@ -254,7 +254,6 @@ def _rows_text(table, bits, start, stop, buf, pow10, decade, two):
     """Rows start..stop-1: '%.17g' of every number, ',' between, a newline after each row, at
     buf[0:], which holds row_bytes(columns) a row; returns the length. One flat loop (no array
     passed to an inlined helper: each such pass costs reference counting per number)."""
-    dg = np.empty(33, dtype=np.uint8)  # the 17 digits of one number (read 8 bytes at a time)
     pos = 0
     for i in range(start, stop):
         for j in range(table.shape[1]):
@@ -319,17 +318,21 @@ def _rows_text(table, bits, start, stop, buf, pow10, decade, two):
             w1 = u1 + ZEROS
             w2 = u2 + ZEROS
             if -4 <= k < 17:
-                if k >= 0:  # the digits, then from the scratch copy '.' and digits k+1..
+                if k >= 0:  # all 17 digits, then over them from digit k+1 on: '.' and those digits
                     _put1(buf, pos, c0)
                     _store8(buf, pos + 1, w1)
                     _store8(buf, pos + 9, w2)
-                    if last > k:
-                        _put1(dg, 0, c0)
-                        _store8(dg, 1, w1)
-                        _store8(dg, 9, w2)
+                    if last > k:  # (then k <= 15) digits k+1.. are bytes k.. of w1 w2
+                        if k < 8:
+                            sh = np.uint64(8 * k)
+                            f0 = (w1 >> sh) | ((w2 << (np.uint64(63) - sh)) << np.uint64(1))
+                            f1 = w2 >> sh
+                        else:
+                            f0 = w2 >> np.uint64(8 * k - 64)
+                            f1 = np.uint64(0)
                         _put1(buf, pos + k + 1, 46)
-                        _store8(buf, pos + k + 2, _load8(dg, k + 1))
-                        _store8(buf, pos + k + 10, _load8(dg, k + 9))
+                        _store8(buf, pos + k + 2, f0)
+                        _store8(buf, pos + k + 10, f1)
                         pos += last + 2
                     else:
                         pos += k + 1
