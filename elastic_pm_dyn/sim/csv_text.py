@@ -212,15 +212,13 @@ def _digits(m, e, t_hi, t_lo, t_exp, t_exact):
         mask = (np.uint64(1) << np.uint64(hb - 64)) - np.uint64(1)
         rest_zero = (v1 & mask) == 0 and v0 == 0
         near_half = (v1 & mask) == mask and v0 >= NEAR
+    up = half_bit  # round up at or above a half (added, not branched on: it is a coin toss)
     if t_exact:
-        if half_bit == 1 and (not rest_zero or (n & np.uint64(1)) == 1):
-            n += np.uint64(1)
-        return n
-    if half_bit == 1:  # at or above a half: m d > 0 only adds
-        return n + np.uint64(1)
-    if near_half:  # within m d < 2^53 of a half
+        if rest_zero:  # exactly a half: to even
+            up &= n
+    elif near_half and half_bit == 0:  # within m d < 2^53 below a half (m d > 0 only adds)
         return np.uint64(0)
-    return n
+    return n + up
 
 
 @njit(cache=True)
