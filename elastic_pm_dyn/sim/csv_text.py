@@ -238,7 +238,7 @@ def _subnormal_top(m):
 @njit(cache=True)
 def _rows_text(table, bits, start, stop, buf, pow10, decade, two):
     """Rows start..stop-1: '%.17g' of every number, ',' between, a newline after each row, at
-    buf[0:], which holds row_bytes(columns) a row; returns the length. One flat loop (no array
+    buf[0:] (_row_bytes(columns) a row and SLACK); returns the length. One flat loop (no array
     passed to an inlined helper: each such pass costs reference counting per number)."""
     pos = 0
     for i in range(start, stop):
