@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
-from elastic_pm_dyn.sim.csv_text import table_bytes
+from elastic_pm_dyn.sim.csv_text import write_table
 
 
 @dataclass
@@ -44,14 +44,18 @@ class SimulationResult:
         one that was there)."""
         path = Path(path)
         # what np.savetxt(fmt="%.17g", delimiter=",", comments="") wrote, formatted compiled
-        text = (",".join(self.header()) + "\n").encode("latin-1") + table_bytes(self.table())
+        head = (",".join(self.header()) + "\n").encode("latin-1")
+        table = self.table()
         if path.exists() and not path.is_file():  # a device or pipe (/dev/stdout): no rename
             with open(path, "wb") as f:
-                f.write(text)
+                f.write(head)
+                write_table(f, table)
             return
         tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
         try:
-            tmp.write_bytes(text)
+            with open(tmp, "wb") as f:
+                f.write(head)
+                write_table(f, table)
             os.replace(tmp, path)
         finally:
             tmp.unlink(missing_ok=True)
