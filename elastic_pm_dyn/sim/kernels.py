@@ -40,6 +40,11 @@ MAX_STEP_MOTION = 1.0
 # passive rates W qd_ae grow as 1 / ratio there): it is reported as that.
 NEAR_SINGULAR = 1e-2
 
+# [m] a closure gap below which one Newton correction with the Jacobian at the point itself
+# leaves ~gap^2 / (a link's length), far below closure_tol: project_springs does not re-evaluate
+# the closure to confirm it (an ETD2 step leaves 1e-12 .. 1e-9)
+NEWTON_SURE = 1e-8
+
 OK = 0
 SINGULAR = 1
 DIVERGED = 2
@@ -236,10 +241,13 @@ def project_springs(ma, q, qd, tol, max_iter, pws, fast, kdt2, Y0, S0, piv0, row
     alone it moved the stiff elastic joints too, where omega H >> 1 makes a 1e-11 rad shift a
     systematic change of the springs' energy: the Hexa at n_ek = 2, undamped, lost 8.4 % of its
     modes' energy over 10 s at 1 ms steps (0.37 % in W), 0.8 % at 0.5 ms (0.46 %). W is
-    factored only when a correction is due (most steps take one). Velocities: the mass metric
+    factored only when a correction is due, and from a gap below NEWTON_SURE one correction
+    is taken without evaluating the closure again. Velocities: the mass metric
     (the kinetic energy's own), with the step start's Y0 = M^-1 A^T and LU-factored
     S0 = A M^-1 A^T of the gains (chain rows as :func:`chain_block` finds them), applied twice
-    since they are a step's motion away (a rate of ~1e-3 per application).
+    since they are a step's motion away (a rate of ~1e-3 per application), with the closure's
+    rows of the last evaluation (1e-11 rad before the last correction at most: a velocity gap
+    of that order times the speed, which the next step's projection removes).
     """
     M, A, res, Y = pws[0], pws[5], pws[7], pws[13]
     S, piv, L, dinv, XY, rows, n_rows, v = pws[15:]
@@ -259,6 +267,8 @@ def project_springs(ma, q, qd, tol, max_iter, pws, fast, kdt2, Y0, S0, piv0, row
         if lu_factor(S, piv) == 0.0:
             return gap0
         _correct(ma.chain_start, Y, S, piv, rows, n_rows, res, q)
+        if gap <= NEWTON_SURE:  # Newton at the point itself: the gap left is ~gap^2 / a link's length
+            break
     for _ in range(2):
         matvec(A, qd, v)
         _correct(ma.chain_start, Y0, S0, piv0, rows0, n_rows0, v, qd)
