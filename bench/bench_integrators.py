@@ -67,6 +67,7 @@ CRITERION = 0.01  # max branch-force error / elastic RMS
 ENERGY_CRITERION = 0.01
 STEPS = {"rk4": [1e-4, 5e-5, 2.5e-5, 1.25e-5], "etd2": [1e-3, 5e-4, 2.5e-4, 1e-4],
          "impulse": [1e-3, 5e-4, 2.5e-4, 1e-4]}
+NAMES = {"rk4": "RK4", "etd2": "ETD2", "impulse": "impulse"}
 SPATIAL_LINE = {"triglide": (0.03, 0.02, 0.03)}
 
 
@@ -364,6 +365,8 @@ def main() -> None:
     p.add_argument("--machines", nargs="+", default=["five_bar:1", "triglide:1", "triglide:2", "triglide:4",
                                                        "hexa:1", "hexa:2", "hexa:4"])
     p.add_argument("--quick", action="store_true", help="shorter windows (0.1 s)")
+    p.add_argument("--methods", nargs="+", choices=tuple(STEPS), default=list(STEPS),
+                   help="integrators to compare (each at its steps in STEPS)")
     p.add_argument("--energy-horizon", type=float, default=10.0, help="[s]; 0: no energy runs")
     p.add_argument("--repeats", type=int, default=5)
     p.add_argument("--phase-step", type=float, default=SimulationOptions().phase_step,
@@ -388,7 +391,9 @@ def main() -> None:
         print(f"load average {res['load_start']:.2f} at start, {res['load_end']:.2f} at end")
         return
     PHASE_STEP = args.phase_step
-    results = {"load_start": load(), "machines": {}, "criterion": CRITERION, "phase_step": PHASE_STEP}
+    methods = {m: STEPS[m] for m in args.methods}
+    results = {"load_start": load(), "machines": {}, "criterion": CRITERION, "phase_step": PHASE_STEP,
+               "methods": list(methods)}
     if args.append and Path(args.out).exists():  # machines measured by an earlier run (its load kept)
         results = json.loads(Path(args.out).read_text())
     for spec in args.machines:
@@ -403,16 +408,16 @@ def main() -> None:
         if args.energy_only:
             entry = results["machines"][spec]
         else:
-            entry["manoeuvre"] = accuracy(mech, "manoeuvre", table, window, STEPS)
-            entry["chirp"] = accuracy(mech, "chirp", fn, chirp_window, STEPS)
-            entry["chirp_zoh"] = accuracy(mech, "chirp_zoh", sampled(fn, chirp_window), chirp_window, STEPS)
-            entry["cost"] = cost(mech, table, window, [(m, dt) for m, steps in STEPS.items() for dt in steps],
+            entry["manoeuvre"] = accuracy(mech, "manoeuvre", table, window, methods)
+            entry["chirp"] = accuracy(mech, "chirp", fn, chirp_window, methods)
+            entry["chirp_zoh"] = accuracy(mech, "chirp_zoh", sampled(fn, chirp_window), chirp_window, methods)
+            entry["cost"] = cost(mech, table, window, [(m, dt) for m, steps in methods.items() for dt in steps],
                                  args.repeats)
             for k, v in entry["cost"].items():
                 print(f"    cost {k:16s} rtf {v['rtf']:.2f}", flush=True)
         if args.energy_horizon > 0:
             entry["energy"] = {}
-            for m, steps in STEPS.items():
+            for m, steps in methods.items():
                 if m == "impulse":  # not a contender (see the accuracy)
                     continue
                 for dt in steps:
@@ -452,9 +457,10 @@ def _best(entry: dict, method: str, scenarios: tuple[str, ...]) -> tuple[float |
 def table_md(results: dict) -> str:
     lines = ["| machine | method @ step | manoeuvre rms / max | chirp rms / max | chirp ZOH rms / max | "
              "energy drift | RTF |", "|---|---|---:|---:|---:|---:|---:|"]
+    methods = results.get("methods", list(STEPS))
     for spec, entry in results["machines"].items():
-        for m, steps in STEPS.items():
-            for dt in steps:
+        for m in methods:
+            for dt in STEPS[m]:
                 key = f"{m}@{dt:g}"
                 acc = []
                 for s in SCENARIOS:
@@ -470,10 +476,10 @@ def table_md(results: dict) -> str:
                         ("the ZOH inputs a plant node gets (manoeuvre, chirp ZOH)", ("manoeuvre", "chirp_zoh"))):
         lines += ["", f"Largest step with max error <= 1 % of the elastic RMS in {title} (and energy drift "
                   "< 1 % where measured), its RTF:", "",
-                  "| machine | RK4 | ETD2 | impulse |", "|---|---|---|---|"]
+                  "| machine | " + " | ".join(NAMES[m] for m in methods) + " |", "|---" * (len(methods) + 1) + "|"]
         for spec, entry in results["machines"].items():
             cells = []
-            for m in STEPS:
+            for m in methods:
                 dt, rtf = _best(entry, m, scen)
                 cells.append("none" if dt is None else f"{dt:g} s, {rtf:.1f}" if rtf else f"{dt:g} s")
             lines.append(f"| {spec} | " + " | ".join(cells) + " |")
