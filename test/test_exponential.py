@@ -136,7 +136,7 @@ def test_projection_keeps_the_springs_energy() -> None:
 def test_taylor_terms_follow_the_sub_step() -> None:
     """A sub-step's series keeps the truncation of 20 terms at 3 rad (the old fixed rule) at any
     phase, with at least the terms the quadratic torque forcing needs; the response of the
-    frozen spring system at the default 6 rad sub-steps equals the matrix exponential's."""
+    frozen spring system at the default (9 rad) sub-steps equals the matrix exponential's."""
     from math import factorial
 
     import scipy.linalg

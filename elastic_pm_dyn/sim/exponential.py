@@ -67,15 +67,15 @@ from elastic_pm_dyn.small_linalg import cholesky_solve_rows, lu_factor, lu_solve
 ROLE_ELASTIC = 1
 
 # Truncation of the sub-steps' Taylor series: the first term left out, theta^(K+1) / (K+1)!
-# at theta rad of the fastest mode per sub-step, is below this (order 20 at 3 rad, 30 at
-# 6 rad; 3 rad at order 20 was the fixed rule before). RK4 sub-steps would lose
+# at theta rad of the fastest mode per sub-step, is below this (order 20 at 3 rad, 38 at
+# 9 rad; 3 rad at order 20 was the fixed rule before). RK4 sub-steps would lose
 # (h omega)^6 / 144 of a mode's energy each (all of an undamped kHz mode's within seconds).
 TAYLOR_TOL = 2.1e-10
 # [rad] per sub-step (SimulationOptions.phase_step) against a Gershgorin bound of the fastest
 # rate, 1-11 % above the fastest mode on the shipped machines. The terms per rad fall with
-# the sub-step (6.7 at 3 rad, 5 at 6 rad); the largest term, theta^theta / theta! (65 at
-# 6 rad), costs that many units of round-off.
-DEFAULT_PHASE_STEP = 6.0
+# the sub-step (6.7 at 3 rad, 5 at 6 rad, 4.2 at 9 rad); the largest term, ~theta^theta /
+# theta! (1e3 at 9 rad), costs that many units of round-off (2e-13 of the response).
+DEFAULT_PHASE_STEP = 9.0
 
 # [s] the step `check` suggests: it met the 1 % branch-force criterion for ZOH torques at
 # 1 kHz on 6 of the 7 machines of bench/bench_integrators.py (bench/README_integrators.md)
@@ -354,7 +354,7 @@ def etd2_workspace(ma):
     vectors = np.empty((11, n))  # tau, acc0, acc1, q1, v1, xq, xv, bq, bv, u1, u2
     return (fast, kf, df, rest, workspace(ma), gains_workspace(ma, fast), projection_workspace(ma),
             np.empty((n, nf + 2)), np.zeros((2, n)), vectors, np.empty((5, 4, nf)), np.empty((nf, nf)),
-            np.empty((3, nf)), np.zeros(n))
+            np.empty((3, nf)), np.zeros(n), (np.empty((nf, nf)), np.empty(nf), np.empty(nf), np.empty(n)))
 
 
 @njit(cache=True)
@@ -369,14 +369,14 @@ def exponential_steps_ws(scheme, form, ma, q, qd, tau_coef, dt, n_steps, stab, a
         return SINGULAR
     a = alpha if stab & STAB_BAUMGARTE else 0.0
     b = beta if stab & STAB_BAUMGARTE else 0.0
-    fast, kf, df, rest, ws, gws, pws, G, extra, vectors, fw, B, ff, zero = ew
+    fast, kf, df, rest, ws, gws, pws, G, extra, vectors, fw, B, ff, zero, sw = ew
     nf = fast.shape[0]
     tau, acc0, acc1, q1, v1, xq, xv, bq, bv, u1, u2 = (vectors[0], vectors[1], vectors[2], vectors[3], vectors[4],
                                                        vectors[5], vectors[6], vectors[7], vectors[8], vectors[9],
                                                        vectors[10])
-    f0, f1, kdt2 = ff[0], ff[1], ff[2]
+    f0, f1, sk = ff[0], ff[1], ff[2]
     for j in range(nf):
-        kdt2[j] = dt * dt * kf[j]
+        sk[j] = dt * np.sqrt(kf[j])
     worst = 1.0
     gap = 0.0
     limit = MAX_STEP_MOTION / dt
@@ -477,7 +477,7 @@ def exponential_steps_ws(scheme, form, ma, q, qd, tau_coef, dt, n_steps, stab, a
         qd[:] = v1
         if stab & STAB_PROJECTION:
             # with the gains' Y, S^-1 (at the step's start; IMPULSE's at its end): no factorisation
-            project_springs(ma, q, qd, tol, 3, pws, fast, kdt2, gws[1], gws[2], gws[7], gws[8], gws[9])
+            project_springs(ma, q, qd, tol, 3, pws, fast, sk, G, gws[1], gws[2], gws[7], gws[8], gws[9], sw)
         info[0] = step + 1
     info[1] = worst
     info[2] = gap

@@ -40,9 +40,9 @@ MAX_STEP_MOTION = 1.0
 # passive rates W qd_ae grow as 1 / ratio there): it is reported as that.
 NEAR_SINGULAR = 1e-2
 
-# [m] a closure gap below which one Newton correction with the Jacobian at the point itself
-# leaves ~gap^2 / (a link's length), far below closure_tol: project_springs does not re-evaluate
-# the closure to confirm it (an ETD2 step leaves 1e-12 .. 1e-9)
+# [m] a closure gap below which project_springs takes one correction without evaluating the
+# closure again: with a Jacobian a step's motion away it leaves ~1e-3 of the gap (an ETD2 step
+# leaves 1e-12 .. 1e-9), which the next step's projection removes
 NEWTON_SURE = 1e-8
 
 OK = 0
@@ -232,27 +232,35 @@ def project_into(ma, q, qd, tol, max_iter, pws):
 
 
 @njit(cache=True)
-def project_springs(ma, q, qd, tol, max_iter, pws, fast, kdt2, Y0, S0, piv0, rows0, n_rows0):
-    """Project (q, qd) onto h = 0, A qd = 0 after an exponential step (returns the gap before).
+def project_springs(ma, q, qd, tol, max_iter, pws, fast, sk, G, Y0, S0, piv0, rows0, n_rows0, sw):
+    """Project (q, qd) onto h = 0, A qd = 0 after an exponential step (returns the gap before),
+    with the factors of the step's start (the gains' Y0 = M^-1 A^T, LU-factored
+    S0 = A M^-1 A^T with their chain rows, and G = P M^-1 E): no factorisation of its own.
 
     Positions: Gauss-Newton in the metric W = M + H^2 K, K the springs' stiffness on the
-    elastic joints ``fast`` (kdt2 = H^2 k per joint, H the step): the least action over a step
-    of inertia and springs, so the correction goes into the soft motions. In the mass metric
-    alone it moved the stiff elastic joints too, where omega H >> 1 makes a 1e-11 rad shift a
-    systematic change of the springs' energy: the Hexa at n_ek = 2, undamped, lost 8.4 % of its
-    modes' energy over 10 s at 1 ms steps (0.37 % in W), 0.8 % at 0.5 ms (0.46 %). W is
-    factored only when a correction is due, and from a gap below NEWTON_SURE one correction
-    is taken without evaluating the closure again. Velocities: the mass metric
-    (the kinetic energy's own), with the step start's Y0 = M^-1 A^T and LU-factored
-    S0 = A M^-1 A^T of the gains (chain rows as :func:`chain_block` finds them), applied twice
-    since they are a step's motion away (a rate of ~1e-3 per application), with the closure's
-    rows of the last evaluation (1e-11 rad before the last correction at most: a velocity gap
-    of that order times the speed, which the next step's projection removes).
+    elastic joints ``fast`` (sk = H sqrt(k) per joint, H the step): the least action over a
+    step of inertia and springs, so the correction goes into the soft motions. In the mass
+    metric alone it moved the stiff elastic joints too, where omega H >> 1 makes a 1e-11 rad
+    shift a systematic change of the springs' energy: the Hexa at n_ek = 2, undamped, lost
+    8.4 % of its modes' energy over 10 s at 1 ms steps (0.37 % in W), 0.8 % at 0.5 ms (0.46 %).
+    The W step is the mass-metric one, dq_M = -Y0 S0^-1 h, plus the constrained response
+    G f to the spring forces f = -H^2 K E^T dq it meets: (I + s B s) g = -s E^T dq_M,
+    f = s g (s = H K^1/2, B = E^T G, symmetric: an n_f x n_f Cholesky). The Jacobian is a
+    step's motion away, so a correction leaves ~1e-3 of the gap (1e-14 after a step's
+    1e-11): from below NEWTON_SURE one is taken without evaluating the closure again, and
+    what is left goes with the next step's. Velocities: the mass metric (the kinetic energy's
+    own) twice, with the closure rows of the last evaluation.
     """
-    M, A, res, Y = pws[0], pws[5], pws[7], pws[13]
-    S, piv, L, dinv, XY, rows, n_rows, v = pws[15:]
+    A, res, v = pws[5], pws[7], pws[22]
+    Z, zinv, g, dq = sw
+    n = q.shape[0]
+    nf = fast.shape[0]
     if ma.p_index.shape[0] == 0:
         return 0.0
+    for i in range(nf):  # I + s B s, factored once
+        for j in range(nf):
+            Z[i, j] = sk[i] * G[fast[i], j] * sk[j] + (1.0 if i == j else 0.0)
+    spd = cholesky_recip(Z, nf, zinv)
     gap0 = -1.0
     for it in range(max_iter + 1):
         gap = _closure_at(ma, q, pws)
@@ -260,14 +268,22 @@ def project_springs(ma, q, qd, tol, max_iter, pws, fast, kdt2, Y0, S0, piv0, row
             gap0 = gap
         if gap <= tol or it == max_iter:
             break
-        for j in range(fast.shape[0]):
-            M[fast[j], fast[j]] += kdt2[j]
-        if not _chain_responses_sparse(M, A, ma.chain_start, Y, S, L, dinv, XY, rows, n_rows):
-            S[:, :] = np.nan
-        if lu_factor(S, piv) == 0.0:
-            return gap0
-        _correct(ma.chain_start, Y, S, piv, rows, n_rows, res, q)
-        if gap <= NEWTON_SURE:  # Newton at the point itself: the gap left is ~gap^2 / a link's length
+        dq[:] = 0.0
+        _correct(ma.chain_start, Y0, S0, piv0, rows0, n_rows0, res, dq)
+        if spd:
+            for i in range(nf):
+                g[i] = -sk[i] * dq[fast[i]]
+            cholesky_solve_rows(Z, zinv, nf, g.reshape((nf, 1)), 0, 1)
+            for i in range(nf):
+                g[i] *= sk[i]
+            for i in range(n):
+                acc = 0.0
+                for j in range(nf):
+                    acc += G[i, j] * g[j]
+                dq[i] += acc
+        for i in range(n):
+            q[i] += dq[i]
+        if gap <= NEWTON_SURE:
             break
     for _ in range(2):
         matvec(A, qd, v)
