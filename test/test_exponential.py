@@ -15,7 +15,7 @@ import pytest
 from elastic_pm_dyn.errors import InputError, SingularConfigurationError
 from elastic_pm_dyn.kinematics.assembly import initial_state, solve_pose
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
-from elastic_pm_dyn.model.layout import JF_DAMPING, JF_FRICTION
+from elastic_pm_dyn.model.layout import JF_DAMPING, JF_FRICTION, JF_STIFFNESS
 from elastic_pm_dyn.model.loader import load_model
 from elastic_pm_dyn.motion.feedforward import line_torques
 from elastic_pm_dyn.motion.manoeuvre import REFERENCE_MANOEUVRE
@@ -131,6 +131,38 @@ def test_projection_keeps_the_springs_energy() -> None:
     drift = energy_drift(undamped, q0, e0, e_modes, "etd2", 1e-3, 3.0)
     print(f"Hexa n_ek = 2, undamped, ETD2 1 ms: energy drift over 3 s {drift:.3g} of the deflection's energy")
     assert drift < 5e-3
+
+
+def test_projection_step_is_the_least_w_norm_correction() -> None:
+    """One position correction of the ETD2 projection, with its factors at the pose itself,
+    equals the least W-norm step (W = M + dt^2 K) onto A dq = -h solved as one KKT system by
+    numpy: the rank-n_f form through G (no factorisation of W) is that step."""
+    mech = Mechanism(load_model(CONFIG / "hexa.yaml", 2))
+    rng = np.random.default_rng(5)
+    q = initial_state(mech)
+    q[mech.elastic] += rng.normal(scale=1e-4, size=len(mech.elastic))
+    q = solve_pose(mech, q, mech.passive)
+    q_off = q + rng.normal(scale=1e-6, size=mech.n)  # a closure gap of ~1e-6
+    ma, n, dt = mech.arrays, mech.n, 1e-3
+    fast = exponential.fast_joints(ma)
+    t = mech.terms(q_off)
+    gws = exponential.gains_workspace(ma, fast)
+    G = np.empty((n, len(fast) + 2))
+    exponential.elastic_gains(ma, fast, t.M, t.A, np.zeros((2, n)), G, gws)
+    k = ma.jf[fast, JF_STIFFNESS]
+    nf = len(fast)
+    sw = (np.empty((nf, nf)), np.empty(nf), np.empty(nf), np.empty(n))
+    q_new, qd = q_off.copy(), np.zeros(n)
+    kernels.project_springs(ma, q_new, qd, 0.0, 1, kernels.projection_workspace(ma), fast, dt * np.sqrt(k), G,
+                            gws[1], gws[2], gws[7], gws[8], gws[9], sw)
+    W = t.M.copy()
+    W[fast, fast] += dt * dt * k
+    m = mech.m
+    kkt = np.block([[W, t.A.T], [t.A, np.zeros((m, m))]])
+    dq = np.linalg.solve(kkt, np.concatenate([np.zeros(n), -t.residual]))[:n]
+    print(f"gap {np.linalg.norm(t.residual):.2g}, |dq| {np.abs(dq).max():.3g}, "
+          f"difference {np.abs(q_new - q_off - dq).max():.3g}")
+    np.testing.assert_allclose(q_new - q_off, dq, rtol=0, atol=1e-9 * np.abs(dq).max())
 
 
 def test_taylor_terms_follow_the_sub_step() -> None:
