@@ -17,7 +17,7 @@ from elastic_pm_dyn.dynamics.kernels import (
     scdd_platform,
     scdd_platform_into,
 )
-from elastic_pm_dyn.kinematics.kernels import closure_rows, point_buffers, tree_terms, tree_terms_into, weld_rows
+from elastic_pm_dyn.kinematics.kernels import all_closure_rows, point_buffers, tree_terms, tree_terms_into
 from elastic_pm_dyn.model.arrays import ModelArrays
 from elastic_pm_dyn.model.layout import JI_CHAIN
 from elastic_pm_dyn.small_linalg import matvec
@@ -99,12 +99,10 @@ def _closure_terms(ma, qd, J, a_pt, p_pt, A, gamma, res, baumgarte_alpha, baumga
     """Closure rows (A, gamma, residual) with Baumgarte's terms in gamma; returns |h(q)|."""
     if ma.p_index.shape[0] == 0:
         return 0.0
-    closure_rows(ma.closure_pairs, ma.closure_axes, J, a_pt, p_pt, A, gamma, res)
-    if ma.points.shape[1] == 12:  # welds, reduced pairs: their points carry frames
-        weld_rows(ma.closure_pairs, ma.closure_axes, J, a_pt, p_pt, A, gamma, res)
+    gap = all_closure_rows(ma.closure_pairs, ma.closure_axes, ma.points, J, a_pt, p_pt, A, gamma, res)
     if baumgarte_alpha > 0.0 or baumgarte_beta > 0.0:
         gamma -= 2.0 * baumgarte_alpha * matvec(A, qd, work) + baumgarte_beta * baumgarte_beta * res
-    return np.sqrt(np.sum(res * res))
+    return gap
 
 
 @njit(cache=True)

@@ -453,6 +453,17 @@ def weld_rows(closure_pairs, closure_axes, J, a_pt, p_pt, A, gamma, res):
             r += 1
 
 
+
+@njit(cache=True, inline="always")
+def all_closure_rows(closure_pairs, closure_axes, points, J, a_pt, p_pt, A, gamma, res):
+    """Every closure row: :func:`closure_rows` and, where the points carry frames (``points`` of
+    12 columns: welds, reduced pairs), :func:`weld_rows`; returns the gap |h(q)|."""
+    closure_rows(closure_pairs, closure_axes, J, a_pt, p_pt, A, gamma, res)
+    if points.shape[1] == 12:
+        weld_rows(closure_pairs, closure_axes, J, a_pt, p_pt, A, gamma, res)
+    return np.sqrt(np.sum(res * res))
+
+
 @njit(cache=True)
 def chain_points(jf, ji, chain_start, points, point_body, q, origins, coms, p_pt):
     """Forward kinematics only: joint origins, body centres of mass, attachment points (world)."""

@@ -8,12 +8,11 @@ import numpy as np
 
 from elastic_pm_dyn.errors import SingularConfigurationError
 from elastic_pm_dyn.kinematics.kernels import (
+    all_closure_rows,
     chain_points,
     chain_points_many,
-    closure_rows,
     point_buffers,
     tree_terms,
-    weld_rows,
 )
 from elastic_pm_dyn.model.arrays import ModelArrays, pack
 from elastic_pm_dyn.model.description import ACTIVE, ELASTIC, PASSIVE, Model
@@ -88,9 +87,7 @@ class Mechanism:
         tree_terms(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_body, ma.gravity, q, qd, M, h, J, a_tip, p_tip)
         A, gamma, res = np.zeros((m, n)), np.zeros(m), np.zeros(m)
         if m:
-            closure_rows(ma.closure_pairs, ma.closure_axes, J, a_tip, p_tip, A, gamma, res)
-            if ma.points.shape[1] == 12:  # welds, reduced pairs: their points carry frames
-                weld_rows(ma.closure_pairs, ma.closure_axes, J, a_tip, p_tip, A, gamma, res)
+            all_closure_rows(ma.closure_pairs, ma.closure_axes, ma.points, J, a_tip, p_tip, A, gamma, res)
         return TreeTerms(M, h, J, a_tip, p_tip, A, gamma, res)
 
     def points(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -19,7 +19,7 @@ from numba import njit
 
 from elastic_pm_dyn.dynamics.evaluate import LDA, accelerations_into, workspace
 from elastic_pm_dyn.dynamics.kernels import chain_size_max
-from elastic_pm_dyn.kinematics.kernels import closure_rows, point_buffers, tree_terms, tree_terms_into, weld_rows
+from elastic_pm_dyn.kinematics.kernels import all_closure_rows, point_buffers, tree_terms, tree_terms_into
 from elastic_pm_dyn.model.arrays import ModelArrays
 from elastic_pm_dyn.small_linalg import cholesky_recip, cholesky_solve_rows, lu_factor, lu_solve, matvec
 
@@ -53,10 +53,7 @@ DIVERGED = 2
 @njit(cache=True)
 def _closure(ma, q, qd, M, h, J, a_pt, p_pt, A, gamma, res):
     tree_terms(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_body, ma.gravity, q, qd, M, h, J, a_pt, p_pt)
-    closure_rows(ma.closure_pairs, ma.closure_axes, J, a_pt, p_pt, A, gamma, res)
-    if ma.points.shape[1] == 12:  # welds, reduced pairs: their points carry frames
-        weld_rows(ma.closure_pairs, ma.closure_axes, J, a_pt, p_pt, A, gamma, res)
-    return np.sqrt(np.sum(res * res))
+    return all_closure_rows(ma.closure_pairs, ma.closure_axes, ma.points, J, a_pt, p_pt, A, gamma, res)
 
 
 @njit(cache=True)
@@ -188,10 +185,7 @@ def _closure_at(ma, q, pws):
     zero = pws[14]
     tree_terms_into(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_body, ma.gravity, q, zero, M, h, J, a_pt,
                     p_pt, wz, wo, jv, jw, fr)
-    closure_rows(ma.closure_pairs, ma.closure_axes, J, a_pt, p_pt, A, gamma, res)
-    if ma.points.shape[1] == 12:  # welds: their points carry frames
-        weld_rows(ma.closure_pairs, ma.closure_axes, J, a_pt, p_pt, A, gamma, res)
-    return np.sqrt(np.sum(res * res))
+    return all_closure_rows(ma.closure_pairs, ma.closure_axes, ma.points, J, a_pt, p_pt, A, gamma, res)
 
 
 @njit(cache=True, inline="always")
