@@ -251,17 +251,19 @@ def project_springs(ma, q, qd, tol, max_iter, pws, fast, sk, G, Y0, S0, piv0, ro
     nf = fast.shape[0]
     if ma.p_index.shape[0] == 0:
         return 0.0
-    for i in range(nf):  # I + s B s, factored once
-        for j in range(nf):
-            Z[i, j] = sk[i] * G[fast[i], j] * sk[j] + (1.0 if i == j else 0.0)
-    spd = cholesky_recip(Z, nf, zinv)
     gap0 = -1.0
+    spd = False
     for it in range(max_iter + 1):
         gap = _closure_at(ma, q, pws)
         if gap0 < 0.0:
             gap0 = gap
         if gap <= tol or it == max_iter:
             break
+        if it == 0:  # I + s B s, factored once, when a correction is due
+            for i in range(nf):
+                for j in range(nf):
+                    Z[i, j] = sk[i] * G[fast[i], j] * sk[j] + (1.0 if i == j else 0.0)
+            spd = cholesky_recip(Z, nf, zinv)
         dq[:] = 0.0
         _correct(ma.chain_start, Y0, S0, piv0, rows0, n_rows0, res, dq)
         if spd:
