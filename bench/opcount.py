@@ -396,7 +396,7 @@ class NumpyShim(types.ModuleType):
 _PATCHED = False
 SECTION_WRAPS = {  # (module, function name) -> section label
     ("elastic_pm_dyn.dynamics.evaluate", "tree_terms_into"): "tree_terms",
-    ("elastic_pm_dyn.dynamics.evaluate", "closure_rows"): "closure_rows",
+    ("elastic_pm_dyn.dynamics.evaluate", "all_closure_rows"): "closure_rows",
     ("elastic_pm_dyn.dynamics.evaluate", "scdd_into"): "solve",
     ("elastic_pm_dyn.dynamics.evaluate", "scdd_platform"): "solve",
     ("elastic_pm_dyn.dynamics.evaluate", "lagrange_dalembert"): "solve",

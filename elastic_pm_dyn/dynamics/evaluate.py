@@ -99,10 +99,10 @@ def _closure_terms(ma, qd, J, a_pt, p_pt, A, gamma, res, baumgarte_alpha, baumga
     """Closure rows (A, gamma, residual) with Baumgarte's terms in gamma; returns |h(q)|."""
     if ma.p_index.shape[0] == 0:
         return 0.0
-    gap = all_closure_rows(ma.closure_pairs, ma.closure_axes, ma.points, J, a_pt, p_pt, A, gamma, res)
+    all_closure_rows(ma.closure_pairs, ma.closure_axes, ma.points, J, a_pt, p_pt, A, gamma, res)
     if baumgarte_alpha > 0.0 or baumgarte_beta > 0.0:
         gamma -= 2.0 * baumgarte_alpha * matvec(A, qd, work) + baumgarte_beta * baumgarte_beta * res
-    return gap
+    return np.sqrt(np.sum(res * res))
 
 
 @njit(cache=True)

@@ -457,11 +457,10 @@ def weld_rows(closure_pairs, closure_axes, J, a_pt, p_pt, A, gamma, res):
 @njit(cache=True, inline="always")
 def all_closure_rows(closure_pairs, closure_axes, points, J, a_pt, p_pt, A, gamma, res):
     """Every closure row: :func:`closure_rows` and, where the points carry frames (``points`` of
-    12 columns: welds, reduced pairs), :func:`weld_rows`; returns the gap |h(q)|."""
+    12 columns: welds, reduced pairs), :func:`weld_rows`."""
     closure_rows(closure_pairs, closure_axes, J, a_pt, p_pt, A, gamma, res)
     if points.shape[1] == 12:
         weld_rows(closure_pairs, closure_axes, J, a_pt, p_pt, A, gamma, res)
-    return np.sqrt(np.sum(res * res))
 
 
 @njit(cache=True)

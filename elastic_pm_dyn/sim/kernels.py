@@ -53,7 +53,8 @@ DIVERGED = 2
 @njit(cache=True)
 def _closure(ma, q, qd, M, h, J, a_pt, p_pt, A, gamma, res):
     tree_terms(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_body, ma.gravity, q, qd, M, h, J, a_pt, p_pt)
-    return all_closure_rows(ma.closure_pairs, ma.closure_axes, ma.points, J, a_pt, p_pt, A, gamma, res)
+    all_closure_rows(ma.closure_pairs, ma.closure_axes, ma.points, J, a_pt, p_pt, A, gamma, res)
+    return np.sqrt(np.sum(res * res))
 
 
 @njit(cache=True)
@@ -185,7 +186,8 @@ def _closure_at(ma, q, pws):
     zero = pws[14]
     tree_terms_into(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_body, ma.gravity, q, zero, M, h, J, a_pt,
                     p_pt, wz, wo, jv, jw, fr)
-    return all_closure_rows(ma.closure_pairs, ma.closure_axes, ma.points, J, a_pt, p_pt, A, gamma, res)
+    all_closure_rows(ma.closure_pairs, ma.closure_axes, ma.points, J, a_pt, p_pt, A, gamma, res)
+    return np.sqrt(np.sum(res * res))
 
 
 @njit(cache=True, inline="always")
