@@ -9,28 +9,40 @@ of the elastic joints (n_f of them) act through the constrained inverse inertia
 tau - h = e_j and gamma = 0). Frozen over a macro step H at its start state, the
 linearisation z' = J z of the tree state z = (q, qd) in the springs alone,
 J = [[0, I], [-G K E^T, -G D E^T]], is integrated exactly (to round-off, on sub-steps), and
-everything else (motion, Coriolis, gravity, closure, torques, the springs' variation
-of G) enters as the forcing of an exponential Runge-Kutta method, ETD2RK (Cox and
-Matthews 2002, eq 22):
+everything else, N(z) = F(z) - J z (motion, Coriolis, gravity, closure, torques, the springs'
+variation of G), enters as its forcing. The step (scheme AVERAGED, the ``etd2`` integrator):
 
-    a   = z0 + H phi1(H J) F(z0)                           (exponential Euler)
-    z1  = a  + H phi2(H J) (N(a) - N(z0)),   N(z) = F(z) - J z
+    x(t) = z0 + t phi1(t J) F(z0),  0 <= t <= H              (exponential Euler, the predictor)
+    zbar = (1/H) int_0^H x(t) dt                              (its average over the step)
+    z1   = z0 + H phi1(H J) (F(z0) + N(zbar) - N(z0))         (= e^HJ z0 + H phi1(H J) N(zbar))
 
 with F the full right-hand side at the step's start torque (one formulation evaluation each
-at z0 and a); the torque's change over the step (tau(t) = tau0 + t d1 + t^2 d2) is forcing
-of the frozen system too, through the gains P M^-1 d1, P M^-1 d2.
-Second order for any fixed J; exact for the frozen linear spring system, so an undamped
-mode keeps its frequency and energy at any H, and a stiff spring under a slow load sits at
-its quasi-static deflection instead of ringing. After each macro step (q, qd) is
-projected onto the constraint manifold, positions in the metric M + H^2 K so that the
-correction does not shift the stiff springs (:func:`elastic_pm_dyn.sim.kernels.project_springs`).
+at z0 and zbar); the torque's change over the step (tau(t) = tau0 + t d1 + t^2 d2) is forcing
+of the frozen system too, through the gains P M^-1 d1, P M^-1 d2. zbar is z(H/2) to O(H^2),
+so the method is of second order (the exponential midpoint rule); exact for the frozen linear
+spring system, so an undamped mode keeps its frequency and energy at any H, and a stiff spring
+under a slow load sits at its quasi-static deflection instead of ringing.
 
-phi1 and phi2 applied to a vector are the responses of the linear system from rest to a
-constant and to a ramp forcing. Only the elastic coordinates are dynamic in it (their
-n_f x n_f block B = E^T G), the others integrate their forcing: those responses are
-Taylor-series sub-steps (order from :func:`taylor_order`) of the 2 n_f elastic states plus the integrals
-of f, at most
-``phase_step`` rad of the fastest frozen mode each (an upper bound of its frequency from
+Why the average: the arm modes the step does not resolve (omega H up to ~70) oscillate inside
+N (G's change with the deflection times the spring force, the vibrating arms' Coriolis
+terms). Sampled at two instants (ETD2RK, Cox and Matthews 2002: N at z0 and at x(H), a ramp
+between) those products alias into a slow forcing in phase with the modes, which pumped
+energy into them: the undamped Hexa at n_ek = 4 gained up to 16x its deflection's energy
+in 10 s at steps from 0.06 to 0.5 ms (bench/README_integrators.md). The average over the step
+is a filter, the one of mollified impulse methods (Garcia-Archilla, Sanz-Serna and Skeel
+1999; Hochbruck and Lubich 1999): a mode's oscillation reaches N reduced by
+|sinc(omega H / 2)|, the slow motion unchanged. What it gives up is the vibration's rectified
+part (the mean of the products): at omega H >> 1 a free, undamped machine drifts more slowly
+than it should under its own vibration (README Limits). ETD2RK is kept (scheme ETD2RK) for
+that comparison. After each macro step (q, qd) is projected onto the constraint manifold,
+positions in the metric M + H^2 K so that the correction does not shift the stiff springs
+(:func:`elastic_pm_dyn.sim.kernels.project_springs`).
+
+phi1 applied to a vector (and the averages) are responses of the linear system from rest to
+a polynomial forcing. Only the elastic coordinates are dynamic in it (their n_f x n_f block
+B = E^T G), the others integrate their forcing: those responses are Taylor-series sub-steps
+(order from :func:`taylor_order`) of the 2 n_f elastic states plus the integrals of f, at
+most ``phase_step`` rad of the fastest frozen mode each (an upper bound of its frequency from
 Gershgorin's circles), i.e. O(n_f^2) operations per sub-step against a formulation
 evaluation per macro step.
 
@@ -186,10 +198,11 @@ def elastic_gains(ma, fast, M, A, extra, G, gws):
 
 
 @njit(cache=True)
-def fastest_rate(G, fast, kf, df):
+def fastest_rate(G, fast, root_k, df):
     """Upper bound [rad/s] of the frozen spring system's fastest rate: Gershgorin on the
     symmetric K^1/2 B K^1/2 (B = E^T G; its eigenvalues are the squared natural
-    frequencies), and on B D for the dampers' decay rates."""
+    frequencies), and on B D for the dampers' decay rates. root_k: the stiffnesses' square
+    roots."""
     nf = fast.shape[0]
     w2 = 0.0
     d = 0.0
@@ -198,9 +211,9 @@ def fastest_rate(G, fast, kf, df):
         rd = 0.0
         for j in range(nf):
             b = abs(G[fast[i], j])
-            rk += np.sqrt(kf[i] * kf[j]) * b
+            rk += root_k[j] * b
             rd += b * df[j]
-        w2 = max(w2, rk)
+        w2 = max(w2, root_k[i] * rk)
         d = max(d, rd)
     return max(np.sqrt(w2), d)
 
@@ -218,22 +231,32 @@ def taylor_order(theta):
     return k
 
 
-@njit(cache=True)
-def phi_response(G, fast, kf, df, H, n_sub, order, bq, bv, u1, u2, xq, xv, fw, B):
-    """Deviation (xq, xv) after H of the frozen system from rest, forced by bq on q' and by
-    bv + t u1 + t^2 u2 on qd' (t the time into the step): with u2 = 0, u1 = w / H this is
-    H phi1(H J) (bq, bv) + H phi2(H J) (0, w).
+# Elastic joints from which B f is summed column by column (contiguous, vectorised: 15-20 %
+# faster at 12 on the Hexa at n_ek = 2) rather than as one dot product per row (faster at 6)
+COLUMN_PRODUCT = 8
 
-    fw: (5, 4, n_f) and B (n_f x n_f) scratch. The elastic states and the integrals
-    p = int f, r = int p (f = -K dq_e - D dqd_e) take n_sub sub-steps of the Taylor series
-    of the linear system's exact solution to ``order`` (the derivatives by its own
-    recursion: d_k+1 = L d_k + the k-th derivative of the forcing); every coordinate then
-    follows in closed form: xv = H bv + H^2 u1 / 2 + H^3 u2 / 3 + G p(H),
-    xq = H bq + H^2 bv / 2 + H^3 u1 / 6 + H^4 u2 / 12 + G r(H).
+
+@njit(cache=True)
+def phi_response(G, fast, kf, df, H, n_sub, order, bq, bv, u1, u2, xq, xv, fw, B, aq, av):
+    """Deviation (xq, xv) after H of the frozen system from rest, forced by bq on q' and by
+    bv + t u1 + t^2 u2 on qd' (t the time into the step): with u1 = u2 = 0 this is
+    H phi1(H J) (bq, bv); with u2 = 0, u1 = w / H, H phi1(H J) (bq, bv) + H phi2(H J) (0, w).
+    Where aq, av have n entries (else length 0) they receive the deviation's average over
+    the step, int_0^H (xq, xv) dt / H.
+
+    fw: (5, 5, n_f) and B (n_f x n_f) scratch. The elastic states take n_sub sub-steps of the
+    Taylor series of the linear system's exact solution to ``order`` (the derivatives by its
+    own recursion: d_k+1 = L d_k + the k-th derivative of the forcing), and the integrals
+    p = int f, r = int p (f = -K dq_e - D dqd_e), for the averages rho = int r, the series of
+    f's derivatives integrated term by term;
+    every coordinate then follows in closed form: xv = H bv + H^2 u1 / 2 + H^3 u2 / 3 + G p(H),
+    xq = H bq + H^2 bv / 2 + H^3 u1 / 6 + H^4 u2 / 12 + G r(H),
+    aq = H bq / 2 + H^2 bv / 6 + H^3 u1 / 24 + H^4 u2 / 60 + G rho(H) / H, av = xq / H - bq.
     """
     nf = fast.shape[0]
     n = xq.shape[0]
-    y, d, dn = fw[0], fw[1], fw[2]
+    average = aq.shape[0] == n
+    y, d, dn = fw[0], fw[1], fw[2]  # y: dq_e, dqd_e, p, r, rho; d, dn: derivatives of dq_e, dqd_e
     f = fw[3, 0]
     bqe, bve, u1e, u2e = fw[4, 0], fw[4, 1], fw[4, 2], fw[4, 3]
     for i in range(nf):
@@ -242,38 +265,62 @@ def phi_response(G, fast, kf, df, H, n_sub, order, bq, bv, u1, u2, xq, xv, fw, B
         u1e[i] = u1[fast[i]]
         u2e[i] = u2[fast[i]]
         for j in range(nf):
-            B[i, j] = G[fast[i], j]
+            if nf < COLUMN_PRODUCT:
+                B[i, j] = G[fast[i], j]
+            else:  # transposed: the product below runs along its rows
+                B[j, i] = G[fast[i], j]
     y[:, :] = 0.0
     h = H / n_sub
     for step in range(n_sub):
         t0 = step * h
-        for a in range(4):
-            for j in range(nf):
-                d[a, j] = y[a, j]
-        coef = 1.0
+        for j in range(nf):  # the integrals' start values carried over the sub-step
+            y[4, j] += h * (y[3, j] + 0.5 * h * y[2, j])
+            y[3, j] += h * y[2, j]
+            d[0, j] = y[0, j]
+            d[1, j] = y[1, j]
+        coef = 1.0  # h^k / k!
         for k in range(order):
+            # f's k-th derivative; it enters p, r, rho as h^(k+1) / (k+1)!, h^(k+2) / (k+2)!, ...
             for j in range(nf):
                 f[j] = -kf[j] * d[0, j] - df[j] * d[1, j]
-            for i in range(nf):
-                acc = 0.0
-                for j in range(nf):
-                    acc += B[i, j] * f[j]
-                if k == 0:  # the forcing's derivatives at t0: bv + t u1 + t^2 u2, then u1 + 2 t u2, 2 u2
-                    acc += bve[i] + t0 * (u1e[i] + t0 * u2e[i])
-                    dn[0, i] = d[1, i] + bqe[i]
-                else:
-                    if k == 1:
-                        acc += u1e[i] + 2.0 * t0 * u2e[i]
-                    elif k == 2:
-                        acc += 2.0 * u2e[i]
+            acc = dn[1]
+            if nf < COLUMN_PRODUCT:
+                for i in range(nf):
+                    a = 0.0
+                    for j in range(nf):
+                        a += B[i, j] * f[j]
+                    acc[i] = a
                     dn[0, i] = d[1, i]
-                dn[1, i] = acc
-                dn[3, i] = d[2, i]
-                dn[2, i] = f[i]
-            coef *= h / (k + 1)
-            for a in range(4):
+            else:  # column by column: the same sums, vectorised
+                for i in range(nf):
+                    acc[i] = 0.0
+                    dn[0, i] = d[1, i]
                 for j in range(nf):
-                    y[a, j] += coef * dn[a, j]
+                    fj = f[j]
+                    Bj = B[j]
+                    for i in range(nf):
+                        acc[i] += Bj[i] * fj
+            if k < 3:  # the forcing's derivatives at t0: bv + t u1 + t^2 u2, then u1 + 2 t u2, 2 u2
+                for i in range(nf):
+                    if k == 0:
+                        acc[i] += bve[i] + t0 * (u1e[i] + t0 * u2e[i])
+                        dn[0, i] += bqe[i]
+                    elif k == 1:
+                        acc[i] += u1e[i] + 2.0 * t0 * u2e[i]
+                    else:
+                        acc[i] += 2.0 * u2e[i]
+            c1 = coef * h / (k + 1)
+            c2 = c1 * h / (k + 2)
+            for j in range(nf):
+                y[0, j] += c1 * dn[0, j]
+                y[1, j] += c1 * dn[1, j]
+                y[2, j] += c1 * f[j]
+                y[3, j] += c2 * f[j]
+            if average:
+                c3 = c2 * h / (k + 3)
+                for j in range(nf):
+                    y[4, j] += c3 * f[j]
+            coef = c1
             d, dn = dn, d
     H2 = H * H
     for i in range(n):
@@ -284,10 +331,20 @@ def phi_response(G, fast, kf, df, H, n_sub, order, bq, bv, u1, u2, xq, xv, fw, B
             accv += G[i, j] * y[2, j]
         xq[i] = accq
         xv[i] = accv
+    if average:  # over the step: int_0^H x dt / H
+        for j in range(nf):
+            y[4, j] /= H
+        for i in range(n):
+            acc = 0.5 * H * bq[i] + H2 * (bv[i] / 6.0 + H * (u1[i] / 24.0 + H * u2[i] / 60.0))
+            for j in range(nf):
+                acc += G[i, j] * y[4, j]
+            aq[i] = acc
+            av[i] = xq[i] / H - bq[i]
 
 
-ETD2 = 0
+AVERAGED = 0  # the etd2 integrator (module docstring)
 IMPULSE = 1  # r-RESPA / impulse splitting, kept for the comparison in bench/bench_integrators.py
+ETD2RK = 2  # N sampled at the step's ends, kept for the same comparison
 
 
 @njit(cache=True)
@@ -325,7 +382,8 @@ def _evaluate(form, ma, q, qd, tau_coef, s, tau, a, b, qdd_prev, acc, lam, ws, d
 @njit(cache=True)
 def exponential_steps(scheme, form, ma, q, qd, tau_coef, dt, n_steps, stab, alpha, beta, tol, singular_tol,
                       phase_step, qdd_prev, lam, info):
-    """Advance (q, qd) in place by n_steps macro steps of dt (ETD2RK, or the impulse splitting).
+    """Advance (q, qd) in place by n_steps macro steps of dt (``scheme``: AVERAGED, or ETD2RK or the
+    impulse splitting for the comparison bench).
 
     The contract of :func:`elastic_pm_dyn.sim.kernels.rk4_steps`: tau_coef (3, n_t) is the
     torque polynomial in the time since the call's start; info receives [steps done, worst
@@ -353,8 +411,8 @@ def etd2_workspace(ma):
         rest[j] = ma.jf[fast[j], JF_REST]
     vectors = np.empty((11, n))  # tau, acc0, acc1, q1, v1, xq, xv, bq, bv, u1, u2
     return (fast, kf, df, rest, workspace(ma), gains_workspace(ma, fast), projection_workspace(ma),
-            np.empty((n, nf + 2)), np.zeros((2, n)), vectors, np.empty((5, 4, nf)), np.empty((nf, nf)),
-            np.empty((3, nf)), np.zeros(n), (np.empty((nf, nf)), np.empty(nf), np.empty(nf), np.empty(n)))
+            np.empty((n, nf + 2)), np.zeros((2, n)), vectors, np.empty((5, 5, nf)), np.empty((nf, nf)),
+            np.empty((4, nf)), np.zeros(n), (np.empty((nf, nf)), np.empty(nf), np.empty(nf), np.empty(n)))
 
 
 @njit(cache=True)
@@ -374,9 +432,10 @@ def exponential_steps_ws(scheme, form, ma, q, qd, tau_coef, dt, n_steps, stab, a
     tau, acc0, acc1, q1, v1, xq, xv, bq, bv, u1, u2 = (vectors[0], vectors[1], vectors[2], vectors[3], vectors[4],
                                                        vectors[5], vectors[6], vectors[7], vectors[8], vectors[9],
                                                        vectors[10])
-    f0, f1, sk = ff[0], ff[1], ff[2]
+    f0, f1, sk, root_k = ff[0], ff[1], ff[2], ff[3]
     for j in range(nf):
-        sk[j] = dt * np.sqrt(kf[j])
+        root_k[j] = np.sqrt(kf[j])
+        sk[j] = dt * root_k[j]
     worst = 1.0
     gap = 0.0
     limit = MAX_STEP_MOTION / dt
@@ -396,20 +455,48 @@ def exponential_steps_ws(scheme, form, ma, q, qd, tau_coef, dt, n_steps, stab, a
             info[1] = ratio
             info[2] = gap
             return SINGULAR
-        rate = fastest_rate(G, fast, kf, df)
+        rate = fastest_rate(G, fast, root_k, df)
         n_sub = max(1, int(np.ceil(dt * rate / phase_step)))
         if not n_sub <= MAX_SUBSTEPS:
             info[1] = np.max(np.abs(acc0))
             info[2] = gap
             return DIVERGED
         order = taylor_order(dt * rate / n_sub)
-        if scheme == ETD2:
+        if scheme == AVERAGED:
+            for i in range(n):
+                u1[i] = G[i, nf]
+                u2[i] = G[i, nf + 1]
+            mq, mv = bq, bv  # the predictor's average deviation (bq, bv serve the impulse splitting)
+            phi_response(G, fast, kf, df, dt, n_sub, order, qd, acc0, u1, u2, xq, xv, fw, B, mq, mv)
+            for i in range(n):  # zbar: the exponential Euler predictor's average over the step
+                q1[i] = q[i] + mq[i]
+                v1[i] = qd[i] + mv[i]
+            status, cond, g = _evaluate(form, ma, q1, v1, tau_coef, s0, tau, a, b, qdd_prev, acc1, lam, ws,
+                                        dt, singular_tol, limit, info)
+            if status != OK:
+                return status
+            worst = min(worst, cond)
+            # constant forcing N(zbar) - N(z0) = F(zbar) - F(z0) - J (zbar - z0) (velocity rows)
+            for j in range(nf):
+                f0[j] = -kf[j] * mq[fast[j]] - df[j] * mv[fast[j]]
+            for i in range(n):
+                acc = acc1[i] - acc0[i]
+                for j in range(nf):
+                    acc -= G[i, j] * f0[j]
+                u1[i] = acc
+                q1[i] = q[i] + xq[i]  # the predictor's end, x(H)
+                v1[i] = qd[i] + xv[i]
+            phi_response(G, fast, kf, df, dt, n_sub, order, zero, u1, zero, zero, xq, xv, fw, B, zero[:0], zero[:0])
+            for i in range(n):
+                q1[i] += xq[i]
+                v1[i] += xv[i]
+        elif scheme == ETD2RK:
             # exponential Euler a = z0 + H phi1(HJ) F(z0), the torque's change over the step
             # (P M^-1 (t d1 + t^2 d2), frozen like J) integrated with it
             for i in range(n):
                 u1[i] = G[i, nf]
                 u2[i] = G[i, nf + 1]
-            phi_response(G, fast, kf, df, dt, n_sub, order, qd, acc0, u1, u2, xq, xv, fw, B)
+            phi_response(G, fast, kf, df, dt, n_sub, order, qd, acc0, u1, u2, xq, xv, fw, B, zero[:0], zero[:0])
             for i in range(n):
                 q1[i] = q[i] + xq[i]
                 v1[i] = qd[i] + xv[i]
@@ -427,7 +514,7 @@ def exponential_steps_ws(scheme, form, ma, q, qd, tau_coef, dt, n_steps, stab, a
                 for j in range(nf):
                     acc -= G[i, j] * f0[j]
                 u1[i] = acc / dt
-            phi_response(G, fast, kf, df, dt, n_sub, order, zero, zero, u1, zero, xq, xv, fw, B)
+            phi_response(G, fast, kf, df, dt, n_sub, order, zero, zero, u1, zero, xq, xv, fw, B, zero[:0], zero[:0])
             for i in range(n):
                 q1[i] += xq[i]
                 v1[i] += xv[i]
@@ -451,7 +538,7 @@ def exponential_steps_ws(scheme, form, ma, q, qd, tau_coef, dt, n_steps, stab, a
                 for j in range(nf):
                     s += G[i, j] * f0[j]
                 bv[i] += s
-            phi_response(G, fast, kf, df, dt, n_sub, order, bq, bv, zero, zero, xq, xv, fw, B)
+            phi_response(G, fast, kf, df, dt, n_sub, order, bq, bv, zero, zero, xq, xv, fw, B, zero[:0], zero[:0])
             for i in range(n):
                 q1[i] = q[i] + xq[i]
                 v1[i] = bq[i] + xv[i]
@@ -504,5 +591,5 @@ def substeps_at(mech, q: np.ndarray, dt: float) -> tuple[float, int]:
     t = mech.terms(q)
     G = np.empty((n, fast.shape[0] + 2))
     elastic_gains(ma, fast, t.M, t.A, np.zeros((2, n)), G, gains_workspace(ma, fast))
-    rate = fastest_rate(G, fast, ma.jf[fast, JF_STIFFNESS].copy(), ma.jf[fast, JF_DAMPING].copy())
+    rate = fastest_rate(G, fast, np.sqrt(ma.jf[fast, JF_STIFFNESS]), ma.jf[fast, JF_DAMPING].copy())
     return rate, max(1, int(np.ceil(dt * rate / DEFAULT_PHASE_STEP)))
