@@ -154,8 +154,11 @@ def serial_chain_terms(jf, ji, s, e, points, point_body, grav, q, qd, M, h, J, a
     """:func:`subtree_terms` of a serial chain (joint k's parent k - 1) whose points all sit
     on its last body and have no frames (``ji[s, JI_SUBTREE] == 0``): the sweep carries one
     body's frame and rates along, every body's Jacobian has the columns s..k. The general
-    sweep's parent lookups and stored frames cost such a chain 7 % (bench/bench_tree_sweep.py)."""
+    sweep's parent lookups and stored frames cost such a chain 7 % (bench/bench_tree_sweep.py).
+    An empty M (0 x 0) asks for the kinematics alone (points, their Jacobians and bias
+    accelerations): no inertia, M and h untouched."""
     g = (grav[0], grav[1], grav[2])
+    inertia = M.shape[0] > 0
     R = IDENTITY
     o = ZERO
     w = ZERO  # angular velocity of the current body
@@ -167,7 +170,7 @@ def serial_chain_terms(jf, ji, s, e, points, point_body, grav, q, qd, M, h, J, a
         _store(wo, k, o)
 
         m = jf[k, JF_MASS]
-        if m <= 0.0:
+        if m <= 0.0 or not inertia:
             continue
         c, Ic, f, t_rot = _body_loads(jf, k, m, g, R, o, w, al, ao)
         for j in range(s, k + 1):
@@ -199,7 +202,8 @@ def serial_chain_terms(jf, ji, s, e, points, point_body, grav, q, qd, M, h, J, a
             J[ip, 0, j] = col[0]
             J[ip, 1, j] = col[1]
             J[ip, 2, j] = col[2]
-    _joint_elements(jf, s, e, q, qd, M, h)
+    if inertia:
+        _joint_elements(jf, s, e, q, qd, M, h)
 
 
 @njit(cache=True)
@@ -215,8 +219,10 @@ def subtree_terms(jf, ji, s, e, points, point_body, grav, q, qd, M, h, J, a_pt, 
     acceleration in a_pt and position in p_pt (n_points x 3; with 12 columns also the
     world orientation of the point's frame, row-major, ``points`` then holding its
     orientation in the body frame). wz, wo, jv, jw are (n_t, 3) and fr (n_t, 18) scratch.
+    An empty M (0 x 0) asks for the kinematics alone: no inertia, M and h untouched.
     """
     g = (grav[0], grav[1], grav[2])
+    inertia = M.shape[0] > 0
     R = IDENTITY
     o = ZERO
     w = ZERO  # angular velocity of the current body
@@ -240,7 +246,7 @@ def subtree_terms(jf, ji, s, e, points, point_body, grav, q, qd, M, h, J, a_pt, 
                 fr[k, 15 + i] = ao[i]
 
         m = jf[k, JF_MASS]
-        if m <= 0.0:
+        if m <= 0.0 or not inertia:
             continue
         c, Ic, f, t_rot = _body_loads(jf, k, m, g, R, o, w, al, ao)
         j = k
@@ -279,7 +285,8 @@ def subtree_terms(jf, ji, s, e, points, point_body, grav, q, qd, M, h, J, a_pt, 
         while j >= 0:  # the point moves with its body's ancestors' joints only
             _point_column(ji, wz, wo, pt, J, ip, j, spatial)
             j = ji[j, JI_PARENT]
-    _joint_elements(jf, s, e, q, qd, M, h)
+    if inertia:
+        _joint_elements(jf, s, e, q, qd, M, h)
 
 
 @njit(cache=True)
@@ -307,7 +314,8 @@ def tree_terms(jf, ji, chain_start, points, point_body, grav, q, qd, M, h, J, a_
 
 @njit(cache=True)
 def tree_terms_into(jf, ji, chain_start, points, point_body, grav, q, qd, M, h, J, a_pt, p_pt, wz, wo, jv, jw, fr):
-    """:func:`tree_terms` with its work arrays given: four (n_t x 3), one (n_t x 18)."""
+    """:func:`tree_terms` with its work arrays given: four (n_t x 3), one (n_t x 18). With an
+    empty M (0 x 0) and h, the kinematics alone (what a closure residual needs)."""
     M[:, :] = 0.0
     h[:] = 0.0
     J[:, :, :] = 0.0

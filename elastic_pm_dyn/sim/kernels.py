@@ -180,12 +180,17 @@ def _chain_responses_sparse(M, A, chain_start, Y, S, L, dinv, XY, rows, n_rows):
 
 
 @njit(cache=True, inline="always")
-def _closure_at(ma, q, pws):
-    """Closure residual (pws' res) and Jacobian (pws' A) at q; returns |h(q)|."""
+def _closure_at(ma, q, pws, inertia=True):
+    """Closure residual (pws' res) and Jacobian (pws' A) at q, with the tree terms M, h at
+    zero velocity or (inertia False) the kinematics alone; returns |h(q)|."""
     M, h, J, a_pt, p_pt, A, gamma, res, wz, wo, jv, jw, fr = pws[:13]
     zero = pws[14]
-    tree_terms_into(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_body, ma.gravity, q, zero, M, h, J, a_pt,
-                    p_pt, wz, wo, jv, jw, fr)
+    if inertia:
+        tree_terms_into(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_body, ma.gravity, q, zero, M, h, J, a_pt,
+                        p_pt, wz, wo, jv, jw, fr)
+    else:
+        tree_terms_into(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_body, ma.gravity, q, zero, M[:0, :0],
+                        h[:0], J, a_pt, p_pt, wz, wo, jv, jw, fr)
     all_closure_rows(ma.closure_pairs, ma.closure_axes, ma.points, J, a_pt, p_pt, A, gamma, res)
     return np.sqrt(np.sum(res * res))
 
@@ -256,7 +261,7 @@ def project_springs(ma, q, qd, tol, max_iter, pws, fast, sk, G, Y0, S0, piv0, ro
     gap0 = -1.0
     spd = False
     for it in range(max_iter + 1):
-        gap = _closure_at(ma, q, pws)
+        gap = _closure_at(ma, q, pws, False)  # the factors are the step's: no inertia needed
         if gap0 < 0.0:
             gap0 = gap
         if gap <= tol or it == max_iter:
