@@ -462,23 +462,28 @@ def exponential_steps_ws(scheme, form, ma, q, qd, tau_coef, dt, n_steps, stab, a
             info[2] = gap
             return DIVERGED
         order = taylor_order(dt * rate / n_sub)
-        if scheme == AVERAGED:
+        if scheme != IMPULSE:
+            # exponential Euler x(t) = z0 + t phi1(tJ) F(z0), the torque's change over the step
+            # (P M^-1 (t d1 + t^2 d2), frozen like J) integrated with it; its average too
             for i in range(n):
                 u1[i] = G[i, nf]
                 u2[i] = G[i, nf + 1]
-            mq, mv = bq, bv  # the predictor's average deviation (bq, bv serve the impulse splitting)
+            mq, mv = bq, bv  # the average deviation (bq, bv serve the impulse splitting)
             phi_response(G, fast, kf, df, dt, n_sub, order, qd, acc0, u1, u2, xq, xv, fw, B, mq, mv)
-            for i in range(n):  # zbar: the exponential Euler predictor's average over the step
-                q1[i] = q[i] + mq[i]
-                v1[i] = qd[i] + mv[i]
+            # the stage where N is evaluated: the predictor's average (AVERAGED) or its end (ETD2RK)
+            sq, sv = (mq, mv) if scheme == AVERAGED else (xq, xv)
+            for i in range(n):
+                q1[i] = q[i] + sq[i]
+                v1[i] = qd[i] + sv[i]
+            # F there with the torque of the step's start: its change is in the forcing above
             status, cond, g = _evaluate(form, ma, q1, v1, tau_coef, s0, tau, a, b, qdd_prev, acc1, lam, ws,
                                         dt, singular_tol, limit, info)
             if status != OK:
                 return status
             worst = min(worst, cond)
-            # constant forcing N(zbar) - N(z0) = F(zbar) - F(z0) - J (zbar - z0) (velocity rows)
+            # w = N(stage) - N(z0) = F(stage) - F(z0) - J (stage - z0): only its velocity rows are not zero
             for j in range(nf):
-                f0[j] = -kf[j] * mq[fast[j]] - df[j] * mv[fast[j]]
+                f0[j] = -kf[j] * sq[fast[j]] - df[j] * sv[fast[j]]
             for i in range(n):
                 acc = acc1[i] - acc0[i]
                 for j in range(nf):
@@ -486,35 +491,14 @@ def exponential_steps_ws(scheme, form, ma, q, qd, tau_coef, dt, n_steps, stab, a
                 u1[i] = acc
                 q1[i] = q[i] + xq[i]  # the predictor's end, x(H)
                 v1[i] = qd[i] + xv[i]
-            phi_response(G, fast, kf, df, dt, n_sub, order, zero, u1, zero, zero, xq, xv, fw, B, zero[:0], zero[:0])
-            for i in range(n):
-                q1[i] += xq[i]
-                v1[i] += xv[i]
-        elif scheme == ETD2RK:
-            # exponential Euler a = z0 + H phi1(HJ) F(z0), the torque's change over the step
-            # (P M^-1 (t d1 + t^2 d2), frozen like J) integrated with it
-            for i in range(n):
-                u1[i] = G[i, nf]
-                u2[i] = G[i, nf + 1]
-            phi_response(G, fast, kf, df, dt, n_sub, order, qd, acc0, u1, u2, xq, xv, fw, B, zero[:0], zero[:0])
-            for i in range(n):
-                q1[i] = q[i] + xq[i]
-                v1[i] = qd[i] + xv[i]
-            # F at a with the torque of the step's start: its change is in the forcing above
-            status, cond, g = _evaluate(form, ma, q1, v1, tau_coef, s0, tau, a, b, qdd_prev, acc1, lam, ws,
-                                        dt, singular_tol, limit, info)
-            if status != OK:
-                return status
-            worst = min(worst, cond)
-            # ramp of N(a) - N(z0) = F(a) - F(z0) - J (a - z0): only its velocity rows are not zero
-            for j in range(nf):
-                f0[j] = -kf[j] * xq[fast[j]] - df[j] * xv[fast[j]]
-            for i in range(n):
-                acc = acc1[i] - acc0[i]
-                for j in range(nf):
-                    acc -= G[i, j] * f0[j]
-                u1[i] = acc / dt
-            phi_response(G, fast, kf, df, dt, n_sub, order, zero, zero, u1, zero, xq, xv, fw, B, zero[:0], zero[:0])
+            if scheme == AVERAGED:  # w held over the step: H phi1(HJ) (0, w)
+                phi_response(G, fast, kf, df, dt, n_sub, order, zero, u1, zero, zero, xq, xv, fw, B, zero[:0],
+                             zero[:0])
+            else:  # a ramp from 0 at z0 to w at x(H): H phi2(HJ) (0, w)
+                for i in range(n):
+                    u1[i] /= dt
+                phi_response(G, fast, kf, df, dt, n_sub, order, zero, zero, u1, zero, xq, xv, fw, B, zero[:0],
+                             zero[:0])
             for i in range(n):
                 q1[i] += xq[i]
                 v1[i] += xv[i]
