@@ -4,6 +4,7 @@
     .venv/bin/python bench/bench_integrators.py --machines five_bar:1 triglide:2 --quick
     .venv/bin/python bench/bench_integrators.py --simulate-rtf --repeats 3   # offline simulate: RK4 vs ETD2
     .venv/bin/python bench/bench_integrators.py --simulate-profile --repeats 3   # where its time goes
+    .venv/bin/python bench/bench_integrators.py --held-out --methods etd2 etd2rk   # random energy cases
 
 Methods: RK4 (the baseline, at steps up to its stability limit), ETD2 (sim/exponential.py:
 an exponential integrator with the elastic springs integrated on sub-steps of their frozen
@@ -184,7 +185,7 @@ def accuracy(mech: Mechanism, scenario: str, torque, duration: float, methods: d
     return out
 
 
-def energy_case(mech: Mechanism, table: TorqueTable, force: float
+def energy_case(mech: Mechanism, table: TorqueTable, force: float, rng: np.random.Generator | None = None
                 ) -> tuple[Mechanism, np.ndarray, np.ndarray, float, float]:
     """Undamped copy of the machine, its torque (zero), a deflected start and its energies.
 
@@ -194,6 +195,8 @@ def energy_case(mech: Mechanism, table: TorqueTable, force: float
     force / stiffness, signs alternating (2x the manoeuvre's peak branch force: the size of
     vibration the machine sees; a preload far above it brings in the geometric stiffness,
     which the frozen J leaves to the explicit part), passive joints from the closure.
+    With ``rng`` a held-out case: the motors moved by up to 0.05 rad from the start pose,
+    the force scaled by 0.5-2, each joint's deflection by 0.3-1 with a random sign.
     Returns the mechanism, tau, q0, E(q0) and the deflection's energy E(q0) - E(start pose).
     """
     undamped = Mechanism(mech.model)
@@ -203,9 +206,15 @@ def energy_case(mech: Mechanism, table: TorqueTable, force: float
     undamped.damping[:] = 0.0
     tau = np.zeros(len(undamped.active))  # holds the start pose without gravity
     q_start = initial_state(undamped)
-    q = q_start.copy()
     el = undamped.elastic
-    q[el] += force / undamped.stiffness[el] * np.where(np.arange(len(el)) % 2 == 0, 1.0, -1.0)
+    pattern = np.where(np.arange(len(el)) % 2 == 0, 1.0, -1.0)
+    if rng is not None:
+        q_start[undamped.active] += rng.uniform(-0.05, 0.05, len(undamped.active))
+        q_start = solve_pose(undamped, q_start, undamped.passive)
+        force *= rng.uniform(0.5, 2.0)
+        pattern = rng.choice([-1.0, 1.0], len(el)) * rng.uniform(0.3, 1.0, len(el))
+    q = q_start.copy()
+    q[el] += force / undamped.stiffness[el] * pattern
     q = solve_pose(undamped, q, undamped.passive)
     e0 = total_energy(undamped, q, np.zeros(undamped.n), tau)
     return undamped, tau, q, e0, e0 - total_energy(undamped, q_start, np.zeros(undamped.n), tau)
@@ -216,9 +225,11 @@ def total_energy(mech: Mechanism, q: np.ndarray, qd: np.ndarray, tau: np.ndarray
     return kinetic + potential - float(tau @ q[mech.active])
 
 
-def energy_drift(mech: Mechanism, table: TorqueTable, force: float, method: str, dt: float, horizon: float) -> dict:
+def energy_drift(mech: Mechanism, table: TorqueTable, force: float, method: str, dt: float, horizon: float,
+                 seed: int | None = None) -> dict:
     from elastic_pm_dyn.sim.torque import ConstantTorque
-    undamped, tau, q0, e0, e_modes = energy_case(mech, table, force)
+    rng = None if seed is None else np.random.default_rng(seed)
+    undamped, tau, q0, e0, e_modes = energy_case(mech, table, force, rng)
     opts = options(method, dt, 0.05)
     sim = simulator(undamped, method, opts)
     try:
@@ -228,6 +239,36 @@ def energy_drift(mech: Mechanism, table: TorqueTable, force: float, method: str,
     e = np.array([total_energy(undamped, r.q[k], r.qd[k], tau) for k in range(len(r.t))])
     return {"drift": float(np.abs(e - e0).max() / e_modes), "end": float((e[-1] - e0) / e_modes),
             "mode_energy_J": e_modes}
+
+
+# Held-out energy cases (--held-out): seeds and steps nothing was tuned on
+HELD_OUT_SEEDS = [31, 32, 33]
+HELD_OUT_STEPS = {"hexa:4": [1e-3, 2.5e-4, 1e-4]}
+
+
+def held_out_energy(specs: list[str], methods: list[str], seeds: list[int], horizon: float) -> dict:
+    """Undamped energy drift from random poses and deflection patterns (:func:`energy_case`
+    with a seed), the force from the manoeuvre's peak branch force (ETD2 at 0.25 ms, within
+    1e-3 of DOP853's); ETD2 steps 1 and 0.5 ms (the Hexa at n_ek = 4: 1, 0.25, 0.1 ms)."""
+    out: dict = {}
+    for spec in specs:
+        name, n_ek = spec.split(":")
+        mech = machine(name, int(n_ek))
+        table, window = manoeuvre(mech, name)
+        force = 2 * float(np.abs(simulate(mech, "etd2", 2.5e-4, table, window).branch_forces).max())
+        out[spec] = {"force_N": force, "runs": {}}
+        for seed in seeds:
+            for dt in HELD_OUT_STEPS.get(spec, [1e-3, 5e-4]):
+                for m in methods:
+                    key = f"{m}@{dt:g} seed {seed}"
+                    res = energy_drift(mech, table, force, m, dt, horizon, seed)
+                    out[spec]["runs"][key] = res
+                    print(f"  held-out {spec} {key}: {res.get('drift', res.get('failed'))}", flush=True)
+        for m in methods:
+            drifts = [r.get("drift", np.inf) for k, r in out[spec]["runs"].items() if k.startswith(m + "@")]
+            print(f"held-out {spec} {m}: max drift {max(drifts):.3g}, above 1 %: "
+                  f"{sum(d > ENERGY_CRITERION for d in drifts)} of {len(drifts)}", flush=True)
+    return out
 
 
 def integrate(mech: Mechanism, integrator: str, dt: float, torque: TorqueTable, duration: float) -> None:
@@ -382,7 +423,19 @@ def main() -> None:
                    help="only the offline simulate comparison (five-bar, Triglide and Hexa at n_ek = 2)")
     p.add_argument("--simulate-profile", action="store_true",
                    help="only where an offline ETD2 simulate run's CPU time goes (the same three machines)")
+    p.add_argument("--held-out", action="store_true",
+                   help="only the undamped energy from random poses and deflections (seeds --seeds) of --machines")
+    p.add_argument("--seeds", nargs="+", type=int, default=HELD_OUT_SEEDS)
+    p.add_argument("--steps", nargs="+", type=float, help="[s] these steps for every method instead of STEPS")
     args = p.parse_args()
+    if args.held_out:
+        methods = [m for m in args.methods if m not in ("rk4", "impulse")]
+        res = {"load_start": load(), "seeds": args.seeds, "energy_horizon_s": args.energy_horizon,
+               "held_out": held_out_energy(args.machines, methods, args.seeds, args.energy_horizon),
+               "load_end": load()}
+        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.out).with_name("integrators_held_out.json").write_text(json.dumps(res, indent=1))
+        return
     if args.simulate_profile:
         res = {"load_start": load(), "profile": simulate_profile(args.repeats), "load_end": load()}
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
@@ -395,7 +448,7 @@ def main() -> None:
         print(f"load average {res['load_start']:.2f} at start, {res['load_end']:.2f} at end")
         return
     PHASE_STEP = args.phase_step
-    methods = {m: STEPS[m] for m in args.methods}
+    methods = {m: args.steps or STEPS[m] for m in args.methods}
     results = {"load_start": load(), "machines": {}, "criterion": CRITERION, "phase_step": PHASE_STEP,
                "methods": list(methods)}
     if args.append and Path(args.out).exists():  # machines measured by an earlier run (its load kept)
