@@ -448,11 +448,14 @@ def main() -> None:
         print(f"load average {res['load_start']:.2f} at start, {res['load_end']:.2f} at end")
         return
     PHASE_STEP = args.phase_step
-    methods = {m: args.steps or STEPS[m] for m in args.methods}
-    results = {"load_start": load(), "machines": {}, "criterion": CRITERION, "phase_step": PHASE_STEP,
-               "methods": list(methods)}
+    methods = {m: args.steps or STEPS[m] for m in args.methods}  # what this run measures
+    results = {"load_start": load(), "machines": {}, "criterion": CRITERION, "phase_step": PHASE_STEP, "steps": {}}
     if args.append and Path(args.out).exists():  # machines measured by an earlier run (its load kept)
         results = json.loads(Path(args.out).read_text())
+    measured = steps_of(results)  # the table shows every step measured, this run's added
+    for m, steps in methods.items():
+        measured[m] = sorted(set(measured.get(m, [])) | set(steps), reverse=True)
+    results["steps"] = measured
     for spec in args.machines:
         name, n_ek = spec.split(":")
         mech = machine(name, int(n_ek))
@@ -473,7 +476,7 @@ def main() -> None:
             for k, v in entry["cost"].items():
                 print(f"    cost {k:16s} rtf {v['rtf']:.2f}", flush=True)
         if args.energy_horizon > 0:
-            entry["energy"] = {}
+            entry.setdefault("energy", {})  # an appended run's steps join those measured before
             for m, steps in methods.items():
                 if m == "impulse":  # not a contender (see the accuracy)
                     continue
@@ -492,11 +495,19 @@ def main() -> None:
 SCENARIOS = ("manoeuvre", "chirp", "chirp_zoh")
 
 
-def _best(entry: dict, method: str, scenarios: tuple[str, ...]) -> tuple[float | None, float | None]:
-    """Largest step of ``method`` whose max error meets the criterion in ``scenarios`` and whose
-    undamped energy drift (if measured) does, and its RTF."""
+def steps_of(results: dict) -> dict[str, list[float]]:
+    """The steps per method a results file holds (files from before --steps: STEPS of its methods)."""
+    if "steps" in results:
+        return results["steps"]
+    return {m: STEPS[m] for m in results.get("methods", STEPS)}
+
+
+def _best(entry: dict, method: str, steps: list[float], scenarios: tuple[str, ...]
+          ) -> tuple[float | None, float | None]:
+    """Largest of ``method``'s ``steps`` whose max error meets the criterion in ``scenarios`` and
+    whose undamped energy drift (if measured) does, and its RTF."""
     ok = []
-    for dt in STEPS[method]:
+    for dt in steps:
         key = f"{method}@{dt:g}"
         errs = [entry[s]["methods"].get(key, {}).get("max", np.inf) for s in scenarios
                 if "reference_failed" not in entry[s]]  # a scenario without reference is left out (said in the table)
@@ -514,16 +525,17 @@ def _best(entry: dict, method: str, scenarios: tuple[str, ...]) -> tuple[float |
 def table_md(results: dict) -> str:
     lines = ["| machine | method @ step | manoeuvre rms / max | chirp rms / max | chirp ZOH rms / max | "
              "energy drift | RTF |", "|---|---|---:|---:|---:|---:|---:|"]
-    methods = results.get("methods", list(STEPS))
+    steps = steps_of(results)
+    methods = list(steps)
     for spec, entry in results["machines"].items():
         for m in methods:
-            for dt in STEPS[m]:
+            for dt in steps[m]:
                 key = f"{m}@{dt:g}"
                 acc = []
                 for s in SCENARIOS:
                     r = entry[s]["methods"].get(key, {})
-                    acc.append("no reference" if "reference_failed" in entry[s] else "diverged" if "failed" in r
-                               else f"{r['rms']:.2g} / {r['max']:.2g}")
+                    acc.append("no reference" if "reference_failed" in entry[s] else "-" if not r
+                               else "diverged" if "failed" in r else f"{r['rms']:.2g} / {r['max']:.2g}")
                 en = entry.get("energy", {}).get(key, {})
                 en_s = "-" if not en else ("failed" if "failed" in en else f"{en['drift']:.2g}")
                 rtf = entry["cost"].get(key, {}).get("rtf")
@@ -537,7 +549,7 @@ def table_md(results: dict) -> str:
         for spec, entry in results["machines"].items():
             cells = []
             for m in methods:
-                dt, rtf = _best(entry, m, scen)
+                dt, rtf = _best(entry, m, steps[m], scen)
                 cells.append("none" if dt is None else f"{dt:g} s, {rtf:.1f}" if rtf else f"{dt:g} s")
             lines.append(f"| {spec} | " + " | ".join(cells) + " |")
     lines.append(f"\nload average {results['load_start']:.2f} at start, {results.get('load_end', 0):.2f} at end "
