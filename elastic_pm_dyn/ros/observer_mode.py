@@ -103,13 +103,16 @@ class ObserverMode:
         self.pub_diagnostics = node.create_publisher(DiagnosticArray, "/diagnostics", DIAGNOSTICS_QOS)
 
         topics = cfg.topics
+        # Creation order is the order in which the executor serves messages that wait together:
+        # the command of t_k-1, then the samples of t_k, the joint state (which publishes the
+        # estimate of t_k) after the accelerometer and gauges of its stamp.
         inputs = [(JointState if p["command_type"] == "joint_state" else Float64MultiArray,
-                   topics.torque_command, self._on_command),
-                  (JointState, topics.measured_joint_states, self._on_joint_state)]
+                   topics.torque_command, self._on_command)]
         if "imu" in cfg.sensors:
             inputs.append((Imu, topics.ee_imu, self._on_imu))
         if "branch_forces" in cfg.sensors and cfg.branch_forces.source == "branch_forces":
             inputs.append((BranchForces, topics.measured_branch_forces, self._on_branch_forces))
+        inputs.append((JointState, topics.measured_joint_states, self._on_joint_state))
         for msg_type, topic, callback in inputs:  # a copy each: rclpy writes the overrides into the profile
             node.create_subscription(msg_type, topic, callback, copy.copy(OBSERVER_INPUT_QOS),
                                      qos_overriding_options=QoSOverridingOptions.with_default_policies())
