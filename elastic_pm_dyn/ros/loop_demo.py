@@ -156,8 +156,8 @@ def run_loop_demo(out: Path, opts: LoopOptions) -> dict:
 def _p(name: str, value: Any) -> list[str]:
     if isinstance(value, bool):
         text = "true" if value else "false"
-    elif isinstance(value, (list, tuple)):
-        text = "[" + ", ".join(_p_item(v) for v in value) + "]"
+    elif isinstance(value, (list, tuple)):  # strings quoted: a bare y would be read as true
+        text = "[" + ", ".join(f"'{v}'" if isinstance(v, str) else _p_item(v) for v in value) + "]"
     else:
         text = _p_item(value)
     return ["-p", f"{name}:={text}"]
@@ -466,6 +466,9 @@ def analyse_loop(out: Path, bag: Path, mech: Mechanism, opts: LoopOptions, wall:
         "messages": {topic: len(s.t) for topic, s in series.items()},
         "loop_periods": len(stamps),
         "estimates": len(est.ns),
+        "plant_states_in_loop": int(np.sum(truth.ns >= first)),
+        "plant_states_without_estimate": int(len(np.setdiff1d(truth.ns[truth.ns >= first], est.ns))),
+        "estimates_per_stamp_max": int(np.unique(est.ns, return_counts=True)[1].max()),
         "encoder_samples_in_loop": int(np.sum(enc.ns >= first)),
         "branch_force_error_rms_N": err_live,
         "branch_force_error_rms_open_loop_N": err_ol,
