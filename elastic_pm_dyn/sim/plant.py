@@ -4,6 +4,11 @@ The node validates messages and calls these methods, so the stepping, the reset 
 set-state logic run (and are tested) without ROS. Time is an integer count of control
 periods, t = k * period, so it never drifts and equals offline sample times.
 
+Besides the commanded torque the motors may feel an unknown disturbance (the truth an
+observer has to estimate): a smooth function of time d(t) (``disturbance``, e.g. a
+:class:`~elastic_pm_dyn.sim.disturbances.SpectrumDisturbance`) integrated as such (refitted
+per step, as offline recordings do), plus a held value given with each period's command.
+
 A fault (a singular configuration, or a state that diverged) never leaves garbage: the
 state stays the last good one, at the start of the period that failed, until
 :meth:`Plant.reset` or :meth:`Plant.set_state`, which recover from any fault.
@@ -11,7 +16,7 @@ state stays the last good one, at the start of the period that failed, until
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -22,7 +27,7 @@ from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.sim import kernels
 from elastic_pm_dyn.sim.simulator import FIXED_STEP, SimulationOptions, Simulator
 from elastic_pm_dyn.sim.stopped import integration_error
-from elastic_pm_dyn.sim.torque import ConstantTorque
+from elastic_pm_dyn.sim.torque import ConstantTorque, HeldPlusSmooth
 
 # [rad or m] a requested position beyond this is a mistake: float spacing there exceeds 1e-10
 MAX_POSITION = 1.0e6
@@ -41,7 +46,8 @@ class BranchState:
 class Plant:
     """Tree state (q, qd) of an elastic mechanism under zero-order-held motor torques."""
 
-    def __init__(self, mech: Mechanism, options: SimulationOptions, period: float):
+    def __init__(self, mech: Mechanism, options: SimulationOptions, period: float,
+                 disturbance: Callable[[float], np.ndarray] | None = None):
         if not (np.isfinite(period) and period > 0):
             raise InputError(f"control period must be a positive number of seconds, got {period!r}")
         options.validate()
@@ -53,6 +59,9 @@ class Plant:
         self.qd = np.zeros(mech.n)
         self.k = 0  # control periods done
         self.tau = np.zeros(len(mech.active))  # torque applied over the last period
+        # Unknown torques on the motors (truth): a smooth d(t), and a held part per period (the last one's)
+        self.disturbance = disturbance
+        self.held_disturbance = np.zeros(len(mech.active))
         self.fault: str | None = None  # why integration stopped (singular configuration, diverged state)
         self.fault_error: SingularConfigurationError | None = None
         self._sim = Simulator(mech, options)
@@ -68,8 +77,9 @@ class Plant:
         return self.k * self.period
 
     # ----------------------------------------------------------------- stepping
-    def step(self, tau: np.ndarray) -> None:
-        """Advance one period with ``tau`` (active order) held constant (ZOH).
+    def step(self, tau: np.ndarray, held_disturbance: np.ndarray | None = None) -> None:
+        """Advance one period with ``tau`` (active order) held constant (ZOH), plus the unknown
+        torque: ``held_disturbance`` held over the period (None: zero) and :attr:`disturbance` d(t).
 
         On a singular configuration or a diverged state (SingularConfigurationError, or its
         DivergedStateError) ``fault`` is set, the state stays the one at the start of the
@@ -81,14 +91,21 @@ class Plant:
         tau = np.asarray(tau, dtype=float)
         if tau.shape != self.tau.shape or not np.isfinite(tau.sum()):  # one check: NaN, Inf or overflow
             raise InputError(f"torque must be {len(self.tau)} finite numbers, got {tau!r}")
+        held = np.zeros(len(self.tau)) if held_disturbance is None else np.asarray(held_disturbance, dtype=float)
+        if held.shape != self.tau.shape or not np.isfinite(held.sum()):
+            raise InputError(f"disturbance torque must be {len(self.tau)} finite numbers, got {held!r}")
+        # Without a disturbance the torque is tau itself: the arithmetic of plants without one is unchanged.
+        acting = tau if held_disturbance is None else tau + held
         t0 = self.t
         t1 = t0 + self.period
         q, qd = self.q.copy(), self.qd.copy()  # the stepping works on copies: a fault keeps the last good state
         try:
-            if self.options.integrator in FIXED_STEP:
-                self._fixed_step(q, qd, tau, t0, t1)
+            if self.disturbance is not None:  # a function of time: refitted per step (as offline simulate)
+                self._sim.advance(q, qd, HeldPlusSmooth(acting, self.disturbance), t0, t1)
+            elif self.options.integrator in FIXED_STEP:
+                self._fixed_step(q, qd, acting, t0, t1)
             else:
-                self._sim.advance(q, qd, ConstantTorque(tau), t0, t1)
+                self._sim.advance(q, qd, ConstantTorque(acting), t0, t1)
             if not (np.isfinite(q.sum()) and np.isfinite(qd.sum())):  # the adaptive path has no check of its own
                 raise integration_error(kernels.DIVERGED, self.options.formulation, t0, np.array([0.0, np.inf, np.nan]))
         except SingularConfigurationError as err:
@@ -96,6 +113,7 @@ class Plant:
             raise
         self.q, self.qd = q, qd
         self.tau = tau.copy()
+        self.held_disturbance = held.copy()
         self.k += 1
 
     def _fixed_step(self, q: np.ndarray, qd: np.ndarray, tau: np.ndarray, t0: float, t1: float) -> None:
@@ -179,6 +197,7 @@ class Plant:
         self.q, self.qd = q, qd
         self.k += 1
         self.tau = np.zeros(len(self.mech.active))
+        self.held_disturbance = np.zeros(len(self.mech.active))
         self.fault = self.fault_error = None
         # A fresh simulator: the one-pass SCDD variant keeps the last accelerations.
         self._sim = Simulator(self.mech, self.options)
@@ -202,6 +221,19 @@ class Plant:
         j = self.mech.branch_joints
         force = (self.efforts() if efforts is None else efforts)[j]
         return BranchState(self._branch_names, force, self.q[j] - self.mech.rest[j], self.qd[j].copy())
+
+    def motor_torque(self, tau: np.ndarray | None = None, held: np.ndarray | None = None) -> np.ndarray:
+        """The total torque on the motors at the current state's time t_k: the command ``tau`` plus
+        the disturbance (``held`` + d(t_k)). By default the last period's command and held part:
+        the torque just before t_k (what a(t_k-) feels); the next period's give a(t_k+)."""
+        return (self.tau if tau is None else np.asarray(tau, dtype=float)) + self.disturbance_at(self.t, held)
+
+    def disturbance_at(self, t: float, held: np.ndarray | None = None) -> np.ndarray:
+        """The unknown motor torque at ``t``: d(t) plus ``held`` (default: the last period's held part)."""
+        out = (self.held_disturbance if held is None else held).copy()
+        if self.disturbance is not None:
+            out += self.disturbance(t)
+        return out
 
     def end_effector(self) -> np.ndarray:
         return self.mech.end_effector(self.q)
