@@ -365,3 +365,21 @@ def test_lockstep_disturbance_input_acts_as_a_command(ros: RosHarness, mech: Mec
     for k in range(n):
         offline.step(torques(k) + d)
         np.testing.assert_allclose(states[k + 1], offline.q, rtol=0, atol=1e-14)
+
+
+def test_plant_and_observer_apply_the_same_model_overrides(ros: RosHarness) -> None:
+    require("rclpy")
+    from rclpy.parameter import Parameter
+
+    from elastic_pm_dyn.ros.observer_node import ObserverNode
+    from elastic_pm_dyn.ros.plant_node import PlantNode
+
+    base = Mechanism(load_model(CONFIG / "triglide.yaml"))
+    params = [Parameter("model", value=str(CONFIG / "triglide.yaml")), Parameter("elastic_dof_per_chain", value=2),
+              Parameter("gravity", value=[0.0, 0.0, -1.62])]
+    plant = ros.add(PlantNode(context=ros.context, parameter_overrides=[*params,
+                                                                         Parameter("sync_mode", value="lockstep")]))
+    observer = ros.add(ObserverNode(context=ros.context, parameter_overrides=params))
+    for mech in (plant.plant.mech, observer.observer.session.mech):
+        np.testing.assert_array_equal(mech.model.gravity, [0.0, 0.0, -1.62])
+        assert len(mech.elastic) == 2 * len(base.elastic)

@@ -97,8 +97,6 @@ def sensor_spec(p: dict[str, Any]) -> SensorSpec:
 
 def spectrum_disturbance(p: dict[str, Any], channels: int) -> SpectrumDisturbance | None:
     """The ``disturbance.*`` spectrum, or None; ParameterError (one line) when out of range."""
-    if p["disturbance.spectrum"] == "none":
-        return None
     rms, band, seed = p["disturbance.rms"], p["disturbance.band"], p["disturbance.seed"]
     if not (np.isfinite(rms) and rms >= 0):
         raise ParameterError(f"parameter 'disturbance.rms' must be a number >= 0, got {rms!r}")
@@ -106,6 +104,8 @@ def spectrum_disturbance(p: dict[str, Any], channels: int) -> SpectrumDisturbanc
         raise ParameterError(f"parameter 'disturbance.band' must be [low, high] with 0 < low < high [Hz], got {band!r}")
     if seed < 0:
         raise ParameterError(f"parameter 'disturbance.seed' must be >= 0, got {seed}")
+    if p["disturbance.spectrum"] == "none":
+        return None
     return seeded_disturbance(p["disturbance.spectrum"], channels, rms, p["disturbance.duration"], seed,
                               tuple(band) if band else None)
 
