@@ -51,6 +51,19 @@ class SpectrumDisturbance:
         return fade * np.sum(self.amp * (np.sin(2 * np.pi * self.f * t + self.phase) - self.offset), axis=1)
 
 
+    def on_grid(self, t0: float, dt: float, n: int) -> np.ndarray:
+        """(n, channels): d at t0 + j dt, j = 0 .. n-1 (a plant period's stage times), each sine
+        continued from t0 by rotation (exp(i w dt) per sample) instead of n sine calls: 20x fewer
+        transcendental evaluations, the same values to ~n ulp of the amplitudes."""
+        t = t0 + np.arange(n) * dt
+        fade = np.where(t >= self.fade, 1.0, 0.5 - 0.5 * np.cos(np.pi * np.maximum(t, 0.0) / self.fade))
+        w = 2 * np.pi * self.f
+        start = self.amp * np.exp(1j * (w * t0 + self.phase))  # (channels, lines)
+        turns = np.cumprod(np.broadcast_to(np.exp(1j * w * dt), (n, *w.shape)), axis=0) / np.exp(1j * w * dt)
+        waves = np.sum((start * turns).imag, axis=2) - np.sum(self.amp * self.offset, axis=1)
+        return fade[:, None] * waves
+
+
 def seeded_disturbance(spectrum: str, channels: int, rms: float, duration: float, seed: int,
                        band: tuple[float, float] | None = None) -> SpectrumDisturbance:
     """The disturbance of a test recording with this ``seed`` (its own random stream, so that the

@@ -24,7 +24,7 @@ import numpy as np
 from elastic_pm_dyn.errors import AssemblyError, InputError, SingularConfigurationError
 from elastic_pm_dyn.kinematics.assembly import initial_state, solve_pose, solve_velocity
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
-from elastic_pm_dyn.sim import kernels
+from elastic_pm_dyn.sim import batch, kernels
 from elastic_pm_dyn.sim.simulator import FIXED_STEP, SimulationOptions, Simulator
 from elastic_pm_dyn.sim.stopped import integration_error
 from elastic_pm_dyn.sim.torque import ConstantTorque, HeldPlusSmooth
@@ -66,6 +66,8 @@ class Plant:
         self.fault_error: SingularConfigurationError | None = None
         self._sim = Simulator(mech, options)
         self._coef = np.zeros((3, mech.n))  # the held torque as RK4's polynomial (constant)
+        self._active = np.asarray(mech.active, dtype=np.int64)
+        self._no_rows = np.zeros((0, mech.n))  # _smooth_steps records no samples
         # Compile (or load) the integrator now, not inside the first control period; a
         # throwaway simulator keeps the real one's state as offline runs start it.
         Simulator(mech, options).advance(self.q0.copy(), np.zeros(mech.n), ConstantTorque(self.tau), 0.0, period)
@@ -101,7 +103,10 @@ class Plant:
         q, qd = self.q.copy(), self.qd.copy()  # the stepping works on copies: a fault keeps the last good state
         try:
             if self.disturbance is not None:  # a function of time: refitted per step (as offline simulate)
-                self._sim.advance(q, qd, HeldPlusSmooth(acting, self.disturbance), t0, t1)
+                if self.options.integrator in FIXED_STEP and hasattr(self.disturbance, "on_grid"):
+                    self._smooth_steps(q, qd, acting, t0, t1)
+                else:
+                    self._sim.advance(q, qd, HeldPlusSmooth(acting, self.disturbance), t0, t1)
             elif self.options.integrator in FIXED_STEP:
                 self._fixed_step(q, qd, acting, t0, t1)
             else:
@@ -127,6 +132,27 @@ class Plant:
         status = sim.fixed_steps(q, qd, self._coef, h, n_steps)
         if status != kernels.OK:
             raise integration_error(status, o.formulation, t0 + sim.info[0] * h, sim.info)
+
+    def _smooth_steps(self, q: np.ndarray, qd: np.ndarray, held: np.ndarray, t0: float, t1: float) -> None:
+        """:meth:`Simulator.advance` of ``HeldPlusSmooth(held, disturbance)`` (one quadratic per step
+        through its values at the step's start, middle and end) with the disturbance evaluated at
+        all the period's stage times in one vectorised pass and the steps in one compiled call
+        (sim/batch.py): 0.25 instead of 0.85 ms per 1 ms period on the five-bar at dt = 1e-4 s."""
+        o, sim = self.options, self._sim
+        n_steps = max(1, int(np.ceil((t1 - t0) / o.dt - 1e-9)))
+        h = (t1 - t0) / n_steps
+        starts = t0 + np.arange(n_steps) * h
+        f = held + self.disturbance.on_grid(t0, 0.5 * h, 2 * n_steps + 1)  # each step's start, middle, end
+        f0, f1, f2 = f[0:-1:2], f[1::2], f[2::2]
+        coefs = np.stack([f0, (4 * f1 - 3 * f0 - f2) / h, 2 * (f0 - 2 * f1 + f2) / h ** 2], axis=1)
+        method = batch.ETD2 if o.integrator == "etd2" else batch.RK4
+        status, done, _ = batch.run_pieces_flat(
+            method, sim.scheme, sim.code, *sim._args, self._active, q, qd, coefs, np.full(n_steps, h),
+            np.ones(n_steps, dtype=np.int64), np.zeros(n_steps, dtype=bool), self._no_rows, self._no_rows, 0,
+            sim.stab, o.baumgarte_alpha, o.baumgarte_beta, o.closure_tol, o.singular_tol, o.phase_step,
+            sim.qdd_prev, sim.lam, sim.info)
+        if status != kernels.OK:
+            raise integration_error(status, o.formulation, starts[min(done, n_steps - 1)] + sim.info[0] * h, sim.info)
 
     def reset(self) -> None:
         """Back to the model's initial state at rest (see :meth:`_restart` for the time)."""

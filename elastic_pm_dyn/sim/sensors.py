@@ -84,16 +84,16 @@ class SensorSpec:
                             ("encoders.velocity_stddev", e.velocity_stddev), ("imu.stddev", i.stddev),
                             ("branch_forces.stddev", b.stddev)):
             if not (np.isfinite(value) and value >= 0):
-                raise InputError(f"sensors.{name} must be a number >= 0, got {value!r}")
+                raise InputError(f"'sensors.{name}' must be a number >= 0, got {value!r}")
         for name, value in (("encoders.counts_per_revolution", e.counts_per_revolution),
                             ("encoders.counts_per_metre", e.counts_per_metre), ("seed", self.seed)):
             if value < 0:
-                raise InputError(f"sensors.{name} must be >= 0, got {value!r}")
+                raise InputError(f"'sensors.{name}' must be >= 0, got {value!r}")
         for name, value in (("imu.rpy", i.rpy), ("imu.bias", i.bias)):
             if len(value) != 3 or not np.all(np.isfinite(np.asarray(value, dtype=float))):
-                raise InputError(f"sensors.{name} must be 3 finite numbers, got {list(value)!r}")
+                raise InputError(f"'sensors.{name}' must be 3 finite numbers, got {list(value)!r}")
         if i.sample_timing not in SAMPLE_TIMINGS:
-            raise InputError(f"sensors.imu.sample_timing is {i.sample_timing!r}, expected one of: "
+            raise InputError(f"'sensors.imu.sample_timing' is {i.sample_timing!r}, expected one of: "
                              f"{', '.join(SAMPLE_TIMINGS)}")
 
 
