@@ -303,10 +303,15 @@ def test_lockstep_sensor_topics_and_timing(ros: RosHarness, mech: Mechanism) -> 
 
     node.create_subscription(JointState, "joint_states", on_state, STATE_QOS)
     node.create_subscription(Imu, "ee_imu", on_imu, STATE_QOS)
+    last: dict[str, Any] = {}
+
+    def on_other(msg: Any, topic: str) -> None:
+        events.append((topic, stamp_ns(msg.header.stamp)))
+        last[topic] = msg
+
     for topic, kind in (("measured_joint_states", JointState), ("measured_branch_forces", BranchForces),
-                        ("disturbance", JointState)):
-        node.create_subscription(kind, topic, lambda msg, t=topic: events.append((t, stamp_ns(msg.header.stamp))),
-                                 STATE_QOS)
+                        ("disturbance", JointState), ("branch_forces", BranchForces)):
+        node.create_subscription(kind, topic, lambda msg, t=topic: on_other(msg, t), STATE_QOS)
     ros.wait_until(lambda: len(imu) >= n and len(states) >= n + 1, 30.0, f"{n} imu samples")
     ros.spin_for(0.05)
     stamps = {t: [ns for kind, ns in events if kind == t] for t in
@@ -317,6 +322,14 @@ def test_lockstep_sensor_topics_and_timing(ros: RosHarness, mech: Mechanism) -> 
     assert stamps["ee_imu"] == expected[:n]  # the sample of t_n waits for command n, never sent
     for ns in stamps["ee_imu"]:  # each only once its command was sent (the order across topics is the executor's)
         assert events.index(("command", ns)) < events.index(("ee_imu", ns))
+    # the encoders and gauges of t_n: their names, the truth within 6 sigma of the noise
+    enc, gauge, truth = last["measured_joint_states"], last["measured_branch_forces"], last["branch_forces"]
+    assert list(enc.name) == mech.active_names and len(enc.velocity) == 0
+    assert np.abs(np.array(enc.position) - states[n * 1_000_000][0][mech.active]).max() < 6 * 2e-5
+    assert list(gauge.name) == list(truth.name) and len(gauge.deflection) == 0
+    assert np.abs(np.array(gauge.force) - np.array(truth.force)).max() < 6 * 0.5
+    assert list(last["disturbance"].name) == mech.active_names
+    np.testing.assert_allclose(last["disturbance"].effort, plant.plant.disturbance(n * PERIOD), rtol=0, atol=1e-15)
     # the value: the model's accelerometer at the published state under command k + the disturbance at t_k
     model = SensorModel(mech, spec())
     for k in (0, 7, n - 1):

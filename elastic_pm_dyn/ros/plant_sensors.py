@@ -25,10 +25,13 @@ from typing import Any
 import numpy as np
 from elastic_pm_dyn_msgs.msg import BranchForces
 from rclpy.node import Node
+from rclpy.serialization import serialize_message
 from sensor_msgs.msg import Imu, JointState
 
+from elastic_pm_dyn.bags import cdr
+from elastic_pm_dyn.bags.msgtypes import NS
 from elastic_pm_dyn.errors import InputError
-from elastic_pm_dyn.ros.messages import doubles, stamp
+from elastic_pm_dyn.ros.messages import SerializedMessage, doubles, stamp
 from elastic_pm_dyn.ros.params import Param, ParameterError
 from elastic_pm_dyn.ros.qos import STATE_QOS
 from elastic_pm_dyn.sim.disturbances import SPECTRA, SpectrumDisturbance, seeded_disturbance
@@ -111,58 +114,69 @@ def spectrum_disturbance(p: dict[str, Any], channels: int) -> SpectrumDisturbanc
 
 
 class SensorOutputs:
-    """Publishers of the enabled sensors and the samples they publish (noise from :class:`SensorModel`)."""
+    """Publishers of the enabled sensors and the samples they publish (noise from :class:`SensorModel`).
+    Each message is serialized once and refilled in place, as the plant's own topics are
+    (:class:`~elastic_pm_dyn.ros.messages.SerializedMessage`): three rclpy messages built per period
+    cost about as much as the plant's step."""
 
     def __init__(self, node: Node, plant: Plant, spec: SensorSpec, p: dict[str, Any]):
         self.plant, self.spec = plant, spec
         self.model = SensorModel(plant.mech, spec, plant.options.formulation)
         mech = plant.mech
+        n_a, n_b = len(mech.active), len(mech.model.branches)
         self.after = spec.imu.sample_timing == "after_command"
         self.pub_encoders = self.pub_imu = self.pub_gauges = None
         if spec.encoders.enabled:
             self.pub_encoders = node.create_publisher(JointState, p["sensors.topics.measured_joint_states"], STATE_QOS)
-            self.encoder_msg = JointState(name=list(mech.active_names))
+            names = list(mech.active_names)
+            self.encoders = SerializedMessage(lambda a: cdr.encode_joint_state(0, names, *a),
+                                              (n_a, n_a if spec.encoders.velocity else 0, 0))
         if spec.imu.enabled:
             self.pub_imu = node.create_publisher(Imu, p["sensors.topics.ee_imu"], STATE_QOS)
-            self.imu_msg = Imu()
-            self.imu_msg.header.frame_id = spec.imu.frame_id
-            self.imu_msg.orientation_covariance[0] = -1.0  # not measured (REP 145)
-            self.imu_msg.angular_velocity_covariance[0] = -1.0
-            self.imu_msg.linear_acceleration_covariance = doubles(np.diag(np.full(3, spec.imu.stddev ** 2)).ravel())
+            self.imu = SerializedMessage(lambda a: serialize_message(_imu_template(spec.imu, a[0])), (3,))
         if spec.branch_forces.enabled:
             self.pub_gauges = node.create_publisher(BranchForces, p["sensors.topics.measured_branch_forces"],
                                                     STATE_QOS)
-            self.gauge_msg = BranchForces(name=[b.name for b in mech.model.branches])
+            branches = [b.name for b in mech.model.branches]
+            self.gauges = SerializedMessage(lambda a: cdr.encode_branch_forces(0, branches, *a), (n_b, 0, 0, 0))
 
     def publish_state(self, ns: int, branch_force: np.ndarray) -> None:
         """The samples of the state at ``ns`` (the accelerometer here only when it samples before the command)."""
         plant = self.plant
+        sec, nanosec = divmod(ns, NS)
         if self.pub_encoders is not None:
             position, velocity = self.model.encoders(plant.q, plant.qd)
-            m = self.encoder_msg
-            m.header.stamp = stamp(ns)
-            m.position = doubles(position)
+            m = self.encoders
+            m.set_stamp(sec, nanosec)
+            m.arrays[0][:] = position
             if velocity is not None:
-                m.velocity = doubles(velocity)
-            self.pub_encoders.publish(m)
+                m.arrays[1][:] = velocity
+            self.pub_encoders.publish(m.raw())
         if self.pub_imu is not None and not self.after:
             self.publish_imu(ns, plant.motor_torque())
         if self.pub_gauges is not None:
-            m = self.gauge_msg
-            m.header.stamp = stamp(ns)
-            m.force = doubles(self.model.branch_forces(branch_force))
-            self.pub_gauges.publish(m)
+            self.gauges.set_stamp(sec, nanosec)
+            self.gauges.arrays[0][:] = self.model.branch_forces(branch_force)
+            self.pub_gauges.publish(self.gauges.raw())
 
     def publish_imu(self, ns: int, torque: np.ndarray) -> None:
         """The accelerometer at the plant's state under the motor ``torque`` (commands + disturbance)."""
         if self.pub_imu is None:
             return
-        y = self.model.accelerometer(self.plant.q, self.plant.qd, torque)
-        m = self.imu_msg
-        m.header.stamp = stamp(ns)
-        a = m.linear_acceleration
-        a.x, a.y, a.z = float(y[0]), float(y[1]), float(y[2])
-        self.pub_imu.publish(m)
+        self.imu.set_stamp(*divmod(ns, NS))
+        self.imu.arrays[0][:] = self.model.accelerometer(self.plant.q, self.plant.qd, torque)
+        self.pub_imu.publish(self.imu.raw())
+
+
+def _imu_template(spec: ImuSpec, acceleration: np.ndarray) -> Imu:
+    msg = Imu()
+    msg.header.frame_id = spec.frame_id
+    msg.orientation_covariance[0] = -1.0  # not measured (REP 145)
+    msg.angular_velocity_covariance[0] = -1.0
+    msg.linear_acceleration_covariance = doubles(np.diag(np.full(3, spec.stddev ** 2)).ravel())
+    a = msg.linear_acceleration
+    a.x, a.y, a.z = (float(v) for v in acceleration)
+    return msg
 
 
 def disturbance_message(names: list[str], ns: int, effort: np.ndarray) -> JointState:

@@ -62,6 +62,7 @@ class Plant:
         # Unknown torques on the motors (truth): a smooth d(t), and a held part per period (the last one's)
         self.disturbance = disturbance
         self.held_disturbance = np.zeros(len(mech.active))
+        self._d_last: tuple[float | None, np.ndarray] = (None, self.held_disturbance)  # (t, d(t)) last asked
         self.fault: str | None = None  # why integration stopped (singular configuration, diverged state)
         self.fault_error: SingularConfigurationError | None = None
         self._sim = Simulator(mech, options)
@@ -258,7 +259,9 @@ class Plant:
         """The unknown motor torque at ``t``: d(t) plus ``held`` (default: the last period's held part)."""
         out = (self.held_disturbance if held is None else held).copy()
         if self.disturbance is not None:
-            out += self.disturbance(t)
+            if self._d_last[0] != t:  # asked for the same t_k by the truth topic and the accelerometer
+                self._d_last = (t, self.disturbance(t))
+            out += self._d_last[1]
         return out
 
     def end_effector(self) -> np.ndarray:
