@@ -55,6 +55,8 @@ DESCRIPTION_PARAMS = [
 ESTIMATE_PARAMS = [
     Param("topics.joint_states_stddev", "~/joint_states_stddev", "observer: JointState of the standard "
           "deviations (position, velocity) of every tree joint"),
+    Param("wait_for_command", False, "lockstep loop whose controller answers every estimate: samples stamped "
+          "after the newest estimate wait for the command of its stamp (the order offline observe uses)"),
 ]
 
 

@@ -65,6 +65,7 @@ from elastic_pm_dyn.ros.qos import DIAGNOSTICS_QOS, OBSERVER_INPUT_QOS, STATE_QO
 from elastic_pm_dyn.ros.throttle import KindThrottle
 
 WARN_EVERY = 1.0  # [s] throttle of repeated warnings, per kind
+MAX_HOLD = 2.0  # [s] wall time samples wait for a command (wait_for_command) before they go without it
 FINDINGS_EVERY = 10.0  # [s] throttle of the NIS findings (they describe a window of samples, not one)
 LEVELS = {0: DiagnosticStatus.OK, 1: DiagnosticStatus.WARN, 2: DiagnosticStatus.ERROR}
 
@@ -94,6 +95,12 @@ class ObserverMode:
         self.last_stamp = 0  # [ns] of the latest published estimate
         self.timing_logged = 0  # sample timing decisions logged so far
         self.warn = KindThrottle(node, WARN_EVERY)
+        # wait_for_command: in a lockstep loop the plant may answer the command of t_k with the
+        # samples of t_k+1 before that command reached this node; they wait for it here
+        self.wait_for_command = bool(p.get("wait_for_command", False))
+        self.awaiting: int | None = None  # [ns] stamp of the newest estimate whose command has not come
+        self.held: list[tuple[Any, Any]] = []  # (handler, message) in arrival order
+        self.held_since = 0.0  # monotonic [s]
 
         self.pub_joint_states = node.create_publisher(JointState, p["topics.joint_states"], STATE_QOS)
         self.pub_branch_forces = node.create_publisher(BranchForces, p["topics.branch_forces"], STATE_QOS)
@@ -109,16 +116,18 @@ class ObserverMode:
         inputs = [(JointState if p["command_type"] == "joint_state" else Float64MultiArray,
                    topics.torque_command, self._on_command)]
         if "imu" in cfg.sensors:
-            inputs.append((Imu, topics.ee_imu, self._on_imu))
+            inputs.append((Imu, topics.ee_imu, self._held(self._on_imu)))
         if "branch_forces" in cfg.sensors and cfg.branch_forces.source == "branch_forces":
-            inputs.append((BranchForces, topics.measured_branch_forces, self._on_branch_forces))
-        inputs.append((JointState, topics.measured_joint_states, self._on_joint_state))
+            inputs.append((BranchForces, topics.measured_branch_forces, self._held(self._on_branch_forces)))
+        inputs.append((JointState, topics.measured_joint_states, self._held(self._on_joint_state)))
         for msg_type, topic, callback in inputs:  # a copy each: rclpy writes the overrides into the profile
             node.create_subscription(msg_type, topic, callback, copy.copy(OBSERVER_INPUT_QOS),
                                      qos_overriding_options=QoSOverridingOptions.with_default_policies())
         node.create_service(Trigger, "~/reset", self._on_reset)
         node.create_service(SetJointState, "~/set_state", self._on_set_state)
         steady = Clock(clock_type=ClockType.STEADY_TIME)
+        if self.wait_for_command:
+            node.create_timer(0.1, self._check_held, clock=steady)
         node.create_timer(1.0 / p["marker_rate"], self._publish_markers, clock=steady)
         node.create_timer(1.0 / p["diagnostics_rate"], self._publish_diagnostics, clock=steady)
 
@@ -130,6 +139,38 @@ class ObserverMode:
                  + ", ".join(f"'{topic}'" for _, topic, _ in inputs) + f"; one estimate per '{primary}' message")
 
     # ------------------------------------------------------------------ inputs
+    def _held(self, handler: Any) -> Any:
+        """``handler``, or with wait_for_command: a message stamped after the newest estimate (or
+        behind one already waiting) waits until the command of that estimate's stamp is in."""
+        if not self.wait_for_command:
+            return handler
+
+        def gate(msg: Any) -> None:
+            if self.awaiting is not None and (self.held or stamp_ns(msg.header.stamp) > self.awaiting):
+                if not self.held:
+                    self.held_since = time.monotonic()
+                self.held.append((handler, msg))
+                return
+            handler(msg)
+        return gate
+
+    def _release(self) -> None:
+        """Take the waiting messages in arrival order, until one waits for the next command."""
+        held, self.held = self.held, []
+        for i, (handler, msg) in enumerate(held):
+            if self.awaiting is not None and stamp_ns(msg.header.stamp) > self.awaiting:
+                self.held = held[i:]
+                self.held_since = time.monotonic()
+                return
+            handler(msg)
+
+    def _check_held(self) -> None:
+        if self.held and time.monotonic() - self.held_since > MAX_HOLD:
+            self.warn.warning("no command", f"no torque command stamped {self.awaiting * 1e-9:.6f} s within "
+                              f"{MAX_HOLD:g} s: {len(self.held)} samples taken without it (wait_for_command)")
+            self.awaiting = None
+            self._release()
+
     def _on_command(self, msg: JointState | Float64MultiArray) -> None:
         t0 = time.perf_counter()
         if isinstance(msg, JointState):
@@ -139,6 +180,9 @@ class ObserverMode:
             ns = self.node.get_clock().now().nanoseconds
             out = self.session.torque_command(ns, (), msg.data)
         self._after(out, ns, t0)
+        if self.awaiting is not None and ns >= self.awaiting:
+            self.awaiting = None
+            self._release()
 
     def _on_joint_state(self, msg: JointState) -> None:
         t0 = time.perf_counter()
@@ -176,6 +220,8 @@ class ObserverMode:
         self.pub_stddev.publish(m.stddev)
         self.session.published += 1
         self.last_stamp = ns
+        if self.wait_for_command:
+            self.awaiting = ns
 
     def _publish_markers(self) -> None:
         if self.pub_markers.get_subscription_count() and self.session.published:
