@@ -69,3 +69,18 @@ def test_closed_loop_five_bar_lockstep(tmp_path: Path) -> None:
     for name in ("branch_forces", "path", "torques"):
         assert (out / f"{name}.png").stat().st_size > 10_000
     assert "Traceback" not in "".join(p.read_text() for p in (out / "logs").glob("*.log"))
+
+
+def test_launch_file_names_installed_executables_and_configs() -> None:
+    """launch/closed_loop.launch.py cannot run with the pip-only ROS; check what it refers to."""
+    import ast
+    import re
+    tree = ast.parse((REPO / "launch" / "closed_loop.launch.py").read_text())
+    strings = {n.value for n in ast.walk(tree) if isinstance(n, ast.Constant) and isinstance(n.value, str)}
+    scripts = set(re.findall(r'"(\w+) = elastic_pm_dyn\.', (REPO / "setup.py").read_text()))
+    assert {"plant_node", "observer_node", "feedforward_node", "recorder_node"} <= scripts & strings
+    for name in ("plant_sensors.yaml", "observer_node.yaml", "feedforward.yaml", "recorder.yaml"):
+        assert name in strings and (REPO / "config" / name).is_file()
+    assert "elastic_pm_dyn.ros.loop_demo" in strings  # the loop's start, python -m
+    from elastic_pm_dyn.ros.loop_demo import TOPICS
+    assert set(TOPICS.values()) <= strings | {"/disturbance"}

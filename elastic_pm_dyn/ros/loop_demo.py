@@ -262,7 +262,7 @@ class Kicker:
     missed them): then the plant's ``~/reset`` publishes its start state again, one period later.
     Running is told by the plant's newest state: its stamp moves on only when commands come."""
 
-    def __init__(self, domain_id: int, topics: dict[str, str | None]):
+    def __init__(self, domain_id: int, topics: dict[str, str | None], localhost: bool = True):
         import os
 
         import rclpy
@@ -278,7 +278,8 @@ class Kicker:
         self.needed.update(t for t in (topics["command"], topics["encoders"], topics["imu"]) if t)
         self.needed.update((topics["encoders"], topics["estimate"]))
         self.sensor_topics = [t for t in (topics["encoders"], topics["imu"]) if t]
-        os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+        if localhost:  # the demo's private domain (ros_env); a launch keeps the user's setting
+            os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
         self.context = rclpy.Context()
         rclpy.init(context=self.context, domain_id=domain_id)
         self.node = rclpy.create_node("elastic_pm_dyn_loop_orchestrator", context=self.context)
@@ -617,3 +618,26 @@ def _plots(out: Path, mech: Mechanism, t: np.ndarray, F: np.ndarray, F_live: np.
     tau = _at(cmd, stamps, "effort", active)
     plots.plot_torques(out / "torques.png", t, {n: tau[:, k] for k, n in enumerate(active)})
 
+
+def start_loop_main(argv: list[str] | None = None) -> int:
+    """``python -m elastic_pm_dyn.ros.loop_demo``: start a closed loop that a launch file brought
+    up (launch/closed_loop.launch.py) on this ROS domain: wait for every node, reset the plant
+    if the loop did not start from its t = 0 state, exit."""
+    import argparse
+    import os
+    import sys
+    p = argparse.ArgumentParser(prog="python -m elastic_pm_dyn.ros.loop_demo", description=start_loop_main.__doc__)
+    p.add_argument("--timeout", type=float, default=300.0, help="[s] for the nodes to come up and the loop to start")
+    args = p.parse_args(argv)
+    try:
+        with Kicker(int(os.environ.get("ROS_DOMAIN_ID", "0")), dict(TOPICS), localhost=False) as kick:
+            kick.wait_for_graph(args.timeout, [])
+            print(f"loop running ({kick.start_loop(args.timeout, [])})")
+    except NodeProcessError as err:
+        print(f"loop_demo: error: {err}", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(start_loop_main())
