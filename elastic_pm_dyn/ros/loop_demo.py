@@ -591,25 +591,27 @@ def _plots(out: Path, mech: Mechanism, t: np.ndarray, F: np.ndarray, F_live: np.
            cmd: _Stamped, rec: Recording) -> None:
     from matplotlib.figure import Figure
     n = len(branches)
-    cols = 1 if n <= 3 else 2
-    rows = int(np.ceil(n / cols))
-    fig = Figure(figsize=(11.0, 2.4 * rows + 1.0), dpi=110, layout="constrained")
-    axes = np.atleast_1d(fig.subplots(rows, cols, squeeze=False).ravel())
+    # per branch: the forces (left) and the errors against the truth with the stated band (right)
+    fig = Figure(figsize=(12.0, 2.2 * n + 0.8), dpi=110, layout="constrained")
+    axes = fig.subplots(n, 2, squeeze=False)
     for i, name in enumerate(branches):
-        ax = axes[i]
-        ax.fill_between(t, F_live[:, i] - 2 * F_std[:, i], F_live[:, i] + 2 * F_std[:, i], color="C0", alpha=0.25,
-                        lw=0, label="estimate +- 2 sigma")
+        ax, ae = axes[i]
         ax.plot(t, F[:, i], "k", lw=0.8, label="true")
-        ax.plot(t, F_live[:, i], "C0", lw=0.8, label="estimate (live)")
+        ax.plot(t, F_live[:, i], "C0", lw=0.7, label="estimate (live)")
         ax.plot(t, F_ol[:, i], "C3", lw=0.6, alpha=0.7, label="open loop")
-        ax.set_title(f"branch {name}", fontsize="small")
-        ax.set_ylabel("force [N]")
-        ax.grid(True, alpha=0.3)
-    for ax in axes[n:]:
-        ax.set_visible(False)
-    axes[0].legend(loc="best", fontsize="x-small")
-    for ax in axes[max(0, n - cols):n]:
-        ax.set_xlabel("time [s]")
+        ax.set_ylabel(f"{name} [N]")
+        ae.fill_between(t, -2 * F_std[:, i], 2 * F_std[:, i], color="C0", alpha=0.25, lw=0, label="+- 2 sigma (stated)")
+        ae.plot(t, F_ol[:, i] - F[:, i], "C3", lw=0.6, alpha=0.7, label="open loop - true")
+        ae.plot(t, F_live[:, i] - F[:, i], "C0", lw=0.7, label="estimate - true")
+        ae.set_ylabel("error [N]")
+        for a_ in (ax, ae):
+            a_.grid(True, alpha=0.3)
+    axes[0, 0].set_title("branch forces")
+    axes[0, 1].set_title("errors against the truth")
+    axes[0, 0].legend(loc="best", fontsize="x-small")
+    axes[0, 1].legend(loc="best", fontsize="x-small")
+    for a_ in axes[-1]:
+        a_.set_xlabel("time [s]")
     fig.savefig(out / "branch_forces.png")
     ee_true = np.array([mech.end_effector(x) for x in q])
     ee_est = np.array([mech.end_effector(x) for x in q_live])
