@@ -65,7 +65,8 @@ def run_machine(name: str, args: argparse.Namespace) -> dict:
     mech = Mechanism(load_model(model, dof))
     out = RESULTS / "loop_acceptance" / name
     base = REPO / "config" / "observer_node.yaml"
-    common = {"elastic_dof_per_chain": dof, "duration": args.duration, "timeout": args.timeout}
+    common = {"elastic_dof_per_chain": dof, "duration": args.duration, "timeout": args.timeout,
+              "domain_id": args.domain_id}
     print(f"{name}: loop run for tuning (seed {args.tune_seed})")
     tune_opts = LoopOptions(model, seed=args.tune_seed, **common)
     tune_summary = run_loop_demo(out / "tune_run", tune_opts)
@@ -114,6 +115,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--max-evaluations", type=int, default=160)
     p.add_argument("--scan-delay", action="store_true", help="let tune scan command_delay too")
     p.add_argument("--timeout", type=float, default=3600.0, help="[s] per loop run")
+    # Outside the 1-100 that the tests and ros-demo pick by process id: a test on the same domain
+    # would talk to this loop (seen: a five-bar test's commands reached a Triglide run)
+    p.add_argument("--domain-id", type=int, default=101, help="ROS domain of the runs (default 101)")
     args = p.parse_args(argv)
     RESULTS.mkdir(parents=True, exist_ok=True)
     path = RESULTS / "loop_acceptance.json"
