@@ -52,6 +52,7 @@ from elastic_pm_dyn.ros.params import share_path
 from elastic_pm_dyn.ros.processes import NodeProcess, NodeProcessError, private_domain_id, ros_env, wait_for_exit
 
 CONTROL_RATE = REFERENCE_MANOEUVRE.control_rate  # [Hz] plant, controller, sensors
+PLANT_DT = 1e-4  # [s] the plant's RK4 step (config/plant_sensors.yaml)
 PERIOD_NS = round(NS / CONTROL_RATE)
 DRAIN = 1.0  # [s] after the controller ends, for the last messages to reach the recorder
 SETTLE = 3.0  # [s] wall time for a loop that started by itself to show
@@ -112,6 +113,33 @@ def default_gains(mech: Mechanism, bandwidth: float = 5.0, damping: float = 0.7)
     m = np.diag(W.T @ t.M @ W)[: len(rigid.active)]
     w = 2 * np.pi * bandwidth
     return m * w * w, 2 * damping * m * w
+
+
+def rk4_limit(mech: Mechanism) -> float:
+    """[s] the largest stable RK4 step for the fastest elastic mode at the start pose
+    (|h omega| <= 2 sqrt 2, as ``elastic-pm-dyn check`` reports it); inf without springs."""
+    from elastic_pm_dyn.dynamics.linear import elastic_modes
+    from elastic_pm_dyn.kinematics.assembly import initial_state
+    if not len(mech.elastic):
+        return float("inf")
+    f = float(np.max(elastic_modes(mech, initial_state(mech), clamp_motors=True).natural_hz))
+    return 2 * np.sqrt(2) / (2 * np.pi * f) if f > 0 else float("inf")
+
+
+def plant_numerics(mech: Mechanism) -> list[str]:
+    """The plant's integrator: the project's RK4 at 1e-4 s where it is stable with a margin, else
+    ETD2 at 5e-4 s (springs integrated exactly: the README's choice for stiff machines, e.g.
+    the Triglide at n_ek = 2 whose fastest mode, 4.8 kHz, needs an RK4 step below 9.3e-5 s)."""
+    if rk4_limit(mech) > 2 * PLANT_DT:
+        return []
+    return ["-p", "integrator:=etd2", "-p", "dt:=0.0005"]
+
+
+def open_loop_dt(mech: Mechanism) -> float:
+    """[s] the open-loop prediction's RK4 step: 1e-4 s, or a quarter of the stability limit
+    (the accuracy ``check`` recommends) on a whole number of steps per control period."""
+    dt = min(PLANT_DT, rk4_limit(mech) / 4)
+    return 1.0 / CONTROL_RATE / int(np.ceil(1.0 / CONTROL_RATE / dt - 1e-9))
 
 
 def motion_params(mech: Mechanism, duration: float) -> dict[str, Any]:
@@ -188,7 +216,8 @@ def node_arguments(bag: Path, mech: Mechanism, opts: LoopOptions) -> dict[str, l
                *_p("disturbance.duration", float(opts.duration))]  # the RMS holds over the run
     plant = ["--params-file", str(share_path("config", "plant_sensors.yaml" if opts.plant_sensors else "plant.yaml")),
              *(sensors if opts.plant_sensors else []),
-             *model, *dof, "-p", "sync_mode:=lockstep", *_p("publish_rate", CONTROL_RATE), *opts.extra_plant_args]
+             *model, *dof, "-p", "sync_mode:=lockstep", *_p("publish_rate", CONTROL_RATE), *plant_numerics(mech),
+             *opts.extra_plant_args]
     observer = ["--params-file", str(cfg_path), *model, *dof,
                 *_p("topics.joint_states", f"{OBSERVER_NS}/joint_states"),
                 *_p("topics.branch_forces", f"{OBSERVER_NS}/branch_forces"),
@@ -462,7 +491,7 @@ def analyse_loop(out: Path, bag: Path, mech: Mechanism, opts: LoopOptions, wall:
     rows = offline.rows
     identical, diff, compared = compare_live_offline(est, ef, rows)
 
-    ol = open_loop(rec)
+    ol = open_loop(rec, dt=open_loop_dt(mech))
     scores = score(rec, offline_run(rec, rows), ol)
     keep = t >= 0.02 - 1e-12  # after the settling time score() uses
     rms = lambda x: float(np.sqrt(np.mean(np.square(x[keep]))))  # noqa: E731
@@ -499,6 +528,8 @@ def analyse_loop(out: Path, bag: Path, mech: Mechanism, opts: LoopOptions, wall:
         "observer_sensors": {k: {"accepted": v, "rejected": scores["rejected"][k]}
                              for k, v in scores["accepted"].items()},
         "controller": pd_check,
+        "plant_integrator": " ".join(plant_numerics(mech)[1::2]) or "rk4 dt 1e-4 (config/plant_sensors.yaml)",
+        "open_loop_rk4_dt_s": open_loop_dt(mech),
         "disturbance_recorded": TOPICS["disturbance"] in data,
     }
     (out / "summary.json").write_text(json.dumps(summary, indent=2, default=_json))
