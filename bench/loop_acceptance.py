@@ -68,7 +68,9 @@ def run_machine(name: str, args: argparse.Namespace) -> dict:
     common = {"elastic_dof_per_chain": dof, "duration": args.duration, "timeout": args.timeout,
               "domain_id": args.domain_id}
     print(f"{name}: loop run for tuning (seed {args.tune_seed})")
-    tune_opts = LoopOptions(model, seed=args.tune_seed, **common)
+    # the controller paced by the plant: the untuned observer may diverge (it did on the Triglide)
+    # and must not stop the recording it is to be tuned on
+    tune_opts = LoopOptions(model, seed=args.tune_seed, pace_on_observer=False, **common)
     tune_summary = run_loop_demo(out / "tune_run", tune_opts)
     print(f"{name}: tune")
     tuned = tune_on(out / "tune_run", mech, base, out / "tuned.yaml", tune_opts, args.tune_seconds,

@@ -57,6 +57,7 @@ PERIOD_NS = round(NS / CONTROL_RATE)
 DRAIN = 1.0  # [s] after the controller ends, for the last messages to reach the recorder
 SETTLE = 3.0  # [s] wall time for a loop that started by itself to show
 KICK_EVERY = 30.0  # [s] wall time without progress after which the plant is reset again
+STALL = 120.0  # [s] wall time without a new plant state after which a running loop has stalled
 # What the plant simulates (names of the plant-sensors parameters, config/plant_sensors.yaml).
 ENCODER_STDDEV = 2.0e-5  # [rad] the observer's test recordings' noise (observer.scenarios.Noise)
 IMU_STDDEV = 0.02  # [m/s^2]
@@ -88,6 +89,9 @@ class LoopOptions:
     timeout: float = 1800.0  # [s] wall time for the loop (the observer is slow on spatial machines)
     domain_id: int | None = None
     extra_plant_args: list[str] = field(default_factory=list)
+    # False: the controller answers the plant's states, the observer only listens (a loop that an
+    # observer failure cannot stop, e.g. a recording to tune the observer on; live may then lag)
+    pace_on_observer: bool = True
     # False: a plant without simulated sensors; its true joint states are the (noise-free)
     # encoders and there is no accelerometer (a check of the wiring, not of the observer)
     plant_sensors: bool = True
@@ -234,7 +238,7 @@ def node_arguments(bag: Path, mech: Mechanism, opts: LoopOptions) -> dict[str, l
     kd = np.broadcast_to(opts.kd if opts.kd is not None else kd, kd.shape)
     controller = ["--params-file", str(share_path("config", "feedforward.yaml")), *model,
                   *_p("rate", CONTROL_RATE), "-p", "trigger:=state",
-                  *_p("topics.state", f"{OBSERVER_NS}/joint_states"),
+                  *_p("topics.state", f"{OBSERVER_NS}/joint_states" if opts.pace_on_observer else topics["truth"]),
                   *_p("topics.measured_joint_states", topics["encoders"]),
                   *_p("feedback.kp", [float(x) for x in kp]), *_p("feedback.kd", [float(x) for x in kd]),
                   "-p", "autostart:=true", "-p", "exit_when_done:=true",
@@ -262,11 +266,12 @@ def _run_nodes(out: Path, bag: Path, mech: Mechanism, opts: LoopOptions) -> None
         procs.append(controller)
         print(f"  plant (lockstep), recorder, observer and controller started on ROS domain {domain_id}; "
               f"logs in {logs}")
-        with Kicker(domain_id, opts.topics()) as kick:
+        with Kicker(domain_id, opts.topics(), pace_on_observer=opts.pace_on_observer) as kick:
             kick.wait_for_graph(opts.timeout, procs)
             print("  every node subscribed")
             how = kick.start_loop(opts.timeout, procs)
             print(f"  loop running ({how})")
+            kick.watch(controller, procs[:3], opts.timeout, logs)
         code = wait_for_exit(controller, procs[:3], opts.timeout)
         if code:
             raise controller.failure(code)
@@ -291,7 +296,8 @@ class Kicker:
     missed them): then the plant's ``~/reset`` publishes its start state again, one period later.
     Running is told by the plant's newest state: its stamp moves on only when commands come."""
 
-    def __init__(self, domain_id: int, topics: dict[str, str | None], localhost: bool = True):
+    def __init__(self, domain_id: int, topics: dict[str, str | None], localhost: bool = True,
+                 pace_on_observer: bool = True):
         import os
 
         import rclpy
@@ -305,7 +311,7 @@ class Kicker:
         self.needed = Counter({topics[k] for k in ("truth", "estimate", "command", "encoders", "imu", "reference")
                                if topics[k]})
         self.needed.update(t for t in (topics["command"], topics["encoders"], topics["imu"]) if t)
-        self.needed.update((topics["encoders"], topics["estimate"]))
+        self.needed.update((topics["encoders"], topics["estimate" if pace_on_observer else "truth"]))
         self.sensor_topics = [t for t in (topics["encoders"], topics["imu"]) if t]
         if localhost:  # the demo's private domain (ros_env); a launch keeps the user's setting
             os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
@@ -353,6 +359,19 @@ class Kicker:
                 raise NodeProcessError(f"no complete loop within {timeout:g} s: missing readers or writers on "
                                        f"{', '.join(missing)} (does the plant simulate its sensors?)")
             self._spin_for(0.05, watch)
+
+    def watch(self, controller: NodeProcess, others: list[NodeProcess], timeout: float, logs: Path) -> None:
+        """Until the controller ends: a loop whose plant state stops moving for :data:`STALL` s
+        has stalled (an observer that stopped publishes no estimate to pace the controller)."""
+        deadline = time.monotonic() + timeout
+        last, since = self.newest, time.monotonic()
+        while controller.proc.poll() is None and time.monotonic() < deadline:
+            self._spin_for(0.2, others)
+            if self.newest != last:
+                last, since = self.newest, time.monotonic()
+            elif time.monotonic() - since > STALL:
+                raise NodeProcessError(f"the loop stalled at t = {last * 1e-9:.6f} s: no plant state for {STALL:g} s "
+                                       f"(an observer that stopped? see {logs / 'observer.log'})")
 
     def start_loop(self, timeout: float, watch: list[NodeProcess]) -> str:
         deadline = time.monotonic() + timeout
