@@ -397,7 +397,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--observer-config", help="--observer: observer parameter file, e.g. one written by "
                    "'elastic-pm-dyn tune' (default config/observer_node.yaml)")
     p.add_argument("--kp", type=float, nargs="+", help="--observer: PD gains [N m/rad], one or one per motor "
-                   "(default: a 5 Hz loop on the machine's inertia)")
+                   "(default: a 2 Hz loop, damping 0.1, on the machine's inertia)")
     p.add_argument("--kd", type=float, nargs="+", help="--observer: [N m s/rad], one or one per motor")
     p.set_defaults(func=cmd_ros_demo)
     from elastic_pm_dyn.analysis.cli import register_cli as register_analysis

@@ -81,7 +81,8 @@ class LoopOptions:
     observer_config: Path | None = None  # observer parameter file (default config/observer_node.yaml)
     kp: list[float] | None = None  # [N m/rad] None: from the machine's inertia (:func:`default_gains`)
     kd: list[float] | None = None
-    bandwidth: float = 5.0  # [Hz] of the default gains
+    bandwidth: float = 2.0  # [Hz] of the default gains
+    damping: float = 0.1  # damping ratio of the default gains
     disturbance_rms: float = 0.02  # [N m] per motor
     disturbance_band: tuple[float, float] = (2.0, 200.0)  # [Hz] flat spectrum
     imu_sample_timing: str = "before_command"  # the controller reads its sensors, then commands
@@ -107,9 +108,12 @@ class LoopOptions:
         return ["encoders", "imu"] if self.plant_sensors else ["encoders"]
 
 
-def default_gains(mech: Mechanism, bandwidth: float = 5.0, damping: float = 0.7) -> tuple[np.ndarray, np.ndarray]:
+def default_gains(mech: Mechanism, bandwidth: float = 2.0, damping: float = 0.1) -> tuple[np.ndarray, np.ndarray]:
     """PD gains per motor from the rigid machine's inertia at the start pose seen by each motor
-    alone (diagonal of W^T M W): kp = m w^2, kd = 2 zeta m w at ``bandwidth`` [Hz]."""
+    alone (diagonal of W^T M W): kp = m w^2, kd = 2 zeta m w at ``bandwidth`` [Hz]. The rate is
+    differenced from 1 kHz encoder samples, a period late: a large kd feeds the spring modes
+    (the Triglide at n_ek = 2 rang up to 60 kN within 0.25 s at 5 Hz / 0.7, the Hexa went
+    singular); 2 Hz / 0.1 keeps every machine's loop stable (the feedforward does the tracking)."""
     ff = rigid_feedforward(mech.model)
     rigid = ff.mech
     t = rigid.terms(ff.q, np.zeros(rigid.n))
@@ -233,7 +237,7 @@ def node_arguments(bag: Path, mech: Mechanism, opts: LoopOptions) -> dict[str, l
                 *_p("observer.topics.measured_joint_states", topics["encoders"]),
                 *_p("observer.imu.sample_timing", opts.imu_sample_timing),
                 *(_p("observer.imu.axes", ["x", "y", "z"]) if spatial else [])]
-    kp, kd = default_gains(mech, opts.bandwidth)
+    kp, kd = default_gains(mech, opts.bandwidth, opts.damping)
     kp = np.broadcast_to(opts.kp if opts.kp is not None else kp, kp.shape)
     kd = np.broadcast_to(opts.kd if opts.kd is not None else kd, kd.shape)
     controller = ["--params-file", str(share_path("config", "feedforward.yaml")), *model,
@@ -630,7 +634,7 @@ def _check_pd(ref: _Stamped, enc: _Stamped, cmd: _Stamped, stamps: np.ndarray, o
 
 
 def _gains_used(opts: LoopOptions, mech: Mechanism) -> tuple[np.ndarray, np.ndarray]:
-    kp, kd = default_gains(mech, opts.bandwidth)
+    kp, kd = default_gains(mech, opts.bandwidth, opts.damping)
     kp = np.broadcast_to(opts.kp if opts.kp is not None else kp, kp.shape).astype(float)
     kd = np.broadcast_to(opts.kd if opts.kd is not None else kd, kd.shape).astype(float)
     return kp, kd
