@@ -123,11 +123,14 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     RESULTS.mkdir(parents=True, exist_ok=True)
     path = RESULTS / "loop_acceptance.json"
-    old = json.loads(path.read_text()) if path.is_file() else {}
-    results = {r["machine"]: r for r in old.get("results", [])}  # other machines' rows kept
+    results = {}
     for name in args.machines:
         results[name] = run_machine(name, args)
-        rows = [results[m] for m in MACHINES if m in results]
+        # other machines' rows kept, read now: another run of this script may have written since
+        old = json.loads(path.read_text()) if path.is_file() else {}
+        rows = [results.get(m) or next((r for r in old.get("results", []) if r["machine"] == m), None)
+                for m in MACHINES]
+        rows = [r for r in rows if r is not None]
         path.write_text(json.dumps({"command": " ".join(sys.argv), "results": rows}, indent=2, default=str))
         (RESULTS / "loop_acceptance.md").write_text(markdown(rows, args))
         print(markdown(rows, args))
