@@ -63,7 +63,7 @@ from elastic_pm_dyn.ros.params import (
     read_parameters,
     reject_unknown,
 )
-from elastic_pm_dyn.ros.qos import COMMAND_QOS, OBSERVER_INPUT_QOS, STATE_QOS
+from elastic_pm_dyn.ros.qos import COMMAND_OUT_QOS, COMMAND_QOS, OBSERVER_INPUT_QOS, STATE_QOS
 from elastic_pm_dyn.ros.throttle import KindThrottle
 
 READY_POLL = 0.05  # [s] wall-clock check for subscribers while waiting to start
@@ -146,7 +146,7 @@ class FeedforwardNode(ManagedNode):
 
         self.pub_command = self.create_publisher(
             JointState if self.command_type == "joint_state" else Float64MultiArray, p["topics.command"],
-            COMMAND_QOS)
+            COMMAND_OUT_QOS)
         self.pub_reference = self.create_publisher(JointState, p["topics.reference"], STATE_QOS)
         self.create_service(Trigger, "~/start", self._on_start)
         if self.source == "trajectory":

@@ -65,7 +65,8 @@ from elastic_pm_dyn.ros.qos import DIAGNOSTICS_QOS, OBSERVER_INPUT_QOS, STATE_QO
 from elastic_pm_dyn.ros.throttle import KindThrottle
 
 WARN_EVERY = 1.0  # [s] throttle of repeated warnings, per kind
-MAX_HOLD = 2.0  # [s] wall time samples wait for a command (wait_for_command) before they go without it
+MAX_HOLD = 10.0  # [s] wall time samples wait for a command (wait_for_command; a loaded machine's controller
+# may take seconds, a stopped one never answers) before they go without it
 FINDINGS_EVERY = 10.0  # [s] throttle of the NIS findings (they describe a window of samples, not one)
 LEVELS = {0: DiagnosticStatus.OK, 1: DiagnosticStatus.WARN, 2: DiagnosticStatus.ERROR}
 
