@@ -6,8 +6,8 @@
 The same nodes and wiring as ``elastic-pm-dyn ros-demo --observer`` (which needs no launch and
 also reads the bag back; README "Closing the loop"): the plant (config/plant_sensors.yaml:
 lockstep, encoders, accelerometer, a flat 2-200 Hz unknown torque) publishes the truth and
-the sensors; the observer publishes its estimates under ``observer/`` and waits for each
-command (``wait_for_command``); the controller (config/feedforward.yaml: the reference line,
+the sensors; the observer publishes its estimates under ``observer/`` and takes its inputs in
+offline observe's order (``lockstep_order``); the controller (config/feedforward.yaml: the reference line,
 rigid feedforward) adds a PD on ``measured_joint_states`` and answers each estimate; the
 recorder writes every topic. ``python -m elastic_pm_dyn.ros.loop_demo`` starts the loop once
 every node is up (it resets the plant if the observer missed its t = 0 samples). The launch
@@ -37,7 +37,7 @@ def generate_launch_description() -> LaunchDescription:
                  parameters=[PathJoinSubstitution([config, "plant_sensors.yaml"]), {"model": model}])
     observer = Node(package=PACKAGE, executable="observer_node", name="observer", output="screen",
                     parameters=[LaunchConfiguration("observer_config"),
-                                {"model": model, "wait_for_command": True,
+                                {"model": model, "lockstep_order": True,
                                  "topics.joint_states": "observer/joint_states",
                                  "topics.branch_forces": "observer/branch_forces",
                                  "topics.ee_pose": "observer/ee_pose", "topics.markers": "observer/markers",

@@ -241,7 +241,7 @@ def node_arguments(bag: Path, mech: Mechanism, opts: LoopOptions) -> dict[str, l
                 *_p("topics.ee_pose", f"{OBSERVER_NS}/ee_pose"),
                 *_p("topics.markers", f"{OBSERVER_NS}/markers"),
                 *_p("topics.robot_description", f"{OBSERVER_NS}/robot_description"),
-                "-p", "wait_for_command:=true",  # the command of t_k before the samples of t_k+1
+                "-p", "lockstep_order:=true",  # offline observe's order of the inputs
                 *_p("observer.sensors", opts.sensors),
                 *_p("observer.topics.measured_joint_states", topics["encoders"]),
                 *_p("observer.imu.sample_timing", opts.imu_sample_timing),

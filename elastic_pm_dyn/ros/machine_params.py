@@ -55,8 +55,8 @@ DESCRIPTION_PARAMS = [
 ESTIMATE_PARAMS = [
     Param("topics.joint_states_stddev", "~/joint_states_stddev", "observer: JointState of the standard "
           "deviations (position, velocity) of every tree joint"),
-    Param("wait_for_command", False, "lockstep loop whose controller answers every estimate: samples stamped "
-          "after the newest estimate wait for the command of its stamp (the order offline observe uses)"),
+    Param("lockstep_order", False, "lockstep loop whose controller answers every estimate: the samples of t_k+1 "
+          "wait for the command of t_k, the joint state of t_k for the other samples of t_k (offline observe's order)"),
 ]
 
 
