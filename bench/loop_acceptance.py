@@ -71,10 +71,15 @@ def run_machine(name: str, args: argparse.Namespace) -> dict:
     # the controller paced by the plant: the untuned observer may diverge (it did on the Triglide)
     # and must not stop the recording it is to be tuned on
     tune_opts = LoopOptions(model, seed=args.tune_seed, pace_on_observer=False, **common)
-    tune_summary = run_loop_demo(out / "tune_run", tune_opts)
-    print(f"{name}: tune")
-    tuned = tune_on(out / "tune_run", mech, base, out / "tuned.yaml", tune_opts, args.tune_seconds,
-                    args.scan_delay, args.max_evaluations)
+    if args.reuse_tuned and (out / "tuned.yaml").is_file() and (out / "tune_run" / "summary.json").is_file():
+        print(f"{name}: the tuned file of an earlier run ({out / 'tuned.yaml'})")
+        tune_summary = json.loads((out / "tune_run" / "summary.json").read_text())
+        tuned = {"file": str(out / "tuned.yaml"), "reused": True}
+    else:
+        tune_summary = run_loop_demo(out / "tune_run", tune_opts)
+        print(f"{name}: tune")
+        tuned = tune_on(out / "tune_run", mech, base, out / "tuned.yaml", tune_opts, args.tune_seconds,
+                        args.scan_delay, args.max_evaluations)
     print(f"{name}: loop run with the tuned observer (seed {args.seed})")
     s = run_loop_demo(out / "run", LoopOptions(model, seed=args.seed, observer_config=out / "tuned.yaml", **common))
     verdict = {"ratio_ok": s["branch_force_error_ratio_to_open_loop"] <= RATIO_MAX,
@@ -116,6 +121,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--tune-seconds", type=float, default=None, help="tune on the first S seconds (default: all)")
     p.add_argument("--max-evaluations", type=int, default=160)
     p.add_argument("--scan-delay", action="store_true", help="let tune scan command_delay too")
+    p.add_argument("--reuse-tuned", action="store_true", help="take the tuned file of an earlier run of the machine")
     p.add_argument("--timeout", type=float, default=3600.0, help="[s] per loop run")
     # Outside the 1-100 that the tests and ros-demo pick by process id: a test on the same domain
     # would talk to this loop (seen: a five-bar test's commands reached a Triglide run)
