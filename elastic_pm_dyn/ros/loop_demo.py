@@ -38,7 +38,7 @@ from elastic_pm_dyn.bags.msgtypes import BRANCH_FORCES, IMU, JOINT_STATE, NS, st
 from elastic_pm_dyn.bags.reader import open_bag
 from elastic_pm_dyn.bags.series import read_series
 from elastic_pm_dyn.bags.writer import BagWriter
-from elastic_pm_dyn.errors import InputError
+from elastic_pm_dyn.errors import InputError, SingularConfigurationError
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.model.loader import load_model
 from elastic_pm_dyn.motion.feedback import pd_torque
@@ -60,6 +60,7 @@ DRAIN = 1.0  # [s] after the controller ends, for the last messages to reach the
 SETTLE = 3.0  # [s] wall time for a loop that started by itself to show
 KICK_EVERY = 30.0  # [s] wall time without progress after which the plant is reset again
 LATE = 0.2  # [s] the figures also from here on (after a start transient)
+OPEN_LOOP_PIECE = 0.25  # [s] the open loop is integrated piece by piece (up to a singular pose)
 STALL = 120.0  # [s] wall time without a new plant state after which a running loop has stalled
 # What the plant simulates (names of the plant-sensors parameters, config/plant_sensors.yaml).
 ENCODER_STDDEV = 2.0e-5  # [rad] the observer's test recordings' noise (observer.scenarios.Noise)
@@ -155,9 +156,23 @@ def open_loop_prediction(rec: Recording) -> OpenLoop:
     integrator, dt = ("etd2", 5e-4) if numerics else ("rk4", PLANT_DT)
     sim = Simulator(mech, SimulationOptions(formulation="scdd", integrator=integrator, dt=dt,
                                             sample=1.0 / CONTROL_RATE, stabilization="projection"))
-    res = sim.run(TorqueTable(rec.t, rec.acting, "zoh"), rec.t[-1] - rec.t[0], rec.q[0], rec.qd[0], t0=rec.t[0])
+    table = TorqueTable(rec.t, rec.acting, "zoh")
     n = len(rec.t)
-    return OpenLoop(res.q[:n], res.qd[:n], res.branch_forces[:n])
+    out = OpenLoop(np.full_like(rec.q, np.nan), np.full_like(rec.qd, np.nan), np.full_like(rec.F, np.nan))
+    # In pieces: without the feedback's corrections an open loop may drift into a singular pose
+    # (the Hexa holding its pose under gravity, at 1.97 s); it is then compared up to there.
+    per = round(OPEN_LOOP_PIECE * CONTROL_RATE)
+    q, qd = rec.q[0], rec.qd[0]
+    for k0 in range(0, n - 1, per):
+        k1 = min(k0 + per, n - 1)
+        try:
+            res = sim.run(table, rec.t[k1] - rec.t[k0], q, qd, t0=rec.t[k0])
+        except SingularConfigurationError:
+            break
+        m = k1 - k0 + 1
+        out.q[k0:k1 + 1], out.qd[k0:k1 + 1], out.F[k0:k1 + 1] = res.q[:m], res.qd[:m], res.branch_forces[:m]
+        q, qd = res.q[m - 1], res.qd[m - 1]
+    return out
 
 
 def motion_params(mech: Mechanism, duration: float) -> dict[str, Any]:
@@ -535,12 +550,13 @@ def analyse_loop(out: Path, bag: Path, mech: Mechanism, opts: LoopOptions, wall:
     run = offline_run(rec, rows)
     F_qs = quasi_static_series(rec)
     scores = score(rec, run, ol, F_qs)
-    keep = (t >= 0.02 - 1e-12) & live  # after the settling time score() uses
+    valid = np.all(np.isfinite(ol.F), axis=1)  # the open loop up to a singular pose, if it met one
+    keep = (t >= 0.02 - 1e-12) & live & valid  # after the settling time score() uses
     rms = lambda x, k=keep: float(np.sqrt(np.mean(np.square(x[k]))))  # noqa: E731
     err_live, err_ol = rms(F_live - F), rms(ol.F - F)
     # The same after the start: a plant that starts off the observer's initial state (springs at
     # rest under gravity, where the observer assumes them in equilibrium) rings for ~0.1 s first
-    late = (t >= LATE - 1e-12) & live
+    late = (t >= LATE - 1e-12) & live & valid
     late_scores = score(rec, run, ol, F_qs, settle=LATE) if np.any(late) else None
 
     # the controller used the encoder sample of each stamp: its command is the PD law on it
@@ -583,6 +599,7 @@ def analyse_loop(out: Path, bag: Path, mech: Mechanism, opts: LoopOptions, wall:
         "open_loop": "the plant's integrator (" + (" ".join(plant_numerics(mech)[1::2]) or "rk4 dt 1e-4")
                      + ") from the true start state under the recorded commands, without the disturbance",
         "periods_with_live_estimate": int(live.sum()),
+        "open_loop_compared_until_s": float(t[valid][-1]) if np.any(valid) else 0.0,
         "disturbance_recorded": TOPICS["disturbance"] in data,
     }
     (out / "summary.json").write_text(json.dumps(summary, indent=2, default=_json))
