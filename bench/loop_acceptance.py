@@ -85,7 +85,7 @@ def run_machine(name: str, args: argparse.Namespace) -> dict:
     verdict = {"ratio_ok": s["branch_force_error_ratio_to_open_loop"] <= RATIO_MAX,
                "nees_ok": s["nees_in_band"] >= NEES_MIN, "live_equals_offline": s["live_equals_offline"]}
     return {"machine": name, "model": str(model), "elastic_dof_per_chain": dof, "tuning": tuned,
-            "tuning_run": {k: tune_summary[k] for k in KEYS}, "result": {k: s[k] for k in KEYS},
+            "tuning_run": {k: tune_summary.get(k) for k in KEYS}, "result": {k: s[k] for k in KEYS},
             "controller": s["controller"], "acceptance": verdict, "passed": all(verdict.values())}
 
 
