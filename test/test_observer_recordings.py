@@ -12,17 +12,15 @@ from elastic_pm_dyn.observer.config import ObserverConfig
 from elastic_pm_dyn.observer.evaluation import offline_run, score
 from elastic_pm_dyn.observer.offline import observe_bag
 from elastic_pm_dyn.observer.recordings import (
-    BANDS,
     EPOCH,
     RECEIVE_DELAY_NS,
     RECEIVE_JITTER_NS,
-    SPECTRA,
     RecordingSpec,
-    SpectrumDisturbance,
     generate,
     write_bag,
 )
 from elastic_pm_dyn.observer.scenarios import PERIOD
+from elastic_pm_dyn.sim.disturbances import BANDS, SPECTRA, SpectrumDisturbance
 
 
 @pytest.fixture

@@ -31,10 +31,11 @@ def _node_class(name: str) -> type:
     from elastic_pm_dyn.ros.feedforward_node import FeedforwardNode
     from elastic_pm_dyn.ros.plant_node import PlantNode
     from elastic_pm_dyn.ros.recorder import RecorderNode
-    return {"plant": PlantNode, "feedforward": FeedforwardNode, "recorder": RecorderNode}[name]
+    return {"plant": PlantNode, "plant_sensors": PlantNode, "feedforward": FeedforwardNode,
+            "recorder": RecorderNode}[name]
 
 
-@pytest.mark.parametrize("name", ["plant", "feedforward", "recorder"])
+@pytest.mark.parametrize("name", ["plant", "plant_sensors", "feedforward", "recorder"])
 def test_parameter_file_loads(name: str, tmp_path: Path) -> None:
     """Every value of config/<name>.yaml reaches the node, with its YAML type."""
     path = CONFIG / f"{name}.yaml"
@@ -64,6 +65,17 @@ def test_parameter_file_loads(name: str, tmp_path: Path) -> None:
     ("plant", "command_joints", ["left_motor"], "parameter 'command_joints'"),
     ("plant", "model", "/no/such/model.yaml", "parameter 'model': no such file"),
     ("plant", "formulaton", "lda", "unknown parameter(s) formulaton"),
+    ("plant", "sensors.imu.stddev", -1.0, "parameter 'sensors.imu.stddev' must be a number >= 0"),
+    ("plant", "sensors.imu.sample_timing", "later", "parameter 'sensors.imu.sample_timing' is 'later'"),
+    ("plant", "sensors.imu.rpy", [0.0, 1.0], "parameter 'sensors.imu.rpy' must be 3 finite numbers"),
+    ("plant", "sensors.encoders.counts_per_revolution", 4096.0, "must be an integer"),
+    ("plant", "sensors.imu.enabeld", True, "did you mean sensors.imu.enabled"),
+    ("plant", "disturbance.spectrum", "blue", "parameter 'disturbance.spectrum' is 'blue'"),
+    ("plant", "disturbance.band", [200.0, 2.0], "parameter 'disturbance.band' must be [low, high]"),
+    ("plant", "gravity", [0.0, -9.81], "parameter 'gravity' must be 3 finite numbers"),
+    ("plant", "gravity", [0, -9, 0], "parameter 'gravity' must be a list of a float"),
+    ("plant", "elastic_dof_per_chain", 9, "parameter 'elastic_dof_per_chain' must lie in 0-8"),
+    ("plant", "gravity", [0.0, -9.81, 0.0], None),  # valid: control case
     ("feedforward", "line.start", [0.0, 0.4, 0.1], "need 2 coordinates"),
     ("feedforward", "line.move", -0.2, "parameter 'line.move' must be a positive number"),
     ("feedforward", "trigger", "clock", "parameter 'trigger' is 'clock'"),

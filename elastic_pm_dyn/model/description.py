@@ -15,6 +15,7 @@ Conventions (as in URDF):
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -296,6 +297,14 @@ class Model:
     @property
     def end_effector_chain(self) -> int:
         return self.closure.chains[0] if self.closure is not None else 0
+
+    def with_gravity(self, gravity: Sequence[float]) -> Model:
+        """The same machine under another gravity vector [m/s^2] (world frame): e.g. a
+        horizontal machine's model file tried standing up, without an edited copy."""
+        g = np.asarray(gravity, dtype=float)
+        if g.shape != (3,) or not np.all(np.isfinite(g)):
+            raise ValueError(f"gravity must be 3 finite numbers, got {list(np.atleast_1d(gravity))!r}")
+        return replace(self, gravity=g.copy())
 
     def locked(self, role: str = ELASTIC) -> Model:
         """The same machine with every joint of ``role`` frozen at its rest position.

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
 
@@ -34,7 +35,8 @@ _JOINT_KEYS = {"name", "type", "role", "axis", "origin", "body", "stiffness", "d
 
 
 def load_model(path: str | Path, elastic_dof_per_chain: int | None = None,
-               closures: str | Path | None = None, fix_base: bool = False, servos_as_motors: bool = False) -> Model:
+               closures: str | Path | None = None, fix_base: bool = False, servos_as_motors: bool = False,
+               gravity: Sequence[float] | None = None) -> Model:
     """Read and validate a model file: a model YAML, a URDF or an MJCF.
 
     The format follows from the suffix (.yaml/.yml, .urdf, .xml/.mjcf) and, for any other,
@@ -44,7 +46,19 @@ def load_model(path: str | Path, elastic_dof_per_chain: int | None = None,
     each ``flexible_link`` is discretised into (URDF and MJCF have none). ``fix_base`` (MJCF
     only) welds the bodies of free joints to the world where the file puts them;
     ``servos_as_motors`` (MJCF only) takes the joints of servos (``<position>`` ...) for motors.
+    ``gravity`` (3 numbers, world frame [m/s^2]) replaces the file's gravity, whatever the format.
     """
+    model = _read_model(path, elastic_dof_per_chain, closures, fix_base, servos_as_motors)
+    if gravity is None:
+        return model
+    try:
+        return model.with_gravity(gravity)
+    except ValueError as err:
+        raise ModelError(str(path), "gravity", f"override: {err}") from None
+
+
+def _read_model(path: str | Path, elastic_dof_per_chain: int | None, closures: str | Path | None, fix_base: bool,
+                servos_as_motors: bool) -> Model:
     from elastic_pm_dyn.model.formats import MJCF, model_format, read_robot_file
     kind = model_format(path)
     if fix_base and kind != MJCF:

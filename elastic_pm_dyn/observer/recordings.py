@@ -15,12 +15,9 @@ The truth is integrated by RK4 at 25 us (a quarter of the observer's 100 us RK4 
 so the filter's discretisation is not the truth's) or by DOP853 at rtol 1e-10; either is
 converged to far below the sensor noise (test_observer_recordings checks two step sizes).
 
-Disturbance spectra (:class:`SpectrumDisturbance`; each channel scaled to the asked RMS
-over the recording, random phases):
-- ``flat``: equal amplitudes on a 1 Hz grid over 2-200 Hz (flat power density);
-- ``pink``: amplitudes ~ f^-1/2 on the same grid (power density ~ 1/f);
-- ``tones``: three sines per motor at random frequencies in 5-150 Hz;
-- ``drift``: three sines per motor at 0.05-1 Hz, starting from zero (a slow wander).
+Disturbance spectra: :class:`~elastic_pm_dyn.sim.disturbances.SpectrumDisturbance` (in the
+``sim`` layer, so the plant node's ``disturbance.*`` makes the same d(t) for the same seed),
+each channel scaled to the asked RMS over the recording.
 """
 
 from __future__ import annotations
@@ -34,46 +31,14 @@ from elastic_pm_dyn.bags.msgtypes import NS
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.observer.bag_input import recording_to_bag
 from elastic_pm_dyn.observer.scenarios import ACCEL_TIMINGS, Noise, Recording, chirp_recording, manoeuvre_recording
+from elastic_pm_dyn.sim.disturbances import SPECTRA, seeded_disturbance
 
 MOTIONS = ("manoeuvre", "chirp")
-SPECTRA = ("flat", "pink", "tones", "drift")
-BANDS = {"flat": (2.0, 200.0), "pink": (2.0, 200.0), "tones": (5.0, 150.0), "drift": (0.05, 1.0)}  # [Hz]
 EPOCH = 1.7e9  # [s] a stamp origin like a wall clock's (2023-11-14)
 # Receive time - header stamp [ns] per kind of message: samples arrive a little after they are
 # taken, the command of t_k after the samples it is computed from (all well within the period).
 RECEIVE_DELAY_NS = {"encoders": 120_000, "imu": 180_000, "branch_forces": 240_000, "command": 400_000}
 RECEIVE_JITTER_NS = 50_000
-
-
-class SpectrumDisturbance:
-    """A torque disturbance d(t) per motor with one of :data:`SPECTRA` (module docstring),
-    faded in over ``fade`` seconds (a step would ring the springs, which no real one does) and
-    scaled so that its RMS over [0, ``duration``] is ``rms`` on every channel."""
-
-    def __init__(self, spectrum: str, channels: int, rms: float, duration: float, rng: np.random.Generator,
-                 band: tuple[float, float] | None = None, n_lines: int = 199, fade: float = 0.02):
-        if spectrum not in SPECTRA:
-            raise ValueError(f"spectrum must be one of {SPECTRA}, got {spectrum!r}")
-        lo, hi = band or BANDS[spectrum]
-        self.spectrum, self.band, self.fade = spectrum, (lo, hi), fade
-        if spectrum in ("flat", "pink"):
-            f = np.tile(np.linspace(lo, hi, n_lines), (channels, 1))
-            w = np.ones_like(f) if spectrum == "flat" else 1.0 / np.sqrt(f)
-        else:
-            f = rng.uniform(lo, hi, (channels, 3))
-            w = np.ones_like(f)
-        self.f = f
-        self.phase = rng.uniform(0, 2 * np.pi, f.shape)
-        # A drift starts from zero: each sine minus its value at t = 0.
-        self.offset = np.sin(self.phase) if spectrum == "drift" else np.zeros_like(f)
-        self.amp = w
-        grid = np.arange(0.0, duration + 1e-12, 1e-4)
-        have = np.sqrt(np.mean(np.square(np.array([self(t) for t in grid])), axis=0))
-        self.amp = w * (rms / np.where(have > 0, have, 1.0))[:, None]
-
-    def __call__(self, t: float) -> np.ndarray:
-        fade = 1.0 if t >= self.fade else 0.5 - 0.5 * np.cos(np.pi * max(t, 0.0) / self.fade)
-        return fade * np.sum(self.amp * (np.sin(2 * np.pi * self.f * t + self.phase) - self.offset), axis=1)
 
 
 @dataclass(frozen=True)
@@ -117,8 +82,8 @@ class RecordingSpec:
 
 def generate(mech: Mechanism, spec: RecordingSpec) -> Recording:
     """Simulate ``spec``: the truth, the noisy samples and the commands (``info`` holds the spec)."""
-    rng = np.random.default_rng([spec.seed, 7])  # the disturbance's own stream: noise draws do not move it
-    dist = (SpectrumDisturbance(spec.spectrum, len(mech.active), spec.disturbance_rms, spec.duration, rng)
+    # the disturbance's own stream: noise draws do not move it
+    dist = (seeded_disturbance(spec.spectrum, len(mech.active), spec.disturbance_rms, spec.duration, spec.seed)
             if spec.disturbance_rms > 0 else None)
     timing = {"accel_timing": spec.accel_timing, "command_delay": spec.command_delay,
               "integrator": spec.integrator, "rtol": spec.rtol, "stamp0_ns": round(spec.t0 * NS)}

@@ -36,8 +36,9 @@ from elastic_pm_dyn.kinematics.assembly import initial_state
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.motion.feedforward import line_torques
 from elastic_pm_dyn.motion.manoeuvre import REFERENCE_MANOEUVRE
+from elastic_pm_dyn.sim.sensors import ee_acceleration
 from elastic_pm_dyn.sim.simulator import SimulationOptions, Simulator
-from elastic_pm_dyn.sim.torque import TorqueSource
+from elastic_pm_dyn.sim.torque import HeldPlusSmooth
 
 PERIOD = 1.0 / REFERENCE_MANOEUVRE.control_rate  # [s] the reference manoeuvre's torques are held this long
 ACCEL_TIMINGS = ("before_command", "after_command")
@@ -58,23 +59,6 @@ class Multisine:
     def __call__(self, t: float) -> np.ndarray:
         w = 1.0 if t >= self.fade else 0.5 - 0.5 * np.cos(np.pi * max(t, 0.0) / self.fade)
         return w * np.sum(self.amp * np.sin(2 * np.pi * self.f * t + self.phase), axis=1)
-
-
-class _HeldPlusSmooth(TorqueSource):
-    """A held command on one period plus a smooth function (refitted per RK4 step)."""
-
-    smooth = True
-
-    def __init__(self, held: np.ndarray, func: Callable[[float], np.ndarray] | None):
-        self.held = held
-        self.func = func
-
-    def value(self, t: float) -> np.ndarray:
-        return self.held + (self.func(t) if self.func is not None else 0.0)
-
-    def coefficients(self, t: float, h: float) -> np.ndarray:
-        f0, f1, f2 = self.value(t), self.value(t + 0.5 * h), self.value(t + h)
-        return np.vstack([f0, (4 * f1 - 3 * f0 - f2) / h, 2 * (f0 - 2 * f1 + f2) / h ** 2])
 
 
 def rest_state(mech: Mechanism) -> np.ndarray:
@@ -161,7 +145,6 @@ def simulate(mech: Mechanism, command: Callable[[int, float, np.ndarray], np.nda
     for k in range(n_steps + 1):
         t = k * period
         d = disturbance(t) if disturbance is not None else np.zeros(n_a)
-        terms = mech.terms(q, qd)
         F = mech.branch_forces(q, qd)
         enc = q[mech.active] + noise.encoder * rng.standard_normal(n_a)
         tau = np.asarray(command(k, t, enc), dtype=float)
@@ -169,14 +152,13 @@ def simulate(mech: Mechanism, command: Callable[[int, float, np.ndarray], np.nda
         acting = queue.pop(0)  # on [t_k, t_k+1)
         # a(t_k-) under the torque of the period that ended; a(t_k+) under the one that starts
         sampled = prev if accel_timing == "before_command" else acting
-        qdd = dyn.accelerations(q, qd, sampled + d)
-        acc = terms.J[chain] @ qdd + terms.a_tip[chain] - g
+        acc = ee_acceleration(mech, dyn, q, qd, sampled + d, chain) - g
         for key, v in (("t", t), ("tau", tau), ("dist", d), ("q", q.copy()), ("qd", qd.copy()), ("acc", acc),
                        ("F", F), ("enc", enc), ("accn", acc + noise.accelerometer * rng.standard_normal(3)),
                        ("br", F + noise.branch_force * rng.standard_normal(len(F))), ("app", acting)):
             rows[key].append(v)
         if k < n_steps:
-            sim.advance(q, qd, _HeldPlusSmooth(acting, disturbance), t, t + period)
+            sim.advance(q, qd, HeldPlusSmooth(acting, disturbance), t, t + period)
         prev = acting
     t = np.array(rows["t"])
     return Recording(mech, t, int(stamp0_ns) + np.round(t * NS).astype(np.int64), np.array(rows["tau"]),

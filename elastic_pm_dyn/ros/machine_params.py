@@ -9,13 +9,15 @@ to the other; :func:`load_machine` turns them into the mechanism and its command
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 from rclpy.node import Node
 
 from elastic_pm_dyn.errors import InputError
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
-from elastic_pm_dyn.model.loader import load_model
+from elastic_pm_dyn.model.formats import model_format
+from elastic_pm_dyn.model.loader import MAX_ELASTIC_DOF_PER_CHAIN, load_model
 from elastic_pm_dyn.ros.commands import CommandDecoder
 from elastic_pm_dyn.ros.params import (
     COMMAND_JOINTS,
@@ -30,6 +32,9 @@ COMMAND_TYPES = ("joint_state", "float64_multi_array")
 
 MACHINE_PARAMS = [
     Param("model", "", "model YAML file; empty = the five-bar shipped with the package"),
+    Param("elastic_dof_per_chain", 0, "lumped elastic joints per flexible link of a model YAML; "
+          "0 = the model file's own"),
+    Param("gravity", [], "[m/s^2] gravity [gx, gy, gz] in the world frame; unset = the model file's", item=float),
     Param("command_type", "joint_state", "torque_command message: sensor_msgs/JointState (name + effort) or "
           "std_msgs/Float64MultiArray (command_joints order)", choices=COMMAND_TYPES),
     Param("topics.joint_states", "joint_states", "every tree joint: position, velocity, effort"),
@@ -56,7 +61,18 @@ ESTIMATE_PARAMS = [
 def load_machine(node: Node, p: dict[str, Any]) -> tuple[Mechanism, CommandDecoder]:
     """The mechanism of ``p["model"]`` and the decoder of its torque commands; reads the
     ``command_joints`` parameter (its default depends on the model) into ``p``."""
-    mech = Mechanism(load_model(model_path(p["model"])))
+    path = model_path(p["model"])
+    n_flex, gravity = p["elastic_dof_per_chain"], p["gravity"]
+    if n_flex < 0 or n_flex > MAX_ELASTIC_DOF_PER_CHAIN:
+        raise ParameterError(f"parameter 'elastic_dof_per_chain' must lie in 0-{MAX_ELASTIC_DOF_PER_CHAIN} "
+                             f"(0 = the model file's own), got {n_flex}")
+    if n_flex and model_format(path) != "yaml":
+        raise ParameterError(f"parameter 'elastic_dof_per_chain': {path.name} is no model YAML (a URDF or "
+                             "MJCF has no flexible links to discretise)")
+    if gravity and (len(gravity) != 3 or not all(math.isfinite(g) for g in gravity)):
+        raise ParameterError(f"parameter 'gravity' must be 3 finite numbers [gx, gy, gz] or unset, got {gravity!r}")
+    # Both nodes that stand for the machine read these: the plant and its observer see the same model.
+    mech = Mechanism(load_model(path, elastic_dof_per_chain=n_flex or None, gravity=gravity or None))
     p |= read_parameters(node, [command_joints_param(mech.active_names)])
     try:
         decoder = CommandDecoder(mech.active_names, p[COMMAND_JOINTS])

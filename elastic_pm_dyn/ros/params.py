@@ -20,6 +20,7 @@ from ament_index_python.packages import PackageNotFoundError, get_package_share_
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.exceptions import InvalidParameterTypeException
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 
 from elastic_pm_dyn.errors import InputError
 
@@ -28,6 +29,8 @@ COMMAND_JOINTS = "command_joints"
 # Declared by rclpy itself for every node; never "unknown".
 _BUILTIN_PARAMETERS = ("use_sim_time", "start_type_description_service")
 
+_ARRAY_TYPES = {float: Parameter.Type.DOUBLE_ARRAY, int: Parameter.Type.INTEGER_ARRAY,
+                str: Parameter.Type.STRING_ARRAY}
 _TYPE_WORDS = {bool: "a boolean (true/false)", int: "an integer", float: "a float (e.g. 1000.0, not 1000)",
                str: "a string"}
 
@@ -43,6 +46,7 @@ class Param:
     description: str
     choices: tuple[str, ...] = ()
     positive: bool = False  # numbers (or every list entry) > 0; list defaults must not be empty
+    item: type | None = None  # entry type of a list whose default is empty (unset): float, int or str
 
 
 def reject_unknown(node: Node, known: Iterable[str]) -> None:
@@ -73,11 +77,17 @@ def command_joints_param(active_names: Sequence[str]) -> Param:
 
 def _declare(node: Node, spec: Param) -> Any:
     descriptor = ParameterDescriptor(description=spec.description, read_only=True)
+    # An empty default has no type of its own: declared by the type of its entries, unset until given.
+    default = _ARRAY_TYPES[spec.item] if spec.item is not None and spec.default == [] else spec.default
     try:
-        value = node.declare_parameter(spec.name, spec.default, descriptor).value
+        value = node.declare_parameter(spec.name, default, descriptor).value
     except InvalidParameterTypeException:
         given = node._parameter_overrides[spec.name]
-        expected = (f"a list of {_TYPE_WORDS[type(spec.default[0])]}" if isinstance(spec.default, list)
+        if spec.item is not None and isinstance(given.value, list | tuple) and not len(given.value):
+            return []  # '-p x:=[]': unset, as if not given
+        item = spec.item if spec.item is not None else (type(spec.default[0]) if isinstance(spec.default, list)
+                                                        else None)
+        expected = (f"a list of {_TYPE_WORDS[item]}" if isinstance(spec.default, list)
                     else _TYPE_WORDS[type(spec.default)])
         raise ParameterError(f"parameter '{spec.name}' must be {expected}, "
                              f"got {given.type_.name.lower()} {given.value!r}") from None

@@ -24,6 +24,9 @@ the same output topics (the sync parameters then do not apply): the observer nod
 the same parameters (:mod:`~elastic_pm_dyn.ros.machine_params`, ``observer.*``).
 Torque held over a period: the last valid command, or zero when it is older than
 ``command_timeout`` (wall time in realtime, simulated time in fast; lockstep waits).
+
+Simulated sensors (``sensors.*``) and an unknown disturbance torque on the motors
+(``disturbance.*``): :mod:`~elastic_pm_dyn.ros.plant_sensors` (all off by default).
 """
 
 from __future__ import annotations
@@ -54,6 +57,14 @@ from elastic_pm_dyn.ros.markers import MechanismMarkers
 from elastic_pm_dyn.ros.messages import PlantMessages, stamp
 from elastic_pm_dyn.ros.node_main import ManagedNode, run_node
 from elastic_pm_dyn.ros.params import COMMAND_JOINTS, Param, read_parameters, reject_unknown
+from elastic_pm_dyn.ros.plant_sensors import (
+    DISTURBANCE_PARAMS,
+    SENSOR_PARAMS,
+    SensorOutputs,
+    disturbance_message,
+    sensor_spec,
+    spectrum_disturbance,
+)
 from elastic_pm_dyn.ros.qos import CLOCK_QOS, COMMAND_QOS, DIAGNOSTICS_QOS, STATE_QOS, VIEWER_QOS
 from elastic_pm_dyn.ros.robot_description import publish_robot_description
 from elastic_pm_dyn.ros.throttle import KindThrottle
@@ -80,13 +91,15 @@ PARAMS = [
     Param("command_timeout", 0.1, "[s] an older command means zero torque (wall time in realtime, "
           "simulated time in fast; unused in lockstep)", positive=True),
     Param("topics.command", "torque_command", "torque command topic"),
+    *SENSOR_PARAMS,
+    *DISTURBANCE_PARAMS,
     *MACHINE_PARAMS,
     *DESCRIPTION_PARAMS,
     *ESTIMATE_PARAMS,
 ]
 # Parameters that only one mode uses (a warning lists the ones given to the other mode); and observer.*
 ONLY = {"plant": ("formulation", "integrator", "dt", "stabilization", "publish_rate", "sync_mode", "command_timeout",
-                  "topics.command"),
+                  "topics.command", *(s.name for s in SENSOR_PARAMS), *(s.name for s in DISTURBANCE_PARAMS)),
         "observer": tuple(s.name for s in ESTIMATE_PARAMS)}
 OBSERVER_PREFIX = "observer."
 
@@ -127,7 +140,8 @@ class PlantNode(ManagedNode):
         period = 1.0 / p["publish_rate"]
         options = SimulationOptions(formulation=p["formulation"], integrator=p["integrator"], dt=p["dt"],
                                     stabilization=p["stabilization"], sample=period)
-        self.plant = Plant(mech, options, period)
+        spec = sensor_spec(p)
+        self.plant = Plant(mech, options, period, spectrum_disturbance(p, len(mech.active)))
         self.period_ns = round(period * NS)
         self.timeout = p["command_timeout"]
         self.formulation = p["formulation"]
@@ -145,6 +159,17 @@ class PlantNode(ManagedNode):
                           if self.sync_mode != "realtime" else None)
         msg_type = JointState if p["command_type"] == "joint_state" else Float64MultiArray
         self.create_subscription(msg_type, p["topics.command"], self._on_command, COMMAND_QOS)
+        # Sensors and disturbance: nothing of them exists unless configured (the topics stay as they were).
+        self.sensors = SensorOutputs(self, self.plant, spec, p) if spec.any else None
+        self.disturbance_input: bool = p["disturbance.input"]
+        self.disturbance_timeout = p["disturbance.timeout"]
+        self.disturbance_command: np.ndarray | None = None  # the last valid disturbance_torque
+        self.disturbance_time = 0.0  # when it arrived (the command clock)
+        self.pub_disturbance = None
+        if self.disturbance_input or self.plant.disturbance is not None:
+            self.pub_disturbance = self.create_publisher(JointState, p["topics.disturbance"], STATE_QOS)
+        if self.disturbance_input:
+            self.create_subscription(msg_type, p["topics.disturbance_torque"], self._on_disturbance, COMMAND_QOS)
         self.create_service(Trigger, "~/reset", self._on_reset)
         self.create_service(SetJointState, "~/set_state", self._on_set_state)
 
@@ -196,6 +221,30 @@ class PlantNode(ManagedNode):
             self.lockstep_trigger.trigger()
         else:
             self.command_time = self._command_clock()
+
+    def _on_disturbance(self, msg: JointState | Float64MultiArray) -> None:
+        try:
+            d = (self.decoder.from_joint_state(msg.name, msg.effort) if isinstance(msg, JointState)
+                 else self.decoder.from_array(msg.data))
+        except InputError as err:
+            self.warn.warning("disturbance " + getattr(err, "kind", "rejected"),
+                              f"disturbance torque rejected: {err}; the last valid one holds")
+            return
+        self.disturbance_command = d
+        self.disturbance_time = self._disturbance_clock()
+
+    def _disturbance_clock(self) -> float:
+        return time.monotonic() if self.sync_mode == "realtime" else self.plant.t
+
+    def _held_disturbance(self) -> np.ndarray | None:
+        """The disturbance_torque for the next period: the last valid one, zero when stale; None
+        without the input (the plant then integrates the command alone, as before)."""
+        if not self.disturbance_input:
+            return None
+        if (self.disturbance_command is not None
+                and self._disturbance_clock() - self.disturbance_time <= self.disturbance_timeout):
+            return self.disturbance_command
+        return np.zeros(len(self.plant.tau))
 
     def _command_clock(self) -> float:
         return time.monotonic() if self.sync_mode == "realtime" else self.plant.t
@@ -257,8 +306,11 @@ class PlantNode(ManagedNode):
     def _step(self, tau: np.ndarray) -> bool:
         """Advance one period and publish; False when integration stopped."""
         t0 = time.perf_counter()
+        held = self._held_disturbance()
         try:
-            self.plant.step(tau)
+            if self.sensors is not None and self.sensors.after:  # a(t_k+): under the command that starts now
+                self.sensors.publish_imu(self._stamp_ns(), self.plant.motor_torque(tau, held))
+            self.plant.step(tau, held)
         except SingularConfigurationError as err:  # also a diverged state; the plant keeps the last good one
             self.get_logger().error(f"integration stopped: {err}; call ~/reset or ~/set_state to recover")
             if self.step_timer is not None:
@@ -324,6 +376,11 @@ class PlantNode(ManagedNode):
         self.pub_joint_states.publish(m.joint_state_raw)
         self.pub_branch_forces.publish(m.branch_forces_raw)
         self.pub_ee_pose.publish(m.ee_pose_raw)
+        if self.sensors is not None:
+            self.sensors.publish_state(m.stamp_ns, m.force)
+        if self.pub_disturbance is not None:  # the truth at t_k: the held part of the period that ended + d(t_k)
+            self.pub_disturbance.publish(disturbance_message(
+                self.plant.mech.active_names, m.stamp_ns, self.plant.disturbance_at(self.plant.t)))
         if self.pub_clock is not None:
             self.pub_clock.publish(m.clock_raw)
 

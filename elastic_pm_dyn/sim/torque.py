@@ -83,6 +83,25 @@ class FunctionTorque(TorqueSource):
         return np.vstack([f0, (4 * f1 - 3 * f0 - f2) / h, 2 * (f0 - 2 * f1 + f2) / h**2])
 
 
+class HeldPlusSmooth(TorqueSource):
+    """A command held over one control period plus a smooth function of time (an unknown
+    disturbance torque), refitted per step as :class:`FunctionTorque` is: the plant's and the
+    offline recordings' way to integrate a disturbance without holding it per period."""
+
+    smooth = True
+
+    def __init__(self, held: np.ndarray, func: Callable[[float], np.ndarray] | None):
+        self.held = held
+        self.func = func
+
+    def value(self, t: float) -> np.ndarray:
+        return self.held + (self.func(t) if self.func is not None else 0.0)
+
+    def coefficients(self, t: float, h: float) -> np.ndarray:
+        f0, f1, f2 = self.value(t), self.value(t + 0.5 * h), self.value(t + h)
+        return np.vstack([f0, (4 * f1 - 3 * f0 - f2) / h, 2 * (f0 - 2 * f1 + f2) / h ** 2])
+
+
 class TorqueTable(TorqueSource):
     """Sampled torques. ``zoh``: sample k acts on [t_k, t_k+1), as a digital controller
     applies it; ``linear``: interpolated. After the last sample the last value holds."""
