@@ -17,7 +17,8 @@ column differenced, dense expm), in the same run:
   accelerometer, command) through ``ObserverStream``, as the observer node makes them;
   median, p90, p99 and p99 / median over the recording;
 - offline ``observe`` over the recording's bag: the filter's real-time factor (duration /
-  ``wall_filter_s`` of summary.json, the quantity the issue measured) and the whole run's;
+  ``wall_filter_s`` of summary.json, the quantity the issue measured) and the whole run's,
+  best of three passes (the first loads the compiled kernels);
 - accuracy: branch-force error RMS over the RMS of the elastic part, the open loop's, their
   ratio, and the fraction of samples whose NEES of [q_ae, qd_ae] lies in its 95 % band
   (after 50 ms).
@@ -86,12 +87,14 @@ def live_periods(mech: Mechanism, rec, params: dict) -> dict:
             "p99_over_median": float(np.percentile(t, 99) / med), "periods": len(t), "run": run}
 
 
-def offline(mech: Mechanism, rec, params: dict, tmp: Path, tag: str) -> dict:
+def offline(mech: Mechanism, rec, params: dict, tmp: Path, tag: str, repeats: int = 3) -> dict:
     bag = tmp / f"{tag}_in"
     if not bag.exists():
         recording_to_bag(rec, bag, use=tuple(SENSORS))
     cfg = ObserverConfig.from_parameters({"sensors": SENSORS, **params})
-    s = observe_bag(mech, cfg, bag, tmp / f"{tag}_out_{len(list(tmp.iterdir()))}", log=lambda s: None).summary
+    # the best of `repeats` passes: the first compiles or loads the kernels (once per process)
+    s = min((observe_bag(mech, cfg, bag, tmp / f"{tag}_out_{len(list(tmp.iterdir()))}", log=lambda s: None).summary
+             for _ in range(repeats)), key=lambda s: s["wall_filter_s"])
     return {"filter_rtf": s["duration_s"] / s["wall_filter_s"], "total_rtf": s["speed_factor"],
             "wall_filter_s": s["wall_filter_s"], "wall_total_s": s["wall_total_s"]}
 

@@ -288,12 +288,6 @@ class ObserverConfig:
         for key, value in non_negative.items():
             if not value >= 0:
                 raise bad(key, f"must be >= 0, got {value!r}")
-        if self.process.integrator not in INTEGRATORS:
-            raise bad("process.integrator", f"expected one of {', '.join(INTEGRATORS)}, "
-                                            f"got {self.process.integrator!r}")
-        if self.process.linearization not in LINEARIZATIONS:
-            raise bad("process.linearization", f"expected one of {', '.join(LINEARIZATIONS)}, "
-                                               f"got {self.process.linearization!r}")
         if self.process.dt > self.process.max_interval:
             raise bad("process.dt", f"the step {self.process.dt:g} s exceeds process.max_interval "
                                     f"{self.process.max_interval:g} s")
@@ -305,18 +299,15 @@ class ObserverConfig:
         bands = self.process.disturbance_bandwidth
         if not bands or not all(b > 0 for b in bands) or len(set(bands)) != len(bands):
             raise bad("process.disturbance_bandwidth", f"needs distinct corner frequencies > 0, got {bands!r}")
-        if self.process.disturbance_band_order not in BAND_ORDERS:
-            raise bad("process.disturbance_band_order", f"expected one of {', '.join(map(str, BAND_ORDERS))}, "
-                                                        f"got {self.process.disturbance_band_order!r}")
-        if self.process.disturbance not in DISTURBANCE_MODELS:
-            raise bad("process.disturbance", f"expected one of {', '.join(DISTURBANCE_MODELS)}, "
-                                             f"got {self.process.disturbance!r}")
-        if self.branch_forces.source not in BRANCH_SOURCES:
-            raise bad("branch_forces.source", f"expected one of {', '.join(BRANCH_SOURCES)}, "
-                                              f"got {self.branch_forces.source!r}")
-        if self.imu.sample_timing not in SAMPLE_TIMINGS:
-            raise bad("imu.sample_timing", f"expected one of {', '.join(SAMPLE_TIMINGS)}, "
-                                           f"got {self.imu.sample_timing!r}")
+        choices = (("process.disturbance_band_order", self.process.disturbance_band_order, BAND_ORDERS),
+                   ("process.disturbance", self.process.disturbance, DISTURBANCE_MODELS),
+                   ("process.integrator", self.process.integrator, INTEGRATORS),
+                   ("process.linearization", self.process.linearization, LINEARIZATIONS),
+                   ("branch_forces.source", self.branch_forces.source, BRANCH_SOURCES),
+                   ("imu.sample_timing", self.imu.sample_timing, SAMPLE_TIMINGS))
+        for key, value, allowed in choices:
+            if value not in allowed:
+                raise bad(key, f"expected one of {', '.join(map(str, allowed))}, got {value!r}")
         if self.initial.source not in ("measurement", "model"):
             raise bad("initial.source", f"expected measurement or model, got {self.initial.source!r}")
         if not self.imu.axes or any(a not in AXES for a in self.imu.axes) or len(set(self.imu.axes)) != len(

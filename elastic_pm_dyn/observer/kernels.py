@@ -42,6 +42,7 @@ from elastic_pm_dyn.observer.propagation import (
     balance,
     discretize_structured,
     linearization_workspace,
+    one_norm,
     spring_columns,
 )
 from elastic_pm_dyn.sim.exponential import AVERAGED, DEFAULT_PHASE_STEP, elastic_gains, exponential_steps
@@ -313,15 +314,53 @@ def estimate_flat(ma, fixed, proc, state, tau_last, t, out):
 
 
 @njit(cache=True)
+def difference_columns(ma, q, qd, tau, point, with_point, eps_q, eps_v, W, ws, lam, qdd0, a0, skip_position,
+                       Aq, Av, Eq, Ev):
+    """One-sided differences from (qdd0, a0) at (q, qd): the position columns of Aq, Eq (but those
+    ``skip_position`` marks) and every rate column of Av, Ev. A position column moves q_p to first
+    order along W and takes qd_p from the closure at the perturbed pose (partitioning with a loose
+    tolerance: one closure evaluation); a rate column moves qd_p along W. Returns the worst
+    conditioning met."""
+    n = q.shape[0]
+    ae = ma.ae_index
+    nae = ae.shape[0]
+    worst = 1.0
+    qdd1 = np.empty(n)
+    a1 = np.zeros(3)
+    qp = np.empty(n)
+    vp = np.empty(n)
+    for j in range(nae):
+        if not skip_position[j]:
+            e = eps_q[j]
+            for i in range(n):
+                qp[i] = q[i] + W[i, j] * e
+                vp[i] = qd[i]
+            partition(ma, qp, vp, PERTURBED_TOL, 2)
+            worst = min(worst, fast_evaluate(ma, qp, vp, tau, point, with_point, ws, qdd1, lam, a1))
+            for i in range(nae):
+                Aq[i, j] = (qdd1[ae[i]] - qdd0[ae[i]]) / e
+            for r in range(3):
+                Eq[r, j] = (a1[r] - a0[r]) / e if with_point else 0.0
+        e = eps_v[j]
+        for i in range(n):
+            vp[i] = qd[i] + W[i, j] * e
+        worst = min(worst, fast_evaluate(ma, q, vp, tau, point, with_point, ws, qdd1, lam, a1))
+        for i in range(nae):
+            Av[i, j] = (qdd1[ae[i]] - qdd0[ae[i]]) / e
+        for r in range(3):
+            Ev[r, j] = (a1[r] - a0[r]) / e if with_point else 0.0
+    return worst
+
+
+@njit(cache=True)
 def linearize(ma, q, qd, tau, point, with_point, eps_q, eps_v, Aq, Av, Bf, Eq, Ev, Ef, qdd0, a0):
     """Jacobians of the q_ae accelerations (and of the point acceleration) at a consistent state.
 
     Aq = d qdd_ae / d q_ae, Av = d qdd_ae / d qd_ae, Bf = d qdd_ae / d f_ae (unit
     generalised forces on the q_ae joints); Eq, Ev, Ef the same for the point's world
-    acceleration (3 rows). Position columns move q_p to first order along W (the passive
-    Jacobian), which is as accurate as the one-sided difference itself, and take qd_p from
-    the closure at the perturbed pose (partitioning with a loose tolerance: one closure
-    evaluation); rate columns move qd_p along W. Returns the worst conditioning.
+    acceleration (3 rows): every column a one-sided difference of full evaluations
+    (:func:`difference_columns`; moving q_p along W is as accurate as the difference itself).
+    Returns the worst conditioning.
     """
     n = q.shape[0]
     ae = ma.ae_index
@@ -335,30 +374,8 @@ def linearize(ma, q, qd, tau, point, with_point, eps_q, eps_v, Aq, Av, Bf, Eq, E
     worst = passive_rows(ma, q, W)
     cond = fast_evaluate(ma, q, qd, tau, point, with_point, ws, qdd0, lam, a0)
     worst = min(worst, cond)
-    qp = np.empty(n)
-    vp = np.empty(n)
-    for j in range(nae):
-        e = eps_q[j]
-        for i in range(n):
-            qp[i] = q[i] + W[i, j] * e
-            vp[i] = qd[i]
-        partition(ma, qp, vp, PERTURBED_TOL, 2)
-        cond = fast_evaluate(ma, qp, vp, tau, point, with_point, ws, qdd1, lam, a1)
-        worst = min(worst, cond)
-        for i in range(nae):
-            Aq[i, j] = (qdd1[ae[i]] - qdd0[ae[i]]) / e
-        for r in range(3):
-            Eq[r, j] = (a1[r] - a0[r]) / e
-    for j in range(nae):
-        e = eps_v[j]
-        for i in range(n):
-            vp[i] = qd[i] + W[i, j] * e
-        cond = fast_evaluate(ma, q, vp, tau, point, with_point, ws, qdd1, lam, a1)
-        worst = min(worst, cond)
-        for i in range(nae):
-            Av[i, j] = (qdd1[ae[i]] - qdd0[ae[i]]) / e
-        for r in range(3):
-            Ev[r, j] = (a1[r] - a0[r]) / e
+    worst = min(worst, difference_columns(ma, q, qd, tau, point, with_point, eps_q, eps_v, W, ws, lam, qdd0, a0,
+                                          np.zeros(nae, dtype=np.bool_), Aq, Av, Eq, Ev))
     tp = tau.copy()
     for j in range(nae):
         # Linear in the force: a unit step is exact. The point acceleration changes by J dqdd
@@ -398,33 +415,8 @@ def linearize_springs(ma, q, qd, tau, point, with_point, eps_q, eps_v, Aq, Av, B
         return 0.0
     analytic = np.zeros(nae, dtype=np.bool_)
     spring_columns(ma, G, point, with_point, ws[2], Aq, Av, Bf, Eq, Ev, Ef, analytic)
-    qdd1 = np.empty(n)
-    a1 = np.zeros(3)
-    qp = np.empty(n)
-    vp = np.empty(n)
-    for j in range(nae):
-        if not analytic[j]:
-            e = eps_q[j]
-            for i in range(n):
-                qp[i] = q[i] + W[i, j] * e
-                vp[i] = qd[i]
-            partition(ma, qp, vp, PERTURBED_TOL, 2)
-            cond = fast_evaluate(ma, qp, vp, tau, point, with_point, ws, qdd1, lam, a1)
-            worst = min(worst, cond)
-            for i in range(nae):
-                Aq[i, j] = (qdd1[ae[i]] - qdd0[ae[i]]) / e
-            for r in range(3):
-                Eq[r, j] = (a1[r] - a0[r]) / e if with_point else 0.0
-        e = eps_v[j]
-        for i in range(n):
-            vp[i] = qd[i] + W[i, j] * e
-        cond = fast_evaluate(ma, q, vp, tau, point, with_point, ws, qdd1, lam, a1)
-        worst = min(worst, cond)
-        for i in range(nae):
-            Av[i, j] = (qdd1[ae[i]] - qdd0[ae[i]]) / e
-        for r in range(3):
-            Ev[r, j] = (a1[r] - a0[r]) / e if with_point else 0.0
-    return worst
+    return min(worst, difference_columns(ma, q, qd, tau, point, with_point, eps_q, eps_v, W, ws, lam, qdd0, a0,
+                                         analytic, Aq, Av, Eq, Ev))
 
 
 @njit(cache=True)
@@ -505,12 +497,7 @@ def discretize(Ac, Qc, T, Phi, Qd):
     for i in range(n):
         for j in range(n):
             Qb[i, j] = Qc[i, j] / (d[i] * d[j])
-    norm = 0.0
-    for j in range(n):
-        c = 0.0
-        for i in range(n):
-            c += abs(B[i, j])
-        norm = max(norm, c)
+    norm = one_norm(B)
     s = 0
     while norm * T / 2.0**s > 0.25:
         s += 1

@@ -82,6 +82,18 @@ def spring_columns(ma, G, point, with_point, J, Aq, Av, Bf, Eq, Ev, Ef, analytic
 
 
 @njit(cache=True)
+def one_norm(B):
+    """The largest column sum of |B| (the scaling and squaring's measure)."""
+    norm = 0.0
+    for j in range(B.shape[1]):
+        c = 0.0
+        for i in range(B.shape[0]):
+            c += abs(B[i, j])
+        norm = max(norm, c)
+    return norm
+
+
+@njit(cache=True)
 def balance(A, d):
     """Osborne's diagonal scaling (powers of 2) of A: d such that D^-1 A D has balanced rows and columns."""
     n = A.shape[0]
@@ -189,12 +201,7 @@ def discretize_structured(Aq, Av, Bf, dist_col, Lz, Fz, psd_m, psd_z, T, Phi_z, 
             for k in range(nae):
                 s += Bf[i, k] * psd_m[k] * Bf[j, k]
             Qb[nae + i, nae + j] = s / (dsc[nae + i] * dsc[nae + j])
-    norm = 0.0
-    for j in range(nm):
-        c = 0.0
-        for i in range(nm):
-            c += abs(B[i, j])
-        norm = max(norm, c)
+    norm = one_norm(B)
     n_sq = 2  # at least T / 4 and T / 2 among the squarings (the quadrature's nodes)
     while norm * T / 2.0 ** n_sq > 0.25:
         n_sq += 1
