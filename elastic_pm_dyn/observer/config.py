@@ -29,6 +29,8 @@ DISTURBANCE_MODELS = ("none", "random_walk", "gauss_markov", "integrated_random_
                       "bias_band_limited")
 BAND_MODELS = ("band_limited", "bias_band_limited")  # the disturbance models with band corners and an order
 BAND_ORDERS = (2, 4)  # Butterworth orders of a disturbance band
+INTEGRATORS = ("etd2", "rk4")  # of the mean (process.integrator)
+LINEARIZATIONS = ("springs", "differences")  # of the covariance (process.linearization)
 BRANCH_SOURCES = ("branch_forces", "joint_state_effort")
 SAMPLE_TIMINGS = ("before_command", "after_command", "auto")
 AXES = ("x", "y", "z")
@@ -54,7 +56,10 @@ DEFAULT_PARAMETERS: dict[str, Any] = {
     "branch_forces.stddev": [0.5],  # [N]
     "command_delay": 0.0,  # [s] actuation latency: the command stamped t_k acts from t_k + command_delay
     # --- process model
-    "process.dt": 0.0,  # [s] RK4 substep of the SCDD model; 0: from the model (fastest elastic mode)
+    "process.integrator": "etd2",  # the mean's integrator: etd2 (the plant's; springs exact) | rk4
+    "process.dt": 0.0,  # [s] its step: etd2 0 = one step per interval; rk4 0 = from the fastest elastic mode
+    "process.linearization": "springs",  # springs (elastic columns from the springs, motors differenced) |
+    #                                      differences (every column differenced, dense expm: the reference)
     "process.max_interval": 1.0e-3,  # [s] longest prediction piece
     "process.relinearize_every": 8,  # prediction pieces per linearisation (Phi, Q and the accelerometer's H)
     "process.disturbance": "bias_band_limited",  # see DISTURBANCE_MODELS
@@ -123,6 +128,8 @@ class BranchForceConfig:
 
 @dataclass
 class ProcessConfig:
+    integrator: str
+    linearization: str
     dt: float
     max_interval: float
     relinearize_every: int
@@ -214,7 +221,8 @@ class ObserverConfig:
                           p["imu.specific_force"], p["imu.sample_timing"]),
             branch_forces=BranchForceConfig(p["branch_forces.source"], p["branch_forces.branches"],
                                             p["branch_forces.stddev"]),
-            process=ProcessConfig(p["process.dt"], p["process.max_interval"], p["process.relinearize_every"],
+            process=ProcessConfig(p["process.integrator"], p["process.linearization"], p["process.dt"],
+                                  p["process.max_interval"], p["process.relinearize_every"],
                                   p["process.disturbance"],
                                   p["process.disturbance_joints"], p["process.disturbance_intensity"],
                                   p["process.disturbance_stddev"], p["process.disturbance_bandwidth"],
@@ -281,7 +289,7 @@ class ObserverConfig:
             if not value >= 0:
                 raise bad(key, f"must be >= 0, got {value!r}")
         if self.process.dt > self.process.max_interval:
-            raise bad("process.dt", f"the RK4 substep {self.process.dt:g} s exceeds process.max_interval "
+            raise bad("process.dt", f"the step {self.process.dt:g} s exceeds process.max_interval "
                                     f"{self.process.max_interval:g} s")
         for key, values in (("encoders.position_stddev", self.encoders.position_stddev),
                             ("encoders.velocity_stddev", self.encoders.velocity_stddev),
@@ -291,18 +299,15 @@ class ObserverConfig:
         bands = self.process.disturbance_bandwidth
         if not bands or not all(b > 0 for b in bands) or len(set(bands)) != len(bands):
             raise bad("process.disturbance_bandwidth", f"needs distinct corner frequencies > 0, got {bands!r}")
-        if self.process.disturbance_band_order not in BAND_ORDERS:
-            raise bad("process.disturbance_band_order", f"expected one of {', '.join(map(str, BAND_ORDERS))}, "
-                                                        f"got {self.process.disturbance_band_order!r}")
-        if self.process.disturbance not in DISTURBANCE_MODELS:
-            raise bad("process.disturbance", f"expected one of {', '.join(DISTURBANCE_MODELS)}, "
-                                             f"got {self.process.disturbance!r}")
-        if self.branch_forces.source not in BRANCH_SOURCES:
-            raise bad("branch_forces.source", f"expected one of {', '.join(BRANCH_SOURCES)}, "
-                                              f"got {self.branch_forces.source!r}")
-        if self.imu.sample_timing not in SAMPLE_TIMINGS:
-            raise bad("imu.sample_timing", f"expected one of {', '.join(SAMPLE_TIMINGS)}, "
-                                           f"got {self.imu.sample_timing!r}")
+        choices = (("process.disturbance_band_order", self.process.disturbance_band_order, BAND_ORDERS),
+                   ("process.disturbance", self.process.disturbance, DISTURBANCE_MODELS),
+                   ("process.integrator", self.process.integrator, INTEGRATORS),
+                   ("process.linearization", self.process.linearization, LINEARIZATIONS),
+                   ("branch_forces.source", self.branch_forces.source, BRANCH_SOURCES),
+                   ("imu.sample_timing", self.imu.sample_timing, SAMPLE_TIMINGS))
+        for key, value, allowed in choices:
+            if value not in allowed:
+                raise bad(key, f"expected one of {', '.join(map(str, allowed))}, got {value!r}")
         if self.initial.source not in ("measurement", "model"):
             raise bad("initial.source", f"expected measurement or model, got {self.initial.source!r}")
         if not self.imu.axes or any(a not in AXES for a in self.imu.axes) or len(set(self.imu.axes)) != len(

@@ -249,10 +249,15 @@ class Observer:
         self.psd_ae = np.array([pc.torque_noise_psd if r == ACTIVE else pc.elastic_force_psd for r in roles])
         self.rel_ae = np.array([0.0 if r == ACTIVE else pc.vibration_noise for r in roles])
         # the kernels' bundle of this configuration (psd_ae and psd_z grow in place at a recovery)
+        method = np.array([kernels.ETD2 if pc.integrator == "etd2" else kernels.RK4,
+                           kernels.SPRINGS if pc.linearization == "springs" else kernels.DIFFERENCES], dtype=np.int64)
         self._proc = tuple(kernels.Process(self.dist_idx, self.dist_col, self.Lz, self.Fz, self.psd_ae, self.rel_ae,
-                                           self.psd_z))
+                                           self.psd_z, method, np.full(1 + self.nz, np.nan),
+                                           np.empty((4, self.nz, self.nz)), np.empty((self.nz, self.nz))))
         self.period = pc.max_interval
-        self.dt = model.substep(pc.dt)  # the RK4 substep in use (process.dt, or from the model if 0)
+        # the mean's step in use: process.dt if given, else from the model's fastest spring
+        self.dt = (model.etd2_step(pc.dt, pc.max_interval) if pc.integrator == "etd2"
+                   else model.substep(pc.dt))
         # Sensors: the model's geometry with this configuration's noise levels
         self.encoders = model.encoders.with_noise(cfg) if model.encoders is not None else None
         self.imu = model.imu.with_noise(cfg) if model.imu is not None else None

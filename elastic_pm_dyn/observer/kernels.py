@@ -38,9 +38,19 @@ from elastic_pm_dyn.dynamics.evaluate import SCDD, accelerations, accelerations_
 from elastic_pm_dyn.dynamics.kernels import passive_map
 from elastic_pm_dyn.kinematics.kernels import point_buffers, unit_axis
 from elastic_pm_dyn.model.layout import JF_STIFFNESS
-from elastic_pm_dyn.sim.kernels import OK, _closure, partition, rk4_steps
+from elastic_pm_dyn.observer.propagation import (
+    balance,
+    discretize_structured,
+    linearization_workspace,
+    one_norm,
+    spring_columns,
+)
+from elastic_pm_dyn.sim.exponential import AVERAGED, DEFAULT_PHASE_STEP, elastic_gains, exponential_steps
+from elastic_pm_dyn.sim.kernels import OK, STAB_PROJECTION, _closure, partition, rk4_steps
 from elastic_pm_dyn.small_linalg import cholesky, cholesky_solve
 
+RK4, ETD2 = 0, 1  # Process.method[0]: the mean's integrator
+DIFFERENCES, SPRINGS = 0, 1  # Process.method[1]: the linearisation and discretisation
 SINGULAR_TOL = 1e-8  # conditioning below which an evaluation counts as singular
 CLOSURE_TOL = 1e-14  # [m] partitioning target after a prediction or a correction
 PERTURBED_TOL = 1e-10  # [m] accepted gap of a first-order perturbed pose (see linearize)
@@ -76,6 +86,10 @@ class Process(NamedTuple):
     psd_ae: np.ndarray
     rel_ae: np.ndarray
     psd_z: np.ndarray
+    method: np.ndarray  # [integrator (RK4, ETD2), linearisation (DIFFERENCES, SPRINGS)]
+    zkey: np.ndarray  # [T, psd_z]: what the cached z block (Phi_z, Qd_z) was computed for (NaN: nothing)
+    Phi_z: np.ndarray  # (4, n_z, n_z): expm(Fz T j / 4), j = 1..4 (z_block)
+    Qd_z: np.ndarray  # (n_z, n_z): the z block's noise over T
 
 
 class State(NamedTuple):
@@ -244,7 +258,7 @@ def estimate_flat(ma, fixed, proc, state, tau_last, t, out):
     [t, q, qd, q_std, qd_std, effort (n_t each), F, F_std, deflection, deflection rate (n_b each),
     ee, ee_std, d, d_std, x, P (row-major)]."""
     _, _, _, _, active_idx, point, ee_axes, branch_joint, stiff, damp, rest = fixed
-    dist_idx, _, Lz, _, _, _, _ = proc
+    dist_idx, Lz = proc[0], proc[2]
     q, qd, z, P, _, _, _, _ = state
     n = q.shape[0]
     nb = branch_joint.shape[0]
@@ -300,15 +314,53 @@ def estimate_flat(ma, fixed, proc, state, tau_last, t, out):
 
 
 @njit(cache=True)
+def difference_columns(ma, q, qd, tau, point, with_point, eps_q, eps_v, W, ws, lam, qdd0, a0, skip_position,
+                       Aq, Av, Eq, Ev):
+    """One-sided differences from (qdd0, a0) at (q, qd): the position columns of Aq, Eq (but those
+    ``skip_position`` marks) and every rate column of Av, Ev. A position column moves q_p to first
+    order along W and takes qd_p from the closure at the perturbed pose (partitioning with a loose
+    tolerance: one closure evaluation); a rate column moves qd_p along W. Returns the worst
+    conditioning met."""
+    n = q.shape[0]
+    ae = ma.ae_index
+    nae = ae.shape[0]
+    worst = 1.0
+    qdd1 = np.empty(n)
+    a1 = np.zeros(3)
+    qp = np.empty(n)
+    vp = np.empty(n)
+    for j in range(nae):
+        if not skip_position[j]:
+            e = eps_q[j]
+            for i in range(n):
+                qp[i] = q[i] + W[i, j] * e
+                vp[i] = qd[i]
+            partition(ma, qp, vp, PERTURBED_TOL, 2)
+            worst = min(worst, fast_evaluate(ma, qp, vp, tau, point, with_point, ws, qdd1, lam, a1))
+            for i in range(nae):
+                Aq[i, j] = (qdd1[ae[i]] - qdd0[ae[i]]) / e
+            for r in range(3):
+                Eq[r, j] = (a1[r] - a0[r]) / e if with_point else 0.0
+        e = eps_v[j]
+        for i in range(n):
+            vp[i] = qd[i] + W[i, j] * e
+        worst = min(worst, fast_evaluate(ma, q, vp, tau, point, with_point, ws, qdd1, lam, a1))
+        for i in range(nae):
+            Av[i, j] = (qdd1[ae[i]] - qdd0[ae[i]]) / e
+        for r in range(3):
+            Ev[r, j] = (a1[r] - a0[r]) / e if with_point else 0.0
+    return worst
+
+
+@njit(cache=True)
 def linearize(ma, q, qd, tau, point, with_point, eps_q, eps_v, Aq, Av, Bf, Eq, Ev, Ef, qdd0, a0):
     """Jacobians of the q_ae accelerations (and of the point acceleration) at a consistent state.
 
     Aq = d qdd_ae / d q_ae, Av = d qdd_ae / d qd_ae, Bf = d qdd_ae / d f_ae (unit
     generalised forces on the q_ae joints); Eq, Ev, Ef the same for the point's world
-    acceleration (3 rows). Position columns move q_p to first order along W (the passive
-    Jacobian), which is as accurate as the one-sided difference itself, and take qd_p from
-    the closure at the perturbed pose (partitioning with a loose tolerance: one closure
-    evaluation); rate columns move qd_p along W. Returns the worst conditioning.
+    acceleration (3 rows): every column a one-sided difference of full evaluations
+    (:func:`difference_columns`; moving q_p along W is as accurate as the difference itself).
+    Returns the worst conditioning.
     """
     n = q.shape[0]
     ae = ma.ae_index
@@ -322,30 +374,8 @@ def linearize(ma, q, qd, tau, point, with_point, eps_q, eps_v, Aq, Av, Bf, Eq, E
     worst = passive_rows(ma, q, W)
     cond = fast_evaluate(ma, q, qd, tau, point, with_point, ws, qdd0, lam, a0)
     worst = min(worst, cond)
-    qp = np.empty(n)
-    vp = np.empty(n)
-    for j in range(nae):
-        e = eps_q[j]
-        for i in range(n):
-            qp[i] = q[i] + W[i, j] * e
-            vp[i] = qd[i]
-        partition(ma, qp, vp, PERTURBED_TOL, 2)
-        cond = fast_evaluate(ma, qp, vp, tau, point, with_point, ws, qdd1, lam, a1)
-        worst = min(worst, cond)
-        for i in range(nae):
-            Aq[i, j] = (qdd1[ae[i]] - qdd0[ae[i]]) / e
-        for r in range(3):
-            Eq[r, j] = (a1[r] - a0[r]) / e
-    for j in range(nae):
-        e = eps_v[j]
-        for i in range(n):
-            vp[i] = qd[i] + W[i, j] * e
-        cond = fast_evaluate(ma, q, vp, tau, point, with_point, ws, qdd1, lam, a1)
-        worst = min(worst, cond)
-        for i in range(nae):
-            Av[i, j] = (qdd1[ae[i]] - qdd0[ae[i]]) / e
-        for r in range(3):
-            Ev[r, j] = (a1[r] - a0[r]) / e
+    worst = min(worst, difference_columns(ma, q, qd, tau, point, with_point, eps_q, eps_v, W, ws, lam, qdd0, a0,
+                                          np.zeros(nae, dtype=np.bool_), Aq, Av, Eq, Ev))
     tp = tau.copy()
     for j in range(nae):
         # Linear in the force: a unit step is exact. The point acceleration changes by J dqdd
@@ -359,6 +389,60 @@ def linearize(ma, q, qd, tau, point, with_point, eps_q, eps_v, Aq, Av, Bf, Eq, E
         for r in range(3):
             Ef[r, j] = a1[r] - a0[r]
     return worst
+
+
+@njit(cache=True)
+def linearize_springs(ma, q, qd, tau, point, with_point, eps_q, eps_v, Aq, Av, Bf, Eq, Ev, Ef, qdd0, a0, lws):
+    """:func:`linearize` from the model's structure (:mod:`~elastic_pm_dyn.observer.propagation`):
+    Bf and Ef from one factorisation (the gains of unit forces on every q_ae joint), the elastic
+    joints' position columns from their springs, the other columns (motors and free joints'
+    positions, every rate) by the same one-sided differences as :func:`linearize`.
+    ``lws``: :func:`linearization_workspace`.
+    Returns the worst conditioning (0 if the gains' Schur complement is singular)."""
+    gws, G, extra = lws
+    n = q.shape[0]
+    ae = ma.ae_index
+    nae = ae.shape[0]
+    m = ma.p_index.shape[0]
+    lam = np.empty(m)
+    ws = workspace(ma)
+    W = np.empty((n, nae))
+    worst = passive_rows(ma, q, W)
+    cond = fast_evaluate(ma, q, qd, tau, point, with_point, ws, qdd0, lam, a0)
+    worst = min(worst, cond)
+    ratio = elastic_gains(ma, ae, ws[0], ws[5], extra, G, gws)
+    if ratio == 0.0:
+        return 0.0
+    analytic = np.zeros(nae, dtype=np.bool_)
+    spring_columns(ma, G, point, with_point, ws[2], Aq, Av, Bf, Eq, Ev, Ef, analytic)
+    return min(worst, difference_columns(ma, q, qd, tau, point, with_point, eps_q, eps_v, W, ws, lam, qdd0, a0,
+                                         analytic, Aq, Av, Eq, Ev))
+
+
+@njit(cache=True)
+def z_block(Fz, psd_z, T, zkey, Phi_z, Qd_z):
+    """The disturbance states' own transition at the quarters of T, Phi_z[j] = expm(Fz (j + 1) T / 4),
+    and their noise Qd_z over T; recomputed only when T or psd_z changed (zkey)."""
+    nz = Fz.shape[0]
+    same = zkey[0] == T
+    for k in range(nz):
+        same = same and zkey[1 + k] == psd_z[k]
+    if same:
+        return
+    Qc = np.zeros((nz, nz))
+    for k in range(nz):
+        Qc[k, k] = psd_z[k]
+    Z1, Q1 = np.empty((nz, nz)), np.empty((nz, nz))
+    discretize(Fz, Qc, T / 4.0, Z1, Q1)
+    Z2 = Z1 @ Z1
+    Q2 = Z1 @ Q1 @ Z1.T + Q1
+    Phi_z[0] = Z1
+    Phi_z[1] = Z2
+    Phi_z[2] = Z2 @ Z1
+    Phi_z[3] = Z2 @ Z2
+    Qd_z[:, :] = Z2 @ Q2 @ Z2.T + Q2
+    zkey[0] = T
+    zkey[1:] = psd_z
 
 
 @njit(cache=True)
@@ -398,44 +482,6 @@ def continuous_model(Aq, Av, Bf, dist_col, Lz, Fz, psd_ae, psd_z, Ac, Qc):
 
 
 @njit(cache=True)
-def _balance(A, d):
-    """Diagonal scaling d (powers of 2) so that D^-1 A D has balanced row/column norms (Osborne)."""
-    n = A.shape[0]
-    B = A.copy()
-    d[:] = 1.0
-    for _ in range(30):
-        done = True
-        for i in range(n):
-            c = 0.0
-            r = 0.0
-            for j in range(n):
-                if j != i:
-                    c += abs(B[j, i])
-                    r += abs(B[i, j])
-            if c == 0.0 or r == 0.0:
-                continue
-            f = 1.0
-            s = c + r
-            while c < r / 2.0:
-                c *= 2.0
-                r /= 2.0
-                f *= 2.0
-            while c >= r * 2.0:
-                c /= 2.0
-                r *= 2.0
-                f /= 2.0
-            if (c + r) < 0.95 * s:
-                done = False
-                d[i] *= f
-                for j in range(n):
-                    B[i, j] /= f
-                    B[j, i] *= f
-        if done:
-            break
-    return B
-
-
-@njit(cache=True)
 def discretize(Ac, Qc, T, Phi, Qd):
     """Phi = expm(A T), Qd = int_0^T expm(A s) Qc expm(A s)^T ds (Van Loan), by Taylor + squaring.
 
@@ -446,17 +492,12 @@ def discretize(Ac, Qc, T, Phi, Qd):
     """
     n = Ac.shape[0]
     d = np.empty(n)
-    B = _balance(Ac, d)
+    B = balance(Ac, d)
     Qb = np.empty((n, n))
     for i in range(n):
         for j in range(n):
             Qb[i, j] = Qc[i, j] / (d[i] * d[j])
-    norm = 0.0
-    for j in range(n):
-        c = 0.0
-        for i in range(n):
-            c += abs(B[i, j])
-        norm = max(norm, c)
+    norm = one_norm(B)
     s = 0
     while norm * T / 2.0**s > 0.25:
         s += 1
@@ -499,8 +540,9 @@ def predict(ma, fixed, proc, state, tau, relinearize, T, n_sub):
     ``sim.kernels`` status codes.
     """
     eps_q, eps_v, point, with_point, _, _, _, _, _, _, _ = fixed
-    dist_idx, dist_col, Lz, Fz, psd_ae, rel_ae, psd_z = proc
+    dist_idx, dist_col, Lz, Fz, psd_ae, rel_ae, psd_z, method, zkey, Phi_z, Qd_z = proc
     q, qd, z, P, Phi, Qd, Hpt, info = state
+    structured = method[1] == SPRINGS
     n = q.shape[0]
     nae = ma.ae_index.shape[0]
     nd = dist_idx.shape[0]
@@ -515,7 +557,11 @@ def predict(ma, fixed, proc, state, tau, relinearize, T, n_sub):
         Aq, Av, Bf = np.empty((nae, nae)), np.empty((nae, nae)), np.empty((nae, nae))
         Eq, Ev, Ef = np.empty((3, nae)), np.empty((3, nae)), np.empty((3, nae))
         qdd0, a0 = np.empty(n), np.empty(3)
-        cond = linearize(ma, q, qd, tt, point, with_point, eps_q, eps_v, Aq, Av, Bf, Eq, Ev, Ef, qdd0, a0)
+        if structured:
+            cond = linearize_springs(ma, q, qd, tt, point, with_point, eps_q, eps_v, Aq, Av, Bf, Eq, Ev, Ef,
+                                     qdd0, a0, linearization_workspace(ma))
+        else:
+            cond = linearize(ma, q, qd, tt, point, with_point, eps_q, eps_v, Aq, Av, Bf, Eq, Ev, Ef, qdd0, a0)
         info[0] = cond
         if not cond >= SINGULAR_TOL:
             return 1
@@ -528,9 +574,13 @@ def predict(ma, fixed, proc, state, tau, relinearize, T, n_sub):
                 j = ma.ae_index[i]
                 c = ma.jf[j, JF_STIFFNESS]
                 psd[i] += rel_ae[i] * ((c / w2 * qdd0[j]) ** 2 + c * c / w2 * qd[j] ** 2)
-        Ac, Qc = np.empty((nx, nx)), np.empty((nx, nx))
-        continuous_model(Aq, Av, Bf, dist_col, Lz, Fz, psd, psd_z, Ac, Qc)
-        discretize(Ac, Qc, T, Phi, Qd)
+        if structured:
+            z_block(Fz, psd_z, T, zkey, Phi_z, Qd_z)
+            discretize_structured(Aq, Av, Bf, dist_col, Lz, Fz, psd, psd_z, T, Phi_z, Qd_z, Phi, Qd)
+        else:
+            Ac, Qc = np.empty((nx, nx)), np.empty((nx, nx))
+            continuous_model(Aq, Av, Bf, dist_col, Lz, Fz, psd, psd_z, Ac, Qc)
+            discretize(Ac, Qc, T, Phi, Qd)
         for r in range(3):
             for j in range(nae):
                 Hpt[r, j] = Eq[r, j]
@@ -557,8 +607,13 @@ def predict(ma, fixed, proc, state, tau, relinearize, T, n_sub):
             coef[2, dist_idx[k]] += 0.5 * Lz[k, m] * Fzzz[m]
     lam = np.empty(ma.p_index.shape[0])
     rk_info = np.zeros(3)
-    status = rk4_steps(SCDD, ma, q, qd, coef, T / n_sub, n_sub, 0, 0.0, 0.0, CLOSURE_TOL, SINGULAR_TOL,
-                       np.zeros(n), lam, rk_info)
+    if method[0] == ETD2:
+        # the plant's integrator: the springs exact, the closure projected after each step
+        status = exponential_steps(AVERAGED, SCDD, ma, q, qd, coef, T / n_sub, n_sub, STAB_PROJECTION, 0.0, 0.0,
+                                   CLOSURE_TOL, SINGULAR_TOL, DEFAULT_PHASE_STEP, np.zeros(n), lam, rk_info)
+    else:
+        status = rk4_steps(SCDD, ma, q, qd, coef, T / n_sub, n_sub, 0, 0.0, 0.0, CLOSURE_TOL, SINGULAR_TOL,
+                           np.zeros(n), lam, rk_info)
     info[0] = min(cond, rk_info[1])
     if status != OK:
         return status
@@ -750,7 +805,7 @@ def imu_correct(ma, fixed, proc, state, imu, tau, meas, gate):
     state under tau + Lz z; H = S Hpt. Returns (NIS, status, log det S) as :func:`correct`,
     status 4 if the model is singular."""
     point = fixed[2]
-    dist_idx, _, Lz, _, _, _, _ = proc
+    dist_idx, Lz = proc[0], proc[2]
     q, qd, z, _, _, _, Hpt, _ = state
     S, g, R = imu
     d = disturbance_torques(Lz, z)
@@ -804,7 +859,7 @@ def imu_innovations(ma, fixed, proc, state, imu, tau_before, tau_after, meas, ga
     outlier (beyond it under both) weighs nothing and a sample weighs at most gate / 2 nats for
     one hypothesis. Returns (r_b, r_a, H, False if the model is singular there)."""
     point = fixed[2]
-    dist_idx, _, Lz, _, _, _, _ = proc
+    dist_idx, Lz = proc[0], proc[2]
     q, qd, z, P, _, _, Hpt, _ = state
     S, g, R = imu
     d = disturbance_torques(Lz, z)

@@ -30,6 +30,7 @@ import numpy as np
 
 from elastic_pm_dyn.bags.msgtypes import NS
 from elastic_pm_dyn.dynamics.direct import Dynamics
+from elastic_pm_dyn.dynamics.inverse import tree_inverse_dynamics
 from elastic_pm_dyn.dynamics.statics import static_deflection
 from elastic_pm_dyn.kinematics.assembly import initial_state
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
@@ -194,13 +195,17 @@ def chirp_recording(mech: Mechanism, seed: int = 2, amplitude: float = 3.0, f0: 
                     kp: float = 40.0, kd: float = 1.0, truth_dt: float = 5e-5,
                     disturbance: Callable[[float], np.ndarray] | None = None, **timing) -> Recording:
     """A linear chirp f0 -> f1 of ``amplitude`` N m (the motors in opposite phase), on a PD
-    loop (kp [N m/rad], kd [N m s/rad] on differenced encoder angles) that holds the start pose;
+    loop (kp [N m/rad], kd [N m s/rad] on differenced encoder angles) that holds the start pose
+    with the static torque that carries the machine's weight there;
     a 2-200 Hz multisine or the given ``disturbance``; ``timing`` as :func:`manoeuvre_recording`."""
     rng = np.random.default_rng(seed)
     dist = Multisine(rng, len(mech.active), disturbance_rms) if disturbance_rms > 0 else None
     dist = dist if disturbance is None else disturbance
     q0 = rest_state(mech)
     ref = q0[mech.active]
+    # the motor torques that hold the start pose against gravity (zero on a horizontal machine)
+    tau_ae = tree_inverse_dynamics(mech, q0, np.zeros(mech.n), np.zeros(mech.n))
+    hold = tau_ae[[list(mech.ae).index(j) for j in mech.active]]
     last = {"enc": ref.copy()}
     sign = np.array([1.0, -1.0] + [1.0] * (len(mech.active) - 2))
     ramp = 0.02  # [s] amplitude ramp at both ends
@@ -210,7 +215,7 @@ def chirp_recording(mech: Mechanism, seed: int = 2, amplitude: float = 3.0, f0: 
         env = min(1.0, t / ramp, max(0.0, (duration - t) / ramp))
         vel = (enc - last["enc"]) / PERIOD if k > 0 else np.zeros_like(enc)
         last["enc"] = enc
-        return amplitude * env * np.sin(phase) * sign + kp * (ref - enc) - kd * vel
+        return hold + amplitude * env * np.sin(phase) * sign + kp * (ref - enc) - kd * vel
 
     rec = simulate(mech, command, duration, dist, noise or Noise(), rng, truth_dt, q0=q0, label="chirp", **timing)
     rec.info = {"amplitude": amplitude, "f0": f0, "f1": f1, "disturbance_rms": disturbance_rms, "seed": seed}

@@ -67,8 +67,9 @@ GRID_TOPS = (5.0, 10.0, 20.0, 40.0, 80.0, 160.0, 320.0)  # [Hz]
 GRID_LEVELS = (0.1, 1.0, 10.0)  # times the base's disturbance stddev
 GRID_SECONDS = 1.0
 GRID_FINALISTS = 3  # the grid's likeliest, judged again on the whole recording
-# The search's RK4 substep at least this [s]; the tuned file keeps process.dt as it was (0: from
-# the model), and the NLL before / after are the model's own step's
+# The search's RK4 substep at least this [s] (process.integrator rk4; ETD2 searches at its own
+# step); the tuned file keeps process.dt as it was (0: from the model), and the NLL before /
+# after are the model's own step's
 SEARCH_DT = 1e-4
 
 
@@ -224,8 +225,12 @@ def tune(mech: Mechanism, base: ObserverConfig, events: list[Event], explicit: s
 
     # The search ranks noise models at a substep of at least SEARCH_DT; the result is judged at
     # the model's own (process.dt: 0 halves it for fast spring modes, which doubles every pass).
-    fine_dt = prepared.model.substep(base.process.dt)
-    search = {"process.dt": SEARCH_DT} if fine_dt < SEARCH_DT and "process.dt" not in explicit else {}
+    # ETD2's own step is set by the springs' coupling, not their stability: searched as it is.
+    if base.process.integrator == "etd2":
+        fine_dt, search = prepared.model.etd2_step(base.process.dt, base.process.max_interval), {}
+    else:
+        fine_dt = prepared.model.substep(base.process.dt)
+        search = {"process.dt": SEARCH_DT} if fine_dt < SEARCH_DT and "process.dt" not in explicit else {}
 
     def passes(params_list: list[dict], evs: list[Event] = events,
                prep: PreparedRecording = prepared) -> list[Evaluation]:
