@@ -286,10 +286,25 @@ def cmd_bag_repair(args: argparse.Namespace) -> int:
 
 
 def cmd_ros_demo(args: argparse.Namespace) -> int:
+    from elastic_pm_dyn.errors import InputError
     from elastic_pm_dyn.ros.demo import run_ros_demo
     from elastic_pm_dyn.ros.processes import NodeProcessError
+    loop_only = [f"--{n.replace('_', '-')}" for n in ("elastic_dof_per_chain", "seed", "duration", "observer_config",
+                                                      "kp", "kd") if getattr(args, n) is not None]
+    if loop_only and not args.observer:
+        raise InputError(f"{', '.join(loop_only)}: only with --observer (the closed loop)")
     try:
-        run_ros_demo(Path(args.out), Path(args.model), args.sync, args.storage, args.timeout, args.domain_id)
+        if args.observer:
+            from elastic_pm_dyn.ros.loop_demo import LoopOptions, run_loop_demo
+            if args.sync != "lockstep":
+                raise InputError("--observer runs in lockstep only")
+            opts = LoopOptions(Path(args.model), args.elastic_dof_per_chain, 1 if args.seed is None else args.seed,
+                               2.0 if args.duration is None else args.duration,
+                               Path(args.observer_config) if args.observer_config else None, args.kp, args.kd,
+                               storage=args.storage, timeout=args.timeout or 1800.0, domain_id=args.domain_id)
+            run_loop_demo(Path(args.out), opts)
+            return 0
+        run_ros_demo(Path(args.out), Path(args.model), args.sync, args.storage, args.timeout or 120.0, args.domain_id)
     except NodeProcessError as err:
         print(f"elastic-pm-dyn: error: {err}", file=sys.stderr)
         return EXIT_RUN_FAILED
@@ -371,8 +386,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--sync", choices=("lockstep", "realtime"), default="lockstep",
                    help="lockstep: deterministic, equals offline simulate (default); realtime: wall-clock paced")
     p.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap")
-    p.add_argument("--timeout", type=float, default=120.0, help="[s] limit for the manoeuvre run")
+    p.add_argument("--timeout", type=float, help="[s] limit for the run (default 120; with --observer 1800)")
     p.add_argument("--domain-id", type=int, help="ROS domain id (default: a private one from the process id)")
+    p.add_argument("--observer", action="store_true",
+                   help="the closed loop: plant with sensors and a disturbance, observer node, PD + feedforward "
+                        "controller, recorder; summary with estimate vs truth vs open loop (README 'Closing the loop')")
+    p.add_argument("--elastic-dof-per-chain", type=int, help="--observer: override the model's discretisation")
+    p.add_argument("--seed", type=int, help="--observer: seed of the sensor noise and the disturbance (default 1)")
+    p.add_argument("--duration", type=float, help="--observer: [s] of loop (default 2)")
+    p.add_argument("--observer-config", help="--observer: observer parameter file, e.g. one written by "
+                   "'elastic-pm-dyn tune' (default config/observer_node.yaml)")
+    p.add_argument("--kp", type=float, nargs="+", help="--observer: PD gains [N m/rad], one or one per motor "
+                   "(default: a 2 Hz loop, damping 0.1, on the machine's inertia)")
+    p.add_argument("--kd", type=float, nargs="+", help="--observer: [N m s/rad], one or one per motor")
     p.set_defaults(func=cmd_ros_demo)
     from elastic_pm_dyn.analysis.cli import register_cli as register_analysis
     from elastic_pm_dyn.observer.cli import register_cli as register_observer

@@ -100,3 +100,22 @@ class JointReference:
         fixed[mech.active] = qdda
         qdd = solve_acceleration(mech, q, qd, mech.passive, fixed)
         return ReferenceSample(q.copy(), qd, qdd, tree_inverse_dynamics(mech, q, qd, qdd))
+
+
+class HoldReference:
+    """Hold the model's start pose for ``duration`` seconds: the rigid machine at rest there, and
+    the motor torques that hold it against gravity (for machines whose end-effector point does
+    not fix the pose, e.g. a hexapod, where a point line cannot be solved)."""
+
+    def __init__(self, ff: RigidFeedforward, duration: float):
+        if not (np.isfinite(duration) and duration > 0):
+            raise InputError(f"hold duration must be > 0, got {duration}")
+        mech = ff.mech
+        q = ff.q.copy()
+        zero = np.zeros(mech.n)
+        self.ff = ff
+        self.duration = float(duration)
+        self._sample = ReferenceSample(q, zero, zero.copy(), tree_inverse_dynamics(mech, q, zero, zero))
+
+    def sample(self, t: float) -> ReferenceSample:
+        return self._sample

@@ -5,19 +5,35 @@ motion on ``reference_joint_states``. Desired motion (parameter ``source``):
 - ``line``: the reference manoeuvre, a Cartesian straight line with quintic time law
   (``line.*`` parameters); started at start-up (``autostart``) or by ``~/start``;
 - ``trajectory``: trajectory_msgs/JointTrajectory of the active joints on ``trajectory``,
-  started at its header stamp (zero stamp: at once).
+  started at its header stamp (zero stamp: at once);
+- ``hold``: the model's start pose at rest for ``hold.duration`` seconds, with the torques
+  that hold it against gravity (any machine, also one whose end-effector point does not fix
+  its pose, such as a hexapod); started like the line.
 After the end the final pose is held (its static torque keeps being published).
+
+Feedback (``feedback.kp``, ``feedback.kd``: one value or one per active joint; 0 and 0, the
+default, is the pure feedforward): tau = tau_ff + kp (q_ref - q_meas) + kd (qd_ref - qd_meas)
+on the encoder samples of ``topics.measured_joint_states`` (``motion.feedback``; qd_meas is
+the sample's velocity if it has one, else differenced from the previous sample). With the
+state trigger the command for t_k uses the encoder sample stamped t_k: it waits for it. A
+sample that never comes (a newer one arrived, or ``feedback.max_wait`` seconds passed) is
+replaced by the newest older one, or by none (feedforward alone), with a warning each time
+and a count; with the timer trigger the newest sample is used, with a warning when it is
+more than two periods old.
 
 Pacing (parameter ``trigger``):
 - ``timer``: a timer at ``rate`` on the node clock (simulated time with use_sim_time);
 - ``state``: one command per new plant state (``topics.state``), for the time of its
   stamp: with a lockstep plant this is deterministic and reproduces offline
-  ``simulate`` with the same torque table.
+  ``simulate`` with the same torque table. ``topics.state`` may be any JointState stamped
+  like the plant's, e.g. an observer's estimates: the loop then waits for the observer too.
 """
 
 from __future__ import annotations
 
 import sys
+import time
+from collections import OrderedDict
 from typing import Any
 
 import numpy as np
@@ -30,9 +46,10 @@ from trajectory_msgs.msg import JointTrajectory
 from elastic_pm_dyn.bags.msgtypes import NS, stamp_ns
 from elastic_pm_dyn.errors import ElasticPmDynError, InputError
 from elastic_pm_dyn.model.loader import load_model
+from elastic_pm_dyn.motion.feedback import EncoderError, EncoderRates, gains, pd_torque
 from elastic_pm_dyn.motion.feedforward import rigid_feedforward
 from elastic_pm_dyn.motion.manoeuvre import REFERENCE_MANOEUVRE
-from elastic_pm_dyn.motion.references import JointReference, LineReference
+from elastic_pm_dyn.motion.references import HoldReference, JointReference, LineReference
 from elastic_pm_dyn.motion.trajectory import QuinticLine
 from elastic_pm_dyn.ros.commands import CommandDecoder
 from elastic_pm_dyn.ros.messages import joint_state, torque_command
@@ -46,24 +63,28 @@ from elastic_pm_dyn.ros.params import (
     read_parameters,
     reject_unknown,
 )
-from elastic_pm_dyn.ros.qos import COMMAND_QOS, STATE_QOS
+from elastic_pm_dyn.ros.qos import COMMAND_OUT_QOS, COMMAND_QOS, OBSERVER_INPUT_QOS, STATE_QOS
+from elastic_pm_dyn.ros.throttle import KindThrottle
 
 READY_POLL = 0.05  # [s] wall-clock check for subscribers while waiting to start
 # Our errors (unreachable, singular), and numpy's should a solver inside it fail outright.
 SOLVE_ERRORS = (ElasticPmDynError, np.linalg.LinAlgError)
+WARN_EVERY = 1.0  # [s] throttle of repeated warnings, per kind
+KEEP_SAMPLES = 1000  # encoder samples kept for matching by stamp (1 s at 1 kHz)
 
 # Rate and line default to the reference manoeuvre (config/feedforward.yaml repeats them; a test holds them equal).
 PARAMS = [
     Param("model", "", "model YAML file; empty = the five-bar shipped with the package"),
     Param("rate", REFERENCE_MANOEUVRE.control_rate, "control rate [Hz]: timer period and the time grid of the commands",
           positive=True),
-    Param("source", "line", "line (parameters line.*) or trajectory (JointTrajectory topic)",
-          choices=("line", "trajectory")),
+    Param("source", "line", "line (parameters line.*), trajectory (JointTrajectory topic) or hold (the start pose)",
+          choices=("line", "trajectory", "hold")),
     Param("line.start", list(REFERENCE_MANOEUVRE.start), "start point p_A [m] (2 numbers planar, 3 spatial)"),
     Param("line.end", list(REFERENCE_MANOEUVRE.end), "end point p_E [m]"),
     Param("line.move", REFERENCE_MANOEUVRE.move, "move time [s]", positive=True),
     Param("line.hold", REFERENCE_MANOEUVRE.hold, "time at the end point that belongs to the manoeuvre [s]"),
-    Param("autostart", True, "line: start at start-up (else call ~/start)"),
+    Param("hold.duration", 0.5, "source hold: how long the start pose is held [s]", positive=True),
+    Param("autostart", True, "line, hold: start at start-up (else call ~/start)"),
     Param("trigger", "timer", "timer (at rate, node clock) or state (one command per plant state)",
           choices=("timer", "state")),
     Param("command_type", "joint_state", "joint_state or float64_multi_array (command_joints order)",
@@ -72,6 +93,11 @@ PARAMS = [
     Param("topics.reference", "reference_joint_states", "rigid model's reference motion"),
     Param("topics.state", "joint_states", "plant state that paces the state trigger"),
     Param("topics.trajectory", "trajectory", "JointTrajectory input (source trajectory)"),
+    Param("topics.measured_joint_states", "measured_joint_states", "encoder samples (JointState) for the feedback"),
+    Param("feedback.kp", [0.0], "PD on the encoders: [N m/rad] one value or one per active joint; 0 = none"),
+    Param("feedback.kd", [0.0], "PD on the encoders: [N m s/rad] one value or one per active joint; 0 = none"),
+    Param("feedback.max_wait", 2.0, "state trigger: [s] wall time to wait for the encoder sample of a stamp "
+          "before the newest older one is used (with a warning)", positive=True),
     Param("wait_for_subscribers", 1, "start only when torque_command has this many subscribers"),
     Param("exit_when_done", False, "end the process when the reference is over (scripts, demos)"),
 ]
@@ -102,36 +128,55 @@ class FeedforwardNode(ManagedNode):
         self.wait_for = p["wait_for_subscribers"]
         self.rate = p["rate"]
         self.line = (LineReference(rigid_feedforward(self.model), _line(p, len(rigid.ee_components)), self.rate)
-                     if self.source == "line" else None)
+                     if self.source == "line" else
+                     HoldReference(rigid_feedforward(self.model), p["hold.duration"]) if self.source == "hold"
+                     else None)
+        try:
+            self.kp = gains(p["feedback.kp"], len(rigid.active_names), "parameter 'feedback.kp'")
+            self.kd = gains(p["feedback.kd"], len(rigid.active_names), "parameter 'feedback.kd'")
+        except InputError as err:
+            raise ParameterError(str(err)) from None
+        self.feedback = bool(np.any(self.kp) or np.any(self.kd))
+        self.max_wait = p["feedback.max_wait"]
+        self.encoders = EncoderRates(rigid.active_names)
+        self.samples: OrderedDict[int, tuple[np.ndarray, np.ndarray]] = OrderedDict()  # stamp -> (q, qd)
+        self.waiting_since: float | None = None  # monotonic [s]: since when the pending stamp lacks its sample
+        self.stale_used = 0  # commands computed without the encoder sample of their stamp
+        self.warn = KindThrottle(self, WARN_EVERY)
 
         self.pub_command = self.create_publisher(
             JointState if self.command_type == "joint_state" else Float64MultiArray, p["topics.command"],
-            COMMAND_QOS)
+            COMMAND_OUT_QOS)
         self.pub_reference = self.create_publisher(JointState, p["topics.reference"], STATE_QOS)
         self.create_service(Trigger, "~/start", self._on_start)
         if self.source == "trajectory":
             self.create_subscription(JointTrajectory, p["topics.trajectory"], self._on_trajectory, COMMAND_QOS)
+        if self.feedback:  # volatile: matches any publisher; the samples of this run only
+            self.create_subscription(JointState, p["topics.measured_joint_states"], self._on_encoders,
+                                     OBSERVER_INPUT_QOS)
 
-        self.reference: LineReference | JointReference | None = None
+        self.reference: LineReference | HoldReference | JointReference | None = None
         self.start_ns: int | None = None  # reference time origin; None = at the next tick/state
         self.last_ns: int | None = None  # newest control instant answered
         self.pending_ns: int | None = None  # state trigger: newest state not yet answered
-        self.want_start = self.source == "line" and p["autostart"]
+        self.want_start = self.source in ("line", "hold") and p["autostart"]
         if self.trigger == "timer":
             self.create_timer(1.0 / p["rate"], self._on_tick)
         else:
             self.create_subscription(JointState, p["topics.state"], self._on_state, STATE_QOS)
             self.create_timer(READY_POLL, self._respond, clock=Clock(clock_type=ClockType.STEADY_TIME))
+        pd = (f"; PD on '{p['topics.measured_joint_states']}' kp {self.kp.tolist()} kd {self.kd.tolist()}"
+              if self.feedback else "")
         self.get_logger().info(f"{self.model.name}: source {self.source}, trigger {self.trigger}, "
-                               f"commands ({self.command_type}) on '{p['topics.command']}'")
+                               f"commands ({self.command_type}) on '{p['topics.command']}'{pd}")
 
     # ------------------------------------------------------------------ inputs
     def _on_start(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
-        if self.source != "line":
+        if self.source == "trajectory":
             response.success, response.message = False, "source is 'trajectory': publish a JointTrajectory"
             return response
         self.want_start = True
-        response.success, response.message = True, "line starts at the next control period"
+        response.success, response.message = True, f"{self.source} starts at the next control period"
         try:
             self._respond()
         except Exception as err:  # never die on a service call: answer why
@@ -157,6 +202,17 @@ class FeedforwardNode(ManagedNode):
         self.get_logger().info(f"trajectory of {len(pts)} points, {reference.duration:.3g} s accepted")
         self._respond()
 
+    def _on_encoders(self, msg: JointState) -> None:
+        ns = stamp_ns(msg.header.stamp)
+        try:
+            self.samples[ns] = self.encoders.sample(ns, msg.name, msg.position, msg.velocity)
+        except EncoderError as err:  # one line per kind, the node goes on
+            self.warn.warning(err.kind, f"encoder sample not used: {err}")
+            return
+        while len(self.samples) > KEEP_SAMPLES:
+            self.samples.popitem(last=False)
+        self._respond()
+
     def _on_state(self, msg: JointState) -> None:
         ns = stamp_ns(msg.header.stamp)
         if self.last_ns is None or ns > self.last_ns:
@@ -172,9 +228,53 @@ class FeedforwardNode(ManagedNode):
             self._command_at(self.get_clock().now().nanoseconds, quantise=True)
 
     def _respond(self) -> None:
-        """State trigger: answer the newest plant state once there is something to send."""
-        if self.pending_ns is not None and self._ready() and self._command_at(self.pending_ns):
+        """State trigger: answer the newest plant state once there is something to send (and,
+        with feedback, the encoder sample of its stamp or the end of waiting for it)."""
+        if self.pending_ns is None or not self._ready() or not self._sample_ready(self.pending_ns):
+            return
+        if self._command_at(self.pending_ns):
             self.pending_ns = None
+            self.waiting_since = None
+
+    def _sample_ready(self, ns: int) -> bool:
+        """Feedback: the sample of ``ns`` is here, or it will not come (a newer one came, or
+        ``feedback.max_wait`` passed: the command then says so)."""
+        if not self.feedback or ns in self.samples:
+            return True
+        newest = next(reversed(self.samples), None)
+        if newest is not None and newest > ns:
+            return True
+        if self.waiting_since is None:
+            self.waiting_since = time.monotonic()
+        return time.monotonic() - self.waiting_since > self.max_wait
+
+    def _measured(self, ns: int) -> tuple[np.ndarray, np.ndarray] | None:
+        """The encoder sample for the command of ``ns``: its own, else (with a warning) the newest older one."""
+        hit = self.samples.get(ns)
+        if hit is not None:
+            return hit
+        older = [k for k in self.samples if k < ns]
+        self.stale_used += 1
+        if not older:
+            self.warn.warning("no sample", f"no encoder sample for t = {ns * 1e-9:.6f} s nor before: feedforward "
+                              f"alone ({self.stale_used} commands without their sample so far)")
+            return None
+        k = older[-1]
+        self.warn.warning("stale sample", f"no encoder sample for t = {ns * 1e-9:.6f} s: using the one of "
+                          f"{k * 1e-9:.6f} s ({(ns - k) * 1e-9:.3g} s old; {self.stale_used} commands without "
+                          "their sample so far)")
+        return self.samples[k]
+
+    def _latest_measured(self, ns: int) -> tuple[np.ndarray, np.ndarray] | None:
+        """Timer trigger: the newest sample, with a warning when it is more than two periods old."""
+        newest = next(reversed(self.samples), None)
+        if newest is None:
+            self.warn.warning("no sample", "no encoder sample yet: feedforward alone")
+            return None
+        if ns - newest > 2 * NS / self.rate:
+            self.stale_used += 1
+            self.warn.warning("stale sample", f"newest encoder sample is {(ns - newest) * 1e-9:.3g} s old")
+        return self.samples[newest]
 
     def _command_at(self, ns: int, quantise: bool = False) -> bool:
         """Publish the command for time ``ns`` (and the reference); False if there is none.
@@ -187,7 +287,9 @@ class FeedforwardNode(ManagedNode):
             self.want_start = False
             self.reference = self.line
             self.start_ns = ns
-            self.get_logger().info(f"line {self.line.line.start} -> {self.line.line.end} m started")
+            what = (f"line {self.line.line.start} -> {self.line.line.end} m" if self.source == "line"
+                    else f"hold of the start pose for {self.line.duration:g} s")
+            self.get_logger().info(f"{what} started")
         if self.reference is None:
             return False
         if self.start_ns is None:
@@ -208,8 +310,13 @@ class FeedforwardNode(ManagedNode):
             self.get_logger().error(f"reference stopped at t = {t:.6g} s: {err}")
             self.reference = None
             return False
-        self.pub_command.publish(torque_command(self.command_type, self.command_names, s.tau[self.command_index],
-                                                ns))
+        tau = s.tau
+        if self.feedback:
+            measured = self._latest_measured(ns) if quantise else self._measured(ns)
+            if measured is not None:
+                a = self.active_index
+                tau = pd_torque(s.tau, s.q[a], s.qd[a], measured[0], measured[1], self.kp, self.kd)
+        self.pub_command.publish(torque_command(self.command_type, self.command_names, tau[self.command_index], ns))
         effort = np.zeros(len(self.ff_names))
         effort[self.active_index] = s.tau
         self.pub_reference.publish(joint_state(self.ff_names, ns, s.q, s.qd, effort))

@@ -55,6 +55,8 @@ DESCRIPTION_PARAMS = [
 ESTIMATE_PARAMS = [
     Param("topics.joint_states_stddev", "~/joint_states_stddev", "observer: JointState of the standard "
           "deviations (position, velocity) of every tree joint"),
+    Param("lockstep_order", False, "lockstep loop whose controller answers every estimate: the samples of t_k+1 "
+          "wait for the command of t_k, the joint state of t_k for the other samples of t_k (offline observe's order)"),
 ]
 
 

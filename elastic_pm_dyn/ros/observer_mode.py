@@ -65,6 +65,8 @@ from elastic_pm_dyn.ros.qos import DIAGNOSTICS_QOS, OBSERVER_INPUT_QOS, STATE_QO
 from elastic_pm_dyn.ros.throttle import KindThrottle
 
 WARN_EVERY = 1.0  # [s] throttle of repeated warnings, per kind
+MAX_HOLD = 10.0  # [s] wall time messages wait (lockstep_order; a loaded machine's controller may take
+# seconds, a stopped one never answers) before they go without what they wait for
 FINDINGS_EVERY = 10.0  # [s] throttle of the NIS findings (they describe a window of samples, not one)
 LEVELS = {0: DiagnosticStatus.OK, 1: DiagnosticStatus.WARN, 2: DiagnosticStatus.ERROR}
 
@@ -94,6 +96,21 @@ class ObserverMode:
         self.last_stamp = 0  # [ns] of the latest published estimate
         self.timing_logged = 0  # sample timing decisions logged so far
         self.warn = KindThrottle(node, WARN_EVERY)
+        # lockstep_order: messages of different topics may arrive in any order (the plant may answer
+        # the command of t_k with the samples of t_k+1 before that command got here; the joint state
+        # of t_k may overtake the accelerometer sample of t_k); they wait here for what comes first
+        # in offline observe's order: the command of t_k, then the samples of t_k+1, the joint
+        # state (which publishes the estimate) last
+        self.lockstep_order = bool(p.get("lockstep_order", False))
+        self.awaiting: int | None = None  # [ns] stamp of the newest estimate whose command has not come
+        self.held: list[tuple[str, Any, Any]] = []  # (kind, handler, message) in arrival order
+        self.held_since = 0.0  # monotonic [s]
+        # samples of a stamp that come before its joint state: an accelerometer sampling before the
+        # command (published with the state), strain gauges
+        self.same_stamp = [k for k, on in (
+            ("imu", "imu" in cfg.sensors and cfg.imu.sample_timing != "after_command"),
+            ("branch_forces", "branch_forces" in cfg.sensors and cfg.branch_forces.source == "branch_forces")) if on]
+        self.latest: dict[str, int] = {}  # kind -> newest stamp taken
 
         self.pub_joint_states = node.create_publisher(JointState, p["topics.joint_states"], STATE_QOS)
         self.pub_branch_forces = node.create_publisher(BranchForces, p["topics.branch_forces"], STATE_QOS)
@@ -103,19 +120,25 @@ class ObserverMode:
         self.pub_diagnostics = node.create_publisher(DiagnosticArray, "/diagnostics", DIAGNOSTICS_QOS)
 
         topics = cfg.topics
+        # Creation order is the order in which the executor serves messages that wait together:
+        # the command of t_k-1, then the samples of t_k, the joint state (which publishes the
+        # estimate of t_k) after the accelerometer and gauges of its stamp.
         inputs = [(JointState if p["command_type"] == "joint_state" else Float64MultiArray,
-                   topics.torque_command, self._on_command),
-                  (JointState, topics.measured_joint_states, self._on_joint_state)]
+                   topics.torque_command, self._on_command)]
         if "imu" in cfg.sensors:
-            inputs.append((Imu, topics.ee_imu, self._on_imu))
+            inputs.append((Imu, topics.ee_imu, self._held("imu", self._on_imu)))
         if "branch_forces" in cfg.sensors and cfg.branch_forces.source == "branch_forces":
-            inputs.append((BranchForces, topics.measured_branch_forces, self._on_branch_forces))
+            inputs.append((BranchForces, topics.measured_branch_forces, self._held("branch_forces",
+                                                                                    self._on_branch_forces)))
+        inputs.append((JointState, topics.measured_joint_states, self._held("joint_state", self._on_joint_state)))
         for msg_type, topic, callback in inputs:  # a copy each: rclpy writes the overrides into the profile
             node.create_subscription(msg_type, topic, callback, copy.copy(OBSERVER_INPUT_QOS),
                                      qos_overriding_options=QoSOverridingOptions.with_default_policies())
         node.create_service(Trigger, "~/reset", self._on_reset)
         node.create_service(SetJointState, "~/set_state", self._on_set_state)
         steady = Clock(clock_type=ClockType.STEADY_TIME)
+        if self.lockstep_order:
+            node.create_timer(0.1, self._check_held, clock=steady)
         node.create_timer(1.0 / p["marker_rate"], self._publish_markers, clock=steady)
         node.create_timer(1.0 / p["diagnostics_rate"], self._publish_diagnostics, clock=steady)
 
@@ -127,6 +150,45 @@ class ObserverMode:
                  + ", ".join(f"'{topic}'" for _, topic, _ in inputs) + f"; one estimate per '{primary}' message")
 
     # ------------------------------------------------------------------ inputs
+    def _held(self, kind: str, handler: Any) -> Any:
+        """``handler``, or with lockstep_order: the message waits until it is its turn (see __init__)."""
+        if not self.lockstep_order:
+            return handler
+
+        def gate(msg: Any) -> None:
+            if not self.held:
+                self.held_since = time.monotonic()
+            self.held.append((kind, handler, msg))
+            self._release()
+        return gate
+
+    def _ready(self, kind: str, ns: int) -> bool:
+        if self.awaiting is not None and ns > self.awaiting:
+            return False  # the command of the newest estimate first
+        return kind != "joint_state" or all(self.latest.get(k, -1) >= ns for k in self.same_stamp)
+
+    def _release(self, force: bool = False) -> None:
+        """Take the waiting messages that may go now, the earliest first (``force``: all, in arrival order)."""
+        while self.held:
+            i = 0 if force else next((i for i, (k, _, m) in enumerate(self.held)
+                                      if self._ready(k, stamp_ns(m.header.stamp))), None)
+            if i is None:
+                return
+            kind, handler, msg = self.held.pop(i)
+            if kind != "joint_state":
+                self.latest[kind] = max(self.latest.get(kind, -1), stamp_ns(msg.header.stamp))
+            handler(msg)
+            self.held_since = time.monotonic()
+
+    def _check_held(self) -> None:
+        if self.held and time.monotonic() - self.held_since > MAX_HOLD:
+            what = (f"the torque command stamped {self.awaiting * 1e-9:.6f} s" if self.awaiting is not None
+                    else "the samples of the joint state's stamp")
+            self.warn.warning("waited", f"no {what} within {MAX_HOLD:g} s: {len(self.held)} messages taken "
+                              "without it (lockstep_order)")
+            self.awaiting = None
+            self._release(force=True)
+
     def _on_command(self, msg: JointState | Float64MultiArray) -> None:
         t0 = time.perf_counter()
         if isinstance(msg, JointState):
@@ -136,6 +198,10 @@ class ObserverMode:
             ns = self.node.get_clock().now().nanoseconds
             out = self.session.torque_command(ns, (), msg.data)
         self._after(out, ns, t0)
+        if self.awaiting is not None and ns >= self.awaiting:
+            self.awaiting = None
+            if self.lockstep_order:
+                self._release()
 
     def _on_joint_state(self, msg: JointState) -> None:
         t0 = time.perf_counter()
@@ -173,6 +239,8 @@ class ObserverMode:
         self.pub_stddev.publish(m.stddev)
         self.session.published += 1
         self.last_stamp = ns
+        if self.lockstep_order:
+            self.awaiting = ns
 
     def _publish_markers(self) -> None:
         if self.pub_markers.get_subscription_count() and self.session.published:

@@ -144,6 +144,15 @@ class SensorOutputs:
         """The samples of the state at ``ns`` (the accelerometer here only when it samples before the command)."""
         plant = self.plant
         sec, nanosec = divmod(ns, NS)
+        # The encoders last: an observer publishes its estimate of t_k on the joint state of t_k,
+        # holding the samples that came before it (each sensor draws from its own noise stream,
+        # so the order changes no value).
+        if self.pub_imu is not None and not self.after:
+            self.publish_imu(ns, plant.motor_torque())
+        if self.pub_gauges is not None:
+            self.gauges.set_stamp(sec, nanosec)
+            self.gauges.arrays[0][:] = self.model.branch_forces(branch_force)
+            self.pub_gauges.publish(self.gauges.raw())
         if self.pub_encoders is not None:
             position, velocity = self.model.encoders(plant.q, plant.qd)
             m = self.encoders
@@ -152,12 +161,6 @@ class SensorOutputs:
             if velocity is not None:
                 m.arrays[1][:] = velocity
             self.pub_encoders.publish(m.raw())
-        if self.pub_imu is not None and not self.after:
-            self.publish_imu(ns, plant.motor_torque())
-        if self.pub_gauges is not None:
-            self.gauges.set_stamp(sec, nanosec)
-            self.gauges.arrays[0][:] = self.model.branch_forces(branch_force)
-            self.pub_gauges.publish(self.gauges.raw())
 
     def publish_imu(self, ns: int, torque: np.ndarray) -> None:
         """The accelerometer at the plant's state under the motor ``torque`` (commands + disturbance)."""
