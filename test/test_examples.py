@@ -18,7 +18,12 @@ from ros_harness import domain_id, require
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 
 
-def run_example(name: str, *args: str | Path, cwd: Path, timeout: float = 120.0) -> str:
+# A guard against a hang, not a speed requirement: with numba's cache cold (a fresh machine), the
+# first example that runs the observer compiles its kernels first (~5 min on a loaded 2-core machine).
+HANG_GUARD = 900.0  # [s]
+
+
+def run_example(name: str, *args: str | Path, cwd: Path, timeout: float = HANG_GUARD) -> str:
     proc = subprocess.run([sys.executable, str(EXAMPLES / name), *map(str, args)], cwd=cwd,
                           capture_output=True, text=True, timeout=timeout)
     assert proc.returncode == 0, proc.stdout + proc.stderr
