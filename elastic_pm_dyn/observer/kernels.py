@@ -414,7 +414,7 @@ def linearize_springs(ma, q, qd, tau, point, with_point, eps_q, eps_v, Aq, Av, B
     if ratio == 0.0:
         return 0.0
     analytic = np.zeros(nae, dtype=np.bool_)
-    spring_columns(ma, G, point, with_point, ws[2], Aq, Av, Bf, Eq, Ev, Ef, analytic)
+    spring_columns(ma, G, point, with_point, ws[2], Aq, Bf, Eq, Ef, analytic)
     return min(worst, difference_columns(ma, q, qd, tau, point, with_point, eps_q, eps_v, W, ws, lam, qdd0, a0,
                                          analytic, Aq, Av, Eq, Ev))
 

@@ -56,7 +56,7 @@ def linearization_workspace(ma):
 
 
 @njit(cache=True)
-def spring_columns(ma, G, point, with_point, J, Aq, Av, Bf, Eq, Ev, Ef, analytic):
+def spring_columns(ma, G, point, with_point, J, Aq, Bf, Eq, Ef, analytic):
     """Bf, Ef from the gains G (n_t x n_ae) and the point's Jacobian J; the elastic joints'
     position columns of Aq, Eq from their springs (``analytic[j]`` set for them)."""
     n = G.shape[0]
