@@ -45,18 +45,25 @@ OPTIONS = SimulationOptions(formulation="scdd", integrator="rk4", dt=1e-4, stabi
                             sample=1.0 / CONTROL_RATE)
 
 
-def run_ros_demo(out: Path, model_path: Path, sync: str = "lockstep", storage: str = "mcap",
-                 timeout: float = 120.0, domain_id: int | None = None,
-                 line: QuinticLine = REFERENCE_MANOEUVRE.line) -> dict:
-    """Run the three nodes, record, analyse; returns the summary (also in out/summary.json)."""
-    if sync not in SYNC_MODES:
-        raise InputError(f"sync mode must be one of {', '.join(SYNC_MODES)}, got {sync!r}")
+def fresh_bag(out: Path) -> Path:
+    """``out``/bag, made ready for a new recording: a bag from an earlier run is removed, anything
+    else there is refused (InputError), so no one's files are deleted."""
     out.mkdir(parents=True, exist_ok=True)
     bag = out / "bag"
     if bag.exists():
         if not (bag / "metadata.yaml").is_file():
             raise InputError(f"{bag} exists and is not a bag: remove it or choose another --out")
         shutil.rmtree(bag)
+    return bag
+
+
+def run_ros_demo(out: Path, model_path: Path, sync: str = "lockstep", storage: str = "mcap",
+                 timeout: float = 120.0, domain_id: int | None = None,
+                 line: QuinticLine = REFERENCE_MANOEUVRE.line) -> dict:
+    """Run the three nodes, record, analyse; returns the summary (also in out/summary.json)."""
+    if sync not in SYNC_MODES:
+        raise InputError(f"sync mode must be one of {', '.join(SYNC_MODES)}, got {sync!r}")
+    bag = fresh_bag(out)
     wall = time.monotonic()
     _run_nodes(out, bag, model_path, sync, storage, timeout, domain_id or private_domain_id(), line)
     wall = time.monotonic() - wall

@@ -39,6 +39,7 @@ from elastic_pm_dyn.bags.reader import open_bag
 from elastic_pm_dyn.bags.series import read_series
 from elastic_pm_dyn.bags.writer import BagWriter
 from elastic_pm_dyn.errors import InputError, SingularConfigurationError
+from elastic_pm_dyn.kinematics.assembly import initial_state
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.model.loader import load_model
 from elastic_pm_dyn.motion.feedback import pd_torque
@@ -48,6 +49,7 @@ from elastic_pm_dyn.observer.config import load_config
 from elastic_pm_dyn.observer.evaluation import OpenLoop, offline_run, quasi_static_series, score
 from elastic_pm_dyn.observer.offline import observe_bag
 from elastic_pm_dyn.observer.scenarios import Noise, Recording
+from elastic_pm_dyn.ros.demo import fresh_bag
 from elastic_pm_dyn.ros.params import share_path
 from elastic_pm_dyn.ros.processes import NodeProcess, NodeProcessError, private_domain_id, ros_env, wait_for_exit
 from elastic_pm_dyn.sim.simulator import SimulationOptions, Simulator
@@ -180,7 +182,7 @@ def motion_params(mech: Mechanism, duration: float) -> dict[str, Any]:
     line in x, y, z on a translational machine (its end-effector point fixes the pose), else the
     start pose held against gravity."""
     ff = rigid_feedforward(mech.model)
-    start = mech.end_effector(ff.q if len(mech.elastic) == 0 else _elastic_start(mech))
+    start = mech.end_effector(ff.q if len(mech.elastic) == 0 else initial_state(mech))
     move = REFERENCE_MANOEUVRE.move
     if len(mech.ee_components) != len(mech.active) or duration <= move:
         return {"source": "hold", "hold.duration": float(duration)}
@@ -192,21 +194,11 @@ def motion_params(mech: Mechanism, duration: float) -> dict[str, Any]:
             "line.move": float(move), "line.hold": float(duration - move)}
 
 
-def _elastic_start(mech: Mechanism) -> np.ndarray:
-    from elastic_pm_dyn.kinematics.assembly import initial_state
-    return initial_state(mech)
-
-
 def run_loop_demo(out: Path, opts: LoopOptions) -> dict:
     """Run the five nodes, record, analyse; returns the summary (also in out/summary.json)."""
     if not opts.duration > 0:
         raise InputError(f"--duration must be > 0, got {opts.duration}")
-    out.mkdir(parents=True, exist_ok=True)
-    bag = out / "bag"
-    if bag.exists():
-        if not (bag / "metadata.yaml").is_file():
-            raise InputError(f"{bag} exists and is not a bag: remove it or choose another --out")
-        shutil.rmtree(bag)
+    bag = fresh_bag(out)
     mech = Mechanism(load_model(opts.model, opts.elastic_dof_per_chain))
     wall = time.monotonic()
     _run_nodes(out, bag, mech, opts)
