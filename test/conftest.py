@@ -35,18 +35,18 @@ def without_damping(model: Model) -> Model:
 
 @pytest.fixture
 def count_fast(monkeypatch) -> list[int]:
-    """Periods done per call of the observer's compiled fast path (kernels.run_periods)."""
-    from elastic_pm_dyn.observer import kernels
+    """Periods done per call of the observer's compiled fast path (period.run_periods)."""
+    from elastic_pm_dyn.observer import period
 
     calls: list[int] = []
-    inner = kernels.run_periods
+    inner = period.run_periods
 
     def wrapped(*args):
         done = inner(*args)
         calls.append(done)
         return done
 
-    monkeypatch.setattr(kernels, "run_periods", wrapped)
+    monkeypatch.setattr(period, "run_periods", wrapped)
     return calls
 
 

@@ -1,4 +1,5 @@
-"""The offline fast path (``kernels.run_periods``) equals the per-message API bit for bit."""
+"""The compiled per-period steps (``observer.period``), live one message at a time and offline many
+periods in one call, equal the per-message API's Python bit for bit."""
 
 from __future__ import annotations
 
@@ -57,14 +58,41 @@ def _same_float(a, b) -> bool:
     return (a == b) or (isinstance(a, float) and isinstance(b, float) and math.isnan(a) and math.isnan(b))
 
 
+@pytest.fixture
+def count_steps(monkeypatch) -> dict[str, int]:
+    """Messages the per-message API took through the compiled steps (period.sample_step, command_step)."""
+    from elastic_pm_dyn.observer import period
+
+    taken = {"sample_step": 0, "command_step": 0}
+    for name in taken:
+        inner = getattr(period, name)
+
+        def wrapped(*args, _inner=inner, _name=name):
+            r = _inner(*args)
+            taken[_name] += r != 0
+            return r
+
+        monkeypatch.setattr(period, name, wrapped)
+    return taken
+
+
 def _compare(mech, params, events, order="stamp", min_fast=1):
+    """The per-message API's Python (the reference), the per-message API through the compiled
+    steps (the live node's way) and the offline fast path: the same in everything."""
     cfg = ObserverConfig.from_parameters(params)
     runs = []
-    for fast in (False, True):
+    for fast, compiled in ((False, False), (False, True), (True, True)):
         obs = Observer(mech, cfg, t0=events[0].stamp_ns * 1e-9)
+        obs.steps_compiled = compiled
         rows, stream, fault = run_events(obs, events, order, fast=fast)
         runs.append((obs, rows, stream, fault))
-    (o1, r1, s1, f1), (o2, r2, s2, f2) = runs
+    for other in runs[1:]:
+        _same(runs[0], other)
+    return runs[-1][0], runs[-1][1]
+
+
+def _same(one, other) -> None:
+    (o1, r1, s1, f1), (o2, r2, s2, f2) = one, other
     assert f1 == f2
     assert r1.t == r2.t
     assert len(r1.t) > 0
@@ -82,10 +110,9 @@ def _compare(mech, params, events, order="stamp", min_fast=1):
         assert np.array_equal(getattr(o1, key), getattr(o2, key), equal_nan=True), key
     assert (o1.t, o1.t_command, o1._lin_age, o1._lin_T) == (o2.t, o2.t_command, o2._lin_age, o2._lin_T)
     assert o1.diagnostics() == o2.diagnostics()
-    return o2, r2
 
 
-def test_fast_path_equals_per_message_api_with_glitches(five_bar, rec, count_fast) -> None:
+def test_fast_path_equals_per_message_api_with_glitches(five_bar, rec, count_fast, count_steps) -> None:
     n = len(rec.stamp_ns)
     bad = {30: {"encoder": rec.encoder[30] + [0.5, 0.0]},  # gated
            40: {"encoder": [np.nan, rec.encoder[40][1]]},  # NaN entry: the other one is used
@@ -97,8 +124,9 @@ def test_fast_path_equals_per_message_api_with_glitches(five_bar, rec, count_fas
     obs, _ = _compare(five_bar, params, events)
     assert obs.stats["encoders"].rejected >= 1 and obs.stats["imu"].rejected >= 1
     assert obs.stats["encoders"].nan == 1 and obs.stats["imu"].nan == 1
-    # Most periods went the fast way.
+    # Most periods went the fast way, offline and message by message.
     assert sum(count_fast) > 0.8 * n
+    assert count_steps["sample_step"] > 1.6 * n and count_steps["command_step"] > 0.8 * n
 
 
 def test_fast_path_encoders_only_and_measurement_start(five_bar, rec, count_fast) -> None:

@@ -13,9 +13,14 @@ joint) follows from x through the closure; a start from encoders puts the spring
 static equilibrium.
 
 Prediction: the commanded torques are held (zero-order hold, as the controller applies
-them); the mean goes through RK4 substeps of the nonlinear SCDD model, the covariance
-through Phi = expm(A T) of the model linearised at the interval's start, with Van Loan's
-discrete process noise (see :mod:`elastic_pm_dyn.observer.kernels`). Correction:
+them); the mean goes through the plant's ETD2 steps (or RK4) of the nonlinear SCDD model,
+the covariance through the transition of the model linearised at the interval's start, with
+its discrete process noise (:mod:`~elastic_pm_dyn.observer.kernels`,
+:mod:`~elastic_pm_dyn.observer.propagation`). Each message runs one compiled step
+(:mod:`~elastic_pm_dyn.observer.period`: the samples of a stamp, or its command), the same
+step ``observe`` runs for many periods in one call; what a step does not take (gated,
+late, simultaneous or non-finite samples, timing decisions, recoveries, faults) the Python
+here takes, with the same numbers. Correction:
 sequential per message, Joseph form, chi-square gating of the normalised innovation
 squared (NIS). Samples stamped before the filter's time are late and dropped (the filter
 never rewinds); a stamp ahead of it is first predicted to, unless more than
@@ -66,9 +71,9 @@ finite difference of the last two), the motor/elastic blocks of P back to the in
 the disturbance states kept, and the process-noise intensities multiplied by
 :data:`RECOVERY_PSD_GROWTH` (up to :data:`RECOVERY_PSD_MAX` in all: the model's noise was too
 small for the data). Each recovery is counted (``stats``, summary.json, /diagnostics, the
-sensor's NIS finding and so health WARN) and logged with its time. The offline fast path
-(``kernels.run_periods``) stops at a gated sample, so the per-message API takes every gated
-period and the recovery is the same on both.
+sensor's NIS finding and so health WARN) and logged with its time. The compiled steps stop
+at a gated sample, so the Python here takes every gated one and the recovery is the same
+live and offline.
 
 Typical use (live node or offline)::
 
@@ -92,13 +97,13 @@ from elastic_pm_dyn.errors import ElasticPmDynError, InputError
 from elastic_pm_dyn.kinematics.assembly import solve_pose
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.model.description import ACTIVE
-from elastic_pm_dyn.observer import consistency, disturbance, kernels
+from elastic_pm_dyn.observer import consistency, disturbance, kernels, period
 from elastic_pm_dyn.observer.config import ObserverConfig
 from elastic_pm_dyn.observer.observer_model import ObserverModel
 from elastic_pm_dyn.observer.sensors import Sample
 
 OK, WARN, ERROR = 0, 1, 2  # diagnostic levels (as diagnostic_msgs/DiagnosticStatus)
-TIMING_MODES = {"before_command": 0, "after_command": 1, "auto": 2}  # kernels.run_periods' codes
+TIMING_MODES = {"before_command": 0, "after_command": 1, "auto": 2}  # period.run_periods' codes
 TIMING_TRIAL = 0.1  # [s] auto: samples weighed before the first choice (about 100 at 1 kHz)
 TIMING_MIN_SAMPLES = 20  # auto: the first choice waits for at least this many accelerometer samples
 TIMING_RECHECK = 1.0  # [s] auto: evidence window of each later check
@@ -287,7 +292,18 @@ class Observer:
         self.state_names = ([self.mech.joint_names[j] for j in self.ae]
                             + [f"{self.mech.joint_names[j]}_vel" for j in self.ae] + self._z_names)
         self.P0 = np.diag(self._initial_variances())
+        # False: every message through the Python below (tests compare it with the compiled steps)
+        self.steps_compiled = True
         self.reset(t0, q0, qd0, initialised=q0 is not None or cfg.initial.source == "model")
+        self._timing = self.fast_timing()
+        self._imu_bundle = self._imu or (np.zeros((0, 3)), np.zeros(3), np.zeros(0))
+        n, nx = self.mech.n, self.nx
+        # the compiled steps' work arrays and snapshot (period.step_work, period.snapshot_buffers)
+        self._work = (np.zeros((3, n)), tuple(a.copy() for a in self._state()), np.zeros(n))
+        na = len(self.mech.active)
+        self._save = (tuple(a.copy() for a in self._state()), (np.zeros(na), np.zeros(na)), np.zeros(4), np.zeros(9))
+        self._row = np.empty(4)
+        self._empty_plan = (np.zeros((0, nx)), np.zeros(0), np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.bool_))
 
     def _state(self) -> tuple:
         """The kernels' :class:`~elastic_pm_dyn.observer.kernels.State` bundle (the arrays: changed in place)."""
@@ -422,39 +438,21 @@ class Observer:
         return self.tau_hold
 
     def _advance(self, t_to: float) -> None:
-        """Predict from self.t to t_to with the held command (zero after a timeout)."""
+        """Predict from self.t to t_to with the held command (zero after a timeout): ``period.advance``."""
         if self.fault is not None:
             raise ObserverFault(self.fault)
-        tol = self.cfg.timing.stamp_tolerance
-        pc = self.cfg.process
-        timeout = self.cfg.timing.command_timeout
-        if self._waiting_since() < t_to - tol:
+        if self._waiting_since() < t_to - self.cfg.timing.stamp_tolerance:
             self._settle()  # the command of its stamp did not come: the torque acting now
-        self._activate_due()
-        while t_to - self.t > tol:
-            end = min(t_to, self.t + pc.max_interval)
-            if timeout > 0 and self.t < self.t_command + timeout < end - tol:
-                end = self.t_command + timeout  # the command expires inside: stop there
-            if self._pending and self._pending[0][0] < end - tol:
-                end = self._pending[0][0]  # a delayed command starts to act there
-            T = end - self.t
-            tau = self._torque_at(self.t)
-            n_sub = max(1, int(np.ceil(T / self.dt - 1e-9)))
-            relin = self._lin_age >= pc.relinearize_every or abs(T - self._lin_T) > 1e-12
-            status = kernels.predict_checked(self.mech.arrays, self.model.fixed, self._proc, self._state(),
-                                             self._tree_tau(tau), relin, T, n_sub)
-            if relin:
-                self._lin_age, self._lin_T = 0, T
-            self._lin_age += 1
-            if status != 0 and status != kernels.COVARIANCE_LOST:
-                self._fail(f"prediction failed at t = {self.t:.6f} s: "
-                           + ("singular configuration" if status == 1 else "the state became NaN/Inf")
-                           + f" (conditioning {self.info[0]:.3g})")
-            self.t = t_to if end >= t_to else end
-            self.tau_last = tau.copy()
-            if status == kernels.COVARIANCE_LOST:
-                self._fail(f"covariance lost positive definiteness at t = {self.t:.6f} s")
-            self._activate_due()
+        cmd, ctl = self._kernel_control(0, np.inf)
+        status = period.advance(self.mech.arrays, self.model.fixed, self._proc, self._state(), cmd, ctl, self._timing,
+                                float(t_to), self._work[0][2])
+        self._take_control(cmd, ctl)
+        if status != 0 and status != kernels.COVARIANCE_LOST:
+            self._fail(f"prediction failed at t = {self.t:.6f} s: "
+                       + ("singular configuration" if status == 1 else "the state became NaN/Inf")
+                       + f" (conditioning {self.info[0]:.3g})")
+        if status == kernels.COVARIANCE_LOST:
+            self._fail(f"covariance lost positive definiteness at t = {self.t:.6f} s")
 
     def _activate_due(self, now: float | None = None) -> None:
         """Delayed commands whose time (``now``, default the filter's) has come: the newest is held."""
@@ -519,6 +517,8 @@ class Observer:
         command, then hold this one. A command older than the last one is ignored (False)."""
         tau = self._check_tau(tau)
         self.released = []
+        if self._fast_command(t, tau):
+            return True
         st = self.stats["command"]
         if self.initialised and self.time_pending:
             self._restart_clock(t)
@@ -558,6 +558,14 @@ class Observer:
                             ) -> list[UpdateResult]:
         """Encoder positions/rates (and elastic-joint efforts as branch forces, if so configured)."""
         self.released = []
+        if self.encoders is not None and position is not None and len(position) == len(names) and not (
+                self.branch is not None and self.branch.source == "joint_state_effort" and effort is not None
+                and len(effort)):
+            plan = self.encoders.fast_plan(names, self.nx)
+            if plan is not None and (not plan[5] or velocity is None or len(velocity) == 0):
+                done = self._fast_samples(t, plan, position, None)
+                if done is not None:
+                    return done
         out = []
         if not self.initialised:
             if (self.cfg.initial.source == "measurement" and position is not None and len(position)
@@ -695,10 +703,14 @@ class Observer:
             st.other += 1
             st.last_reason = f"frame {frame_id!r}, expected {self.imu.frame_id!r}"
             return UpdateResult("imu", t, False, reason="frame")
+        acc = np.array(linear_acceleration, dtype=float)
+        if acc.shape == (3,):
+            done = self._fast_samples(t, None, None, acc)
+            if done is not None:
+                return done[0] if done else None
         late = self._sync(t, "imu")
         if late is not None:
             return late
-        acc = np.array(linear_acceleration, dtype=float)
         # With no delay the command that starts to act at t may still come (the command of t)
         waiting = (self.imu_mode != 0 and self._no_delay
                    and self._newest_command() < t + self.delay - self.cfg.timing.stamp_tolerance)
@@ -810,28 +822,103 @@ class Observer:
 
     # ------------------------------------------------------------------ offline fast path
     def fast_timing(self) -> np.ndarray:
-        """``kernels.run_periods``' timing array (fixed for the observer's life)."""
+        """``period.run_periods``' timing array (fixed for the observer's life)."""
         p, tm = self.cfg.process, self.cfg.timing
         return np.array([p.max_interval, self.dt, tm.stamp_tolerance, p.relinearize_every, tm.command_timeout,
                          self.delay, float(self.imu_mode), float(self._no_delay)])
 
-    def fast_state(self, periods: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``kernels.run_periods``' control array and delayed-command queue (room for ``periods``
-        more); a sample waiting for its command stops the fast path at once (the per-message API's)."""
+    def _kernel_control(self, room: int, t_stop: float) -> tuple[tuple, np.ndarray]:
+        """The compiled steps' ``cmd`` (copies of the held and last command, the delayed-command
+        queue with room for ``room`` more) and control array (module ``period``), stopping at ``t_stop``."""
         n = len(self._pending)
-        pend_t = np.empty(n + periods)
-        pend_tau = np.empty((n + periods, len(self.mech.active)))
+        pend_t = np.empty(n + room)
+        pend_tau = np.empty((n + room, len(self.mech.active)))
         for i, (ta, tau) in enumerate(self._pending):
             pend_t[i], pend_tau[i] = ta, tau
-        t_stop = -np.inf if self._waiting_since() < np.inf else self._t_decide
         ctl = np.array([self.t, float(self._lin_age), self._lin_T, self.t_command, 0.0, float(n), t_stop,
                         float(self.timing_trial), float(self.imu_after)])
-        return ctl, pend_t, pend_tau
+        return (self.tau_hold.copy(), self.tau_last.copy(), pend_t, pend_tau), ctl
 
-    def set_fast_state(self, ctl: np.ndarray, pend_t: np.ndarray, pend_tau: np.ndarray) -> None:
-        """Take back what :meth:`fast_state` gave ``kernels.run_periods``."""
+    def _take_control(self, cmd: tuple, ctl: np.ndarray) -> None:
+        """Take back what :meth:`_kernel_control` gave a compiled step."""
         self.t, self._lin_age, self._lin_T, self.t_command = float(ctl[0]), int(ctl[1]), float(ctl[2]), float(ctl[3])
-        self._pending = deque((float(pend_t[i]), pend_tau[i].copy()) for i in range(int(ctl[4]), int(ctl[5])))
+        self.tau_hold, self.tau_last, pend_t, pend_tau = cmd
+        head, tail = int(ctl[4]), int(ctl[5])
+        if tail > head or self._pending:
+            self._pending = deque((float(pend_t[i]), pend_tau[i].copy()) for i in range(head, tail))
+
+    def fast_state(self, periods: int) -> tuple[tuple, np.ndarray]:
+        """``period.run_periods``' ``cmd`` and control array for ``periods`` more periods; a
+        sample waiting for its command stops the fast path at once (the per-message API's)."""
+        return self._kernel_control(periods, -np.inf if self._waiting_since() < np.inf else self._t_decide)
+
+    def _fast_samples(self, t: float, plan: tuple | None, position, acc: np.ndarray | None
+                      ) -> list[UpdateResult] | None:
+        """The samples of one stamp through ``period.sample_step`` (encoder positions of
+        ``plan`` (``EncoderPlan.fast_plan``) and/or an accelerometer sample); None if it did not
+        take them (the Python below then does)."""
+        tol = self.cfg.timing.stamp_tolerance
+        if not (self.steps_compiled and self.initialised and self.fault is None and not self.time_pending
+                and self._held is None and self._deferred is None and t >= self.t - tol
+                and not t - self.t > self.cfg.timing.max_future):
+            return None
+        has_enc, has_imu = plan is not None, acc is not None
+        enc_m = np.asarray(position, dtype=float)[plan[0]] if has_enc else self._row[:0]
+        meas = acc[self.imu.axes] if has_imu else self._row[:0]
+        enc = plan[1:5] if has_enc else self._empty_plan
+        dof_e = len(plan[0]) if has_enc else 0
+        cmd, ctl = self._kernel_control(0, self._t_decide)
+        row = self._row
+        r = period.sample_step(self.mech.arrays, self.model.fixed, self._proc, self._state(), cmd, ctl, self._timing,
+                               self.evidence, enc, self.gate(dof_e) if has_enc else np.inf, self._imu_bundle,
+                               self.gate(len(meas)) if has_imu else np.inf, float(t), has_enc, enc_m, has_imu, meas,
+                               self._work, self._save, row)
+        if r == 0:
+            return None
+        self._take_control(cmd, ctl)
+        out = []
+        if has_enc:
+            out.append(self._after("encoders", t, float(row[0]), 0, dof_e, np.inf, [], float(row[2])))
+        if r == period.HELD:
+            self._held = (t, acc)
+        elif has_imu:
+            out.append(self._after("imu", t, float(row[1]), 0, len(meas), np.inf, [], float(row[3])))
+            if r == period.DEFERRED:
+                self._deferred = (t, meas, self._work[1], self._work[2])
+        return out
+
+    def _fast_command(self, t: float, tau: np.ndarray) -> bool:
+        """A command through ``period.command_step``; False if it did not take it (the Python
+        below then does)."""
+        if not (self.steps_compiled and self.initialised and self.fault is None and not self.time_pending
+                and len(self._pending) < MAX_PENDING_COMMANDS and not t - self.t > self.cfg.timing.max_future):
+            return False
+        waiting, meas, work = period.TAKEN, self._row[:0], self._work
+        if self._held is not None:
+            waiting, meas = period.HELD, self._held[1][self.imu.axes]
+            if not np.all(np.isfinite(meas)):
+                return False
+        elif self._deferred is not None:
+            _, meas, prior, tau_before = self._deferred
+            waiting, work = period.DEFERRED, (work[0], prior, tau_before)
+        cmd, ctl = self._kernel_control(1, self._t_decide)
+        row = self._row
+        done = period.command_step(self.mech.arrays, self.model.fixed, self._proc, self._state(), cmd, ctl,
+                                   self._timing, self.evidence, self._imu_bundle,
+                                   self.gate(len(meas)) if len(meas) else np.inf, float(t), tau, waiting, meas, work,
+                                   self._save, row)
+        if not done:
+            return False
+        self._take_control(cmd, ctl)
+        st = self.stats["command"]
+        st.accepted += 1
+        st.consecutive_rejections = 0
+        if waiting == period.HELD:
+            t_held = self._held[0]
+            self._held = None
+            self.released.append(self._after("imu", t_held, float(row[1]), 0, len(meas), np.inf, [], float(row[3])))
+        self._deferred = None
+        return True
 
     def update_branch_forces(self, t: float, names, force) -> UpdateResult | None:
         """Measured branch forces (strain gauges), by branch name."""

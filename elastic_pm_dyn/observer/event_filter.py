@@ -1,7 +1,7 @@
 """The filter over a bag's events: :func:`run_events`, and :class:`EventFilter` fed chunk by chunk.
 
 Events go through the same :class:`~elastic_pm_dyn.observer.stream.ObserverStream` as the
-live node, ordinary periods many at once in one compiled call (``kernels.run_periods``);
+live node, ordinary periods many at once in one compiled call (``period.run_periods``);
 one estimate row per distinct stamp once the filter runs. Message order: by header stamp,
 ties in bag order (``order="stamp"``, the best offline estimate), or the bag's own order
 (``order="arrival"``: what a live node saw, late samples dropped alike). Times are seconds
@@ -19,7 +19,7 @@ import numpy as np
 
 from elastic_pm_dyn.errors import InputError
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
-from elastic_pm_dyn.observer import kernels
+from elastic_pm_dyn.observer import period
 from elastic_pm_dyn.observer.bag_input import Event
 from elastic_pm_dyn.observer.config import ObserverConfig
 from elastic_pm_dyn.observer.ekf import Observer, ObserverFault, UpdateResult
@@ -44,7 +44,7 @@ class _Run:
         self.enc = np.array(self.enc, dtype=float).reshape(len(self.ns), len(self.plan[0]))
         self.imu = np.array(self.imu, dtype=float).reshape(len(self.ns), -1 if self.imu else 0)
         self.tau = np.array(self.tau, dtype=float).reshape(len(self.ns), -1)
-        # kernels.run_periods' inputs: (ts, taus, enc_meas, has_imu, imu_meas)
+        # period.run_periods' inputs: (ts, taus, enc_meas, has_imu, imu_meas)
         self.inputs = (self.ts, self.tau, self.enc, self.has_imu, self.imu)
 
 
@@ -79,7 +79,7 @@ def _fast_runs(obs: Observer, stream: ObserverStream, events: list[Event], group
     """Per stamp group, the :class:`_Run` it belongs to, or None: groups of exactly a joint state
     with positions of state joints only, an optional accelerometer sample, then a well-formed
     torque command (:func:`run_events` gives the others to the per-message API, and so does
-    ``kernels.run_periods`` with any period that turns out unusual). A run ends before a stamp
+    ``period.run_periods`` with any period that turns out unusual). A run ends before a stamp
     more than ``timing.max_future`` after the one before (the per-message API rejects it)."""
     enc, imu = obs.encoders, obs.imu
     run_of: list = [None] * len(groups)
@@ -205,24 +205,22 @@ class EventFilter:
                 timing, imu_model, imu_gate = fixed
                 idx, H, var, js, wrap, _ = obs.encoders.fast_plan(run.names, obs.nx)
                 a, b = gi - run.g0, run.g1 - run.g0
-                hold, last = obs.tau_hold.copy(), obs.tau_last.copy()
-                ctl, pend_t, pend_tau = obs.fast_state(b - a)
+                cmd, ctl = obs.fast_state(b - a)
                 out = outs.get(run)
                 if out is None:  # the run's rows (views of it become rows.flat) and, per sensor
-                    # (encoders, imu), NIS and log det S: kernels.run_periods'
+                    # (encoders, imu), NIS and log det S: period.run_periods'
                     out = outs[run] = (np.empty((b, obs._flat_width)), np.empty((b, 4)))
                 run_flat, run_nis = out
                 if gate is not None:  # the compiled call leaves the GIL to the other threads
                     gate.set()
-                done = kernels.run_periods(
-                    obs.mech.arrays, obs.model.fixed, obs._proc, obs._state(), (hold, last, pend_t, pend_tau), ctl,
+                done = period.run_periods(
+                    obs.mech.arrays, obs.model.fixed, obs._proc, obs._state(), cmd, ctl,
                     timing, obs.evidence, (H, var, js, wrap), obs.gate(len(idx)), imu_model, imu_gate, run.inputs, a,
                     b, run_flat, run_nis)
                 if gate is not None:
                     gate.clear()
                 if done:
-                    obs.set_fast_state(ctl, pend_t, pend_tau)
-                    obs.tau_hold, obs.tau_last = hold, last
+                    obs._take_control(cmd, ctl)
                     ns = run.ns[a:a + done]
                     enc_nis = run_nis[a:a + done, 0].tolist()
                     obs._accepted_many("encoders", enc_nis, len(idx), run_nis[a:a + done, 2].tolist())
@@ -291,7 +289,7 @@ def run_events(obs: Observer, events: list[Event], order: str = "stamp", fast: b
     here if None.
 
     ``fast``: ordinary stamp groups (a joint state, an accelerometer sample, the command)
-    go through ``kernels.run_periods``, many in one compiled call, with the same numbers,
+    go through ``period.run_periods``, many in one compiled call, with the same numbers,
     statistics and rows as the per-message API (``fast=False``) that takes all the others.
     """
     if order == "stamp":

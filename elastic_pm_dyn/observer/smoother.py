@@ -20,7 +20,7 @@ time (the pieces the filter cut: ``process.max_interval``, a command timeout, a 
 command starting to act), keeping each piece's Phi. Its linearisation schedule
 (``process.relinearize_every``) runs as the filter's did, so x_{k+1|k}, P_{k+1|k} and Phi_k
 are the filter's own numbers; storing them in the filter instead would mean a third output
-of ``kernels.run_periods`` (the offline fast path) for a pass that needs them once. A
+of ``period.run_periods`` (the offline fast path) for a pass that needs them once. A
 sample the filter held for a command that never came (``imu.sample_timing``
 ``after_command``) is corrected after its row was recorded; the replay predicts from the
 row (that sample is not in the smoothed estimate at that one stamp).
