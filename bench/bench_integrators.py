@@ -25,7 +25,7 @@ Per machine (five-bar; Triglide and Hexa at n_ek = 1, 2, 4) and scenario:
 Accuracy: branch forces sampled every 1 ms against DOP853 at rtol 1e-10 (a Python
 right-hand side: the references take minutes, hence the short windows), as
 RMS(F - F_ref) / RMS(F_ref - F_qs) and max |F - F_ref| / RMS(F_ref - F_qs), F_qs the
-quasi-static branch force (elastic joints locked, observer/evaluation.py). The criterion is the
+quasi-static branch force (elastic joints locked, observer/testing/evaluation.py). The criterion is the
 max ratio <= 1 %.
 Energy: damping, friction and gravity off, zero torque, elastic joints deflected by twice
 the manoeuvre's peak branch force (:func:`energy_case`): total energy
@@ -59,7 +59,7 @@ from elastic_pm_dyn.model.loader import load_model  # noqa: E402
 from elastic_pm_dyn.motion.feedforward import line_torques  # noqa: E402
 from elastic_pm_dyn.motion.manoeuvre import REFERENCE_MANOEUVRE  # noqa: E402
 from elastic_pm_dyn.motion.trajectory import QuinticLine  # noqa: E402
-from elastic_pm_dyn.observer.evaluation import quasi_static_branch_forces  # noqa: E402
+from elastic_pm_dyn.observer.testing.evaluation import quasi_static_branch_forces  # noqa: E402
 from elastic_pm_dyn.sim import exponential  # noqa: E402
 from elastic_pm_dyn.sim.simulator import SimulationOptions, Simulator  # noqa: E402
 from elastic_pm_dyn.sim.torque import FunctionTorque, TorqueTable  # noqa: E402

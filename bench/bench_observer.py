@@ -3,7 +3,7 @@
     .venv/bin/python bench/bench_observer.py            # ~1-2 min; --quick for a short run
     .venv/bin/python bench/bench_observer.py --smoother # the RTS smoother only (observe --smoother rts)
 
-Measures, on simulated 1 kHz recordings (``elastic_pm_dyn.observer.scenarios``: the
+Measures, on simulated 1 kHz recordings (``elastic_pm_dyn.observer.testing.scenarios``: the
 reference manoeuvre and a 3 N m chirp (6 seeds), each with an unknown 2-200 Hz multisine of
 0.02 N m RMS per motor):
 - scores per sensor set: branch-force error RMS over the RMS of the elastic
@@ -21,7 +21,7 @@ Writes ``bench/results/observer.json`` and ``observer.md`` and prints the tables
 ``--smoother``: instead, ``observe --smoother rts`` (:mod:`elastic_pm_dyn.observer.smoother`)
 with encoders + accelerometer: its cost on a 5 s bag (the filter pass, the replay of the
 filter's predictions, the backward pass and outputs; best of three), and on independent
-recordings (``elastic_pm_dyn.observer.recordings``, seeds 9501... not used anywhere else) the
+recordings (``elastic_pm_dyn.observer.testing.recordings``, seeds 9501... not used anywhere else) the
 filtered and the smoothed branch-force error over the elastic part, motor-angle error over
 the encoder noise, NEES in its 95 % band and the mean smoothed/filtered branch-force std.
 Writes ``bench/results/observer_smoother.json`` and ``observer_smoother.md``.
@@ -48,11 +48,11 @@ from elastic_pm_dyn.kinematics.mechanism import Mechanism  # noqa: E402
 from elastic_pm_dyn.model.loader import load_model  # noqa: E402
 from elastic_pm_dyn.observer import Observer, ObserverConfig  # noqa: E402
 from elastic_pm_dyn.observer.bag_input import recording_to_bag  # noqa: E402
-from elastic_pm_dyn.observer.evaluation import feed, offline_run, open_loop, quasi_static_series, score  # noqa: E402
 from elastic_pm_dyn.observer.offline import observe_bag  # noqa: E402
-from elastic_pm_dyn.observer.recordings import RecordingSpec, generate, write_bag  # noqa: E402
-from elastic_pm_dyn.observer.scenarios import chirp_recording, manoeuvre_recording  # noqa: E402
 from elastic_pm_dyn.observer.stream import ObserverStream  # noqa: E402
+from elastic_pm_dyn.observer.testing.evaluation import feed, offline_run, open_loop, quasi_static_series, score  # noqa: E402
+from elastic_pm_dyn.observer.testing.recordings import RecordingSpec, generate, write_bag  # noqa: E402
+from elastic_pm_dyn.observer.testing.scenarios import chirp_recording, manoeuvre_recording  # noqa: E402
 
 # The `observe` subcommand on its own parser (elastic_pm_dyn/cli.py wires it in for users).
 CLI = ("import argparse, sys; from elastic_pm_dyn.observer.cli import register_cli; p = argparse.ArgumentParser(); "

@@ -7,7 +7,7 @@
 For each machine (the reference five-bar, the Triglide and the Hexa at n_ek = 2) a 1 s
 recording of a chirp through the spring modes on a PD loop that holds the start pose against
 gravity, with a flat 2-200 Hz multisine of 0.02 N m (or N) on every motor and the default
-sensor noise (``observer.scenarios.chirp_recording``; seeds 7101-7103, used nowhere else),
+sensor noise (``observer.testing.scenarios.chirp_recording``; seeds 7101-7103, used nowhere else),
 the truth integrated by RK4 at 25 us. Encoders + accelerometer, the default configuration
 (``process.integrator: etd2``, ``process.linearization: springs``) beside the reference it
 replaced (``rk4`` + ``differences``: RK4 sub-steps from the fastest spring, every Jacobian
@@ -46,10 +46,10 @@ from elastic_pm_dyn.kinematics.mechanism import Mechanism  # noqa: E402
 from elastic_pm_dyn.model.loader import load_model  # noqa: E402
 from elastic_pm_dyn.observer import Observer, ObserverConfig  # noqa: E402
 from elastic_pm_dyn.observer.bag_input import recording_to_bag  # noqa: E402
-from elastic_pm_dyn.observer.evaluation import feed as feed_live  # noqa: E402
-from elastic_pm_dyn.observer.evaluation import open_loop, quasi_static_series, score  # noqa: E402
 from elastic_pm_dyn.observer.offline import observe_bag  # noqa: E402
-from elastic_pm_dyn.observer.scenarios import chirp_recording  # noqa: E402
+from elastic_pm_dyn.observer.testing.evaluation import feed as feed_live  # noqa: E402
+from elastic_pm_dyn.observer.testing.evaluation import open_loop, quasi_static_series, score  # noqa: E402
+from elastic_pm_dyn.observer.testing.scenarios import chirp_recording  # noqa: E402
 
 SEEDS = {"five_bar": 7101, "triglide": 7102, "hexa": 7103}
 CONFIGS = {"etd2 + springs (default)": {},

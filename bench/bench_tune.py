@@ -3,7 +3,7 @@
     .venv/bin/python bench/bench_tune.py            # 5 s recording, ~1-2 min on 2 cores
     .venv/bin/python bench/bench_tune.py --duration 2
 
-A held-out test recording (``observer.recordings``: the reference manoeuvre under a flat
+A held-out test recording (``observer.testing.recordings``: the reference manoeuvre under a flat
 0.1 N m disturbance, where the defaults fail) is written as a bag; ``elastic-pm-dyn tune``
 runs on it with encoders + accelerometer (its defaults: the whole recording, two filter
 passes at once), then ``observe`` with the default and with the tuned file. Reports the
@@ -33,9 +33,9 @@ from elastic_pm_dyn.kinematics.mechanism import Mechanism  # noqa: E402
 from elastic_pm_dyn.model.loader import load_model  # noqa: E402
 from elastic_pm_dyn.observer import ObserverConfig  # noqa: E402
 from elastic_pm_dyn.observer.config import load_config  # noqa: E402
-from elastic_pm_dyn.observer.evaluation import offline_run, open_loop, quasi_static_series, score  # noqa: E402
 from elastic_pm_dyn.observer.offline import observe_bag  # noqa: E402
-from elastic_pm_dyn.observer.recordings import RecordingSpec, generate, write_bag  # noqa: E402
+from elastic_pm_dyn.observer.testing.evaluation import offline_run, open_loop, quasi_static_series, score  # noqa: E402
+from elastic_pm_dyn.observer.testing.recordings import RecordingSpec, generate, write_bag  # noqa: E402
 
 MODEL = ROOT / "config" / "five_bar.yaml"
 

@@ -2,7 +2,7 @@
 
     .venv/bin/python bench/observer_bound.py        # ~2 min
 
-The test recordings of the observer (``elastic_pm_dyn.observer.scenarios``) add an
+The test recordings of the observer (``elastic_pm_dyn.observer.testing.scenarios``) add an
 unknown multisine torque d(t) = sum_i a (alpha_i sin w_i t + beta_i cos w_i t) to each motor
 (24 log-spaced tones in 2-200 Hz, 0.02 N m RMS per motor). Around the recorded motion the
 machine answers linearly to so small a torque, so every sample of every sensor and every
@@ -40,7 +40,7 @@ sys.path.insert(0, str(ROOT))
 
 from elastic_pm_dyn.kinematics.mechanism import Mechanism  # noqa: E402
 from elastic_pm_dyn.model.loader import load_model  # noqa: E402
-from elastic_pm_dyn.observer.scenarios import (  # noqa: E402
+from elastic_pm_dyn.observer.testing.scenarios import (  # noqa: E402
     Multisine,
     Noise,
     chirp_recording,

@@ -5,7 +5,7 @@
     .venv/bin/python bench/observer_recordings.py --quick --tune  # each tuned first (elastic-pm-dyn tune)
     .venv/bin/python bench/observer_recordings.py --hard --tune   # where the defaults fail, ~15 min
 
-Recordings (``elastic_pm_dyn.observer.recordings``; seeds 7001... held out from every seed
+Recordings (``elastic_pm_dyn.observer.testing.recordings``; seeds 7001... held out from every seed
 the observer's defaults were fitted on): the reference manoeuvre and a 3 N m chirp through
 the spring mode, 1 s each, with a flat, 1/f, few-tone or drifting torque disturbance of
 0.02 or 0.1 N m RMS per motor, and five ways of recording them (:data:`WAYS`: accelerometer
@@ -17,7 +17,7 @@ encoders / encoders + imu / encoders + gauges.
 
 Per recording and sensor set: branch-force error RMS / RMS of the elastic part (F - F_qs),
 the same ratio for the open loop (the elastic model driven by the commands as they acted,
-without the disturbance: ``observer.evaluation.open_loop``; with a command delay also as
+without the disturbance: ``observer.testing.evaluation.open_loop``; with a command delay also as
 stamped, as the observer applies them: in the JSON) and filter / open loop,
 motor-angle error RMS / encoder noise, fraction of samples whose NEES of [q_ae, qd_ae] lies
 in its 95 % band, mean NIS per sensor over its dof, gated samples per sensor, whether the
@@ -51,10 +51,10 @@ from elastic_pm_dyn.kinematics.mechanism import Mechanism  # noqa: E402
 from elastic_pm_dyn.model.loader import load_model  # noqa: E402
 from elastic_pm_dyn.observer import ObserverConfig, tuning  # noqa: E402
 from elastic_pm_dyn.observer.bag_input import Topics, read_events  # noqa: E402
-from elastic_pm_dyn.observer.evaluation import offline_run, open_loop, quasi_static_series, score  # noqa: E402
 from elastic_pm_dyn.observer.offline import observe_bag  # noqa: E402
-from elastic_pm_dyn.observer.recordings import EPOCH, RecordingSpec, generate, write_bag  # noqa: E402
 from elastic_pm_dyn.observer.results import SENSORS  # noqa: E402
+from elastic_pm_dyn.observer.testing.evaluation import offline_run, open_loop, quasi_static_series, score  # noqa: E402
+from elastic_pm_dyn.observer.testing.recordings import EPOCH, RecordingSpec, generate, write_bag  # noqa: E402
 
 SETS = {"encoders": ("encoders",), "encoders+imu": ("encoders", "imu"),
         "encoders+gauges": ("encoders", "branch_forces")}

@@ -29,7 +29,7 @@ import numpy as np
 
 import elastic_pm_dyn as epd
 from elastic_pm_dyn.observer.bag_input import recording_to_bag  # test-data tools, not the public face
-from elastic_pm_dyn.observer.scenarios import manoeuvre_recording
+from elastic_pm_dyn.observer.testing.scenarios import manoeuvre_recording
 
 CONFIG = Path(__file__).resolve().parents[1] / "config"
 SETTLE = 0.05  # [s] the filter's start-up transient, left out of the comparison with the truth

@@ -26,7 +26,7 @@ from elastic_pm_dyn.bags.reader import open_bag
 from elastic_pm_dyn.bags.writer import BagWriter
 from elastic_pm_dyn.cli import main
 from elastic_pm_dyn.observer.bag_input import recording_to_bag
-from elastic_pm_dyn.observer.scenarios import manoeuvre_recording
+from elastic_pm_dyn.observer.testing.scenarios import manoeuvre_recording
 
 MODEL = str(Path(__file__).resolve().parent.parent / "config" / "five_bar.yaml")
 N = 400  # joint states of the small bags, 1 ms apart

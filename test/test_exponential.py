@@ -20,7 +20,7 @@ from elastic_pm_dyn.model.loader import load_model
 from elastic_pm_dyn.motion.feedforward import line_torques
 from elastic_pm_dyn.motion.manoeuvre import REFERENCE_MANOEUVRE
 from elastic_pm_dyn.motion.trajectory import QuinticLine
-from elastic_pm_dyn.observer.evaluation import quasi_static_branch_forces
+from elastic_pm_dyn.observer.testing.evaluation import quasi_static_branch_forces
 from elastic_pm_dyn.sim import exponential, kernels
 from elastic_pm_dyn.sim.plant import Plant
 from elastic_pm_dyn.sim.simulator import SimulationOptions, Simulator

@@ -103,6 +103,19 @@ def test_only_ros_imports_rclpy_and_our_messages() -> None:
     assert not bad, "\n".join(bad)
 
 
+# The observer's test data and scores against truth (observer.testing) stay out of the product's
+# path: only the demo that shows estimate against truth uses them.
+TESTING = f"{PACKAGE}.observer.testing"
+USES_TESTING = {f"{PACKAGE}.ros.loop_demo"}
+
+
+def test_the_product_does_not_import_the_observers_test_data() -> None:
+    bad = sorted(f"{mod} imports {t}" for mod, targets in edges().items()
+                 if not mod.startswith(TESTING) and mod not in USES_TESTING
+                 for t in targets if t.startswith(TESTING))
+    assert not bad, "\n".join(bad)
+
+
 def test_modules_of_a_package_import_each_other_without_a_circle() -> None:
     known = set(modules())
     graph = {m: {t for t in ts if t in known and t != m} for m, ts in edges().items()}

@@ -1,6 +1,6 @@
 """Accuracy of the observer on simulated recordings of the reference five-bar (1 kHz).
 
-Recordings (``elastic_pm_dyn.observer.scenarios``): the core simulator at 50 us steps,
+Recordings (``elastic_pm_dyn.observer.testing.scenarios``): the core simulator at 50 us steps,
 commands held per 1 ms period, plus an unknown 2-200 Hz multisine torque of 0.02 N m RMS
 per motor (not given to the observer); encoder noise 2e-5 rad, accelerometer noise
 0.02 m/s^2, strain-gauge noise 0.5 N. Two manoeuvres: the reference line's rigid
@@ -30,8 +30,8 @@ import numpy as np
 import pytest
 
 from elastic_pm_dyn.observer import Observer, ObserverConfig
-from elastic_pm_dyn.observer.evaluation import feed, open_loop, quasi_static_series, score
-from elastic_pm_dyn.observer.scenarios import chirp_recording, manoeuvre_recording
+from elastic_pm_dyn.observer.testing.evaluation import feed, open_loop, quasi_static_series, score
+from elastic_pm_dyn.observer.testing.scenarios import chirp_recording, manoeuvre_recording
 
 SETS = {"encoders": ("encoders",), "encoders+imu": ("encoders", "imu"),
         "encoders+gauges": ("encoders", "branch_forces")}

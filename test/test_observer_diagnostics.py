@@ -1,6 +1,6 @@
 """The observer says what is wrong: timing choices reported, far-off sensors named with a cause.
 
-Recordings of observer/recordings.py (another simulator's conventions: receive times after
+Recordings of observer/testing/recordings.py (another simulator's conventions: receive times after
 the stamps) with one cause planted each, run through ``observe`` (summary.json, its log) or
 the live node's session (/diagnostics):
 - a consistent run: the sample timing auto chose is logged once and in summary.json, no cause;
@@ -23,7 +23,7 @@ import pytest
 
 from elastic_pm_dyn.observer import ObserverConfig
 from elastic_pm_dyn.observer.offline import observe_bag
-from elastic_pm_dyn.observer.recordings import RecordingSpec, generate, write_bag
+from elastic_pm_dyn.observer.testing.recordings import RecordingSpec, generate, write_bag
 from elastic_pm_dyn.ros.observer_session import ObserverSession
 
 USE = ("encoders", "imu")

@@ -11,7 +11,7 @@ import pytest
 from elastic_pm_dyn.observer import Observer, ObserverConfig
 from elastic_pm_dyn.observer.bag_input import Event
 from elastic_pm_dyn.observer.event_filter import run_events
-from elastic_pm_dyn.observer.scenarios import manoeuvre_recording
+from elastic_pm_dyn.observer.testing.scenarios import manoeuvre_recording
 
 
 @pytest.fixture(scope="module")

@@ -21,8 +21,8 @@ from elastic_pm_dyn.observer.ekf import Observer
 from elastic_pm_dyn.observer.event_filter import filter_all, run_events
 from elastic_pm_dyn.observer.offline import observe_bag
 from elastic_pm_dyn.observer.results import estimates_equal, seconds_text, summary
-from elastic_pm_dyn.observer.scenarios import manoeuvre_recording
 from elastic_pm_dyn.observer.stream import ObserverStream
+from elastic_pm_dyn.observer.testing.scenarios import manoeuvre_recording
 from elastic_pm_dyn.ros.observer_session import ObserverSession
 
 CONFIG = Path(__file__).resolve().parent.parent / "config"

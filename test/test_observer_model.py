@@ -13,7 +13,7 @@ from elastic_pm_dyn.observer.bag_input import Event
 from elastic_pm_dyn.observer.event_filter import run_events
 from elastic_pm_dyn.observer.observer_model import ObserverModel
 from elastic_pm_dyn.observer.prepared import prepare
-from elastic_pm_dyn.observer.scenarios import manoeuvre_recording
+from elastic_pm_dyn.observer.testing.scenarios import manoeuvre_recording
 
 SENSORS = ["encoders", "imu"]
 # candidate configurations of one model key: noise levels, the disturbance spectrum, timing

@@ -16,8 +16,8 @@ from elastic_pm_dyn.observer.bag_input import recording_to_bag
 from elastic_pm_dyn.observer.cli import register_cli
 from elastic_pm_dyn.observer.offline import observe_bag
 from elastic_pm_dyn.observer.results import estimates_equal
-from elastic_pm_dyn.observer.scenarios import manoeuvre_recording
 from elastic_pm_dyn.observer.stream import ObserverStream
+from elastic_pm_dyn.observer.testing.scenarios import manoeuvre_recording
 
 pytest.importorskip("rosbags")
 

@@ -14,7 +14,7 @@ from elastic_pm_dyn.errors import InputError
 from elastic_pm_dyn.observer import ObserverConfig, bag_input, event_filter
 from elastic_pm_dyn.observer import pipeline as observe_pipeline
 from elastic_pm_dyn.observer.offline import observe_bag
-from elastic_pm_dyn.observer.scenarios import manoeuvre_recording
+from elastic_pm_dyn.observer.testing.scenarios import manoeuvre_recording
 
 pytest.importorskip("rosbags")
 

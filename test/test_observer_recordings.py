@@ -1,4 +1,4 @@
-"""The independent test recordings (observer/recordings.py): their physics and their bags."""
+"""The independent test recordings (observer/testing/recordings.py): their physics and their bags."""
 
 from __future__ import annotations
 
@@ -9,9 +9,9 @@ from elastic_pm_dyn.bags.reader import open_bag
 from elastic_pm_dyn.dynamics.direct import Dynamics
 from elastic_pm_dyn.observer.bag_input import Topics, read_events
 from elastic_pm_dyn.observer.config import ObserverConfig
-from elastic_pm_dyn.observer.evaluation import offline_run, score
 from elastic_pm_dyn.observer.offline import observe_bag
-from elastic_pm_dyn.observer.recordings import (
+from elastic_pm_dyn.observer.testing.evaluation import offline_run, score
+from elastic_pm_dyn.observer.testing.recordings import (
     EPOCH,
     RECEIVE_DELAY_NS,
     RECEIVE_JITTER_NS,
@@ -19,7 +19,7 @@ from elastic_pm_dyn.observer.recordings import (
     generate,
     write_bag,
 )
-from elastic_pm_dyn.observer.scenarios import PERIOD
+from elastic_pm_dyn.observer.testing.scenarios import PERIOD
 from elastic_pm_dyn.sim.disturbances import BANDS, SPECTRA, SpectrumDisturbance
 
 

@@ -8,9 +8,9 @@ import pytest
 from elastic_pm_dyn.errors import InputError
 from elastic_pm_dyn.observer import Observer, ObserverConfig
 from elastic_pm_dyn.observer.ekf import ERROR, OK
-from elastic_pm_dyn.observer.evaluation import feed
-from elastic_pm_dyn.observer.scenarios import manoeuvre_recording
 from elastic_pm_dyn.observer.stream import ObserverStream
+from elastic_pm_dyn.observer.testing.evaluation import feed
+from elastic_pm_dyn.observer.testing.scenarios import manoeuvre_recording
 
 SENSORS = ("encoders", "imu", "branch_forces")
 

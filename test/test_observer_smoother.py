@@ -15,11 +15,11 @@ from elastic_pm_dyn.errors import InputError
 from elastic_pm_dyn.observer import Observer, ObserverConfig
 from elastic_pm_dyn.observer.bag_input import Topics, read_events
 from elastic_pm_dyn.observer.cli import register_cli
-from elastic_pm_dyn.observer.evaluation import offline_run, score
 from elastic_pm_dyn.observer.event_filter import run_events
 from elastic_pm_dyn.observer.offline import observe_bag
-from elastic_pm_dyn.observer.recordings import RecordingSpec, generate, write_bag
 from elastic_pm_dyn.observer.smoother import predictions, rts
+from elastic_pm_dyn.observer.testing.evaluation import offline_run, score
+from elastic_pm_dyn.observer.testing.recordings import RecordingSpec, generate, write_bag
 
 pytest.importorskip("rosbags")
 

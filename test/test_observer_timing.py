@@ -1,6 +1,6 @@
 """The observer's timing: accelerometer sample timing (before/after the command, or learnt) and command delay.
 
-Recordings (``observer.scenarios``, the reference manoeuvre with its 2-200 Hz unknown torque)
+Recordings (``observer.testing.scenarios``, the reference manoeuvre with its 2-200 Hz unknown torque)
 are made with the accelerometer sampled just before the command of t_k acts (a(t_k-)) or
 just after (a(t_k+)), and with commands acting one period after their stamp. A filter whose
 timing does not match diverges (the encoders end up gated out); the matching one, and
@@ -20,10 +20,10 @@ from test_observer_robustness import feed_in_order
 from elastic_pm_dyn.errors import InputError
 from elastic_pm_dyn.observer import Observer, ObserverConfig
 from elastic_pm_dyn.observer.ekf import TIMING_SWITCH_EVIDENCE
-from elastic_pm_dyn.observer.evaluation import feed, open_loop, score
 from elastic_pm_dyn.observer.event_filter import run_events
-from elastic_pm_dyn.observer.scenarios import manoeuvre_recording
 from elastic_pm_dyn.observer.stream import ObserverStream
+from elastic_pm_dyn.observer.testing.evaluation import feed, open_loop, score
+from elastic_pm_dyn.observer.testing.scenarios import manoeuvre_recording
 from elastic_pm_dyn.ros.observer_session import ObserverSession
 
 USE = ("encoders", "imu")
@@ -257,7 +257,7 @@ def test_observe_learns_the_timing_of_a_bag(five_bar, tmp_path, delay, order) ->
     a(t_k+)): ``observe`` with the default auto and the drive's delay tracks, far better than
     the open loop; with the delay left out it does not."""
     from elastic_pm_dyn.observer.offline import observe_bag
-    from elastic_pm_dyn.observer.recordings import EPOCH, RecordingSpec, generate, write_bag
+    from elastic_pm_dyn.observer.testing.recordings import EPOCH, RecordingSpec, generate, write_bag
     spec = RecordingSpec(duration=0.5, spectrum="pink", disturbance_rms=0.02, accel_timing="after_command",
                          command_delay=delay, t0=EPOCH)
     rec = generate(five_bar, spec)

@@ -12,10 +12,10 @@ from elastic_pm_dyn.observer import Observer, ObserverConfig, tuning
 from elastic_pm_dyn.observer.bag_input import Topics, read_events
 from elastic_pm_dyn.observer.config import load_config
 from elastic_pm_dyn.observer.ekf import LOG_2PI
-from elastic_pm_dyn.observer.evaluation import offline_run, open_loop, quasi_static_series, score
 from elastic_pm_dyn.observer.event_filter import run_events
 from elastic_pm_dyn.observer.offline import observe_bag
-from elastic_pm_dyn.observer.recordings import RecordingSpec, generate, write_bag
+from elastic_pm_dyn.observer.testing.evaluation import offline_run, open_loop, quasi_static_series, score
+from elastic_pm_dyn.observer.testing.recordings import RecordingSpec, generate, write_bag
 
 CONFIG = Path(__file__).resolve().parent.parent / "config"
 MODEL = CONFIG / "five_bar.yaml"

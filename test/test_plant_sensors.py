@@ -21,7 +21,7 @@ from ros_harness import RosHarness, domain_id, require
 from elastic_pm_dyn.dynamics.direct import Dynamics
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.model.loader import load_model
-from elastic_pm_dyn.observer.scenarios import Noise, rest_state, simulate
+from elastic_pm_dyn.observer.testing.scenarios import Noise, rest_state, simulate
 from elastic_pm_dyn.sim.disturbances import seeded_disturbance
 from elastic_pm_dyn.sim.plant import Plant
 from elastic_pm_dyn.sim.sensors import EncoderSpec, GaugeSpec, ImuSpec, SensorModel, SensorSpec, ee_acceleration

@@ -25,7 +25,7 @@ from ros_harness import RosHarness, domain_id, require
 from elastic_pm_dyn.bags.msgtypes import BRANCH_FORCES, IMU, JOINT_STATE, stamp_ns
 from elastic_pm_dyn.bags.writer import BagWriter
 from elastic_pm_dyn.observer.config import flatten, load_config
-from elastic_pm_dyn.observer.scenarios import manoeuvre_recording
+from elastic_pm_dyn.observer.testing.scenarios import manoeuvre_recording
 
 CONFIG = Path(__file__).resolve().parents[1] / "config"
 PARAMS_FILE = CONFIG / "plant_observer.yaml"

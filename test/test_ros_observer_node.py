@@ -28,7 +28,7 @@ from ros_harness import RosHarness, domain_id, require
 
 from elastic_pm_dyn.bags.msgtypes import stamp_ns
 from elastic_pm_dyn.observer.config import flatten
-from elastic_pm_dyn.observer.scenarios import manoeuvre_recording
+from elastic_pm_dyn.observer.testing.scenarios import manoeuvre_recording
 
 REPO = Path(__file__).resolve().parents[1]
 CONFIG = REPO / "config"

@@ -132,7 +132,7 @@ def iter_events(bag: Path, topics: Topics, cfg: ObserverConfig, counts: dict, ch
 def recording_to_bag(rec, path: str | Path, use: tuple[str, ...] = ("encoders", "imu", "branch_forces"),
                      storage: str = "mcap", topics: Topics | None = None, imu_frame: str = "ee_imu",
                      receive_ns: dict[str, np.ndarray] | None = None) -> None:
-    """Write a simulated :class:`~elastic_pm_dyn.observer.scenarios.Recording` as the bag a
+    """Write a simulated :class:`~elastic_pm_dyn.observer.testing.scenarios.Recording` as the bag a
     robot would give: per sample the measurements stamped ``rec.stamp_ns[k]``, then the
     command of t_k. ``receive_ns``: the receive time [ns] per sample of each kind
     ("encoders", "imu", "branch_forces", "command"); a kind not given: its stamps."""

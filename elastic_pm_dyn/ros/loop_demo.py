@@ -15,7 +15,7 @@ Five node processes on a private loopback domain, all in lockstep:
 The loop starts when every node is up: the plant's ``~/reset`` publishes its start state one
 period after t = 0, which every node has subscribed to by then (the volatile sensor topics lose
 what was published before a subscriber matched). Then the bag is read back: estimates against
-the truth, the open-loop prediction (:func:`~elastic_pm_dyn.observer.evaluation.open_loop`: the
+the truth, the open-loop prediction (:func:`~elastic_pm_dyn.observer.testing.evaluation.open_loop`: the
 model under the recorded commands without the disturbance), NEES, and ``observe`` over the
 recorded sensor topics compared with the live estimates row by row (``summary.json``, plots).
 """
@@ -46,9 +46,9 @@ from elastic_pm_dyn.motion.feedback import pd_torque
 from elastic_pm_dyn.motion.feedforward import rigid_feedforward
 from elastic_pm_dyn.motion.manoeuvre import REFERENCE_MANOEUVRE
 from elastic_pm_dyn.observer.config import load_config
-from elastic_pm_dyn.observer.evaluation import OpenLoop, offline_run, quasi_static_series, score
 from elastic_pm_dyn.observer.offline import observe_bag
-from elastic_pm_dyn.observer.scenarios import Noise, Recording
+from elastic_pm_dyn.observer.testing.evaluation import OpenLoop, offline_run, quasi_static_series, score
+from elastic_pm_dyn.observer.testing.scenarios import Noise, Recording
 from elastic_pm_dyn.ros.demo import fresh_bag
 from elastic_pm_dyn.ros.params import share_path
 from elastic_pm_dyn.ros.processes import NodeProcess, NodeProcessError, private_domain_id, ros_env, wait_for_exit
@@ -65,7 +65,7 @@ LATE = 0.2  # [s] the figures also from here on (after a start transient)
 OPEN_LOOP_PIECE = 0.25  # [s] the open loop is integrated piece by piece (up to a singular pose)
 STALL = 120.0  # [s] wall time without a new plant state after which a running loop has stalled
 # What the plant simulates (names of the plant-sensors parameters, config/plant_sensors.yaml).
-ENCODER_STDDEV = 2.0e-5  # [rad] the observer's test recordings' noise (observer.scenarios.Noise)
+ENCODER_STDDEV = 2.0e-5  # [rad] the observer's test recordings' noise (observer.testing.scenarios.Noise)
 IMU_STDDEV = 0.02  # [m/s^2]
 OBSERVER_NS = "observer"  # the estimates' topics: observer/joint_states, ...
 TOPICS = {  # role -> topic
@@ -150,7 +150,7 @@ def plant_numerics(mech: Mechanism) -> list[str]:
 
 
 def open_loop_prediction(rec: Recording) -> OpenLoop:
-    """:func:`~elastic_pm_dyn.observer.evaluation.open_loop` with the plant's own integrator: the
+    """:func:`~elastic_pm_dyn.observer.testing.evaluation.open_loop` with the plant's own integrator: the
     model under the recorded commands (ZOH) from the true start state, without the disturbance;
     so its error is the disturbance's alone (the strictest open loop to beat)."""
     mech = rec.mech

@@ -1,6 +1,6 @@
 """Unknown disturbance torques on the motors: smooth functions of time d(t), one value per motor.
 
-One generator for the offline test recordings (:mod:`elastic_pm_dyn.observer.recordings`) and the
+One generator for the offline test recordings (:mod:`elastic_pm_dyn.observer.testing.recordings`) and the
 live plant (:class:`~elastic_pm_dyn.sim.plant.Plant`, the plant node's ``disturbance.*``), so the
 same spectrum, RMS, duration and seed give the same d(t) in both.
 
@@ -73,5 +73,5 @@ def seeded_disturbance(spectrum: str, channels: int, rms: float, duration: float
                        band: tuple[float, float] | None = None) -> SpectrumDisturbance:
     """The disturbance of a test recording with this ``seed`` (its own random stream, so that the
     sensor noise drawn elsewhere never moves it): the plant node's ``disturbance.*`` and
-    :func:`~elastic_pm_dyn.observer.recordings.generate` both build it here."""
+    :func:`~elastic_pm_dyn.observer.testing.recordings.generate` both build it here."""
     return SpectrumDisturbance(spectrum, channels, rms, duration, np.random.default_rng([seed, 7]), band)

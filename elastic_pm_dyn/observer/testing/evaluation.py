@@ -27,8 +27,8 @@ from elastic_pm_dyn.model.layout import JF_REST, JF_STIFFNESS
 from elastic_pm_dyn.observer.ekf import Observer
 from elastic_pm_dyn.observer.observer_model import branch_arrays
 from elastic_pm_dyn.observer.results import Rows
-from elastic_pm_dyn.observer.scenarios import Recording
 from elastic_pm_dyn.observer.stream import ObserverStream
+from elastic_pm_dyn.observer.testing.scenarios import Recording
 from elastic_pm_dyn.sim.simulator import SimulationOptions, Simulator
 from elastic_pm_dyn.sim.torque import TorqueTable
 

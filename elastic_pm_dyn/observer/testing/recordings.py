@@ -5,10 +5,10 @@ feedforward torques, or a strong chirp through the spring mode on a PD loop), it
 duration, an unknown torque disturbance on the motors (its spectrum, RMS and seed), the
 sensor noise, the accelerometer's sample timing (a(t_k-) or a(t_k+)), a command delay, the
 stamp origin T0 (0 or an epoch) and the truth's integrator. :func:`generate` simulates it
-(:func:`~elastic_pm_dyn.observer.scenarios.simulate`); :func:`write_bag` writes the
+(:func:`~elastic_pm_dyn.observer.testing.scenarios.simulate`); :func:`write_bag` writes the
 measurements and commands as a rosbag2 bag (mcap or sqlite3) with the usual conventions:
 header stamps = sample times T0 + t_k, receive times a little later, the command of t_k
-after the samples of t_k. The truth stays in the :class:`~elastic_pm_dyn.observer.scenarios.Recording`,
+after the samples of t_k. The truth stays in the :class:`~elastic_pm_dyn.observer.testing.scenarios.Recording`,
 never in the bag.
 
 The truth is integrated by RK4 at 25 us (a quarter of the observer's 100 us RK4 substep,
@@ -30,7 +30,13 @@ import numpy as np
 from elastic_pm_dyn.bags.msgtypes import NS
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.observer.bag_input import recording_to_bag
-from elastic_pm_dyn.observer.scenarios import ACCEL_TIMINGS, Noise, Recording, chirp_recording, manoeuvre_recording
+from elastic_pm_dyn.observer.testing.scenarios import (
+    ACCEL_TIMINGS,
+    Noise,
+    Recording,
+    chirp_recording,
+    manoeuvre_recording,
+)
 from elastic_pm_dyn.sim.disturbances import SPECTRA, seeded_disturbance
 
 MOTIONS = ("manoeuvre", "chirp")
