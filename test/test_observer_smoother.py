@@ -111,11 +111,14 @@ def test_rts_equals_batch_least_squares(seed) -> None:
 
 # ---------------------------------------------------------------- the filter's own prediction
 class _Spy(Observer):
-    """The filter, keeping the prior (x, P) of every stamp it predicts to."""
+    """The filter, keeping the prior (x, P) of every stamp it predicts to (its Python path, where
+    every prediction goes through ``_advance``; the compiled steps give the same numbers:
+    test_observer_fastpath)."""
 
     def __init__(self, *args, **kwargs):
         self.priors: list = []
         super().__init__(*args, **kwargs)
+        self.steps_compiled = False
 
     def _advance(self, t_to: float) -> None:
         t = self.t
