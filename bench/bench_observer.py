@@ -18,7 +18,7 @@ reference manoeuvre and a 3 N m chirp (6 seeds), each with an unknown 2-200 Hz m
   time; the process start and numba's cache loading excluded, both once per run).
 Writes ``bench/results/observer.json`` and ``observer.md`` and prints the tables.
 
-``--smoother``: instead, ``observe --smoother rts`` (:mod:`elastic_pm_dyn.observer.smoother`)
+``--smoother``: instead, ``observe --smoother rts`` (:mod:`elastic_pm_dyn.observer.tuning.smoother`)
 with encoders + accelerometer: its cost on a 5 s bag (the filter pass, the replay of the
 filter's predictions, the backward pass and outputs; best of three), and on independent
 recordings (``elastic_pm_dyn.observer.testing.recordings``, seeds 9501... not used anywhere else) the
@@ -47,9 +47,9 @@ sys.path.insert(0, str(ROOT))
 from elastic_pm_dyn.kinematics.mechanism import Mechanism  # noqa: E402
 from elastic_pm_dyn.model.loader import load_model  # noqa: E402
 from elastic_pm_dyn.observer import Observer, ObserverConfig  # noqa: E402
-from elastic_pm_dyn.observer.bag_input import recording_to_bag  # noqa: E402
+from elastic_pm_dyn.observer.drivers.bag_input import recording_to_bag  # noqa: E402
+from elastic_pm_dyn.observer.drivers.stream import ObserverStream  # noqa: E402
 from elastic_pm_dyn.observer.offline import observe_bag  # noqa: E402
-from elastic_pm_dyn.observer.stream import ObserverStream  # noqa: E402
 from elastic_pm_dyn.observer.testing.evaluation import feed, offline_run, open_loop, quasi_static_series, score  # noqa: E402
 from elastic_pm_dyn.observer.testing.recordings import RecordingSpec, generate, write_bag  # noqa: E402
 from elastic_pm_dyn.observer.testing.scenarios import chirp_recording, manoeuvre_recording  # noqa: E402

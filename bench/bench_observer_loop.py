@@ -45,7 +45,7 @@ sys.path.insert(0, str(ROOT))
 from elastic_pm_dyn.kinematics.mechanism import Mechanism  # noqa: E402
 from elastic_pm_dyn.model.loader import load_model  # noqa: E402
 from elastic_pm_dyn.observer import Observer, ObserverConfig  # noqa: E402
-from elastic_pm_dyn.observer.bag_input import recording_to_bag  # noqa: E402
+from elastic_pm_dyn.observer.drivers.bag_input import recording_to_bag  # noqa: E402
 from elastic_pm_dyn.observer.offline import observe_bag  # noqa: E402
 from elastic_pm_dyn.observer.testing.evaluation import feed as feed_live  # noqa: E402
 from elastic_pm_dyn.observer.testing.evaluation import open_loop, quasi_static_series, score  # noqa: E402

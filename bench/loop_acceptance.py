@@ -37,9 +37,9 @@ NEES_MIN = 0.8
 
 def tune_on(run_dir: Path, mech, base: Path, out: Path, opts, seconds: float | None, scan_delay: bool,
             max_evaluations: int) -> dict:
-    from elastic_pm_dyn.observer import tuning
-    from elastic_pm_dyn.observer.bag_input import Topics, read_events
     from elastic_pm_dyn.observer.config import load_config
+    from elastic_pm_dyn.observer.drivers.bag_input import Topics, read_events
+    from elastic_pm_dyn.observer.tuning import tuning
     topics = opts.topics()
     cfg = load_config(base).with_overrides(sensors=opts.sensors, **{"imu.sample_timing": opts.imu_sample_timing},
                                            **({"imu.axes": ["x", "y", "z"]} if len(mech.ee_components) == 3 else {}),

@@ -38,11 +38,12 @@ sys.path.insert(0, str(ROOT))
 
 from elastic_pm_dyn.kinematics.mechanism import Mechanism  # noqa: E402
 from elastic_pm_dyn.model.loader import load_model  # noqa: E402
-from elastic_pm_dyn.observer import ObserverConfig, tuning  # noqa: E402
-from elastic_pm_dyn.observer.bag_input import Topics, read_events  # noqa: E402
+from elastic_pm_dyn.observer import ObserverConfig  # noqa: E402
+from elastic_pm_dyn.observer.drivers.bag_input import Topics, read_events  # noqa: E402
 from elastic_pm_dyn.observer.offline import observe_bag  # noqa: E402
 from elastic_pm_dyn.observer.testing.evaluation import offline_run, open_loop, quasi_static_series, score  # noqa: E402
 from elastic_pm_dyn.observer.testing.recordings import RecordingSpec, generate, write_bag  # noqa: E402
+from elastic_pm_dyn.observer.tuning import tuning  # noqa: E402
 
 SETTLE = 0.05  # [s]
 SETS = {"encoders": ["encoders"], "encoders+imu": ["encoders", "imu"], "encoders+gauges": ["encoders", "branch_forces"]}

@@ -24,7 +24,7 @@ in its 95 % band, mean NIS per sensor over its dof, gated samples per sensor, wh
 CSV's t column tells the stamps apart; all after 50 ms of settling. The truth's convergence
 is checked once (RK4 at 25 us against 12.5 us on the first recording).
 ``--tune``: before each observe run, the configuration is tuned to the bag with that sensor
-set (``observer.tuning.tune``, what ``elastic-pm-dyn tune`` does: no truth), and the table
+set (``observer.tuning.tuning.tune``, what ``elastic-pm-dyn tune`` does: no truth), and the table
 has the default's figures beside the tuned ones.
 Writes ``bench/results/observer_recordings.json`` and ``observer_recordings.md``
 (``observer_recordings_tuned.*`` with ``--tune``).
@@ -49,12 +49,13 @@ sys.path.insert(0, str(ROOT))
 
 from elastic_pm_dyn.kinematics.mechanism import Mechanism  # noqa: E402
 from elastic_pm_dyn.model.loader import load_model  # noqa: E402
-from elastic_pm_dyn.observer import ObserverConfig, tuning  # noqa: E402
-from elastic_pm_dyn.observer.bag_input import Topics, read_events  # noqa: E402
+from elastic_pm_dyn.observer import ObserverConfig  # noqa: E402
+from elastic_pm_dyn.observer.drivers.bag_input import Topics, read_events  # noqa: E402
+from elastic_pm_dyn.observer.drivers.results import SENSORS  # noqa: E402
 from elastic_pm_dyn.observer.offline import observe_bag  # noqa: E402
-from elastic_pm_dyn.observer.results import SENSORS  # noqa: E402
 from elastic_pm_dyn.observer.testing.evaluation import offline_run, open_loop, quasi_static_series, score  # noqa: E402
 from elastic_pm_dyn.observer.testing.recordings import EPOCH, RecordingSpec, generate, write_bag  # noqa: E402
+from elastic_pm_dyn.observer.tuning import tuning  # noqa: E402
 
 SETS = {"encoders": ("encoders",), "encoders+imu": ("encoders", "imu"),
         "encoders+gauges": ("encoders", "branch_forces")}

@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 import elastic_pm_dyn as epd
-from elastic_pm_dyn.observer.bag_input import recording_to_bag  # test-data tools, not the public face
+from elastic_pm_dyn.observer.drivers.bag_input import recording_to_bag  # test-data tools, not the public face
 from elastic_pm_dyn.observer.testing.scenarios import manoeuvre_recording
 
 CONFIG = Path(__file__).resolve().parents[1] / "config"

@@ -36,7 +36,7 @@ def without_damping(model: Model) -> Model:
 @pytest.fixture
 def count_fast(monkeypatch) -> list[int]:
     """Periods done per call of the observer's compiled fast path (period.run_periods)."""
-    from elastic_pm_dyn.observer import period
+    from elastic_pm_dyn.observer.core import period
 
     calls: list[int] = []
     inner = period.run_periods

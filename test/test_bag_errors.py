@@ -25,7 +25,7 @@ from elastic_pm_dyn.bags.msgtypes import JOINT_STATE
 from elastic_pm_dyn.bags.reader import open_bag
 from elastic_pm_dyn.bags.writer import BagWriter
 from elastic_pm_dyn.cli import main
-from elastic_pm_dyn.observer.bag_input import recording_to_bag
+from elastic_pm_dyn.observer.drivers.bag_input import recording_to_bag
 from elastic_pm_dyn.observer.testing.scenarios import manoeuvre_recording
 
 MODEL = str(Path(__file__).resolve().parent.parent / "config" / "five_bar.yaml")

@@ -103,6 +103,41 @@ def test_only_ros_imports_rclpy_and_our_messages() -> None:
     assert not bad, "\n".join(bad)
 
 
+# Inside the observer, bottom to top: the configuration, the filter core (kernels, the per-period
+# step, models), the scheduler (Observer: delays, sample timing, recovery), the drivers (stream,
+# bags, event filter, pipeline), whole-recording passes (tune, smoother), the `observe` and
+# `tune` commands, and the test data.
+OBSERVER_LAYERS: list[set[str]] = [{"config"}, {"core"}, {"schedule"}, {"drivers"}, {"tuning"}, {"offline"}, {"cli"},
+                                   {"testing"}]
+OBSERVER_LEVEL = {unit: k for k, layer in enumerate(OBSERVER_LAYERS) for unit in layer}
+
+
+def observer_unit(module: str) -> str | None:
+    parts = module.split(".")
+    return parts[2] if len(parts) > 2 and parts[1] == "observer" else None
+
+
+def test_observer_sub_packages_import_only_downwards() -> None:
+    bad, missing = [], set()
+    for mod, targets in edges().items():
+        a = observer_unit(mod)
+        if a is None:
+            continue
+        if a not in OBSERVER_LEVEL:
+            missing.add(a)
+            continue
+        for target in targets:
+            b = observer_unit(target)
+            if b is None or b == a:
+                continue
+            if b not in OBSERVER_LEVEL:
+                missing.add(b)
+            elif OBSERVER_LEVEL[b] >= OBSERVER_LEVEL[a]:
+                bad.append(f"{mod} ({a}) imports {target} ({b})")
+    assert not missing, f"observer modules on no layer (add them to OBSERVER_LAYERS): {sorted(missing)}"
+    assert not bad, "upward or sideways imports inside the observer:\n" + "\n".join(sorted(bad))
+
+
 # The observer's test data and scores against truth (observer.testing) stay out of the product's
 # path: only the demo that shows estimate against truth uses them.
 TESTING = f"{PACKAGE}.observer.testing"

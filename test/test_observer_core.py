@@ -10,8 +10,9 @@ import scipy.linalg
 
 from elastic_pm_dyn.errors import InputError
 from elastic_pm_dyn.kinematics.assembly import initial_state
-from elastic_pm_dyn.observer import Observer, ObserverConfig, kernels, load_config
-from elastic_pm_dyn.observer.observability import analyse
+from elastic_pm_dyn.observer import Observer, ObserverConfig, load_config
+from elastic_pm_dyn.observer.core import kernels
+from elastic_pm_dyn.observer.core.observability import analyse
 from elastic_pm_dyn.sim import kernels as sim_kernels
 
 CONFIG = Path(__file__).resolve().parent.parent / "config"
@@ -30,7 +31,7 @@ def test_config_file_equals_defaults() -> None:
 
 
 @pytest.mark.parametrize(("params", "message"), [
-    ({"observer.sensors": ["encoders", "sonar"]}, "unknown sensor 'sonar'"),
+    ({"observer.core.sensors": ["encoders", "sonar"]}, "unknown sensor 'sonar'"),
     ({"observer.process.dt": "fast"}, "observer.process.dt: expected a number"),
     ({"observer.process.dt": 2e-3}, "exceeds process.max_interval"),
     ({"observer.no_such": 1}, "unknown observer parameter observer.no_such"),

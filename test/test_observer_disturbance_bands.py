@@ -7,7 +7,7 @@ import pytest
 from scipy.integrate import quad
 
 from elastic_pm_dyn.observer import ObserverConfig
-from elastic_pm_dyn.observer.disturbance import build
+from elastic_pm_dyn.observer.core.disturbance import build
 
 
 def _psd(dm, joint: int, w: float) -> float:

@@ -1,4 +1,4 @@
-"""The compiled per-period steps (``observer.period``), live one message at a time and offline many
+"""The compiled per-period steps (``observer.core.period``), live one message at a time and offline many
 periods in one call, equal the per-message API's Python bit for bit."""
 
 from __future__ import annotations
@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from elastic_pm_dyn.observer import Observer, ObserverConfig
-from elastic_pm_dyn.observer.bag_input import Event
-from elastic_pm_dyn.observer.event_filter import run_events
+from elastic_pm_dyn.observer.drivers.bag_input import Event
+from elastic_pm_dyn.observer.drivers.event_filter import run_events
 from elastic_pm_dyn.observer.testing.scenarios import manoeuvre_recording
 
 
@@ -61,7 +61,7 @@ def _same_float(a, b) -> bool:
 @pytest.fixture
 def count_steps(monkeypatch) -> dict[str, int]:
     """Messages the per-message API took through the compiled steps (period.sample_step, command_step)."""
-    from elastic_pm_dyn.observer import period
+    from elastic_pm_dyn.observer.core import period
 
     taken = {"sample_step": 0, "command_step": 0}
     for name in taken:

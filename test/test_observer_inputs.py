@@ -14,14 +14,14 @@ from elastic_pm_dyn.errors import InputError
 from elastic_pm_dyn.model import yaml12
 from elastic_pm_dyn.model.loader import parse_model
 from elastic_pm_dyn.model.yaml_source import YamlSource
-from elastic_pm_dyn.observer.bag_input import Event, Topics, recording_to_bag
 from elastic_pm_dyn.observer.cli import _config, register_cli
 from elastic_pm_dyn.observer.config import ObserverConfig, load_config
-from elastic_pm_dyn.observer.ekf import Observer
-from elastic_pm_dyn.observer.event_filter import filter_all, run_events
+from elastic_pm_dyn.observer.drivers.bag_input import Event, Topics, recording_to_bag
+from elastic_pm_dyn.observer.drivers.event_filter import filter_all, run_events
+from elastic_pm_dyn.observer.drivers.results import estimates_equal, seconds_text, summary
+from elastic_pm_dyn.observer.drivers.stream import ObserverStream
 from elastic_pm_dyn.observer.offline import observe_bag
-from elastic_pm_dyn.observer.results import estimates_equal, seconds_text, summary
-from elastic_pm_dyn.observer.stream import ObserverStream
+from elastic_pm_dyn.observer.schedule.ekf import Observer
 from elastic_pm_dyn.observer.testing.scenarios import manoeuvre_recording
 from elastic_pm_dyn.ros.observer_session import ObserverSession
 

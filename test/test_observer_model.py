@@ -8,12 +8,13 @@ import numpy as np
 import pytest
 
 from elastic_pm_dyn.errors import InputError
-from elastic_pm_dyn.observer import Observer, ObserverConfig, tuning
-from elastic_pm_dyn.observer.bag_input import Event
-from elastic_pm_dyn.observer.event_filter import run_events
-from elastic_pm_dyn.observer.observer_model import ObserverModel
-from elastic_pm_dyn.observer.prepared import prepare
+from elastic_pm_dyn.observer import Observer, ObserverConfig
+from elastic_pm_dyn.observer.core.observer_model import ObserverModel
+from elastic_pm_dyn.observer.drivers.bag_input import Event
+from elastic_pm_dyn.observer.drivers.event_filter import run_events
+from elastic_pm_dyn.observer.drivers.prepared import prepare
 from elastic_pm_dyn.observer.testing.scenarios import manoeuvre_recording
+from elastic_pm_dyn.observer.tuning import tuning
 
 SENSORS = ["encoders", "imu"]
 # candidate configurations of one model key: noise levels, the disturbance spectrum, timing

@@ -12,11 +12,11 @@ import pytest
 from elastic_pm_dyn.bags.series import read_series
 from elastic_pm_dyn.errors import InputError
 from elastic_pm_dyn.observer import Observer, ObserverConfig
-from elastic_pm_dyn.observer.bag_input import recording_to_bag
 from elastic_pm_dyn.observer.cli import register_cli
+from elastic_pm_dyn.observer.drivers.bag_input import recording_to_bag
+from elastic_pm_dyn.observer.drivers.results import estimates_equal
+from elastic_pm_dyn.observer.drivers.stream import ObserverStream
 from elastic_pm_dyn.observer.offline import observe_bag
-from elastic_pm_dyn.observer.results import estimates_equal
-from elastic_pm_dyn.observer.stream import ObserverStream
 from elastic_pm_dyn.observer.testing.scenarios import manoeuvre_recording
 
 pytest.importorskip("rosbags")

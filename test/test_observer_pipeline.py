@@ -11,8 +11,9 @@ import pytest
 from elastic_pm_dyn.bags.msgtypes import BRANCH_FORCES, HEADER, IMU, JOINT_STATE, NS, QUATERNION, TIME, VECTOR3
 from elastic_pm_dyn.bags.writer import BagWriter
 from elastic_pm_dyn.errors import InputError
-from elastic_pm_dyn.observer import ObserverConfig, bag_input, event_filter
-from elastic_pm_dyn.observer import pipeline as observe_pipeline
+from elastic_pm_dyn.observer import ObserverConfig
+from elastic_pm_dyn.observer.drivers import bag_input, event_filter
+from elastic_pm_dyn.observer.drivers import pipeline as observe_pipeline
 from elastic_pm_dyn.observer.offline import observe_bag
 from elastic_pm_dyn.observer.testing.scenarios import manoeuvre_recording
 

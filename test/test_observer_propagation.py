@@ -21,8 +21,8 @@ from elastic_pm_dyn.dynamics.evaluate import SCDD
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.model.loader import load_model
 from elastic_pm_dyn.observer import Observer, ObserverConfig
-from elastic_pm_dyn.observer import kernels as K
-from elastic_pm_dyn.observer.propagation import discretize_structured
+from elastic_pm_dyn.observer.core import kernels as K
+from elastic_pm_dyn.observer.core.propagation import discretize_structured
 from elastic_pm_dyn.observer.testing.scenarios import chirp_recording, manoeuvre_recording
 from elastic_pm_dyn.sim.exponential import AVERAGED, DEFAULT_PHASE_STEP, exponential_steps
 from elastic_pm_dyn.sim.kernels import STAB_PROJECTION, partition, rk4_steps

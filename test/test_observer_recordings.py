@@ -7,8 +7,8 @@ import pytest
 
 from elastic_pm_dyn.bags.reader import open_bag
 from elastic_pm_dyn.dynamics.direct import Dynamics
-from elastic_pm_dyn.observer.bag_input import Topics, read_events
 from elastic_pm_dyn.observer.config import ObserverConfig
+from elastic_pm_dyn.observer.drivers.bag_input import Topics, read_events
 from elastic_pm_dyn.observer.offline import observe_bag
 from elastic_pm_dyn.observer.testing.evaluation import offline_run, score
 from elastic_pm_dyn.observer.testing.recordings import (

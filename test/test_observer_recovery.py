@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from elastic_pm_dyn.observer import Observer, ObserverConfig
-from elastic_pm_dyn.observer.bag_input import Event
-from elastic_pm_dyn.observer.event_filter import run_events
+from elastic_pm_dyn.observer.drivers.bag_input import Event
+from elastic_pm_dyn.observer.drivers.event_filter import run_events
 from elastic_pm_dyn.observer.testing.evaluation import feed, score
 from elastic_pm_dyn.observer.testing.recordings import RecordingSpec, generate
 from elastic_pm_dyn.observer.testing.scenarios import manoeuvre_recording

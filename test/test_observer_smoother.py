@@ -1,4 +1,4 @@
-"""``observe --smoother rts``: the Rauch-Tung-Striebel pass over the filter's rows (observer/smoother.py)."""
+"""``observe --smoother rts``: the Rauch-Tung-Striebel pass over the filter's rows (observer/tuning/smoother.py)."""
 
 from __future__ import annotations
 
@@ -13,13 +13,13 @@ from scipy.stats import chi2
 from elastic_pm_dyn.bags.series import read_series
 from elastic_pm_dyn.errors import InputError
 from elastic_pm_dyn.observer import Observer, ObserverConfig
-from elastic_pm_dyn.observer.bag_input import Topics, read_events
 from elastic_pm_dyn.observer.cli import register_cli
-from elastic_pm_dyn.observer.event_filter import run_events
+from elastic_pm_dyn.observer.drivers.bag_input import Topics, read_events
+from elastic_pm_dyn.observer.drivers.event_filter import run_events
 from elastic_pm_dyn.observer.offline import observe_bag
-from elastic_pm_dyn.observer.smoother import predictions, rts
 from elastic_pm_dyn.observer.testing.evaluation import offline_run, score
 from elastic_pm_dyn.observer.testing.recordings import RecordingSpec, generate, write_bag
+from elastic_pm_dyn.observer.tuning.smoother import predictions, rts
 
 pytest.importorskip("rosbags")
 

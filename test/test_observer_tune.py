@@ -1,4 +1,4 @@
-"""Tuning the observer from a recording without truth (``elastic-pm-dyn tune``, observer.tuning)."""
+"""Tuning the observer from a recording without truth (``elastic-pm-dyn tune``, observer.tuning.tuning)."""
 
 from __future__ import annotations
 
@@ -8,14 +8,15 @@ import numpy as np
 import pytest
 
 from elastic_pm_dyn.cli import main as cli_main
-from elastic_pm_dyn.observer import Observer, ObserverConfig, tuning
-from elastic_pm_dyn.observer.bag_input import Topics, read_events
+from elastic_pm_dyn.observer import Observer, ObserverConfig
 from elastic_pm_dyn.observer.config import load_config
-from elastic_pm_dyn.observer.ekf import LOG_2PI
-from elastic_pm_dyn.observer.event_filter import run_events
+from elastic_pm_dyn.observer.drivers.bag_input import Topics, read_events
+from elastic_pm_dyn.observer.drivers.event_filter import run_events
 from elastic_pm_dyn.observer.offline import observe_bag
+from elastic_pm_dyn.observer.schedule.ekf import LOG_2PI
 from elastic_pm_dyn.observer.testing.evaluation import offline_run, open_loop, quasi_static_series, score
 from elastic_pm_dyn.observer.testing.recordings import RecordingSpec, generate, write_bag
+from elastic_pm_dyn.observer.tuning import tuning
 
 CONFIG = Path(__file__).resolve().parent.parent / "config"
 MODEL = CONFIG / "five_bar.yaml"

@@ -9,7 +9,7 @@
 
 ``tune`` fits the process noise, the disturbance spectrum, the sensor noise the base file
 leaves at its defaults and the command delay to the recording by maximum innovation
-likelihood (no truth needed; :mod:`~elastic_pm_dyn.observer.tuning`) and writes a parameter
+likelihood (no truth needed; :mod:`~elastic_pm_dyn.observer.tuning.tuning`) and writes a parameter
 file that ``observe --config`` and the plant node in ``mode: observer`` read.
 
 Exit status: 0 done; 1 the filter faulted (partial output written); 2 a user mistake
@@ -77,7 +77,7 @@ def _add_inputs(p: argparse.ArgumentParser, out_help: str, config_help: str) -> 
     p.add_argument("--out", required=True, help=out_help)
     p.add_argument("--config", default=None, help=config_help)
     p.add_argument("--sensors", nargs="+", choices=("encoders", "imu", "branch_forces"),
-                   help="sensor set (overrides the file's observer.sensors)")
+                   help="sensor set (overrides the file's observer.core.sensors)")
     p.add_argument("--torque-topic", help="torque commands (default /torque_command)")
     p.add_argument("--joint-topic", help="measured joint states (default /measured_joint_states)")
     p.add_argument("--imu-topic", help="accelerometer (default /ee_imu)")
@@ -109,7 +109,7 @@ def _config(args: argparse.Namespace):
 def cmd_observe(args: argparse.Namespace) -> int:
     from elastic_pm_dyn.kinematics.mechanism import Mechanism
     from elastic_pm_dyn.model.loader import load_model
-    from elastic_pm_dyn.observer.bag_input import Topics
+    from elastic_pm_dyn.observer.drivers.bag_input import Topics
     from elastic_pm_dyn.observer.offline import observe_bag
     cfg = _config(args)
     mech = Mechanism(load_model(args.model, closures=args.closures))
@@ -142,8 +142,8 @@ def cmd_observe(args: argparse.Namespace) -> int:
 def cmd_tune(args: argparse.Namespace) -> int:
     from elastic_pm_dyn.kinematics.mechanism import Mechanism
     from elastic_pm_dyn.model.loader import load_model
-    from elastic_pm_dyn.observer import tuning
-    from elastic_pm_dyn.observer.bag_input import Topics, read_events
+    from elastic_pm_dyn.observer.drivers.bag_input import Topics, read_events
+    from elastic_pm_dyn.observer.tuning import tuning
     if args.seconds is not None and not args.seconds > 0:
         raise InputError(f"--seconds must be > 0, got {args.seconds}")
     if args.max_evaluations < 8:

@@ -1,14 +1,14 @@
 """``elastic-pm-dyn observe``: the observer over a recorded bag, as fast as possible.
 
-Reads the events of a bag (:mod:`~elastic_pm_dyn.observer.bag_input`), feeds them through
-the filter (:mod:`~elastic_pm_dyn.observer.event_filter`: the same
-:class:`~elastic_pm_dyn.observer.stream.ObserverStream` as the live node, ordinary periods
-many at once in one compiled call) and writes (:mod:`~elastic_pm_dyn.observer.bag_output`)
+Reads the events of a bag (:mod:`~elastic_pm_dyn.observer.drivers.bag_input`), feeds them through
+the filter (:mod:`~elastic_pm_dyn.observer.drivers.event_filter`: the same
+:class:`~elastic_pm_dyn.observer.drivers.stream.ObserverStream` as the live node, ordinary periods
+many at once in one compiled call) and writes (:mod:`~elastic_pm_dyn.observer.drivers.bag_output`)
 ``estimates.csv``, ``estimates/`` (a bag of estimates) and ``summary.json`` (counts,
-rejections, mean NIS, speed, the observability report; :mod:`~elastic_pm_dyn.observer.results`).
+rejections, mean NIS, speed, the observability report; :mod:`~elastic_pm_dyn.observer.drivers.results`).
 
 ``smoother="rts"`` (``observe --smoother rts``): after the filter pass, a backward
-Rauch-Tung-Striebel pass over its rows (:mod:`~elastic_pm_dyn.observer.smoother`);
+Rauch-Tung-Striebel pass over its rows (:mod:`~elastic_pm_dyn.observer.tuning.smoother`);
 ``estimates.csv`` and the ``estimates/`` bag then hold the smoothed estimates (each from
 every sample of the bag), ``filtered.csv`` the filter's (the same columns), and summary.json
 ``"smoother": "rts"`` with the numbers of ``"smoothing"``. Without it, ``"smoother": null``
@@ -20,7 +20,7 @@ dropped alike). One estimate row per distinct stamp once the filter runs.
 
 Reading, filtering and writing run at once (``observe_bag(pipeline=True)``, the default; the
 compiled filter kernel releases the GIL), with the same results and files as one after the
-other; see :mod:`~elastic_pm_dyn.observer.pipeline` for how the stamp order is kept with a
+other; see :mod:`~elastic_pm_dyn.observer.drivers.pipeline` for how the stamp order is kept with a
 bag read in chunks. The smoother needs the whole filter pass first: with it, reading,
 filtering and writing run one after the other.
 """
@@ -32,13 +32,13 @@ from pathlib import Path
 
 from elastic_pm_dyn.errors import InputError
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
-from elastic_pm_dyn.observer import event_filter, results
-from elastic_pm_dyn.observer.bag_input import Topics, read_events
-from elastic_pm_dyn.observer.bag_output import write_outputs
 from elastic_pm_dyn.observer.config import ObserverConfig
-from elastic_pm_dyn.observer.pipeline import observe_pipelined
-from elastic_pm_dyn.observer.results import OfflineResult
-from elastic_pm_dyn.observer.smoother import SMOOTHERS, smooth
+from elastic_pm_dyn.observer.drivers import event_filter, results
+from elastic_pm_dyn.observer.drivers.bag_input import Topics, read_events
+from elastic_pm_dyn.observer.drivers.bag_output import write_outputs
+from elastic_pm_dyn.observer.drivers.pipeline import observe_pipelined
+from elastic_pm_dyn.observer.drivers.results import OfflineResult
+from elastic_pm_dyn.observer.tuning.smoother import SMOOTHERS, smooth
 
 
 def observe_bag(mech: Mechanism, cfg: ObserverConfig, bag: str | Path, out: str | Path | None = None,
@@ -50,7 +50,7 @@ def observe_bag(mech: Mechanism, cfg: ObserverConfig, bag: str | Path, out: str 
     ``pipeline``: read, filter and write at once (a reading thread, a writing thread, the filter
     here; the compiled filter kernel releases the GIL), with the same results, files and
     summary keys as one after the other (``pipeline=False``); see
-    :mod:`~elastic_pm_dyn.observer.pipeline` for how, and what the summary's wall times mean
+    :mod:`~elastic_pm_dyn.observer.drivers.pipeline` for how, and what the summary's wall times mean
     then.
 
     ``smoother``: None, or "rts" to smooth the filter's rows (module docstring; the pass then

@@ -33,7 +33,7 @@ from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.sim.plant import Plant
 
 if TYPE_CHECKING:
-    from elastic_pm_dyn.observer.ekf import Estimate
+    from elastic_pm_dyn.observer.schedule.ekf import Estimate
 
 
 def doubles(values: np.ndarray | Sequence[float]) -> array:
@@ -219,7 +219,7 @@ class PlantMessages:
 
 
 class EstimateMessages(StateMessages):
-    """An observer :class:`~elastic_pm_dyn.observer.ekf.Estimate` as the plant's state messages
+    """An observer :class:`~elastic_pm_dyn.observer.schedule.ekf.Estimate` as the plant's state messages
     (``branch_forces`` with ``force_stddev``) plus ``stddev``: a JointState whose position and
     velocity hold the 1-sigma standard deviations of every tree joint (effort empty)."""
 

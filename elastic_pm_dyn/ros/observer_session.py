@@ -3,7 +3,7 @@ observer behind the callbacks.
 
 The node converts each message to plain arguments (header stamp as integer ns, names,
 float arrays) and calls one method here, which calls the same
-:class:`~elastic_pm_dyn.observer.stream.ObserverStream` as ``elastic-pm-dyn observe``: the
+:class:`~elastic_pm_dyn.observer.drivers.stream.ObserverStream` as ``elastic-pm-dyn observe``: the
 live node and the offline pass give the same estimates for the same message sequence.
 The observer does all the work; this keeps what the node reports and needs:
 
@@ -18,7 +18,7 @@ An estimate is published after each message of the *primary* input, at its stamp
 wants the accelerometer of t_k in the estimate of t_k sends it before the joint state
 (as the offline pass, which records one row per stamp after all of its messages).
 
-Faults (:class:`~elastic_pm_dyn.observer.ekf.ObserverFault`: singular model, state or
+Faults (:class:`~elastic_pm_dyn.observer.schedule.ekf.ObserverFault`: singular model, state or
 covariance not finite) stop the filter: messages are refused (counted), nothing is
 published, diagnostics say ERROR until :meth:`ObserverSession.reset`.
 
@@ -44,8 +44,8 @@ import numpy as np
 from elastic_pm_dyn.errors import ElasticPmDynError, InputError
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.observer import Observer, ObserverConfig, ObserverFault
-from elastic_pm_dyn.observer.ekf import OK, WARN, Estimate, UpdateResult
-from elastic_pm_dyn.observer.stream import NAME_PROBLEMS, ObserverStream
+from elastic_pm_dyn.observer.drivers.stream import NAME_PROBLEMS, ObserverStream
+from elastic_pm_dyn.observer.schedule.ekf import OK, WARN, Estimate, UpdateResult
 
 KINDS = ("torque_command", "joint_state", "imu", "branch_forces")
 SOURCE = "node parameters"  # the config's error prefix, replaced by "parameter '...'"

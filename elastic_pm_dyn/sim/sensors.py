@@ -1,7 +1,7 @@
 """Simulated sensors of a plant: motor encoders, an end-effector accelerometer, strain gauges.
 
 What the plant node publishes as measurements when its ``sensors.*`` are on, in the state
-observer's conventions (:mod:`elastic_pm_dyn.observer.sensors`), computed here without ROS:
+observer's conventions (:mod:`elastic_pm_dyn.observer.core.sensors`), computed here without ROS:
 
 - encoders: the active joints' positions (and optionally rates) plus Gaussian noise, the
   positions then rounded to the count grid of the encoder (2 pi / counts per revolution on a

@@ -24,10 +24,10 @@ from scipy.stats import chi2
 
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.model.layout import JF_REST, JF_STIFFNESS
-from elastic_pm_dyn.observer.ekf import Observer
-from elastic_pm_dyn.observer.observer_model import branch_arrays
-from elastic_pm_dyn.observer.results import Rows
-from elastic_pm_dyn.observer.stream import ObserverStream
+from elastic_pm_dyn.observer.core.observer_model import branch_arrays
+from elastic_pm_dyn.observer.drivers.results import Rows
+from elastic_pm_dyn.observer.drivers.stream import ObserverStream
+from elastic_pm_dyn.observer.schedule.ekf import Observer
 from elastic_pm_dyn.observer.testing.scenarios import Recording
 from elastic_pm_dyn.sim.simulator import SimulationOptions, Simulator
 from elastic_pm_dyn.sim.torque import TorqueTable
@@ -139,7 +139,7 @@ def feed(obs: Observer, rec: Recording, use: tuple[str, ...] = ("encoders", "imu
 
 
 def offline_run(rec: Recording, rows: Rows) -> Run:
-    """The rows of ``observe`` (:class:`~elastic_pm_dyn.observer.results.Rows`) at the
+    """The rows of ``observe`` (:class:`~elastic_pm_dyn.observer.drivers.results.Rows`) at the
     recording's sample stamps: for each sample the last row at or before its stamp (the first
     row before any), so that :func:`score` compares them with the truth sample by sample."""
     est = rows.est

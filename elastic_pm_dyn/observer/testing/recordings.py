@@ -29,7 +29,7 @@ import numpy as np
 
 from elastic_pm_dyn.bags.msgtypes import NS
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
-from elastic_pm_dyn.observer.bag_input import recording_to_bag
+from elastic_pm_dyn.observer.drivers.bag_input import recording_to_bag
 from elastic_pm_dyn.observer.testing.scenarios import (
     ACCEL_TIMINGS,
     Noise,

@@ -21,7 +21,7 @@ perturbed evaluations.
 
 The observer-level kernels take their arrays in a few bundles (plain tuples, unpacked in the
 kernel in the order of the NamedTuple that documents them): :class:`Fixed` (built once per
-:class:`~elastic_pm_dyn.observer.observer_model.ObserverModel`), :class:`Process` (the
+:class:`~elastic_pm_dyn.observer.core.observer_model.ObserverModel`), :class:`Process` (the
 disturbance model and noise intensities of one configuration), :class:`State` (the filter's
 state, changed in place), :class:`ImuModel` and :class:`EncoderPlan` (a sensor's arrays). Plain
 tuples because numba types a namedtuple argument on its slow path (about 1 us a bundle and
@@ -38,7 +38,7 @@ from elastic_pm_dyn.dynamics.evaluate import SCDD, accelerations, accelerations_
 from elastic_pm_dyn.dynamics.kernels import passive_map
 from elastic_pm_dyn.kinematics.kernels import point_buffers, unit_axis
 from elastic_pm_dyn.model.layout import JF_STIFFNESS
-from elastic_pm_dyn.observer.propagation import (
+from elastic_pm_dyn.observer.core.propagation import (
     balance,
     discretize_structured,
     linearization_workspace,
@@ -393,7 +393,7 @@ def linearize(ma, q, qd, tau, point, with_point, eps_q, eps_v, Aq, Av, Bf, Eq, E
 
 @njit(cache=True)
 def linearize_springs(ma, q, qd, tau, point, with_point, eps_q, eps_v, Aq, Av, Bf, Eq, Ev, Ef, qdd0, a0, lws):
-    """:func:`linearize` from the model's structure (:mod:`~elastic_pm_dyn.observer.propagation`):
+    """:func:`linearize` from the model's structure (:mod:`~elastic_pm_dyn.observer.core.propagation`):
     Bf and Ef from one factorisation (the gains of unit forces on every q_ae joint), the elastic
     joints' position columns from their springs, the other columns (motors and free joints'
     positions, every rate) by the same one-sided differences as :func:`linearize`.

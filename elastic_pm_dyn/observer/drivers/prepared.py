@@ -1,10 +1,10 @@
 """A recording prepared once for many filter passes (``tune``: one pass per candidate configuration).
 
 What a pass over the same events needs whatever the noise levels and the disturbance model:
-the fixed :class:`~elastic_pm_dyn.observer.observer_model.ObserverModel` and the offline fast
-path's runs (:class:`~elastic_pm_dyn.observer.event_filter.FastRuns`: the stamp groups and the
+the fixed :class:`~elastic_pm_dyn.observer.core.observer_model.ObserverModel` and the offline fast
+path's runs (:class:`~elastic_pm_dyn.observer.drivers.event_filter.FastRuns`: the stamp groups and the
 decoded encoder, accelerometer and command arrays). Both depend only on the mechanism, the
-events, :func:`~elastic_pm_dyn.observer.observer_model.model_key` and ``timing.max_future``, so
+events, :func:`~elastic_pm_dyn.observer.core.observer_model.model_key` and ``timing.max_future``, so
 each candidate builds only its cheap part (its disturbance model, noise levels and filter
 state). Read only once made: passes may share it from several threads.
 """
@@ -14,11 +14,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
-from elastic_pm_dyn.observer.bag_input import Event
 from elastic_pm_dyn.observer.config import ObserverConfig
-from elastic_pm_dyn.observer.ekf import Observer
-from elastic_pm_dyn.observer.event_filter import FastRuns, fast_runs
-from elastic_pm_dyn.observer.observer_model import ObserverModel
+from elastic_pm_dyn.observer.core.observer_model import ObserverModel
+from elastic_pm_dyn.observer.drivers.bag_input import Event
+from elastic_pm_dyn.observer.drivers.event_filter import FastRuns, fast_runs
+from elastic_pm_dyn.observer.schedule.ekf import Observer
 
 
 @dataclass(frozen=True, eq=False)

@@ -31,12 +31,12 @@ from pathlib import Path
 
 from elastic_pm_dyn.errors import InputError
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
-from elastic_pm_dyn.observer import event_filter, results
-from elastic_pm_dyn.observer.bag_input import Event, Topics, iter_events
-from elastic_pm_dyn.observer.bag_output import EstimatesBag, write_outputs
 from elastic_pm_dyn.observer.config import ObserverConfig
-from elastic_pm_dyn.observer.ekf import Observer
-from elastic_pm_dyn.observer.results import FilterPass, OfflineResult, Rows, write_csv
+from elastic_pm_dyn.observer.drivers import event_filter, results
+from elastic_pm_dyn.observer.drivers.bag_input import Event, Topics, iter_events
+from elastic_pm_dyn.observer.drivers.bag_output import EstimatesBag, write_outputs
+from elastic_pm_dyn.observer.drivers.results import FilterPass, OfflineResult, Rows, write_csv
+from elastic_pm_dyn.observer.schedule.ekf import Observer
 
 STAMP_LAG_NS = 500_000_000
 """``observe_bag(pipeline=True, order="stamp")``: how far (header stamps) the bag must have

@@ -1,6 +1,6 @@
 """The observer's estimates written out: ``estimates.csv`` and a bag of estimates.
 
-- ``estimates.csv``: :func:`~elastic_pm_dyn.observer.results.write_csv` (``t`` since the
+- ``estimates.csv``: :func:`~elastic_pm_dyn.observer.drivers.results.write_csv` (``t`` since the
   first stamp and the exact ``stamp_ns``, then the estimates);
 - ``estimates/`` (:func:`write_bag`, a bag, mcap by default; header stamps exact) with ``/joint_states``
   (position, velocity, effort of every tree joint), ``/branch_forces`` (with
@@ -24,8 +24,8 @@ import numpy as np
 from elastic_pm_dyn.bags import cdr
 from elastic_pm_dyn.bags.msgtypes import BRANCH_FORCES, JOINT_STATE, POSE_STAMPED
 from elastic_pm_dyn.bags.writer import BagWriter
-from elastic_pm_dyn.observer.ekf import Observer
-from elastic_pm_dyn.observer.results import Rows, write_csv
+from elastic_pm_dyn.observer.drivers.results import Rows, write_csv
+from elastic_pm_dyn.observer.schedule.ekf import Observer
 
 
 def write_outputs(out: Path, obs: Observer, rows: Rows, write_estimates_bag: bool, storage: str,

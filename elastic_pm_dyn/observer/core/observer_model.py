@@ -4,12 +4,12 @@ Built once (:meth:`ObserverModel.build`) from a :class:`~elastic_pm_dyn.kinemati
 and the configuration parts that do not change while filtering or between the candidate
 configurations of ``tune`` (:func:`model_key`: which sensors, on which joints, chain and axes,
 which joints carry disturbance states); everything else of a configuration (the disturbance
-model, noise levels, gates, timing) is the :class:`~elastic_pm_dyn.observer.ekf.Observer`'s own,
+model, noise levels, gates, timing) is the :class:`~elastic_pm_dyn.observer.schedule.ekf.Observer`'s own,
 cheap to set up, and the filter's state changes as it runs. So many filters over one recording
 share one model (``tuning.evaluate``), and every stiffness, damping and rest array of the
 branches is derived here only.
 
-State x = [q_ae, qd_ae, z] (:mod:`~elastic_pm_dyn.observer.ekf`); the branch force of the
+State x = [q_ae, qd_ae, z] (:mod:`~elastic_pm_dyn.observer.schedule.ekf`); the branch force of the
 elastic joint u of a branch is F = c (u - u_rest) + d du/dt, so its row of H is ``H_F``
 (c at u, d at du/dt) and its offset c u_rest.
 """
@@ -25,9 +25,9 @@ from elastic_pm_dyn.dynamics.linear import elastic_modes
 from elastic_pm_dyn.kinematics.assembly import initial_state
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.model.description import ACTIVE, ELASTIC
-from elastic_pm_dyn.observer import kernels
 from elastic_pm_dyn.observer.config import ObserverConfig
-from elastic_pm_dyn.observer.sensors import Accelerometer, BranchForces, Encoders, resolve_joints
+from elastic_pm_dyn.observer.core import kernels
+from elastic_pm_dyn.observer.core.sensors import Accelerometer, BranchForces, Encoders, resolve_joints
 
 # process.dt: 0 (from the model): the substep halves from AUTO_DT_MAX until omega h <= OMEGA_H for
 # the fastest elastic mode (RK4's phase error is then below 1e-4 rad per period of that mode)

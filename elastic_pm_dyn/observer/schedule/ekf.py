@@ -2,7 +2,7 @@
 
 State x = [q_ae, qd_ae, z]: motor and elastic coordinates, their rates, and (optionally)
 disturbance torques d = Lz z on chosen joints from a linear model
-(:mod:`elastic_pm_dyn.observer.disturbance`; default: a random-walk bias plus band-limited
+(:mod:`elastic_pm_dyn.observer.core.disturbance`; default: a random-walk bias plus band-limited
 parts). Unknown torques (friction, payload, cable forces) move the machine as the commanded
 torques do not; with d in the state the sensors estimate them, and with them the
 quasi-static branch forces they cause: encoders the slow part (d moves a motor only through
@@ -15,9 +15,9 @@ static equilibrium.
 Prediction: the commanded torques are held (zero-order hold, as the controller applies
 them); the mean goes through the plant's ETD2 steps (or RK4) of the nonlinear SCDD model,
 the covariance through the transition of the model linearised at the interval's start, with
-its discrete process noise (:mod:`~elastic_pm_dyn.observer.kernels`,
-:mod:`~elastic_pm_dyn.observer.propagation`). Each message runs one compiled step
-(:mod:`~elastic_pm_dyn.observer.period`: the samples of a stamp, or its command), the same
+its discrete process noise (:mod:`~elastic_pm_dyn.observer.core.kernels`,
+:mod:`~elastic_pm_dyn.observer.core.propagation`). Each message runs one compiled step
+(:mod:`~elastic_pm_dyn.observer.core.period`: the samples of a stamp, or its command), the same
 step ``observe`` runs for many periods in one call; what a step does not take (gated,
 late, simultaneous or non-finite samples, timing decisions, recoveries, faults) the Python
 here takes, with the same numbers. Correction:
@@ -29,7 +29,7 @@ Missing samples just mean longer predictions; ``reset()`` without a time restart
 at the next stamp.
 
 Time: float seconds of the message stamps since an integer-ns origin (the stream's,
-:mod:`~elastic_pm_dyn.observer.stream`: epoch stamps keep their nanoseconds). The command
+:mod:`~elastic_pm_dyn.observer.drivers.stream`: epoch stamps keep their nanoseconds). The command
 stamped t_k acts on [t_k + delay, t_k+1 + delay) (``command_delay``, the actuation latency:
 the zero-order hold shifted; a delayed command waits in a queue and the prediction starts a
 new piece where it starts to act; ``timing.command_timeout`` counts from there). A sample
@@ -97,10 +97,11 @@ from elastic_pm_dyn.errors import ElasticPmDynError, InputError
 from elastic_pm_dyn.kinematics.assembly import solve_pose
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.model.description import ACTIVE
-from elastic_pm_dyn.observer import consistency, disturbance, kernels, period
 from elastic_pm_dyn.observer.config import ObserverConfig
-from elastic_pm_dyn.observer.observer_model import ObserverModel
-from elastic_pm_dyn.observer.sensors import Sample
+from elastic_pm_dyn.observer.core import disturbance, kernels, period
+from elastic_pm_dyn.observer.core.observer_model import ObserverModel
+from elastic_pm_dyn.observer.core.sensors import Sample
+from elastic_pm_dyn.observer.schedule import consistency
 
 OK, WARN, ERROR = 0, 1, 2  # diagnostic levels (as diagnostic_msgs/DiagnosticStatus)
 TIMING_MODES = {"before_command": 0, "after_command": 1, "auto": 2}  # period.run_periods' codes
@@ -223,9 +224,9 @@ class Estimate:
 class Observer:
     """EKF of an elastic parallel manipulator; see the module docstring.
 
-    ``mech``: the mechanism, or an :class:`~elastic_pm_dyn.observer.observer_model.ObserverModel`
+    ``mech``: the mechanism, or an :class:`~elastic_pm_dyn.observer.core.observer_model.ObserverModel`
     built for it (the fixed part, shared by many observers with configurations of one
-    :func:`~elastic_pm_dyn.observer.observer_model.model_key`); the observer holds the rest of
+    :func:`~elastic_pm_dyn.observer.core.observer_model.model_key`); the observer holds the rest of
     its configuration (disturbance model, noise levels, gates, timing) and the filter's state."""
 
     def __init__(self, mech: Mechanism | ObserverModel, config: ObserverConfig | None = None, t0: float = 0.0,
@@ -286,7 +287,7 @@ class Observer:
         self.released: list[UpdateResult] = []  # held samples the last call corrected
         self._gates: dict[int, float] = {}
         # False: no sample is gated (gate = inf), so that a likelihood cannot be won by gating
-        # (observer.tuning sets it before the first sample)
+        # (observer.tuning.tuning sets it before the first sample)
         self.gating = True
         self.branch_names = model.branch_names
         self.state_names = ([self.mech.joint_names[j] for j in self.ae]
@@ -306,7 +307,7 @@ class Observer:
         self._empty_plan = (np.zeros((0, nx)), np.zeros(0), np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.bool_))
 
     def _state(self) -> tuple:
-        """The kernels' :class:`~elastic_pm_dyn.observer.kernels.State` bundle (the arrays: changed in place)."""
+        """The kernels' :class:`~elastic_pm_dyn.observer.core.kernels.State` bundle (the arrays: changed in place)."""
         return self.q, self.qd, self.z, self.P, self.Phi, self.Qd, self.Hpt, self.info
 
     # ------------------------------------------------------------------ set-up
@@ -419,7 +420,7 @@ class Observer:
 
     def _linearize_here(self) -> None:
         """Accelerometer Jacobian at the current state (before the first prediction)."""
-        from elastic_pm_dyn.observer.observability import linear_model
+        from elastic_pm_dyn.observer.core.observability import linear_model
         _, _, self.Hpt = linear_model(self, self.q, self.qd, self.tau_last)
 
     def gate(self, dof: int) -> float:
@@ -1065,7 +1066,7 @@ class Observer:
 
     def nis_findings(self) -> dict[str, str]:
         """Sensors whose windowed NIS is far off (or that are mostly gated out), each with one line
-        naming its likely cause (:mod:`~elastic_pm_dyn.observer.consistency`)."""
+        naming its likely cause (:mod:`~elastic_pm_dyn.observer.schedule.consistency`)."""
         return consistency.findings(self, TIMING_SWITCH_EVIDENCE)
 
     def nis_band(self, sensor: str, p: float = 0.95) -> tuple[float, float, float]:
@@ -1111,5 +1112,5 @@ class Observer:
 
     def observability(self, horizon: float | None = None):
         """Observability of the states at the current state; see :mod:`.observability`."""
-        from elastic_pm_dyn.observer.observability import analyse
+        from elastic_pm_dyn.observer.core.observability import analyse
         return analyse(self, horizon)

@@ -46,11 +46,11 @@ import yaml
 from elastic_pm_dyn.errors import InputError
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.model import yaml12
-from elastic_pm_dyn.observer.bag_input import Event
 from elastic_pm_dyn.observer.config import BAND_MODELS, BAND_ORDERS, DEFAULT_PARAMETERS, PREFIX, ObserverConfig, flatten
-from elastic_pm_dyn.observer.ekf import Observer
-from elastic_pm_dyn.observer.event_filter import order_key, run_events
-from elastic_pm_dyn.observer.prepared import PreparedRecording, prepare
+from elastic_pm_dyn.observer.drivers.bag_input import Event
+from elastic_pm_dyn.observer.drivers.event_filter import order_key, run_events
+from elastic_pm_dyn.observer.drivers.prepared import PreparedRecording, prepare
+from elastic_pm_dyn.observer.schedule.ekf import Observer
 
 FAILED_NLL = 1e30  # a candidate whose filter faulted
 # A step is kept only if it gains this much log-likelihood [nats]: smaller gains are within

@@ -45,12 +45,12 @@ from scipy.linalg import LinAlgError, cho_factor, cho_solve
 
 from elastic_pm_dyn.errors import InputError
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
-from elastic_pm_dyn.observer import kernels
-from elastic_pm_dyn.observer.bag_input import Event
 from elastic_pm_dyn.observer.config import ObserverConfig
-from elastic_pm_dyn.observer.ekf import Observer, ObserverFault
-from elastic_pm_dyn.observer.results import Rows
-from elastic_pm_dyn.observer.stream import ObserverStream
+from elastic_pm_dyn.observer.core import kernels
+from elastic_pm_dyn.observer.drivers.bag_input import Event
+from elastic_pm_dyn.observer.drivers.results import Rows
+from elastic_pm_dyn.observer.drivers.stream import ObserverStream
+from elastic_pm_dyn.observer.schedule.ekf import Observer, ObserverFault
 
 SMOOTHERS = ("rts",)
 

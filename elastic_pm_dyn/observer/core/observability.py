@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 
-from elastic_pm_dyn.observer import kernels
+from elastic_pm_dyn.observer.core import kernels
 
 OBSERVABLE = 0.1
 WEAK = 0.9

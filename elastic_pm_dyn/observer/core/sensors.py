@@ -16,7 +16,7 @@ variances R) at the filter's current state; the filter does the correction and g
   (``imu.sample_timing``): the torque held over the interval that ended at it
   (``before_command``: the sample at t_k shows the command of [t_k-1, t_k), as a controller
   reads sensors before it applies the next command) or the one acting from it on
-  (``after_command``, a(t_k+)); ``auto`` weighs both (:mod:`~elastic_pm_dyn.observer.ekf`).
+  (``after_command``, a(t_k+)); ``auto`` weighs both (:mod:`~elastic_pm_dyn.observer.schedule.ekf`).
   qdd, and so y, jumps where the torque jumps: the sensor has feed-through. H comes from
   the prediction's linearisation (columns d a / d x, exact for d).
 - Branch forces (strain gauges; ``elastic_pm_dyn_msgs/BranchForces`` force or JointState
@@ -25,9 +25,9 @@ variances R) at the filter's current state; the filter does the correction and g
   same on either side of a command.
 
 A sensor object holds its geometry (built once, in the fixed
-:class:`~elastic_pm_dyn.observer.observer_model.ObserverModel`) and its noise levels;
+:class:`~elastic_pm_dyn.observer.core.observer_model.ObserverModel`) and its noise levels;
 ``with_noise`` gives a copy with the noise levels of another configuration (an
-:class:`~elastic_pm_dyn.observer.ekf.Observer`'s own), the geometry shared.
+:class:`~elastic_pm_dyn.observer.schedule.ekf.Observer`'s own), the geometry shared.
 """
 
 from __future__ import annotations

@@ -1,11 +1,11 @@
 """The filter over a bag's events: :func:`run_events`, and :class:`EventFilter` fed chunk by chunk.
 
-Events go through the same :class:`~elastic_pm_dyn.observer.stream.ObserverStream` as the
+Events go through the same :class:`~elastic_pm_dyn.observer.drivers.stream.ObserverStream` as the
 live node, ordinary periods many at once in one compiled call (``period.run_periods``);
 one estimate row per distinct stamp once the filter runs. Message order: by header stamp,
 ties in bag order (``order="stamp"``, the best offline estimate), or the bag's own order
 (``order="arrival"``: what a live node saw, late samples dropped alike). Times are seconds
-since the stream's integer-ns origin (:mod:`~elastic_pm_dyn.observer.stream`); the rows
+since the stream's integer-ns origin (:mod:`~elastic_pm_dyn.observer.drivers.stream`); the rows
 keep the exact stamps.
 """
 
@@ -19,12 +19,12 @@ import numpy as np
 
 from elastic_pm_dyn.errors import InputError
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
-from elastic_pm_dyn.observer import period
-from elastic_pm_dyn.observer.bag_input import Event
 from elastic_pm_dyn.observer.config import ObserverConfig
-from elastic_pm_dyn.observer.ekf import Observer, ObserverFault, UpdateResult
-from elastic_pm_dyn.observer.results import SENSORS, FilterPass, Rows
-from elastic_pm_dyn.observer.stream import ObserverStream
+from elastic_pm_dyn.observer.core import period
+from elastic_pm_dyn.observer.drivers.bag_input import Event
+from elastic_pm_dyn.observer.drivers.results import SENSORS, FilterPass, Rows
+from elastic_pm_dyn.observer.drivers.stream import ObserverStream
+from elastic_pm_dyn.observer.schedule.ekf import Observer, ObserverFault, UpdateResult
 
 
 class _Run:

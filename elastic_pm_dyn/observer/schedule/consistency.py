@@ -41,7 +41,7 @@ OFFSET = "frame / bias (imu.rpy, specific_force)"
 def findings(obs: Any, switch_evidence: float) -> dict[str, str]:
     """One line per sensor whose NIS is far off: ``{sensor: "<sensor>: NIS 4.5x its dof: <cause>"}``.
 
-    ``obs``: an :class:`~elastic_pm_dyn.observer.ekf.Observer`; ``switch_evidence``: the
+    ``obs``: an :class:`~elastic_pm_dyn.observer.schedule.ekf.Observer`; ``switch_evidence``: the
     log-likelihood margin [nats] the ``auto`` sample timing needs to switch (the same margin
     names ``timing`` here)."""
     f = obs.cfg.gating.nis_warn_factor

@@ -10,7 +10,7 @@ and the dense expm of the whole linearisation (Hexa: 66 x 66, nine squarings). H
   geometry must be followed, not by their stability (``ObserverModel.etd2_step``: 2 steps
   per 1 ms on the five-bar, 4 on the Hexa and 8 on the Triglide at n_ek = 2, against 20,
   80 and 160 RK4 sub-steps).
-- **Linearisation** (:func:`~elastic_pm_dyn.observer.kernels.linearize_springs`): the
+- **Linearisation** (:func:`~elastic_pm_dyn.observer.core.kernels.linearize_springs`): the
   response to unit generalised forces on every q_ae joint from one factorisation of the
   evaluation's M and A (the ETD2 gains, eqs 33-41 with tau - h = e_j and gamma = 0), so
   Bf = d qdd_ae / d f_ae and the accelerometer's Ef = J_pt G come without extra

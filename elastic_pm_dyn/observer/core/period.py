@@ -29,13 +29,13 @@ after-command hypothesis chosen)]; ``timing`` = [MAX_INTERVAL, DT (the mean's st
 (0 before, 1 after, 2 auto), NO_DELAY (0/1)], fixed for an observer's life; ``cmd`` =
 (tau_hold, tau_last (active order, in place), pend_t, pend_tau); ``work`` = (tree force
 vectors (3, n_t), the deferred sample's prior (a
-:class:`~elastic_pm_dyn.observer.kernels.State` of copies), its torque before (n_t)).
+:class:`~elastic_pm_dyn.observer.core.kernels.State` of copies), its torque before (n_t)).
 """
 
 import numpy as np
 from numba import njit
 
-from elastic_pm_dyn.observer.kernels import (
+from elastic_pm_dyn.observer.core.kernels import (
     COVARIANCE_LOST,
     OK,
     encoder_correct,
@@ -187,7 +187,7 @@ def _imu(ma, fixed, proc, state, cmd, ctl, timing, evidence, imu, imu_gate, meas
 def sample_step(ma, fixed, proc, state, cmd, ctl, timing, evidence, enc, enc_gate, imu, imu_gate, t_to, has_enc,
                 enc_meas, has_imu, imu_meas, work, save, nis_row):
     """The samples of stamp ``t_to``: :func:`advance` to it (unless the filter is there), the
-    encoder positions (``enc``: :class:`~elastic_pm_dyn.observer.kernels.EncoderPlan`), then the
+    encoder positions (``enc``: :class:`~elastic_pm_dyn.observer.core.kernels.EncoderPlan`), then the
     accelerometer sample. Returns 0 with nothing changed if the stamp or a sample is not
     ordinary (see the module docstring), else TAKEN, HELD (the accelerometer sample waits for
     the command of its stamp: ``command_step`` corrects it) or DEFERRED (corrected, to be weighed

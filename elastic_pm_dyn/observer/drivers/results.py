@@ -1,7 +1,7 @@
 """What ``observe`` gives: the estimate rows, the summary, the ``estimates.csv`` table.
 
 :class:`Rows` (one per distinct stamp once the filter runs) fill up while the filter runs
-(:mod:`~elastic_pm_dyn.observer.event_filter`); :func:`summary` and :func:`finish` make
+(:mod:`~elastic_pm_dyn.observer.drivers.event_filter`); :func:`summary` and :func:`finish` make
 ``summary.json``; :func:`csv_header` and :func:`write_csv` the CSV: ``t`` (seconds since
 the time origin, the first stamp, exact to the nanosecond), ``stamp_ns`` (the header stamp,
 an integer), every tree joint, ``<joint>_vel``, ``F_<branch>``, the standard deviation of
@@ -19,8 +19,8 @@ from typing import Any, TextIO
 
 import numpy as np
 
-from elastic_pm_dyn.observer.ekf import Estimate, Observer
-from elastic_pm_dyn.observer.stream import NAME_PROBLEMS
+from elastic_pm_dyn.observer.drivers.stream import NAME_PROBLEMS
+from elastic_pm_dyn.observer.schedule.ekf import Estimate, Observer
 
 SENSORS = ("encoders", "imu", "branch_forces")  # the NIS columns of a row, in this order
 
