@@ -42,7 +42,7 @@ def generate_launch_description() -> LaunchDescription:
                                  "topics.branch_forces": "observer/branch_forces",
                                  "topics.ee_pose": "observer/ee_pose", "topics.markers": "observer/markers",
                                  "topics.robot_description": "observer/robot_description",
-                                 "observer.core.sensors": ["encoders", "imu"],
+                                 "observer.sensors": ["encoders", "imu"],
                                  "observer.imu.sample_timing": "before_command"}])
     controller = Node(package=PACKAGE, executable="feedforward_node", name="feedforward", output="screen",
                       parameters=[PathJoinSubstitution([config, "feedforward.yaml"]),

@@ -283,7 +283,7 @@ def test_observer_services_answer_every_request_and_warnings_are_per_kind(capfd:
     h = RosHarness(domain_id(29))
     try:
         node = h.add(ObserverNode(context=h.context,
-                                  parameter_overrides=[Parameter("observer.core.sensors", value=["encoders"])]))
+                                  parameter_overrides=[Parameter("observer.sensors", value=["encoders"])]))
         mode = node.observer
         q0 = initial_state(Mechanism(load_model(FIVE_BAR)))
         names = ["left_motor", "right_motor"]

@@ -31,7 +31,7 @@ def test_config_file_equals_defaults() -> None:
 
 
 @pytest.mark.parametrize(("params", "message"), [
-    ({"observer.core.sensors": ["encoders", "sonar"]}, "unknown sensor 'sonar'"),
+    ({"observer.sensors": ["encoders", "sonar"]}, "unknown sensor 'sonar'"),
     ({"observer.process.dt": "fast"}, "observer.process.dt: expected a number"),
     ({"observer.process.dt": 2e-3}, "exceeds process.max_interval"),
     ({"observer.no_such": 1}, "unknown observer parameter observer.no_such"),

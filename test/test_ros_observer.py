@@ -50,7 +50,7 @@ def make_observer(h: RosHarness, **params: Any) -> Any:
     from rclpy.parameter import Parameter
 
     from elastic_pm_dyn.ros.plant_node import PlantNode
-    params = {"observer.core.sensors": SENSORS, "diagnostics_rate": 50.0, **params}
+    params = {"observer.sensors": SENSORS, "diagnostics_rate": 50.0, **params}
     overrides = [Parameter(k.replace("__", "."), value=v) for k, v in params.items()]
     return h.add(PlantNode(context=h.context, parameter_overrides=overrides))
 
@@ -167,7 +167,7 @@ def test_live_estimates_equal_offline_observe(ros: RosHarness, rec: Any, five_ba
     plant = make_observer(ros)
     # Every value of the parameter file reached the node, with its YAML type (two are overridden here).
     for key, value in flatten(yaml.safe_load(PARAMS_FILE.read_text())["/**"]["ros__parameters"]).items():
-        if key in ("observer.core.sensors", "diagnostics_rate"):
+        if key in ("observer.sensors", "diagnostics_rate"):
             continue
         got = plant.get_parameter(key).value
         got = list(got) if isinstance(value, list) else got
@@ -312,7 +312,7 @@ def test_fault_and_divergence_are_errors_reset_recovers(ros: RosHarness, rec: An
      "parameter 'observer.gating.probability': expected a probability in (0.5, 1), got 2.0"),
     ("observer.process.dt", 1,
      "parameter 'observer.process.dt' must be a float (e.g. 1000.0, not 1000), got integer 1"),
-    ("observer.core.sensors", ["encoders", "sonar"], "parameter 'observer.core.sensors': unknown sensor 'sonar'"),
+    ("observer.sensors", ["encoders", "sonar"], "parameter 'observer.sensors': unknown sensor 'sonar'"),
     ("observer.encoders.position_joints", ["left_motr"],
      "parameter 'observer.encoders.position_joints': unknown joint 'left_motr'"),
     ("observer.gating.probabilty", 0.99,

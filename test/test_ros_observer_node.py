@@ -84,7 +84,7 @@ def _run(params_file: Path, node_class: str, rec: Any,
         from elastic_pm_dyn.ros.plant_node import PlantNode
         from elastic_pm_dyn.ros.qos import DIAGNOSTICS_QOS, OBSERVER_INPUT_QOS, STATE_QOS
         overrides = [Parameter(k, value=v) for k, v in
-                     {"observer.core.sensors": SENSORS, "diagnostics_rate": 50.0, **params}.items()]
+                     {"observer.sensors": SENSORS, "diagnostics_rate": 50.0, **params}.items()]
         cls = {"observer": ObserverNode, "plant": PlantNode}[node_class]
         node = h.add(cls(context=h.context, parameter_overrides=overrides))
         logged: list[tuple[str, str]] = []
@@ -147,7 +147,7 @@ def test_node_publishes_the_plant_nodes_observer_estimates(rec: Any, five_bar: A
     ours, logged, values = _run(NODE_FILE, "observer", rec)
     # Every value of its file reached the node, with its YAML type (two overridden in _run).
     for key, value in flatten(_params(NODE_FILE)).items():
-        if key in ("observer.core.sensors", "diagnostics_rate"):
+        if key in ("observer.sensors", "diagnostics_rate"):
             continue
         got = list(values[key]) if isinstance(value, list) else values[key]
         assert got == value and type(got) is type(value), key

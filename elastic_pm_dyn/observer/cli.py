@@ -77,7 +77,7 @@ def _add_inputs(p: argparse.ArgumentParser, out_help: str, config_help: str) -> 
     p.add_argument("--out", required=True, help=out_help)
     p.add_argument("--config", default=None, help=config_help)
     p.add_argument("--sensors", nargs="+", choices=("encoders", "imu", "branch_forces"),
-                   help="sensor set (overrides the file's observer.core.sensors)")
+                   help="sensor set (overrides the file's observer.sensors)")
     p.add_argument("--torque-topic", help="torque commands (default /torque_command)")
     p.add_argument("--joint-topic", help="measured joint states (default /measured_joint_states)")
     p.add_argument("--imu-topic", help="accelerometer (default /ee_imu)")

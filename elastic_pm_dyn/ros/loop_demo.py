@@ -250,7 +250,7 @@ def node_arguments(bag: Path, mech: Mechanism, opts: LoopOptions) -> dict[str, l
                 *_p("topics.markers", f"{OBSERVER_NS}/markers"),
                 *_p("topics.robot_description", f"{OBSERVER_NS}/robot_description"),
                 "-p", "lockstep_order:=true",  # offline observe's order of the inputs
-                *_p("observer.core.sensors", opts.sensors),
+                *_p("observer.sensors", opts.sensors),
                 *_p("observer.topics.measured_joint_states", topics["encoders"]),
                 *_p("observer.imu.sample_timing", opts.imu_sample_timing),
                 *(_p("observer.imu.axes", ["x", "y", "z"]) if spatial else [])]

@@ -9,7 +9,7 @@ overridable per topic with ``qos_overrides.<topic>.subscription.*``):
 ``torque_command`` (sensor_msgs/JointState effort, or std_msgs/Float64MultiArray in
 ``command_joints`` order, stamped on arrival with the node's clock as it has no header),
 ``measured_joint_states`` (sensor_msgs/JointState), ``ee_imu`` (sensor_msgs/Imu, if
-``imu`` is among ``observer.core.sensors``), ``measured_branch_forces``
+``imu`` is among ``observer.sensors``), ``measured_branch_forces``
 (elastic_pm_dyn_msgs/BranchForces, if ``branch_forces`` is and its source is that topic).
 Time is the messages' header stamps, never their arrival: the filter counts seconds from the
 first one (an integer-ns origin, so epoch stamps keep their nanoseconds) and every estimate
