@@ -232,7 +232,8 @@ def cmd_urdf(args: argparse.Namespace) -> int:
     if args.out is None:
         sys.stdout.write(text if text.endswith("\n") else text + "\n")
     else:
-        Path(args.out).write_text(text, encoding="utf-8")
+        from elastic_pm_dyn.output_files import write_text
+        write_text(args.out, text)
         print(f"URDF -> {args.out}")
     return 0
 

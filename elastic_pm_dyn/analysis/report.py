@@ -18,6 +18,7 @@ import numpy as np
 
 from elastic_pm_dyn.analysis import metrics, plots
 from elastic_pm_dyn.analysis.run_data import ModelInfo, RunData
+from elastic_pm_dyn.output_files import write_text
 
 # Plot file names by figure; paper-figures uses the paper's numbering.
 PLOT_NAMES = {"path": "path.png", "branch_forces": "branch_forces.png", "gap": "gap.png",
@@ -343,8 +344,8 @@ def write_report(out: Path, runs: Sequence[RunData], info: ModelInfo, plots_on: 
         for label, note in notes:
             summary["runs"][label]["warnings"].append(note)
     summary = clean(summary)
-    (out / "summary.json").write_text(json.dumps(summary, indent=2))
-    (out / "summary.md").write_text(markdown(summary))
+    write_text(out / "summary.json", json.dumps(summary, indent=2))
+    write_text(out / "summary.md", markdown(summary))
     return summary
 
 
