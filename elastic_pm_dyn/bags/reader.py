@@ -57,6 +57,8 @@ def open_bag(path: str | Path) -> Iterator[Bag]:
     path = Path(path)
     if not path.exists():
         raise BagError(f"{path}: no such bag")
+    if not path.is_dir() and not path.is_file():  # a device or FIFO would never end, or block
+        raise BagError(f"{path}: not a bag (a device or FIFO?): give a bag directory or its .mcap/.db3 file")
     if path.is_dir() and not (path / "metadata.yaml").is_file():
         files = sorted(p.name for p in path.iterdir() if p.suffix in (".mcap", ".db3"))
         hint = f"; to read a storage file without it, pass {path / files[0]}" if files else ""
@@ -64,6 +66,9 @@ def open_bag(path: str | Path) -> Iterator[Bag]:
     meta_dir = path if path.is_dir() else path.parent
     state = recording_state(meta_dir) if (meta_dir / "metadata.yaml").is_file() else None
     files = _storage_files(path)
+    special = [f.name for f in files if not f.is_file()]
+    if special:
+        raise BagError(f"{path}: {', '.join(special)} is not a regular file (a device or FIFO?)")
     storage = storage_of(path)
     with ExitStack() as stack:
         if storage == "mcap" and len(files) == 1 and not has_footer(files[0]):
