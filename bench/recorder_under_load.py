@@ -99,12 +99,12 @@ def _publish_numbered(env: dict[str, str], rec: NodeProcess, seconds: float) -> 
     import rclpy
     from sensor_msgs.msg import JointState
 
-    from elastic_pm_dyn.ros.qos import STATE_QOS
+    from elastic_pm_dyn.ros.qos import STATE_OUT_QOS
     os.environ.update({k: env[k] for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")})
     rclpy.init()
     try:
         node = rclpy.create_node("numbered")
-        pub = node.create_publisher(JointState, "/numbered", STATE_QOS)
+        pub = node.create_publisher(JointState, "/numbered", STATE_OUT_QOS)
         k = 0
 
         def send() -> None:

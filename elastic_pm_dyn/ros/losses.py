@@ -30,6 +30,7 @@ class SequenceGaps:
     last: int | None = None  # the last sequence number taken
     missed: int = 0  # messages skipped over, summed
     restarts: int = 0  # the sequence went back (a publisher restarted, or another one took over)
+    exact: bool = False  # two numbers of one publisher compared: missed is the exact count
 
     def take(self, seq: int | None, publishers: int = 1) -> int:
         """Note one message's sequence number; returns how many messages were skipped before it."""
@@ -38,6 +39,7 @@ class SequenceGaps:
         last, self.last = self.last, seq
         if publishers != 1 or last is None:
             return 0
+        self.exact = True
         if seq <= last:
             self.restarts += 1
             return 0
@@ -59,8 +61,9 @@ class TopicLosses:
         return self.gaps.missed
 
     def lost(self) -> int:
-        """The larger of the two witnesses: at least this many messages never arrived."""
-        return max(self.dds_lost, self.sequence_gaps)
+        """Messages that never arrived: the sequence gaps where they are exact (one publisher), else
+        the DDS events (which may also count samples from before this reader matched)."""
+        return self.sequence_gaps if self.gaps.exact else self.dds_lost
 
     def summary(self) -> str:
         return (f"{self.received} received, {self.dds_lost} lost (DDS events), "

@@ -71,7 +71,7 @@ from elastic_pm_dyn.ros.qos import (
     COMMAND_QOS,
     DIAGNOSTICS_QOS,
     LOCKSTEP_COMMAND_QOS,
-    STATE_QOS,
+    STATE_OUT_QOS,
     VIEWER_QOS,
 )
 from elastic_pm_dyn.ros.robot_description import publish_robot_description
@@ -158,9 +158,9 @@ class PlantNode(ManagedNode):
         self.stamp_base = 0  # [ns] stamp = stamp_base + k * period_ns
         self.warn = KindThrottle(self, WARN_EVERY)
 
-        self.pub_joint_states = self.create_publisher(JointState, p["topics.joint_states"], STATE_QOS)
-        self.pub_branch_forces = self.create_publisher(BranchForces, p["topics.branch_forces"], STATE_QOS)
-        self.pub_ee_pose = self.create_publisher(PoseStamped, p["topics.ee_pose"], STATE_QOS)
+        self.pub_joint_states = self.create_publisher(JointState, p["topics.joint_states"], STATE_OUT_QOS)
+        self.pub_branch_forces = self.create_publisher(BranchForces, p["topics.branch_forces"], STATE_OUT_QOS)
+        self.pub_ee_pose = self.create_publisher(PoseStamped, p["topics.ee_pose"], STATE_OUT_QOS)
         self.pub_markers = self.create_publisher(MarkerArray, p["topics.markers"], VIEWER_QOS)
         self.pub_diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", DIAGNOSTICS_QOS)
         self.pub_clock = (self.create_publisher(ClockMsg, "/clock", CLOCK_QOS)
@@ -178,7 +178,7 @@ class PlantNode(ManagedNode):
         self.disturbance_time = 0.0  # when it arrived (the command clock)
         self.pub_disturbance = None
         if self.disturbance_input or self.plant.disturbance is not None:
-            self.pub_disturbance = self.create_publisher(JointState, p["topics.disturbance"], STATE_QOS)
+            self.pub_disturbance = self.create_publisher(JointState, p["topics.disturbance"], STATE_OUT_QOS)
         if self.disturbance_input:
             self.create_subscription(msg_type, p["topics.disturbance_torque"], self._on_disturbance, COMMAND_QOS)
         self.create_service(Trigger, "~/reset", self._on_reset)

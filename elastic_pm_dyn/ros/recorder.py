@@ -219,9 +219,10 @@ class RecorderNode(ManagedNode):
                 self.get_logger().info(f"recording {topic} [{s.conn.msgtype}]: first message in {self.path}")
 
     def losses(self) -> dict[str, dict[str, int]]:
-        """Per topic: received, lost (DDS events), skipped (sequence gaps), dropped (by the writer),
-        new subscriptions made because it stayed silent."""
-        return {t: {"received": s.losses.received, "lost_dds": s.losses.dds_lost,
+        """Per topic: received, lost (the exact witness where there is one), lost (DDS events),
+        skipped (sequence gaps), dropped (by the writer), new subscriptions made because it stayed silent."""
+        return {t: {"received": s.losses.received, "lost": s.losses.lost() + self.writer.dropped[s.conn.id],
+                    "lost_dds": s.losses.dds_lost,
                     "sequence_gaps": s.losses.sequence_gaps, "dropped_by_writer": self.writer.dropped[s.conn.id],
                     "resubscribed": s.resubscribed}
                 for t, s in self.topics.items()}
@@ -285,11 +286,10 @@ class RecorderNode(ManagedNode):
             self.get_logger().error(f"{err}; the bag keeps what was flushed before")
         counts = {t: self.count(t) for t in self.topics}
         missing = [t for t in self.wanted if t not in self.topics]
-        lost = {t: c["lost_dds"] + c["dropped_by_writer"] for t, c in losses.items()}
-        gaps = {t: c["sequence_gaps"] for t, c in losses.items()}
+        lost = {t: s.losses.lost() + self.writer.dropped[s.conn.id] for t, s in self.topics.items()}
         self.get_logger().info(
             f"bag {self.path} closed: "
-            + (", ".join(f"{t} {n} (lost {max(lost[t], gaps[t])})" for t, n in counts.items()) or "no messages")
+            + (", ".join(f"{t} {n} (lost {lost[t]})" for t, n in counts.items()) or "no messages")
             + (f"; never seen: {', '.join(missing)}" if missing else ""))
 
 
