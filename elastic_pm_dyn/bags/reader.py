@@ -214,6 +214,7 @@ class Bag:
         self.start_ns = start_ns
         self.end_ns = end_ns
         self.cut: str | None = None
+        self._count_warned = False
 
     def topics(self) -> dict[str, tuple[str, int]]:
         """Every topic: name -> (message type, message count)."""
@@ -245,12 +246,25 @@ class Bag:
             try:
                 conn, t_ns, raw = next(it)
             except StopIteration:
+                self._check_count(connections, n)
                 return
             except READ_ERRORS as err:
                 raise self._corrupt(err, n, t_last) from None
             yield conn, t_ns, raw
             n += 1
             t_last = t_ns
+
+    def _check_count(self, connections: Sequence[Any], n: int) -> None:
+        """A warning (once per bag) when a full read gave another number of messages than the bag
+        says it holds: a damaged chunk without a CRC can lose a message without any error."""
+        expected = sum(int(getattr(c, "msgcount", 0) or 0) for c in connections)
+        if n == expected or not expected or self._count_warned:
+            return
+        self._count_warned = True
+        topics = sorted({c.topic for c in connections})
+        shown = ", ".join(topics[:3]) + (f" and {len(topics) - 3} more" if len(topics) > 3 else "")
+        log.warning(f"warning: {self.path}: read {n} messages of {shown} but the bag's index says {expected}: "
+                    "the bag is damaged (a chunk without CRC?); results are from the messages read")
 
     def decoded(self, connections: Sequence[Any]) -> Iterator[tuple[Any, int, Any]]:
         """(connection, receive time [ns], message object) of the given connections, in bag order."""
