@@ -74,6 +74,15 @@ def test_a_bag_that_is_a_fifo_or_holds_one_is_refused(tmp_path: Path, fifo: Path
         pass
 
 
+def test_a_huge_metadata_yaml_is_refused_before_it_is_read(tmp_path: Path) -> None:
+    bag = tmp_path / "bag"
+    write_bag(bag, run_messages(synthetic_run(), make_typestore())[:50], "mcap")
+    with (bag / "metadata.yaml").open("a") as fh:
+        fh.truncate(17 * 2**20)  # sparse: 17 MiB of NUL bytes after the real content
+    with pytest.raises(BagError, match="more than the 16 MiB"), open_bag(bag):
+        pass
+
+
 @pytest.mark.parametrize(("text", "words"), [
     (_bomb(), "aliases are expanded"),
     ("x: " + "[" * 80 + "]" * 80, "levels deep"),

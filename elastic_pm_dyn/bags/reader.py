@@ -37,6 +37,7 @@ from elastic_pm_dyn.bags.metadata import UNFINISHED, recording_state
 from elastic_pm_dyn.bags.typestore import make_typestore
 
 log = logging.getLogger("elastic_pm_dyn.bags")
+MAX_METADATA_BYTES = 16 * 2**20  # a bag's metadata.yaml has a few kB per topic
 Messages = Callable[[Sequence[Any]], Iterator[tuple[Any, int, bytes]]]
 
 
@@ -64,6 +65,10 @@ def open_bag(path: str | Path) -> Iterator[Bag]:
         hint = f"; to read a storage file without it, pass {path / files[0]}" if files else ""
         raise BagError(f"{path}: not a rosbag2 bag (no metadata.yaml{hint})")
     meta_dir = path if path.is_dir() else path.parent
+    meta = meta_dir / "metadata.yaml"
+    if meta.is_file() and meta.stat().st_size > MAX_METADATA_BYTES:  # rosbags would read and parse it whole
+        raise BagError(f"{meta}: {meta.stat().st_size} bytes, more than the {MAX_METADATA_BYTES >> 20} MiB "
+                       "a bag's metadata.yaml may have")
     state = recording_state(meta_dir) if (meta_dir / "metadata.yaml").is_file() else None
     files = _storage_files(path)
     special = [f.name for f in files if not f.is_file()]
