@@ -88,3 +88,14 @@ def test_bag_repair(tmp_path: Path, bag: Path) -> None:
     proc = _run(["bag-repair", str(bag), "--out", str(out)], tmp_path, limit=20_000)
     _one_line_naming(proc, out)
     _nothing_left(tmp_path, set())
+
+
+def test_simulate_csv(tmp_path: Path) -> None:
+    torques = tmp_path / "torques.csv"
+    assert _run(["feedforward", "--model", str(CONFIG / "five_bar.yaml"), "--out", str(torques)], tmp_path,
+                limit=10**8).returncode == 0
+    out = tmp_path / "run.csv"
+    proc = _run(["simulate", "--model", str(CONFIG / "five_bar.yaml"), "--torques", str(torques), "--duration", "0.05",
+                 "--out", str(out)], tmp_path)
+    _one_line_naming(proc, out)
+    _nothing_left(tmp_path, {"torques.csv"})
