@@ -123,6 +123,17 @@ def test_observe_set_values_are_bounded(capsys, setting: str, words: str) -> Non
     assert words in line
 
 
+def test_observe_step_count_is_checked_before_work(capsys, tmp_path: Path) -> None:
+    messages = run_messages(synthetic_run(), make_typestore())[:40]
+    topic, msgtype, t_ns, msg = messages[-1]
+    bag = tmp_path / "bag"
+    write_bag(bag, [*messages, (topic, msgtype, t_ns + 20 * 10**9, msg)], "mcap")  # a bag spanning 20 s
+    line = _one_line(capsys, ["observe", "--model", str(FIVE_BAR), "--bag", str(bag), "--out", str(tmp_path / "o"),
+                              "--set", "process.dt=1e-7"])
+    assert "2e+08 prediction steps" in line and str(bag) in line
+    assert not (tmp_path / "o").exists()
+
+
 @pytest.mark.parametrize(("args", "words"), [
     (["--threads", "0"], "--threads must be 1 to"),
     (["--threads", "1000"], "--threads must be 1 to"),

@@ -118,6 +118,8 @@ def cmd_observe(args: argparse.Namespace) -> int:
     from elastic_pm_dyn.observer.bag_input import Topics
     from elastic_pm_dyn.observer.offline import observe_bag
     cfg = _config(args)
+    if cfg.process.dt > 0:
+        _check_steps(cfg, _bag_seconds(Path(args.bag)), str(args.bag))
     mech = Mechanism(load_model(args.model, closures=args.closures))
     res = observe_bag(mech, cfg, args.bag, args.out, Topics.from_config(cfg), args.order, args.storage,
                       not args.no_bag, log=lambda s: print(s, file=sys.stderr), smoother=args.smoother)
@@ -143,6 +145,31 @@ def cmd_observe(args: argparse.Namespace) -> int:
         print(f"elastic-pm-dyn: error: {s['fault']} (estimates up to the fault written)", file=sys.stderr)
         return 1
     return 0
+
+
+MAX_STEPS = 1e8  # prediction steps of one pass: beyond, hours of computing (simulate's own limit is alike)
+
+
+def _bag_seconds(bag: Path) -> float:
+    """The bag's duration from its index (no message is read; a cut bag's warning comes later, once)."""
+    import logging
+
+    from elastic_pm_dyn.bags.reader import open_bag
+    log = logging.getLogger("elastic_pm_dyn.bags")
+    before, log.disabled = log.disabled, True
+    try:
+        with open_bag(bag) as b:
+            return (b.end_ns - b.start_ns) * 1e-9
+    finally:
+        log.disabled = before
+
+
+def _check_steps(cfg, seconds: float, bag: str) -> None:
+    """Refuse, before any work, a pass of more than MAX_STEPS prediction steps."""
+    dt = cfg.process.dt
+    if dt > 0 and seconds / dt > MAX_STEPS:
+        raise InputError(f"{bag}: {seconds:.6g} s at observer.process.dt {dt:g} s is {seconds / dt:.3g} prediction "
+                         f"steps, more than {MAX_STEPS:.0e} (hours of computing): choose a larger step, or 0")
 
 
 MIN_TUNE_SECONDS = 0.1  # [s] of data: ~100 control periods, the least a noise fit can use
@@ -180,6 +207,7 @@ def cmd_tune(args: argparse.Namespace) -> int:
     if not events:
         raise InputError(f"{args.bag}: no messages on the observer's topics")
     span = _span(events)
+    _check_steps(cfg, span, str(args.bag))
     if span < MIN_TUNE_SECONDS:  # a "tuned" file fitted to (almost) no data would be a silent failure
         raise InputError(f"{args.bag}: {span:g} s of observer input{' in --seconds' if args.seconds else ''}; "
                          f"tuning needs at least {MIN_TUNE_SECONDS:g} s")
