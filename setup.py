@@ -35,11 +35,12 @@ setup(
     zip_safe=False,
     entry_points={
         "console_scripts": [
-            "elastic-pm-dyn = elastic_pm_dyn.cli:main",
-            "plant_node = elastic_pm_dyn.ros.plant_node:main",
-            "observer_node = elastic_pm_dyn.ros.observer_node:main",
-            "feedforward_node = elastic_pm_dyn.ros.feedforward_node:main",
-            "recorder_node = elastic_pm_dyn.ros.recorder:main",
+            # elastic_pm_dyn.entry: Ctrl-C from the first import on ends with one line, exit 130
+            "elastic-pm-dyn = elastic_pm_dyn.entry:cli",
+            "plant_node = elastic_pm_dyn.entry:plant_node",
+            "observer_node = elastic_pm_dyn.entry:observer_node",
+            "feedforward_node = elastic_pm_dyn.entry:feedforward_node",
+            "recorder_node = elastic_pm_dyn.entry:recorder_node",
         ],
     },
 )

@@ -20,6 +20,7 @@ EXIT_USER_ERROR = 2
 EXIT_RUN_FAILED = 1
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, as a shell reports a program stopped by Ctrl-C
 MAX_MESSAGE = 400  # characters of one error line
+MIN_MOVE_PERIODS = 10  # a move sampled by fewer control periods is not in the torque table
 MAX_TORQUE_SAMPLES = 1e7  # feedforward rows: ~3 h at 1 kHz, a few minutes of computing per million
 RTOL_MIN = 100 * float(np.finfo(float).eps)  # scipy's DOP853 raises a smaller rtol to this, with a warning
 
@@ -129,6 +130,13 @@ def cmd_feedforward(args: argparse.Namespace) -> int:
                          f"{axes}, got {len(points)}")
     a, b = np.array(points[:dims]), np.array(points[dims:])
     rate = ref.control_rate if args.rate is None else args.rate
+    for name in ("move", "hold"):
+        value = getattr(args, name)
+        if value is not None and not (np.isfinite(value) and value >= 0):
+            raise InputError(f"--{name} must be a finite number of seconds >= 0, got {value!r}")
+    if args.move is not None and args.move < MIN_MOVE_PERIODS / rate:  # the samples would miss the motion
+        raise InputError(f"--move {args.move:g} s is shorter than {MIN_MOVE_PERIODS} control periods "
+                         f"({MIN_MOVE_PERIODS / rate:g} s at {rate:g} Hz): the torque table would not hold the move")
     line = QuinticLine(a, b, ref.move if args.move is None else args.move, ref.hold if args.hold is None else args.hold)
     samples = line.duration * rate
     if not samples <= MAX_TORQUE_SAMPLES:  # before allocating the table
@@ -232,7 +240,8 @@ def cmd_urdf(args: argparse.Namespace) -> int:
     if args.out is None:
         sys.stdout.write(text if text.endswith("\n") else text + "\n")
     else:
-        Path(args.out).write_text(text, encoding="utf-8")
+        from elastic_pm_dyn.output_files import write_text
+        write_text(args.out, text)
         print(f"URDF -> {args.out}")
     return 0
 

@@ -29,6 +29,11 @@ class InputError(ElasticPmDynError):
     """Bad run input: torque tables, command-line values, states."""
 
 
+class OutputError(ElasticPmDynError):
+    """An output could not be written (disk full, file too large, no permission); the
+    message names the user's path, never a temporary one."""
+
+
 class AssemblyError(ElasticPmDynError):
     """The closure cannot be satisfied (unreachable pose or wrong assembly mode)."""
 

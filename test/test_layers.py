@@ -21,6 +21,7 @@ ROOT = Path(__file__).resolve().parent.parent / PACKAGE
 # Bottom to top. The package's own __init__ (the public face) is "<public>".
 LAYERS: list[set[str]] = [
     {"errors", "small_linalg", "_numba_cache", "text_file"},
+    {"output_files"},
     {"bags", "model"},
     {"kinematics"},
     {"dynamics"},
@@ -30,6 +31,7 @@ LAYERS: list[set[str]] = [
     {"demo"},
     {"ros"},
     {"cli"},
+    {"entry"},
     {"__main__", "<public>"},
 ]
 LEVEL = {unit: k for k, layer in enumerate(LAYERS) for unit in layer}

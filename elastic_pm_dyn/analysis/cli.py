@@ -9,6 +9,7 @@ CLI prints the one-line message and exits 2).
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
@@ -55,6 +56,8 @@ def cmd_analyze(args: argparse.Namespace) -> int:
         raise InputError(f"--labels: {len(args.labels)} labels for {len(args.bags)} bags")
     if args.labels and len(set(args.labels)) < len(args.labels):
         raise InputError("--labels must differ")
+    if args.hold_start is not None and not (math.isfinite(args.hold_start) and args.hold_start >= 0):
+        raise InputError(f"--hold-start must be a finite time >= 0 [s], got {args.hold_start!r}")
     topics = {role: getattr(args, role) for role in ROLE_OPTIONS.values()}
     out = _out_dir(args.out)
     summary = analyze(args.bags, args.model, out, topics=topics, hold_start=args.hold_start, labels=args.labels,

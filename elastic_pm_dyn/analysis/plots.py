@@ -23,6 +23,7 @@ from matplotlib.figure import Figure
 from numpy.typing import ArrayLike
 
 from elastic_pm_dyn.analysis.metrics import alias_frequency, project_to_polyline
+from elastic_pm_dyn.output_files import atomic_file
 
 DPI = 100
 # Smallest value drawn on the log-scale gap plot; exact zeros are clipped to it.
@@ -59,7 +60,8 @@ def _new_figure(width: float = 9.0, height: float = 5.5) -> Figure:
 def _save(fig: Figure, path_png: str | Path) -> Path:
     path = Path(path_png)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=DPI, format="png")
+    with atomic_file(path) as tmp:  # a full disk leaves no cut PNG
+        fig.savefig(tmp, dpi=DPI, format="png")
     return path
 
 

@@ -18,6 +18,7 @@ import numpy as np
 
 from elastic_pm_dyn.analysis import metrics, plots
 from elastic_pm_dyn.analysis.run_data import ModelInfo, RunData
+from elastic_pm_dyn.output_files import write_text
 
 # Plot file names by figure; paper-figures uses the paper's numbering.
 PLOT_NAMES = {"path": "path.png", "branch_forces": "branch_forces.png", "gap": "gap.png",
@@ -109,15 +110,21 @@ def run_metrics(run: RunData, natural_hz: Sequence[float]) -> dict:
                     "final_m": float(g[-1])}
         if run.hold_start is not None:
             m["gap"]["at_hold_start_m"] = _value_at(run.t_gap, g, run.hold_start)
+    bad_torques = {}
     if run.torques:
+        finite = {n: np.asarray(x)[np.isfinite(x)] for n, x in run.torques.items()}
+        bad_torques = {n: len(x) - len(finite[n]) for n, x in run.torques.items() if len(x) != len(finite[n])}
         m["torques"] = {"source": run.torque_source,
-                        "peak_Nm": {n: float(np.nanmax(np.abs(x))) if np.isfinite(x).any() else None
-                                    for n, x in run.torques.items()}}
+                        "peak_Nm": {n: float(np.max(np.abs(f))) if len(f) else None for n, f in finite.items()}}
     m["command_age"] = run.command_age
     m["streams"] = run.streams
     if run.diagnostics:
         m["diagnostics"] = run.diagnostics
     m["warnings"] = _warnings(run, m, natural_hz)
+    if bad_torques:  # named, never a silent null
+        m["warnings"].append("torques not finite (NaN or Inf): " + ", ".join(
+            f"{n} {k} of {len(run.torques[n])} samples" for n, k in bad_torques.items())
+            + "; peak_Nm over the finite ones (null: none)")
     return m
 
 
@@ -323,6 +330,18 @@ def clean(x: object) -> object:
     return x
 
 
+def non_finite(x: object, path: str = "") -> list[str]:
+    """Key paths (``torques.left_motor.peak_Nm``) of the NaN and infinite numbers in ``x``."""
+    if isinstance(x, Mapping):
+        return [p for k, v in x.items() for p in non_finite(v, f"{path}.{k}" if path else str(k))]
+    if isinstance(x, (list, tuple, np.ndarray)):
+        return [p for i, v in enumerate(np.asarray(x, dtype=object).ravel().tolist() if isinstance(x, np.ndarray)
+                                        else x) for p in non_finite(v, f"{path}[{i}]")]
+    if isinstance(x, (np.floating, float)) and not math.isfinite(x):
+        return [path]
+    return []
+
+
 def write_report(out: Path, runs: Sequence[RunData], info: ModelInfo, plots_on: bool = True,
                  names: Mapping[str, str] = PLOT_NAMES, extra: Mapping | None = None) -> dict:
     """summary.json, summary.md and (``plots_on``) the plots of ``runs`` in ``out``."""
@@ -342,9 +361,14 @@ def write_report(out: Path, runs: Sequence[RunData], info: ModelInfo, plots_on: 
         summary["plots"], notes = write_plots(out, runs, natural, names)
         for label, note in notes:
             summary["runs"][label]["warnings"].append(note)
+    for run_summary in summary["runs"].values():  # a null in summary.json is named, never silent
+        bad = non_finite({k: v for k, v in run_summary.items() if k != "warnings"})
+        if bad:
+            shown = ", ".join(bad[:6]) + (f" and {len(bad) - 6} more" if len(bad) > 6 else "")
+            run_summary["warnings"].append(f"not finite, null in summary.json: {shown} (NaN or Inf in the bag?)")
     summary = clean(summary)
-    (out / "summary.json").write_text(json.dumps(summary, indent=2))
-    (out / "summary.md").write_text(markdown(summary))
+    write_text(out / "summary.json", json.dumps(summary, indent=2))
+    write_text(out / "summary.md", markdown(summary))
     return summary
 
 

@@ -37,6 +37,7 @@ from elastic_pm_dyn.bags.metadata import UNFINISHED, recording_state
 from elastic_pm_dyn.bags.typestore import make_typestore
 
 log = logging.getLogger("elastic_pm_dyn.bags")
+MAX_METADATA_BYTES = 16 * 2**20  # a bag's metadata.yaml has a few kB per topic
 Messages = Callable[[Sequence[Any]], Iterator[tuple[Any, int, bytes]]]
 
 
@@ -57,13 +58,22 @@ def open_bag(path: str | Path) -> Iterator[Bag]:
     path = Path(path)
     if not path.exists():
         raise BagError(f"{path}: no such bag")
+    if not path.is_dir() and not path.is_file():  # a device or FIFO would never end, or block
+        raise BagError(f"{path}: not a bag (a device or FIFO?): give a bag directory or its .mcap/.db3 file")
     if path.is_dir() and not (path / "metadata.yaml").is_file():
         files = sorted(p.name for p in path.iterdir() if p.suffix in (".mcap", ".db3"))
         hint = f"; to read a storage file without it, pass {path / files[0]}" if files else ""
         raise BagError(f"{path}: not a rosbag2 bag (no metadata.yaml{hint})")
     meta_dir = path if path.is_dir() else path.parent
+    meta = meta_dir / "metadata.yaml"
+    if meta.is_file() and meta.stat().st_size > MAX_METADATA_BYTES:  # rosbags would read and parse it whole
+        raise BagError(f"{meta}: {meta.stat().st_size} bytes, more than the {MAX_METADATA_BYTES >> 20} MiB "
+                       "a bag's metadata.yaml may have")
     state = recording_state(meta_dir) if (meta_dir / "metadata.yaml").is_file() else None
     files = _storage_files(path)
+    special = [f.name for f in files if not f.is_file()]
+    if special:
+        raise BagError(f"{path}: {', '.join(special)} is not a regular file (a device or FIFO?)")
     storage = storage_of(path)
     with ExitStack() as stack:
         if storage == "mcap" and len(files) == 1 and not has_footer(files[0]):
@@ -209,6 +219,7 @@ class Bag:
         self.start_ns = start_ns
         self.end_ns = end_ns
         self.cut: str | None = None
+        self._count_warned = False
 
     def topics(self) -> dict[str, tuple[str, int]]:
         """Every topic: name -> (message type, message count)."""
@@ -240,12 +251,25 @@ class Bag:
             try:
                 conn, t_ns, raw = next(it)
             except StopIteration:
+                self._check_count(connections, n)
                 return
             except READ_ERRORS as err:
                 raise self._corrupt(err, n, t_last) from None
             yield conn, t_ns, raw
             n += 1
             t_last = t_ns
+
+    def _check_count(self, connections: Sequence[Any], n: int) -> None:
+        """A warning (once per bag) when a full read gave another number of messages than the bag
+        says it holds: a damaged chunk without a CRC can lose a message without any error."""
+        expected = sum(int(getattr(c, "msgcount", 0) or 0) for c in connections)
+        if n == expected or not expected or self._count_warned:
+            return
+        self._count_warned = True
+        topics = sorted({c.topic for c in connections})
+        shown = ", ".join(topics[:3]) + (f" and {len(topics) - 3} more" if len(topics) > 3 else "")
+        log.warning(f"warning: {self.path}: read {n} messages of {shown} but the bag's index says {expected}: "
+                    "the bag is damaged (a chunk without CRC?); results are from the messages read")
 
     def decoded(self, connections: Sequence[Any]) -> Iterator[tuple[Any, int, Any]]:
         """(connection, receive time [ns], message object) of the given connections, in bag order."""

@@ -20,6 +20,7 @@ from elastic_pm_dyn.bags.errors import READ_ERRORS, BagError
 from elastic_pm_dyn.bags.mcap_scan import has_footer
 from elastic_pm_dyn.bags.reader import Bag, open_bag, recover_mcap, storage_of
 from elastic_pm_dyn.bags.writer import BagWriter
+from elastic_pm_dyn.output_files import atomic_dir
 
 
 @dataclass
@@ -68,25 +69,43 @@ def repair_bag(src: str | Path, out: str | Path | None = None) -> RepairReport:
         report = RepairReport(src, out, bag.storage, cut=bag.cut)
         if bag.storage not in ("mcap", "sqlite3"):
             raise BagError(f"{src}: no mcap or sqlite3 storage file to repair")
-        with BagWriter(out, bag.storage, typestore=bag.typestore) as w:
-            conns = {}
-            for c in bag.connections:
-                if c.topic not in conns:
-                    conns[c.topic] = w.add_connection(c.topic, c.msgtype)
-                    report.messages[c.topic] = 0
-            decode = bag.typestore.deserialize_cdr
+        with atomic_dir(out) as tmp:  # a repair stopped half-way leaves no half bag
             try:
-                for c, t_ns, raw in bag.messages(bag.connections):
-                    try:
-                        decode(raw, c.msgtype)
-                    except READ_ERRORS:
-                        report.undecodable[c.topic] = report.undecodable.get(c.topic, 0) + 1
-                        continue
-                    w.write(conns[c.topic], t_ns, raw)
-                    report.messages[c.topic] += 1
+                _copy(bag, BagWriter(tmp, bag.storage, typestore=bag.typestore), report)
+            except BagError as err:  # name the user's path, not the temporary one
+                raise BagError(str(err).replace(str(tmp), str(out))) from None
+    return report
+
+
+def _copy(bag: Bag, writer: BagWriter, report: RepairReport) -> None:
+    """Every decodable message of ``bag`` into ``writer``, counted in ``report``. A corrupt
+    record while reading stops the copy (what came before is kept); a write error raises."""
+    with writer as w:
+        conns = {}
+        for c in bag.connections:
+            if c.topic not in conns:
+                conns[c.topic] = w.add_connection(c.topic, c.msgtype)
+                report.messages[c.topic] = 0
+        decode = bag.typestore.deserialize_cdr
+        messages = iter(bag.messages(bag.connections))
+        while True:
+            try:
+                c, t_ns, raw = next(messages)
+            except StopIteration:
+                break
             except BagError as err:  # a corrupt record in the middle: keep what came before it
                 report.stopped = str(err)
-    return report
+                break
+            try:
+                decode(raw, c.msgtype)
+            except READ_ERRORS:
+                report.undecodable[c.topic] = report.undecodable.get(c.topic, 0) + 1
+                continue
+            try:
+                w.write(conns[c.topic], t_ns, raw)
+            except OSError as err:
+                raise BagError(f"{w.path}: cannot write to the bag: {err.strerror or err}") from None
+            report.messages[c.topic] += 1
 
 
 @contextmanager

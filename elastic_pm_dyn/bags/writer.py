@@ -162,6 +162,10 @@ class BagWriter:
         """Messages written on ``conn`` so far."""
         return self._w.counts[conn.id]
 
+    def set_custom_data(self, key: str, value: str) -> None:
+        """A ``custom_data`` entry of the finished bag's metadata.yaml (e.g. what a recorder lost)."""
+        self._w.set_custom_data(key, value)
+
     def close(self) -> None:
         """Finish the bag (index, metadata.yaml)."""
         if self._w.storage is not None:

@@ -49,12 +49,32 @@ def load_model(path: str | Path, elastic_dof_per_chain: int | None = None,
     ``gravity`` (3 numbers, world frame [m/s^2]) replaces the file's gravity, whatever the format.
     """
     model = _read_model(path, elastic_dof_per_chain, closures, fix_base, servos_as_motors)
-    if gravity is None:
-        return model
-    try:
-        return model.with_gravity(gravity)
-    except ValueError as err:
-        raise ModelError(str(path), "gravity", f"override: {err}") from None
+    if gravity is not None:
+        try:
+            model = model.with_gravity(gravity)
+        except ValueError as err:
+            raise ModelError(str(path), "gravity", f"override: {err}") from None
+    _check_physics(model, str(path))
+    return model
+
+
+MAX_GRAVITY = 1000.0  # [m/s^2] about 100 g: beyond any machine on Earth or a centrifuge's test
+MAX_STIFFNESS = 1e12  # [N/m or N m/rad] a steel rod of 1 cm^2 and 1 mm is 2e10 N/m
+
+
+def _check_physics(model: Model, file: str) -> None:
+    """Values every format may carry that no machine has: one line instead of a mode of 1e146 Hz
+    or an eigen-solver failing on overflow."""
+    with np.errstate(over="ignore"):
+        g = float(np.linalg.norm(model.gravity))
+    if not g <= MAX_GRAVITY:
+        shown = ", ".join(f"{v:.3g}" for v in model.gravity)
+        raise ModelError(file, "gravity", f"[{shown}] m/s^2 is more than {MAX_GRAVITY:g} m/s^2 (about 100 g)")
+    for chain in model.chains:
+        for j in chain.joints:
+            if not j.stiffness <= MAX_STIFFNESS:
+                raise ModelError(file, f"joint {j.name}: stiffness", f"{j.stiffness:.3g}, more than "
+                                 f"{MAX_STIFFNESS:g} (N/m or N m/rad); a joint that stiff is rigid: make it passive")
 
 
 def _read_model(path: str | Path, elastic_dof_per_chain: int | None, closures: str | Path | None, fix_base: bool,

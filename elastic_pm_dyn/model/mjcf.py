@@ -55,7 +55,22 @@ def read_mjcf(path: str | Path, fix_base: bool = False, servos_as_motors: bool =
     lines = _element_lines(src)
     mujoco = _mujoco(file)
     m = compile_mjcf(path, fix_base)
-    return _Tree(m, mujoco, file, lines, servos_as_motors).build(src.root.get("model") or Path(path).stem)
+    tree = _Tree(m, mujoco, file, lines, servos_as_motors).build(src.root.get("model") or Path(path).stem)
+    if not fix_base:  # MuJoCo pads a short keyframe with qpos0: a start pose the user did not write
+        _check_keyframe(src, m.nq, file)
+    return tree
+
+
+def _check_keyframe(src: XmlSource, nq: int, file: str) -> None:
+    """The first ``<key qpos>`` (the start pose) must give all ``nq`` values, as MuJoCo's own keyframes do."""
+    key = next((el for el in src.root.iter("key")), None)
+    text = key.get("qpos") if key is not None else None
+    if text is None:
+        return
+    given = len(text.split())
+    if given != nq:
+        raise ModelError(file, "keyframe qpos", f"{given} values, the model has {nq} (qpos lists every joint "
+                         "coordinate; a free joint takes 7)", src.line(key))
 
 
 def _mujoco(file: str):

@@ -48,9 +48,100 @@ class Yaml12Loader(yaml.SafeLoader):
         for first, resolvers in yaml.SafeLoader.yaml_implicit_resolvers.items()}
 
 
+MAX_NESTING = 64  # levels of lists/maps, aliases expanded; a parameter file uses about 5
+MAX_NODES = 100_000  # values with every alias expanded (an alias bomb of 1 kB is billions)
+
+
+class YamlLimitError(yaml.YAMLError):
+    """A document beyond :data:`MAX_NESTING` or :data:`MAX_NODES`, a recursive alias or a key twice."""
+
+
 def load(text: str) -> Any:
-    """The data of one YAML document (None if empty); ``yaml.YAMLError`` if malformed."""
-    return yaml.load(text, Loader=Yaml12Loader)  # a SafeLoader subclass: no arbitrary objects
+    """The data of one YAML document (None if empty); ``yaml.YAMLError`` if malformed, and
+    :class:`YamlLimitError` (one of them) beyond the limits, checked before any value is built:
+    nesting on the parser's events (PyYAML's composer recurses), then the composed graph with
+    aliases expanded, then a key given twice in one mapping."""
+    _check_nesting(text)
+    loader = Yaml12Loader(text)  # a SafeLoader subclass: no arbitrary objects
+    try:
+        node = loader.get_single_node()
+        if node is None:
+            return None
+        _check_expanded(node)
+        _check_duplicate_keys(node)
+        return loader.construct_document(node)
+    finally:
+        loader.dispose()
+
+
+def _check_nesting(text: str) -> None:
+    depth = 0
+    for event in events(text):
+        if isinstance(event, yaml.CollectionStartEvent):
+            depth += 1
+            if depth > MAX_NESTING:
+                raise YamlLimitError(f"line {event.start_mark.line + 1}: nested more than {MAX_NESTING} levels deep")
+        elif isinstance(event, yaml.CollectionEndEvent):
+            depth -= 1
+
+
+def _children(node: yaml.Node) -> list[yaml.Node]:
+    if isinstance(node, yaml.SequenceNode):
+        return list(node.value)
+    if isinstance(node, yaml.MappingNode):
+        return [n for pair in node.value for n in pair]
+    return []
+
+
+def _check_expanded(root: yaml.Node) -> None:
+    """Size and depth of the graph with every alias expanded, each node visited once (memo);
+    an alias to a node still open is a recursive alias."""
+    size: dict[int, int] = {}
+    depth: dict[int, int] = {}
+    open_ids: set[int] = set()
+    stack: list[tuple[yaml.Node, bool]] = [(root, False)]
+    while stack:
+        node, done = stack.pop()
+        key = id(node)
+        if done:
+            kids = _children(node)
+            size[key] = 1 + sum(size[id(k)] for k in kids)
+            depth[key] = 1 + max((depth[id(k)] for k in kids), default=0)
+            open_ids.discard(key)
+            if size[key] > MAX_NODES:
+                raise YamlLimitError(f"line {node.start_mark.line + 1}: more than {MAX_NODES} values once its "
+                                     "aliases are expanded")
+            if depth[key] > MAX_NESTING + 1:
+                raise YamlLimitError(f"line {node.start_mark.line + 1}: nested more than {MAX_NESTING} levels "
+                                     "deep once its aliases are expanded")
+            continue
+        if key in size:
+            continue
+        if key in open_ids:
+            raise YamlLimitError(f"line {node.start_mark.line + 1}: a recursive alias (a list or map that "
+                                 "contains itself)")
+        open_ids.add(key)
+        stack.append((node, True))
+        stack.extend((k, False) for k in _children(node) if id(k) not in size)
+
+
+def _check_duplicate_keys(root: yaml.Node) -> None:
+    seen: set[int] = set()
+    stack = [root]
+    while stack:
+        node = stack.pop()
+        if id(node) in seen:
+            continue
+        seen.add(id(node))
+        if isinstance(node, yaml.MappingNode):
+            keys: set[str] = set()
+            for k, _ in node.value:
+                if isinstance(k, yaml.ScalarNode):
+                    if k.value in keys:
+                        raise YamlLimitError(f"line {k.start_mark.line + 1}: key {_short(k.value)} given twice "
+                                             "in one mapping")
+                    keys.add(k.value)
+        stack.extend(_children(node))
 
 
 MAX_PARAMETER_BYTES = 4 * 2**20  # a parameter file has a few kB; refused before reading
@@ -71,6 +162,9 @@ def load_file(path: str | Path, what: str = "parameter file") -> Any:
         mark = exc.problem_mark or exc.context_mark
         where = f":{mark.line + 1}" if mark is not None else ""
         raise InputError(f"{p}{where}: not valid YAML: {exc.problem or exc.context}") from None
+    except YamlLimitError as exc:
+        line, _, reason = str(exc).partition(": ")
+        raise InputError(f"{p}:{line.removeprefix('line ')}: {reason}") from None
     except (yaml.YAMLError, RecursionError, ValueError) as exc:
         raise InputError(f"{p}: not valid YAML: {' '.join(str(exc).split())[:200]}") from None
     _refuse_cycles(data, p)

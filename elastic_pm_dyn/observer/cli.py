@@ -89,21 +89,27 @@ def _config(args: argparse.Namespace):
     path = args.config if args.config else (DEFAULT_CONFIG if DEFAULT_CONFIG.exists() else None)
     cfg = load_config(path)
     params = dict(cfg.parameters)
+    set_names = [item.partition("=")[0].strip() for item in args.set]
     if args.sensors:
         params["sensors"] = list(args.sensors)
     for item in args.set:
         name, sep, value = item.partition("=")
+        shown = repr(item if len(item) <= 60 else item[:57] + "...")  # a 10 kB value is not one line
         if not sep:
-            raise InputError(f"--set {item!r}: expected NAME=VALUE")
+            raise InputError(f"--set {shown}: expected NAME=VALUE")
         try:
             params[name.strip().removeprefix("observer.")] = yaml12.load(value)
         except yaml.YAMLError as exc:
-            raise InputError(f"--set {item!r}: {exc}") from None
+            reason = getattr(exc, "problem", None) or " ".join(str(exc).split())
+            raise InputError(f"--set {shown}: not a valid YAML value: {reason[:200]}") from None
     for key, attr in (("torque_command", "torque_topic"), ("measured_joint_states", "joint_topic"),
                       ("ee_imu", "imu_topic"), ("measured_branch_forces", "branch_topic")):
         if getattr(args, attr):
             params[f"topics.{key}"] = getattr(args, attr)
-    return ObserverConfig.from_parameters(params, str(path) if path else "<defaults>")
+    source = str(path) if path else "<defaults>"
+    if set_names:  # a bad --set value is not the config file's fault
+        source += f" with --set {', '.join(set_names)}"
+    return ObserverConfig.from_parameters(params, source)
 
 
 def cmd_observe(args: argparse.Namespace) -> int:
@@ -112,6 +118,8 @@ def cmd_observe(args: argparse.Namespace) -> int:
     from elastic_pm_dyn.observer.drivers.bag_input import Topics
     from elastic_pm_dyn.observer.offline import observe_bag
     cfg = _config(args)
+    if cfg.process.dt > 0:
+        _check_steps(cfg, _bag_seconds(Path(args.bag)), str(args.bag))
     mech = Mechanism(load_model(args.model, closures=args.closures))
     res = observe_bag(mech, cfg, args.bag, args.out, Topics.from_config(cfg), args.order, args.storage,
                       not args.no_bag, log=lambda s: print(s, file=sys.stderr), smoother=args.smoother)
@@ -139,6 +147,42 @@ def cmd_observe(args: argparse.Namespace) -> int:
     return 0
 
 
+MAX_STEPS = 1e8  # prediction steps of one pass: beyond, hours of computing (simulate's own limit is alike)
+
+
+def _bag_seconds(bag: Path) -> float:
+    """The bag's duration from its index (no message is read; a cut bag's warning comes later, once)."""
+    import logging
+
+    from elastic_pm_dyn.bags.reader import open_bag
+    log = logging.getLogger("elastic_pm_dyn.bags")
+    before, log.disabled = log.disabled, True
+    try:
+        with open_bag(bag) as b:
+            return (b.end_ns - b.start_ns) * 1e-9
+    finally:
+        log.disabled = before
+
+
+def _check_steps(cfg, seconds: float, bag: str) -> None:
+    """Refuse, before any work, a pass of more than MAX_STEPS prediction steps."""
+    dt = cfg.process.dt
+    if dt > 0 and seconds / dt > MAX_STEPS:
+        raise InputError(f"{bag}: {seconds:.6g} s at observer.process.dt {dt:g} s is {seconds / dt:.3g} prediction "
+                         f"steps, more than {MAX_STEPS:.0e} (hours of computing): choose a larger step, or 0")
+
+
+MIN_TUNE_SECONDS = 0.1  # [s] of data: ~100 control periods, the least a noise fit can use
+MAX_EVALUATIONS = 100_000
+MAX_THREADS = 64
+
+
+def _span(events: list) -> float:
+    """Seconds between the first and the last event's stamp."""
+    stamps = [e.stamp_ns for e in events]
+    return (max(stamps) - min(stamps)) * 1e-9 if stamps else 0.0
+
+
 def cmd_tune(args: argparse.Namespace) -> int:
     from elastic_pm_dyn.kinematics.mechanism import Mechanism
     from elastic_pm_dyn.model.loader import load_model
@@ -146,8 +190,12 @@ def cmd_tune(args: argparse.Namespace) -> int:
     from elastic_pm_dyn.observer.tuning import tuning
     if args.seconds is not None and not args.seconds > 0:
         raise InputError(f"--seconds must be > 0, got {args.seconds}")
-    if args.max_evaluations < 8:
-        raise InputError(f"--max-evaluations must be >= 8, got {args.max_evaluations}")
+    if args.seconds is not None and args.seconds < MIN_TUNE_SECONDS:
+        raise InputError(f"--seconds {args.seconds:g}: tuning needs at least {MIN_TUNE_SECONDS:g} s of data")
+    if not 8 <= args.max_evaluations <= MAX_EVALUATIONS:
+        raise InputError(f"--max-evaluations must be 8 to {MAX_EVALUATIONS}, got {args.max_evaluations}")
+    if not 1 <= args.threads <= MAX_THREADS:
+        raise InputError(f"--threads must be 1 to {MAX_THREADS} (filter passes at once), got {args.threads}")
     cfg = _config(args)
     base_path = args.config if args.config else (DEFAULT_CONFIG if DEFAULT_CONFIG.exists() else None)
     # the sensor noise a user gave (a file of theirs, --set) stays as given
@@ -158,6 +206,11 @@ def cmd_tune(args: argparse.Namespace) -> int:
     events = tuning.select(events, args.seconds)
     if not events:
         raise InputError(f"{args.bag}: no messages on the observer's topics")
+    span = _span(events)
+    _check_steps(cfg, span, str(args.bag))
+    if span < MIN_TUNE_SECONDS:  # a "tuned" file fitted to (almost) no data would be a silent failure
+        raise InputError(f"{args.bag}: {span:g} s of observer input{' in --seconds' if args.seconds else ''}; "
+                         f"tuning needs at least {MIN_TUNE_SECONDS:g} s")
     res = tuning.tune(mech, cfg, events, explicit, delay=not args.keep_delay, max_evaluations=args.max_evaluations,
                       threads=max(1, args.threads), log=lambda s: print(s, file=sys.stderr))
     tuning.write_parameters(res.params, args.out, base_path)

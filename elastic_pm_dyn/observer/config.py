@@ -288,6 +288,17 @@ class ObserverConfig:
         for key, value in non_negative.items():
             if not value >= 0:
                 raise bad(key, f"must be >= 0, got {value!r}")
+        # Ranges with a physical sense, so an absurd value is one line instead of an endless run.
+        ceilings = {"command_delay": (self.command_delay, MAX_COMMAND_DELAY, "an actuation latency"),
+                    "process.max_interval": (self.process.max_interval, MAX_PREDICTION_INTERVAL,
+                                             "one linearised prediction piece"),
+                    "observability.horizon": (self.observability_horizon, MAX_HORIZON, "the start-up Gramian")}
+        for key, (value, ceiling, what) in ceilings.items():
+            if value > ceiling:
+                raise bad(key, f"{value:g} s is more than the {ceiling:g} s {what} may take")
+        if 0 < self.process.dt < MIN_STEP:
+            raise bad("process.dt", f"{self.process.dt:g} s is below {MIN_STEP:g} s (a thousandth of the fastest "
+                                    "elastic period modelled; 0 chooses the step)")
         if self.process.dt > self.process.max_interval:
             raise bad("process.dt", f"the step {self.process.dt:g} s exceeds process.max_interval "
                                     f"{self.process.max_interval:g} s")
@@ -325,6 +336,12 @@ class ObserverConfig:
             raise bad("gating.recover_after", f"must be >= 0, got {self.gating.recover_after!r}")
         if self.gating.max_consecutive_rejections < 1 or self.gating.nis_window < 1:
             raise bad("gating", "max_consecutive_rejections and nis_window must be >= 1")
+
+
+MIN_STEP = 1e-7  # [s] process.dt (0 = chosen): the stiffest machines here ring at ~10 kHz
+MAX_COMMAND_DELAY = 1.0  # [s] actuation latency
+MAX_PREDICTION_INTERVAL = 1.0  # [s] one linearised prediction piece
+MAX_HORIZON = 10.0  # [s] observability Gramian at start-up
 
 
 def _coerce(source: str, key: str, value: Any, default: Any) -> Any:

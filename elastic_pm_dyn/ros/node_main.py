@@ -1,10 +1,12 @@
 """What every console script of a node does: init, build the node, spin, shut down cleanly.
 
 A node that cannot start (bad parameter, model file, ROS arguments) prints one line
-``<program>: error: <reason>`` on stderr and the process exits with status 2. SIGINT and
-SIGTERM only ask the spin loop to stop (rclpy's own handlers would invalidate the context
-first), so the node's ``close()`` still runs with ROS up: the recorder closes its bag and
-its last log lines still reach /rosout.
+``<program>: error: <reason>`` on stderr and the process exits with status 2. Ctrl-C while
+it starts (imports, model, numba's first compile) interrupts the start-up at once: one
+line, status 130 (:mod:`elastic_pm_dyn.entry`). Once it spins, SIGINT and SIGTERM only ask
+the spin loop to stop (rclpy's own handlers would invalidate the context first), so the
+node's ``close()`` still runs with ROS up: the recorder closes its bag and its last log
+lines still reach /rosout; the status is then 0.
 """
 
 from __future__ import annotations
@@ -49,13 +51,14 @@ def run_node(program: str, factory: Callable[[], ManagedNode], args: list[str] |
             raise KeyboardInterrupt
         stop.append(signum)
 
-    previous = {sig: signal.signal(sig, request_stop) for sig in (signal.SIGINT, signal.SIGTERM)}
+    previous: dict[int, object] = {}
     try:
         try:
-            node = factory()
+            node = factory()  # Ctrl-C here is a KeyboardInterrupt: start-up ends at once
         except ElasticPmDynError as err:
             print(f"{program}: error: {err}", file=sys.stderr)
             return EXIT_START_FAILED
+        previous = {sig: signal.signal(sig, request_stop) for sig in (signal.SIGINT, signal.SIGTERM)}
         executor = SingleThreadedExecutor()
         executor.add_node(node)
         try:

@@ -14,7 +14,9 @@ overridable per topic with ``qos_overrides.<topic>.subscription.*``):
 Time is the messages' header stamps, never their arrival: the filter counts seconds from the
 first one (an integer-ns origin, so epoch stamps keep their nanoseconds) and every estimate
 is published at the exact stamp of its message. A message stamped more than
-``observer.timing.max_future`` ahead of the filter is not used (counted as ``future``), and
+``observer.timing.max_future`` ahead of the filter is not used (counted as ``future``); one
+ahead by less that the next joint states contradict (three late in a row) restarts the filter
+from them (:class:`~elastic_pm_dyn.ros.observer_session.ObserverSession`), and
 a joint state with duplicate names, without a measured joint or with no joint of the model
 is not used either (counted per reason); one throttled warning line each, the counts in
 ``/diagnostics``.

@@ -49,6 +49,7 @@ from elastic_pm_dyn.observer.schedule.ekf import OK, WARN, Estimate, UpdateResul
 
 KINDS = ("torque_command", "joint_state", "imu", "branch_forces")
 SOURCE = "node parameters"  # the config's error prefix, replaced by "parameter '...'"
+CONTRADICTED_AFTER = 3  # late joint states in a row, in order, that restart the filter at their stamp
 MAX_DIFFERENCE_INTERVAL = 0.1  # [s] reset: difference motor rates over at most this
 DIFFERENCE_MARGIN = 3.0  # reset: std of differenced rates = this x the encoder-noise part
 MAX_POSITION = 1.0e6  # [rad or m] set_state: beyond, float spacing exceeds 1e-10 (a mistake, not a pose)
@@ -132,6 +133,7 @@ class ObserverSession:
         self._joint_states: deque[_JointState] = deque(maxlen=2)  # latest with every motor position
         self._command: tuple[int, list[str], np.ndarray] | None = None  # latest valid torque command
         self._released: list[UpdateResult] = []  # held accelerometer samples the last message corrected
+        self._late_run: list[int] = []  # stamps of the late joint states in a row (the stream contradicts the filter)
 
     # ------------------------------------------------------------------ inputs
     def torque_command(self, ns: int, names: Sequence[str], effort: Sequence[float]) -> Outcome:
@@ -157,9 +159,31 @@ class ObserverSession:
                     effort: Sequence[float] = ()) -> Outcome:
         results, out = self._run("joint_state", ns,
                                  lambda: self.stream.on_joint_state(ns, names, position, velocity, effort))
+        late = any(r.reason == "late" for r in results or ())
+        if late and self._contradicted(ns):
+            self._joint_states.clear()  # the states ahead of the stream go with the time they set
+            self._remember(ns, names, position, velocity)
+            text = self.reset()
+            self._late_run.clear()
+            self._window["restarts: the stream contradicted a stamp ahead"] += 1
+            out.add("clock", f"{CONTRADICTED_AFTER} joint states in a row stamped before the filter's time: "
+                    f"a stamp ahead of them was wrong; {text}")
+            return self._finish("joint_state", ns, [], out)
+        if not late:
+            self._late_run.clear()
         if not any(r.reason in _NOT_KEPT for r in results or ()):  # an outlier is no state to reset to
             self._remember(ns, names, position, velocity)
         return self._finish("joint_state", ns, results, out)
+
+    def _contradicted(self, ns: int) -> bool:
+        """A late joint state, the CONTRADICTED_AFTER-th in a row, each after the one before: the
+        stream goes on at its own pace behind a time that one early stamp (inside
+        ``timing.max_future``) set, and would otherwise stay late until it catches up."""
+        run = self._late_run
+        if run and ns <= run[-1]:
+            run.clear()
+        run.append(ns)
+        return len(run) >= CONTRADICTED_AFTER
 
     def imu(self, ns: int, linear_acceleration: Sequence[float], frame_id: str = "") -> Outcome:
         results, out = self._run("imu", ns, lambda: self.stream.on_imu(ns, linear_acceleration, frame_id))
@@ -282,10 +306,12 @@ class ObserverSession:
     # ------------------------------------------------------------------ services
     def reset(self) -> str:
         """Restart the filter from the latest measured joint state (motor rates from its
-        velocities or by differencing the one before), keeping the latest torque command;
+        velocities or by differencing the one before), keeping the latest torque command unless
+        it is stamped after that state (commands held for later are dropped with the old time);
         without one, from the model (``initial.source: model``) or the next joint state, the
         filter's time then from the next message (never from a stamp rejected as too far ahead)."""
         obs = self.obs
+        tolerance_ns = self.cfg.timing.stamp_tolerance * 1e9
         if self._joint_states:
             js = self._joint_states[-1]
             rates, std, how = self._rates()
@@ -297,6 +323,8 @@ class ObserverSession:
             if ok:
                 self._started = True
                 text = f"re-initialised from the measured joint state at t = {t:.6f} s ({how})"
+                if self._command is not None and self._command[0] > js.ns + tolerance_ns:
+                    self._command = None  # stamped after the state restarted from: it would move the time ahead
                 if self._command is not None:  # the controller's latest command holds on
                     try:
                         self.stream.on_torque_command(*self._command)

@@ -52,6 +52,7 @@ from elastic_pm_dyn.bags.msgtypes import NS
 from elastic_pm_dyn.dynamics.direct import FORMULATIONS
 from elastic_pm_dyn.errors import InputError, SingularConfigurationError
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
+from elastic_pm_dyn.ros.losses import SequenceGaps
 from elastic_pm_dyn.ros.machine_params import DESCRIPTION_PARAMS, ESTIMATE_PARAMS, MACHINE_PARAMS, load_machine
 from elastic_pm_dyn.ros.markers import MechanismMarkers
 from elastic_pm_dyn.ros.messages import PlantMessages, stamp
@@ -65,7 +66,14 @@ from elastic_pm_dyn.ros.plant_sensors import (
     sensor_spec,
     spectrum_disturbance,
 )
-from elastic_pm_dyn.ros.qos import CLOCK_QOS, COMMAND_QOS, DIAGNOSTICS_QOS, STATE_QOS, VIEWER_QOS
+from elastic_pm_dyn.ros.qos import (
+    CLOCK_QOS,
+    COMMAND_QOS,
+    DIAGNOSTICS_QOS,
+    LOCKSTEP_COMMAND_QOS,
+    STATE_OUT_QOS,
+    VIEWER_QOS,
+)
 from elastic_pm_dyn.ros.robot_description import publish_robot_description
 from elastic_pm_dyn.ros.throttle import KindThrottle
 from elastic_pm_dyn.sim.plant import Plant
@@ -150,15 +158,18 @@ class PlantNode(ManagedNode):
         self.stamp_base = 0  # [ns] stamp = stamp_base + k * period_ns
         self.warn = KindThrottle(self, WARN_EVERY)
 
-        self.pub_joint_states = self.create_publisher(JointState, p["topics.joint_states"], STATE_QOS)
-        self.pub_branch_forces = self.create_publisher(BranchForces, p["topics.branch_forces"], STATE_QOS)
-        self.pub_ee_pose = self.create_publisher(PoseStamped, p["topics.ee_pose"], STATE_QOS)
+        self.pub_joint_states = self.create_publisher(JointState, p["topics.joint_states"], STATE_OUT_QOS)
+        self.pub_branch_forces = self.create_publisher(BranchForces, p["topics.branch_forces"], STATE_OUT_QOS)
+        self.pub_ee_pose = self.create_publisher(PoseStamped, p["topics.ee_pose"], STATE_OUT_QOS)
         self.pub_markers = self.create_publisher(MarkerArray, p["topics.markers"], VIEWER_QOS)
         self.pub_diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", DIAGNOSTICS_QOS)
         self.pub_clock = (self.create_publisher(ClockMsg, "/clock", CLOCK_QOS)
                           if self.sync_mode != "realtime" else None)
         msg_type = JointState if p["command_type"] == "joint_state" else Float64MultiArray
-        self.create_subscription(msg_type, p["topics.command"], self._on_command, COMMAND_QOS)
+        self.command_sub = self.create_subscription(
+            msg_type, p["topics.command"], lambda msg, info: self._on_command(msg, info),  # two args: with info
+            LOCKSTEP_COMMAND_QOS if self.sync_mode == "lockstep" else COMMAND_QOS)
+        self.command_gaps = SequenceGaps()  # commands that never reached the callback (overwritten)
         # Sensors and disturbance: nothing of them exists unless configured (the topics stay as they were).
         self.sensors = SensorOutputs(self, self.plant, spec, p) if spec.any else None
         self.disturbance_input: bool = p["disturbance.input"]
@@ -167,7 +178,7 @@ class PlantNode(ManagedNode):
         self.disturbance_time = 0.0  # when it arrived (the command clock)
         self.pub_disturbance = None
         if self.disturbance_input or self.plant.disturbance is not None:
-            self.pub_disturbance = self.create_publisher(JointState, p["topics.disturbance"], STATE_QOS)
+            self.pub_disturbance = self.create_publisher(JointState, p["topics.disturbance"], STATE_OUT_QOS)
         if self.disturbance_input:
             self.create_subscription(msg_type, p["topics.disturbance_torque"], self._on_disturbance, COMMAND_QOS)
         self.create_service(Trigger, "~/reset", self._on_reset)
@@ -198,7 +209,9 @@ class PlantNode(ManagedNode):
             f"'{p['topics.command']}' for {', '.join(self.decoder.array_order)}")
 
     # ------------------------------------------------------------------ inputs
-    def _on_command(self, msg: JointState | Float64MultiArray) -> None:
+    def _on_command(self, msg: JointState | Float64MultiArray, info: dict[str, Any] | None = None) -> None:
+        if info is not None:
+            self._count_overwritten(info.get("publication_sequence_number"))
         try:
             tau = (self.decoder.from_joint_state(msg.name, msg.effort) if isinstance(msg, JointState)
                    else self.decoder.from_array(msg.data))
@@ -221,6 +234,14 @@ class PlantNode(ManagedNode):
             self.lockstep_trigger.trigger()
         else:
             self.command_time = self._command_clock()
+
+    def _count_overwritten(self, seq: int | None) -> None:
+        """Lockstep answers every command it gets: one that a queue overwrote is reported, never silent."""
+        skipped = self.command_gaps.take(seq, self.command_sub.get_publisher_count())
+        if skipped and self.sync_mode == "lockstep":
+            self.warn.warning("overwritten", f"{self.command_gaps.missed} command(s) overwritten before the plant "
+                              "took them (unanswered; publish the next command after the state, or deepen the "
+                              "publisher's queue)")
 
     def _on_disturbance(self, msg: JointState | Float64MultiArray) -> None:
         try:
@@ -401,7 +422,9 @@ class PlantNode(ManagedNode):
             issues = [text for changed, text in (
                 (s.window_rejected != s.rejected, "commands rejected"),
                 (s.window_stale != s.stale, "zero torque (no command or a stale one)"),
-                (s.window_overruns != s.overruns, "realtime overrun: the schedule slipped"))
+                (s.window_overruns != s.overruns, "realtime overrun: the schedule slipped"),
+                (s.window_overwritten != self.command_gaps.missed and self.sync_mode == "lockstep",
+                 "commands overwritten (unanswered)"))
                 if changed]
             status.level = DiagnosticStatus.WARN if issues else DiagnosticStatus.OK
             status.message = "; ".join(issues) or "running"
@@ -415,10 +438,12 @@ class PlantNode(ManagedNode):
             "closure_gap_m": f"{plant.gap():.3g}", "command_age_s": age,
             "commands_accepted": str(s.accepted), "commands_rejected": str(s.rejected),
             "zero_torque_periods": str(s.stale), "overruns": str(s.overruns),
+            "commands_overwritten": str(self.command_gaps.missed),
         }
         status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
         self.pub_diagnostics.publish(DiagnosticArray(header=Header(stamp=stamp(self._stamp_ns())), status=[status]))
         s.new_window(plant.t, wall)
+        s.window_overwritten = self.command_gaps.missed
 
 
 class _Stats:
@@ -426,6 +451,7 @@ class _Stats:
 
     def __init__(self) -> None:
         self.accepted = self.rejected = self.stale = self.overruns = 0
+        self.window_overwritten = 0  # commands_overwritten at the start of the window
         self.step: list[float] = []
         self.cycle: list[float] = []
         self.new_window(0.0, time.monotonic())

@@ -33,7 +33,7 @@ from elastic_pm_dyn.bags.msgtypes import NS
 from elastic_pm_dyn.errors import InputError
 from elastic_pm_dyn.ros.messages import SerializedMessage, doubles, stamp
 from elastic_pm_dyn.ros.params import Param, ParameterError
-from elastic_pm_dyn.ros.qos import STATE_QOS
+from elastic_pm_dyn.ros.qos import STATE_OUT_QOS
 from elastic_pm_dyn.sim.disturbances import SPECTRA, SpectrumDisturbance, seeded_disturbance
 from elastic_pm_dyn.sim.plant import Plant
 from elastic_pm_dyn.sim.sensors import SAMPLE_TIMINGS, EncoderSpec, GaugeSpec, ImuSpec, SensorModel, SensorSpec
@@ -127,16 +127,17 @@ class SensorOutputs:
         self.after = spec.imu.sample_timing == "after_command"
         self.pub_encoders = self.pub_imu = self.pub_gauges = None
         if spec.encoders.enabled:
-            self.pub_encoders = node.create_publisher(JointState, p["sensors.topics.measured_joint_states"], STATE_QOS)
+            self.pub_encoders = node.create_publisher(JointState, p["sensors.topics.measured_joint_states"],
+                                                      STATE_OUT_QOS)
             names = list(mech.active_names)
             self.encoders = SerializedMessage(lambda a: cdr.encode_joint_state(0, names, *a),
                                               (n_a, n_a if spec.encoders.velocity else 0, 0))
         if spec.imu.enabled:
-            self.pub_imu = node.create_publisher(Imu, p["sensors.topics.ee_imu"], STATE_QOS)
+            self.pub_imu = node.create_publisher(Imu, p["sensors.topics.ee_imu"], STATE_OUT_QOS)
             self.imu = SerializedMessage(lambda a: serialize_message(_imu_template(spec.imu, a[0])), (3,))
         if spec.branch_forces.enabled:
             self.pub_gauges = node.create_publisher(BranchForces, p["sensors.topics.measured_branch_forces"],
-                                                    STATE_QOS)
+                                                    STATE_OUT_QOS)
             branches = [b.name for b in mech.model.branches]
             self.gauges = SerializedMessage(lambda a: cdr.encode_branch_forces(0, branches, *a), (n_b, 0, 0, 0))
 

@@ -16,6 +16,8 @@ from pathlib import Path
 
 from elastic_pm_dyn.errors import ElasticPmDynError
 
+ENTRY = {"elastic_pm_dyn.ros.plant_node": "plant_node", "elastic_pm_dyn.ros.observer_node": "observer_node",
+         "elastic_pm_dyn.ros.feedforward_node": "feedforward_node", "elastic_pm_dyn.ros.recorder": "recorder_node"}
 STOP_SIGNALS = ((signal.SIGINT, 10.0), (signal.SIGTERM, 3.0), (signal.SIGKILL, 3.0))  # (signal, wait [s])
 
 
@@ -44,8 +46,11 @@ class NodeProcess:
         self.name = name
         self.log = log_dir / f"{name}.log"
         log_dir.mkdir(parents=True, exist_ok=True)
+        # A node of ours starts through its console script's entry point: a SIGINT during its
+        # start-up is then one line and status 130 in the log, not a traceback.
+        target = ["-m", "elastic_pm_dyn.entry", ENTRY[module]] if module in ENTRY else ["-m", module]
         with self.log.open("w") as fh:
-            self.proc = subprocess.Popen([sys.executable, "-m", module, "--ros-args", *ros_args], env=env,
+            self.proc = subprocess.Popen([sys.executable, *target, "--ros-args", *ros_args], env=env,
                                          stdout=fh, stderr=subprocess.STDOUT, start_new_session=True)
 
     def check_running(self) -> None:

@@ -8,7 +8,15 @@
   latest samples published before they matched, so the lockstep hand-shake cannot be
   lost to discovery order. The depth is the writer history from which reliable delivery
   repairs a reader that falls behind (a recorder on a busy machine): with 10, a lag of
-  10 samples lost states; 100 samples are 0.1 s at 1 kHz.
+  10 samples lost states; 100 samples are 0.1 s at 1 kHz, and a loaded machine's recorder
+  still lost samples the 100 had overwritten, so the plant's own writers keep 1000
+  (:data:`STATE_OUT_QOS`, 1 s; a transient-local reader gets at most its own depth of it).
+- Lockstep commands (plant in ``sync_mode: lockstep``): the reader keeps the last 1000
+  (:data:`LOCKSTEP_COMMAND_QOS`, compatible with any COMMAND_QOS writer). Each command must
+  be answered, and a controller that publishes a burst without waiting for the states (or a
+  plant late on a loaded machine) would see commands overwritten in a 10-deep queue. Those
+  still lost are counted from the publication sequence numbers (``commands_overwritten`` in
+  the plant's /diagnostics, a warning each second while it grows).
 - ``/clock``: reliable, keep last 10, volatile; rclpy's time source subscribes best effort
   depth 1, which a reliable publisher serves.
 - Markers and diagnostics: reliable, keep last 1-10, volatile (viewers only need the latest).
@@ -34,8 +42,15 @@ COMMAND_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=
 # lost 8 of 2000 lockstep commands, and the bag no longer held what the observer had used).
 COMMAND_OUT_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.RELIABLE,
                              durability=DurabilityPolicy.VOLATILE)
+LOCKSTEP_COMMAND_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE,
+                                  durability=DurabilityPolicy.VOLATILE)
 STATE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.RELIABLE,
                        durability=DurabilityPolicy.TRANSIENT_LOCAL)
+# The plant's state writers: as STATE_QOS, with 1 s of history at 1 kHz from which reliable delivery
+# repairs a reader that lags (a recorder on a loaded machine lost samples the 100-deep history had
+# overwritten: DDS message-lost events). Transient-local readers still get at most their own depth.
+STATE_OUT_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE,
+                           durability=DurabilityPolicy.TRANSIENT_LOCAL)
 CLOCK_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE,
                        durability=DurabilityPolicy.VOLATILE)
 VIEWER_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,

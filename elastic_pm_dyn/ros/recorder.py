@@ -13,40 +13,87 @@ the subscription QoS follows the publishers: transient local when all of them of
 when any of them is best effort. Bag time stamps are receive times on the node clock
 (simulated time with use_sim_time).
 
+Keeping up: a callback only takes the serialized message and queues it; a writer thread
+(:class:`~elastic_pm_dyn.bags.queued_writer.QueuedWriter`) writes and flushes. The
+subscription keeps ``rate_hint * max_lag`` messages (at least the publishers' own
+history), so the executor may fall ``max_lag`` seconds behind a topic at ``rate_hint``
+before the middleware drops anything. What is lost anyway is counted per topic
+(:mod:`~elastic_pm_dyn.ros.losses`: DDS message-lost events and publication sequence gaps,
+plus messages the writer dropped) and reported in the log (throttled), on /diagnostics
+and, at close, in the bag's ``metadata.yaml`` (``custom_data: elastic_pm_dyn.losses``).
+A topic that is matched but delivers nothing for :data:`SILENT_AFTER` seconds is reported
+the same way (a publisher that is silent, or a transport that does not deliver).
+
 Killed at any moment (even SIGKILL), the node leaves a bag that ``analyze``, ``export``
 and ``observe`` read up to at most ~1 s before the kill: the writer flushes (an mcap chunk,
-a sqlite3 commit) every :data:`FLUSH_PERIOD` of wall-clock time, from the message stream
-and from a timer when messages stop. "recording <topic>" is logged once the topic's first
-message is in the file, not when it is subscribed.
+a sqlite3 commit) every :data:`FLUSH_PERIOD` of wall-clock time. "recording <topic>" is
+logged once the topic's first message is in the file, not when it is subscribed.
 """
 
 from __future__ import annotations
 
 import importlib
+import json
+import math
 import sys
+import time
 from pathlib import Path
 from typing import Any
 
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.clock import Clock, ClockType
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.event_handler import SubscriptionEventCallbacks, UnsupportedEventTypeError
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from elastic_pm_dyn.bags.errors import BagError
+from elastic_pm_dyn.bags.queued_writer import QueuedWriter
 from elastic_pm_dyn.bags.typestore import register_msg_text
 from elastic_pm_dyn.bags.writer import STORAGES, BagWriter
 from elastic_pm_dyn.errors import InputError
+from elastic_pm_dyn.ros.losses import TopicLosses
 from elastic_pm_dyn.ros.node_main import ManagedNode, run_node
 from elastic_pm_dyn.ros.params import Param, ParameterError, read_parameters, reject_unknown
+from elastic_pm_dyn.ros.qos import DIAGNOSTICS_QOS
 
 DEMO_TOPICS = ["/joint_states", "/branch_forces", "/ee_pose", "/torque_command", "/reference_joint_states"]
 DISCOVERY_PERIOD = 0.1  # [s] wall-clock poll of the ROS graph for the wanted topics
-DEPTH = 1000  # a recorder must not drop samples in bursts
-FLUSH_PERIOD = 0.5  # [s] wall clock: at most this much of the recording is lost to a kill (plus a callback)
+FLUSH_PERIOD = 0.5  # [s] wall clock: at most this much of the recording is lost to a kill (plus the queue)
+REPORT_PERIOD = 1.0  # [s] /diagnostics, loss warnings and the silent-topic check
+SILENT_AFTER = 5.0  # [s] a matched topic without any message for this long is reported and subscribed anew
+MAX_RESUBSCRIBE = 2  # new subscriptions for a silent topic before it is reported as not recorded
+MAX_DEPTH = 100_000  # subscription history bound (memory: depth x message size)
+LOSSES_KEY = "elastic_pm_dyn.losses"  # metadata.yaml custom_data: per-topic loss counts (JSON)
 
 PARAMS = [
     Param("output", "bag", "bag directory to create (must not exist)"),
     Param("storage", "mcap", "mcap or sqlite3", choices=STORAGES),
     Param("topics", DEMO_TOPICS, "topics to record (absolute names)"),
+    Param("rate_hint", 1000.0, "[Hz] the highest message rate expected on one topic", positive=True),
+    Param("max_lag", 2.0, "[s] how far the recorder may fall behind a topic at rate_hint before "
+          "the middleware drops messages (subscription depth = rate_hint * max_lag)", positive=True),
 ]
+
+
+def subscription_depth(rate_hint: float, max_lag: float, offered_depths: list[int]) -> int:
+    """Messages a subscription keeps: ``max_lag`` seconds at ``rate_hint``, at least every publisher's
+    history (transient local hands it over at once), within 10 .. :data:`MAX_DEPTH`."""
+    return int(min(MAX_DEPTH, max(10, math.ceil(rate_hint * max_lag), *offered_depths)))
+
+
+class _Topic:
+    """One recorded topic: its bag connection, subscription and what it lost."""
+
+    def __init__(self, conn: Any):
+        self.conn = conn
+        self.losses = TopicLosses()
+        self.subscribed_at = time.monotonic()
+        self.matched = 0  # publishers matched (the matched event; the graph's count until it fires)
+        self.subscription: Any = None
+        self.msg_class: type | None = None
+        self.arrive_reported = False
+        self.resubscribed = 0  # times the subscription was made anew because it stayed silent
+        self.silent_reported = False
+        self.reported_lost = 0  # lost as of the last warning
 
 
 class RecorderNode(ManagedNode):
@@ -59,25 +106,43 @@ class RecorderNode(ManagedNode):
         self.wanted = [t if t.startswith("/") else "/" + t for t in p["topics"]]
         if not self.wanted:
             raise ParameterError("parameter 'topics' is empty: nothing to record")
+        if p["rate_hint"] > 1e6 or p["max_lag"] > 3600:
+            raise ParameterError(f"parameters 'rate_hint' {p['rate_hint']:g} Hz / 'max_lag' {p['max_lag']:g} s: "
+                                 "at most 1e6 Hz and 3600 s")
+        self.rate_hint, self.max_lag = p["rate_hint"], p["max_lag"]
         self.path = Path(p["output"])
         try:
-            self.writer = BagWriter(self.path, p["storage"], flush_period=FLUSH_PERIOD)
+            self.writer = QueuedWriter(lambda: BagWriter(self.path, p["storage"], flush_period=FLUSH_PERIOD),
+                                       on_flush=self._announce)
         except BagError as err:
             raise ParameterError(f"parameter 'output': {err}") from None
-        self.connections: dict[str, Any] = {}  # topic -> bag connection
+        self.topics: dict[str, _Topic] = {}
         self.on_disk: set[str] = set()  # topics whose first message is in the file (logged once)
         self.skipped: set[str] = set()  # topics whose type cannot be recorded (warned once)
+        self.lost_events_supported = True
+        self.write_error_reported = False
+        self.pub_diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", DIAGNOSTICS_QOS)
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.create_timer(DISCOVERY_PERIOD, self._discover, clock=steady)
-        self.create_timer(FLUSH_PERIOD / 2, self._flush, clock=steady)  # when messages stop coming
+        self.create_timer(REPORT_PERIOD, self._report, clock=steady)
         self.get_logger().info(f"waiting for {', '.join(self.wanted)} -> {self.path} ({p['storage']})")
+
+    @property
+    def connections(self) -> dict[str, Any]:
+        """topic -> bag connection, for the topics subscribed so far."""
+        return {t: s.conn for t, s in self.topics.items()}
+
+    def count(self, topic: str) -> int:
+        """Messages of ``topic`` handed to the bag writer so far."""
+        s = self.topics.get(topic)
+        return self.writer.written[s.conn.id] if s else 0
 
     def _discover(self) -> None:
         types = dict(self.get_topic_names_and_types())
         for topic in self.wanted:
             # Wait for a publisher: its type and QoS decide the subscription. (The two graph
             # queries are not atomic: a publisher can show before its topic is listed.)
-            if topic in self.connections or topic in self.skipped or not types.get(topic) \
+            if topic in self.topics or topic in self.skipped or not types.get(topic) \
                     or not self.count_publishers(topic):
                 continue
             msgtype = types[topic][0]
@@ -91,41 +156,141 @@ class RecorderNode(ManagedNode):
         msg_class = _message_class(msgtype)
         if msgtype not in self.writer.typestore.types:
             register_msg_text(self.writer.typestore, msgtype, _installed_definition(msgtype))
-        self.connections[topic] = self.writer.add_connection(topic, msgtype)
-        self.create_subscription(msg_class, topic, lambda raw, t=topic: self._write(t, raw),
-                                 self._qos(topic), raw=True)
-        self.get_logger().info(f"subscribed to {topic} [{msgtype}]")
+        state = _Topic(self.writer.add_connection(topic, msgtype))
+        state.msg_class = msg_class
+        self.topics[topic] = state
+        self._create_subscription(topic, state)
+
+    def _create_subscription(self, topic: str, state: _Topic) -> None:
+        state.matched = self.count_publishers(topic)
+        state.subscribed_at = time.monotonic()
+        qos = self._qos(topic)
+        put, losses, clock = self.writer.put, state.losses, self.get_clock()
+        conn = state.conn
+
+        def take(raw: bytes, info: dict[str, Any]) -> None:  # the hot path: queue and count, nothing else
+            put(conn, clock.now().nanoseconds, raw)
+            losses.received += 1
+            losses.gaps.take(info.get("publication_sequence_number"), state.matched)
+
+        def lost(event: Any) -> None:
+            losses.dds_lost += event.total_count_change
+
+        def matched(event: Any) -> None:
+            state.matched = event.current_count
+
+        if self.lost_events_supported:
+            try:
+                state.subscription = self.create_subscription(
+                    state.msg_class, topic, take, qos, raw=True,
+                    event_callbacks=SubscriptionEventCallbacks(message_lost=lost, matched=matched))
+            except UnsupportedEventTypeError:  # an RMW without them: sequence gaps remain
+                self.lost_events_supported = False
+                self.get_logger().warning("this RMW reports no message-lost events: losses are counted "
+                                          "from sequence gaps only")
+        if not self.lost_events_supported:
+            state.subscription = self.create_subscription(state.msg_class, topic, take, qos, raw=True)
+        self.get_logger().info(f"subscribed to {topic} [{conn.msgtype}], depth {qos.depth}")
+
+    def _resubscribe(self, topic: str, state: _Topic) -> None:
+        """A new reader for a topic that is matched but silent: a reader the publisher's side
+        never serves (seen after a killed recorder, issue #29) is replaced by one it matches anew."""
+        self.destroy_subscription(state.subscription)
+        state.resubscribed += 1
+        state.losses.gaps.last = None  # the new reader starts from the publisher's current sequence
+        self._create_subscription(topic, state)
 
     def _qos(self, topic: str) -> QoSProfile:
         offered = [info.qos_profile for info in self.get_publishers_info_by_topic(topic)]
         durable = bool(offered) and all(q.durability == DurabilityPolicy.TRANSIENT_LOCAL for q in offered)
         reliable = all(q.reliability == ReliabilityPolicy.RELIABLE for q in offered)
-        return QoSProfile(depth=DEPTH,
+        depth = subscription_depth(self.rate_hint, self.max_lag,
+                                   [q.depth for q in offered if q.history == HistoryPolicy.KEEP_LAST])
+        return QoSProfile(depth=depth,
                           durability=DurabilityPolicy.TRANSIENT_LOCAL if durable else DurabilityPolicy.VOLATILE,
                           reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT)
 
-    def _write(self, topic: str, raw: bytes) -> None:
-        if self.writer.write(self.connections[topic], self.get_clock().now().nanoseconds, raw):
-            self._announce()
-
-    def _flush(self) -> None:
-        if self.writer.flush():
-            self._announce()
-
-    def _announce(self) -> None:
-        """Log "recording <topic>" for each topic whose first message just reached the file."""
-        for topic, conn in self.connections.items():
-            if topic not in self.on_disk and self.writer.durable(conn):
+    def _announce(self, writer: BagWriter) -> None:
+        """Log "recording <topic>" for each topic whose first message just reached the file
+        (called by the writer thread after a flush)."""
+        for topic, s in list(self.topics.items()):
+            if topic not in self.on_disk and writer.durable(s.conn):
                 self.on_disk.add(topic)
-                self.get_logger().info(f"recording {topic} [{conn.msgtype}]: first message in {self.path}")
+                self.get_logger().info(f"recording {topic} [{s.conn.msgtype}]: first message in {self.path}")
+
+    def losses(self) -> dict[str, dict[str, int]]:
+        """Per topic: received, lost (the exact witness where there is one), lost (DDS events),
+        skipped (sequence gaps), dropped (by the writer), new subscriptions made because it stayed silent."""
+        return {t: {"received": s.losses.received, "lost": s.losses.lost() + self.writer.dropped[s.conn.id],
+                    "lost_dds": s.losses.dds_lost,
+                    "sequence_gaps": s.losses.sequence_gaps, "dropped_by_writer": self.writer.dropped[s.conn.id],
+                    "resubscribed": s.resubscribed}
+                for t, s in self.topics.items()}
+
+    def _silent(self, s: _Topic) -> bool:
+        return (s.losses.received == 0 and s.matched > 0
+                and time.monotonic() - s.subscribed_at > SILENT_AFTER)
+
+    def _report(self) -> None:
+        """Warn about new losses and silent topics; /diagnostics with every topic's counts."""
+        log = self.get_logger()
+        problems = []
+        for topic, s in self.topics.items():
+            lost = s.losses.lost() + self.writer.dropped[s.conn.id]
+            if lost:
+                problems.append(f"{topic} lost {lost}")
+            if lost > s.reported_lost:
+                s.reported_lost = lost
+                log.warning(f"{topic}: {lost} message(s) lost so far ({s.losses.summary()}, "
+                            f"{self.writer.dropped[s.conn.id]} dropped by the bag writer)")
+            if self._silent(s):
+                problems.append(f"{topic} silent")
+                waited = time.monotonic() - s.subscribed_at
+                if s.resubscribed < MAX_RESUBSCRIBE:
+                    log.warning(f"{topic}: {s.matched} publisher(s) matched but no message in {waited:.0f} s; "
+                                "subscribing again (a silent publisher, or a reader the middleware does not serve)")
+                    self._resubscribe(topic, s)
+                elif not s.silent_reported:
+                    s.silent_reported = True
+                    log.warning(f"{topic}: {s.matched} publisher(s) matched but still no message after "
+                                f"{s.resubscribed} new subscription(s): nothing of it is recorded (a silent "
+                                "publisher, or a transport that does not deliver: see README, 'Recorder QoS "
+                                "and losses')")
+            elif (s.silent_reported or s.resubscribed) and s.losses.received and not s.arrive_reported:
+                s.arrive_reported = True
+                log.info(f"{topic}: messages arrive now (after {s.resubscribed} new subscription(s))")
+        if self.writer.error is not None:
+            problems.insert(0, f"bag write failed: {self.writer.error}")
+            if not self.write_error_reported:
+                self.write_error_reported = True
+                log.error(f"{self.writer.error}; recording stopped")
+                self.done = True
+        status = DiagnosticStatus(name=f"{self.get_name()}: recorder", hardware_id=str(self.path))
+        status.level = (DiagnosticStatus.ERROR if self.writer.error is not None
+                        else DiagnosticStatus.WARN if problems else DiagnosticStatus.OK)
+        status.message = "; ".join(problems) or "recording, nothing lost"
+        values = {"queued_bytes": str(self.writer.queued_bytes())}
+        for topic, counts in self.losses().items():
+            values.update({f"{topic} {k}": str(v) for k, v in counts.items()})
+        status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
+        diag = DiagnosticArray(status=[status])
+        diag.header.stamp = self.get_clock().now().to_msg()
+        self.pub_diagnostics.publish(diag)
 
     def close(self) -> None:
-        counts = {c.topic: self.writer.count(c) for c in self.connections.values()}
-        self.writer.close()
-        missing = [t for t in self.wanted if t not in self.connections]
-        self.get_logger().info(f"bag {self.path} closed: "
-                               + (", ".join(f"{t} {n}" for t, n in counts.items()) or "no messages")
-                               + (f"; never seen: {', '.join(missing)}" if missing else ""))
+        losses = self.losses()
+        try:
+            self.writer.call(lambda w: w.set_custom_data(LOSSES_KEY, json.dumps(losses, sort_keys=True)))
+            self.writer.close()
+        except BagError as err:
+            self.get_logger().error(f"{err}; the bag keeps what was flushed before")
+        counts = {t: self.count(t) for t in self.topics}
+        missing = [t for t in self.wanted if t not in self.topics]
+        lost = {t: s.losses.lost() + self.writer.dropped[s.conn.id] for t, s in self.topics.items()}
+        self.get_logger().info(
+            f"bag {self.path} closed: "
+            + (", ".join(f"{t} {n} (lost {lost[t]})" for t, n in counts.items()) or "no messages")
+            + (f"; never seen: {', '.join(missing)}" if missing else ""))
 
 
 def _message_class(msgtype: str) -> type:

@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
+from elastic_pm_dyn.output_files import atomic_file
 from elastic_pm_dyn.sim.csv_text import write_table
 
 
@@ -46,19 +46,9 @@ class SimulationResult:
         # what np.savetxt(fmt="%.17g", delimiter=",", comments="") wrote, formatted compiled
         head = (",".join(self.header()) + "\n").encode("latin-1")
         table = self.table()
-        if path.exists() and not path.is_file():  # a device or pipe (/dev/stdout): no rename
-            with open(path, "wb") as f:
-                f.write(head)
-                write_table(f, table)
-            return
-        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-        try:
-            with open(tmp, "wb") as f:
-                f.write(head)
-                write_table(f, table)
-            os.replace(tmp, path)
-        finally:
-            tmp.unlink(missing_ok=True)
+        with atomic_file(path) as tmp, open(tmp, "wb") as f:  # a device or pipe (/dev/stdout) directly
+            f.write(head)
+            write_table(f, table)
 
     def column(self, name: str) -> np.ndarray:
         return self.table()[:, self.header().index(name)]

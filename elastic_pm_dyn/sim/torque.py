@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from elastic_pm_dyn.errors import InputError
+from elastic_pm_dyn.output_files import atomic_file
 from elastic_pm_dyn.text_file import TextFileError, read_text
 
 MAX_TORQUE_FILE_BYTES = 2**30  # 1 GiB: ~2.5e7 rows of two motors; refused before reading
@@ -249,6 +250,7 @@ def _short(text: str, limit: int = 60) -> str:
 
 
 def write_torque_csv(path: str | Path, times: np.ndarray, values: np.ndarray, names: list[str]) -> None:
-    """Write a table that :func:`load_torque_csv` reads back exactly (17 digits)."""
+    """Write a table that :func:`load_torque_csv` reads back exactly (17 digits); complete or not at all."""
     data = np.column_stack([times, values])
-    np.savetxt(path, data, delimiter=",", header=",".join(["t", *names]), comments="", fmt="%.17g")
+    with atomic_file(path) as tmp:
+        np.savetxt(tmp, data, delimiter=",", header=",".join(["t", *names]), comments="", fmt="%.17g")

@@ -409,6 +409,9 @@ class Observer:
                 if r == ACTIVE:
                     P0[self.nae + i, self.nae + i] = velocity_stddev ** 2
         tau_hold, t_cmd = self.tau_hold, self.t_command
+        if t_cmd > t + self.cfg.timing.stamp_tolerance:
+            t_cmd = -np.inf  # a command stamped after the restart must not hold the filter's commands back
+        self._pending.clear()  # delayed commands of the old time are not replayed
         self.reset(t, q, qd, P0)
         self.tau_hold, self.tau_last, self.t_command = tau_hold, tau_hold.copy(), t_cmd
         return True

@@ -1,0 +1,76 @@
+"""Files and folders written complete or not at all (temporary name, then ``os.replace``).
+
+A run stopped by a full disk, a file-size limit, Ctrl-C or a kill must not leave a cut CSV,
+a truncated PNG or half a bag copy where the user expects a result (nor destroy the result
+that was there). Everything is written under a hidden temporary name in the same folder
+and renamed into place once complete; on any error the temporary is removed and the error
+becomes one line naming the user's path (:class:`OutputError`), never the temporary's.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+from collections.abc import Iterator
+from pathlib import Path
+
+from elastic_pm_dyn.errors import OutputError
+
+__all__ = ["OutputError", "atomic_dir", "atomic_file", "temp_name", "write_bytes", "write_text"]
+
+
+def _reason(err: OSError) -> str:
+    return err.strerror or str(err)
+
+
+def temp_name(path: Path) -> Path:
+    """The hidden name an output is written under before it is renamed into place."""
+    return path.with_name(f".{path.name}.{os.getpid()}.tmp")
+
+
+@contextlib.contextmanager
+def atomic_file(path: str | Path) -> Iterator[Path]:
+    """Yield a temporary path beside ``path``; write it in the block; it becomes ``path`` when
+    the block ends without error. A device or pipe (``/dev/stdout``) is written directly."""
+    path = Path(path)
+    if path.exists() and not path.is_file():
+        yield path
+        return
+    tmp = temp_name(path)
+    try:
+        yield tmp
+        os.replace(tmp, path)
+    except OSError as err:
+        raise OutputError(f"cannot write {path}: {_reason(err)}") from None
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def write_text(path: str | Path, text: str, encoding: str = "utf-8") -> None:
+    with atomic_file(path) as tmp:
+        tmp.write_text(text, encoding=encoding)
+
+
+def write_bytes(path: str | Path, data: bytes) -> None:
+    with atomic_file(path) as tmp:
+        tmp.write_bytes(data)
+
+
+@contextlib.contextmanager
+def atomic_dir(path: str | Path) -> Iterator[Path]:
+    """Yield a not yet existing path with ``path``'s name inside a hidden temporary folder
+    beside it; create and fill it in the block (a bag writer names its files after it); it is
+    moved to ``path`` when the block ends without error (``path`` must not exist then)."""
+    path = Path(path)
+    parent = temp_name(path)
+    shutil.rmtree(parent, ignore_errors=True)
+    try:
+        parent.mkdir(parents=True)
+        inner = parent / path.name
+        yield inner
+        os.replace(inner, path)
+    except OSError as err:
+        raise OutputError(f"cannot write {path}: {_reason(err)}") from None
+    finally:
+        shutil.rmtree(parent, ignore_errors=True)

@@ -1,0 +1,70 @@
+"""Ctrl-C at any moment of start-up: one line, exit 130, no traceback (issue #23 item 3).
+
+Each program is started as the user starts it (its console script) with ``-X importtime``,
+whose lines on stderr say how far the imports got; SIGINT is sent the moment a chosen module
+is imported (the entry point itself, numpy, rclpy or numba, the simulator), i.e. during the
+imports and the node's start-up, where an uncaught KeyboardInterrupt used to print a
+traceback and end with -2.
+"""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+BIN = Path(sys.executable).parent
+CONFIG = Path(__file__).resolve().parents[1] / "config"
+HANG_GUARD = 300.0  # [s] only against a hang
+
+
+def _interrupt_at(argv: list[str], module: str, tmp_path: Path) -> tuple[int, str]:
+    """Run ``argv`` (a console script and its arguments), SIGINT once ``module`` is imported."""
+    err_path = tmp_path / "stderr"
+    with err_path.open("w") as err:
+        proc = subprocess.Popen([sys.executable, "-X", "importtime", *argv], stdout=subprocess.DEVNULL,
+                                stderr=err, cwd=tmp_path)
+    sent = False
+    end = time.monotonic() + HANG_GUARD
+    while proc.poll() is None and time.monotonic() < end:
+        if not sent and any(line.split("|")[-1].strip() == module
+                            for line in err_path.read_text(errors="replace").splitlines()):
+            proc.send_signal(signal.SIGINT)
+            sent = True
+        time.sleep(0.005)
+    if proc.poll() is None:
+        proc.kill()
+    code = proc.wait(30.0)
+    assert sent, f"{module} was never imported:\n{err_path.read_text()[-2000:]}"
+    text = err_path.read_text(errors="replace")
+    return code, "\n".join(ln for ln in text.splitlines() if not ln.startswith("import time:"))
+
+
+NODES = ["plant_node", "observer_node", "feedforward_node", "recorder_node"]
+
+
+@pytest.mark.parametrize("module", ["elastic_pm_dyn.entry", "numpy", "rclpy", "numba"])
+@pytest.mark.parametrize("program", NODES)
+def test_a_node_interrupted_while_it_starts(program: str, module: str, tmp_path: Path) -> None:
+    pytest.importorskip("rclpy")
+    args = ["--ros-args", "-p", f"output:={tmp_path / 'bag'}"] if program == "recorder_node" else []
+    if program == "recorder_node" and module == "numba":
+        module = "elastic_pm_dyn.bags.writer"  # the recorder does not import numba
+    code, err = _interrupt_at([str(BIN / program), *args], module, tmp_path)
+    assert "Traceback" not in err, err
+    assert code == 130, err
+    assert err.strip().splitlines()[-1] == f"{program}: interrupted (Ctrl-C)"
+
+
+@pytest.mark.parametrize("module", ["elastic_pm_dyn.entry", "numpy", "elastic_pm_dyn.sim.simulator", "numba",
+                                    "elastic_pm_dyn.model.loader"])
+def test_the_cli_interrupted_while_it_starts(module: str, tmp_path: Path) -> None:
+    argv = [str(BIN / "elastic-pm-dyn"), "check", str(CONFIG / "five_bar.yaml")]
+    code, err = _interrupt_at(argv, module, tmp_path)
+    assert "Traceback" not in err, err
+    assert code == 130, err
+    assert "interrupted" in err.strip().splitlines()[-1]

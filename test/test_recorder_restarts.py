@@ -1,0 +1,127 @@
+"""Recorders killed and restarted against a running plant must each record (issue #29).
+
+A recorder started on the domain of one that was just SIGKILLed takes the dead process's
+Fast DDS participant id, and with it its shared-memory port: the plant could keep writing
+into the dead port and the new recorder, matched, received nothing. Each restarted recorder
+here (mcap and sqlite3, both orders) must get messages of every topic into its bag.
+``ELASTIC_PM_DYN_RESTART_CYCLES=N`` runs N cycles of two recorders (default 2: 4 recorders).
+
+Also: a topic that is matched but silent is reported (log and /diagnostics), not left as an
+empty bag without a word.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import time
+from pathlib import Path
+
+import pytest
+from ros_harness import RosHarness, domain_id, require
+
+from elastic_pm_dyn.bags.reader import open_bag
+
+TOPICS = ["/joint_states", "/branch_forces", "/ee_pose"]
+CYCLES = int(os.environ.get("ELASTIC_PM_DYN_RESTART_CYCLES", "2"))
+HANG_GUARD = 300.0  # [s] only against a hang: a cold numba cache compiles the plant first
+
+
+def _wait_for(proc, text: str | list[str], guard: float = HANG_GUARD) -> None:
+    texts = [text] if isinstance(text, str) else text
+    end = time.monotonic() + guard
+    while not all(t in proc.log.read_text(errors="replace") for t in texts):
+        proc.check_running()
+        if time.monotonic() > end:
+            raise AssertionError(f"{proc.name}: no {texts} within {guard:g} s:\n{proc.log.read_text()}")
+        time.sleep(0.05)
+
+
+def _counts(bag: Path) -> dict[str, int]:
+    with open_bag(bag) as b:
+        return {c.topic: sum(1 for _ in b.messages([c])) for c in b.connections}
+
+
+def test_every_restarted_recorder_records(tmp_path: Path) -> None:
+    require("rclpy")
+    from elastic_pm_dyn.ros.processes import NodeProcess, ros_env
+
+    env = ros_env(domain_id(71))
+    topics = "topics:=[" + ",".join(TOPICS) + "]"
+    plant = NodeProcess("plant", "elastic_pm_dyn.ros.plant_node", ["-p", "sync_mode:=realtime"], env, tmp_path / "logs")
+    recorders = []
+    try:
+        _wait_for(plant, "robot_description")
+        k = 0
+        for cycle in range(CYCLES):
+            for storage in ("mcap", "sqlite3") if cycle % 2 == 0 else ("sqlite3", "mcap"):
+                k += 1
+                bag = tmp_path / f"bag{k}"
+                rec = NodeProcess(f"recorder{k}", "elastic_pm_dyn.ros.recorder",
+                                  ["-p", f"output:={bag}", "-p", f"storage:={storage}", "-p", topics],
+                                  env, tmp_path / "logs")
+                recorders.append(rec)
+                # Killed as soon as every topic is in the file (a recorder that never gets there
+                # fails here, its log quoted), while the plant keeps publishing.
+                _wait_for(rec, [f"recording {t}" for t in TOPICS])
+                rec.proc.send_signal(signal.SIGKILL)
+                rec.proc.wait(30.0)
+                counts = _counts(bag)
+                assert all(counts.get(t, 0) > 0 for t in TOPICS), f"{rec.name} ({storage}): {counts}"
+    finally:
+        for rec in recorders:
+            if rec.proc.poll() is None:
+                rec.proc.kill()
+                rec.proc.wait(30.0)
+        plant.stop()
+    assert k == 2 * CYCLES
+
+
+def test_a_matched_but_silent_topic_is_reported(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    require("rclpy")
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+    from rclpy.parameter import Parameter
+    from std_msgs.msg import String
+
+    from elastic_pm_dyn.ros import recorder as recorder_module
+    from elastic_pm_dyn.ros.qos import DIAGNOSTICS_QOS
+
+    monkeypatch.setattr(recorder_module, "SILENT_AFTER", 0.5)
+    monkeypatch.setattr(recorder_module, "REPORT_PERIOD", 0.2)
+    h = RosHarness(domain_id(73))
+    try:
+        node = h.node("quiet_publisher")
+        pub = node.create_publisher(String, "/quiet", 10)
+        diags: list = []
+        node.create_subscription(DiagnosticArray, "/diagnostics", diags.append, DIAGNOSTICS_QOS)
+        rec = h.add(recorder_module.RecorderNode(context=h.context, parameter_overrides=[
+            Parameter("output", value=str(tmp_path / "bag")), Parameter("topics", value=["/quiet"])]))
+        warnings: list[str] = []
+        logger = rec.get_logger()
+        monkeypatch.setattr(rec, "get_logger", lambda: _Spy(logger, warnings))
+
+        def reported() -> bool:
+            return any(d.status[0].level == DiagnosticStatus.WARN and "/quiet silent" in d.status[0].message
+                       for d in diags)
+        h.wait_until(reported, 60.0, "the silent topic in /diagnostics")
+        assert any("/quiet" in w and "no message" in w for w in warnings), warnings
+        pub.publish(String(data="now"))
+        h.wait_until(lambda: diags and diags[-1].status[0].level == DiagnosticStatus.OK, 60.0, "OK again")
+        rec.close()
+    finally:
+        h.close()
+    assert _counts(tmp_path / "bag") == {"/quiet": 1}
+
+
+class _Spy:
+    """A logger that also keeps the warnings."""
+
+    def __init__(self, logger, warnings: list[str]):
+        self.logger, self.warnings = logger, warnings
+
+    def warning(self, text: str) -> None:
+        self.warnings.append(text)
+        self.logger.warning(text)
+
+    def __getattr__(self, name: str):
+        return getattr(self.logger, name)
