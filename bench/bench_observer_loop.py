@@ -15,7 +15,9 @@ column differenced, dense expm), in the same run:
 
 - one live period: the wall time of the per-message calls of one stamp (joint state,
   accelerometer, command) through ``ObserverStream``, as the observer node makes them;
-  median, p90, p99 and p99 / median over the recording;
+  median, p90, p99 and p99 / median over the recording; beside it the same with every
+  message through the Observer's Python (``steps_compiled = False``: the kernels called
+  piece by piece, the path before the compiled per-period step), in the same run;
 - offline ``observe`` over the recording's bag: the filter's real-time factor (duration /
   ``wall_filter_s`` of summary.json, the quantity the issue measured) and the whole run's,
   best of three passes (the first loads the compiled kernels);
@@ -78,8 +80,12 @@ def recording(name: str, mech: Mechanism, duration: float):
                            truth_dt=TRUTH_DT.get(name, 2.5e-5))
 
 
-def live_periods(mech: Mechanism, rec, params: dict) -> dict:
+def live_periods(mech: Mechanism, rec, params: dict, compiled: bool = True) -> dict:
+    """One live period's wall time through the per-message API; ``compiled`` False: every
+    message through the Observer's Python (the kernels called piece by piece, as before the
+    compiled per-period step)."""
     obs = Observer(mech, ObserverConfig.from_parameters({"sensors": SENSORS, **params}))
+    obs.steps_compiled = compiled
     run = feed_live(obs, rec, tuple(SENSORS), timed=True)
     t = run.update_times[5:] * 1e6  # the first periods initialise and compile
     med = float(np.median(t))
@@ -102,11 +108,13 @@ def offline(mech: Mechanism, rec, params: dict, tmp: Path, tag: str, repeats: in
 def markdown(result: dict) -> str:
     lines = [f"Measured {result['date']} on {result['machine']} (`{result['command']}`).", "",
              "| machine | configuration | live period median [us] | p99 [us] | p99 / median "
-             "| offline filter x real time | F error / open loop | NEES in 95 % band |",
-             "|---|---|---|---|---|---|---|---|"]
+             "| the same through Python, median [us] | offline filter x real time | F error / open loop "
+             "| NEES in 95 % band |",
+             "|---|---|---|---|---|---|---|---|---|"]
     for row in result["rows"]:
         lines.append(f"| {row['machine']} | {row['config']} | {row['live']['median_us']:.0f} | "
                      f"{row['live']['p99_us']:.0f} | {row['live']['p99_over_median']:.2f} | "
+                     f"{row['live']['python_median_us']:.0f} | "
                      f"{row['offline']['filter_rtf']:.1f} | {row['vs_open_loop']:.2f} | {row['nees_in_band']:.2f} |")
     return "\n".join(lines) + "\n"
 
@@ -131,6 +139,9 @@ def main() -> int:
             print(f"{spec}: recording {time.perf_counter() - t0:.1f} s", flush=True)
             for label, params in configs.items():
                 live = live_periods(mech, rec, params)
+                python = live_periods(mech, rec, params, compiled=False)
+                live["python_median_us"] = python["median_us"]
+                live["python_p99_us"] = python["p99_us"]
                 s = score(rec, live.pop("run"), ol, F_qs, settle=0.05)
                 off = offline(mech, rec, params, tmp, spec.replace(":", "_"))
                 row = {"machine": spec, "config": label, "live": live, "offline": off,
