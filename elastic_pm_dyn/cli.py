@@ -112,9 +112,10 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
 def cmd_feedforward(args: argparse.Namespace) -> int:
     from elastic_pm_dyn.errors import InputError
-    from elastic_pm_dyn.motion.feedforward import line_torques
+    from elastic_pm_dyn.motion.feedforward import elastic_line_torques, line_torques
     from elastic_pm_dyn.motion.manoeuvre import REFERENCE_MANOEUVRE as ref
-    from elastic_pm_dyn.motion.trajectory import QuinticLine
+    from elastic_pm_dyn.motion.time_laws import law_order
+    from elastic_pm_dyn.motion.trajectory import Line
     from elastic_pm_dyn.sim.torque import write_torque_csv
     model = _load(args)
     names = [c.upper() for c in model.ee_names]
@@ -129,12 +130,18 @@ def cmd_feedforward(args: argparse.Namespace) -> int:
                          f"{axes}, got {len(points)}")
     a, b = np.array(points[:dims]), np.array(points[dims:])
     rate = ref.control_rate if args.rate is None else args.rate
-    line = QuinticLine(a, b, ref.move if args.move is None else args.move, ref.hold if args.hold is None else args.hold)
+    # the elastic inverse's torques hold the path's 4th derivative: C^4 (nonic) unless told
+    law = args.law or ("nonic" if args.method == "elastic" else "quintic")
+    line = Line(a, b, ref.move if args.move is None else args.move, ref.hold if args.hold is None else args.hold,
+                law_order(law))
     samples = line.duration * rate
     if not samples <= MAX_TORQUE_SAMPLES:  # before allocating the table
         raise InputError(f"--move {line.move:g} s + --hold {line.hold:g} s at --rate {rate:g} Hz means {samples:.4g} "
                          f"samples, more than the limit of {MAX_TORQUE_SAMPLES:.0e}")
-    times, torques, names = line_torques(model, line, rate)
+    if args.method == "elastic":
+        times, torques, names, _ = elastic_line_torques(model, line, rate)
+    else:
+        times, torques, names = line_torques(model, line, rate)
     write_torque_csv(args.out, times, torques, names)
     print(f"{len(times)} samples at {rate:g} Hz -> {args.out}  (peak |tau| "
           + ", ".join(f"{n} {v:.3f} N m" for n, v in zip(names, np.abs(torques).max(0), strict=True)) + ")")
@@ -324,8 +331,9 @@ def build_parser() -> argparse.ArgumentParser:
     _add_simulation_options(p)
     p.set_defaults(func=cmd_simulate)
 
-    p = sub.add_parser("feedforward", help="rigid inverse-dynamics torques of a quintic straight line")
-    _add_model(p)
+    p = sub.add_parser("feedforward", help="inverse-dynamics torques of a straight line: the rigid model's or the "
+                       "elastic model's (--method elastic)")
+    _add_model(p, dof=True)
     # Unset options take the reference manoeuvre's values (motion.manoeuvre), read when the command runs.
     p.add_argument("--line", type=float, nargs="+", metavar="X",
                    help="start and end point: XA YA XB YB (planar) or six numbers (spatial); "
@@ -333,6 +341,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--move", type=float, help="move time [s] (default: the reference manoeuvre's)")
     p.add_argument("--hold", type=float, help="hold time at the end [s] (default: the reference manoeuvre's)")
     p.add_argument("--rate", type=float, help="sample rate [Hz] (default: the reference manoeuvre's)")
+    p.add_argument("--method", choices=("rigid", "elastic"), default="rigid",
+                   help="rigid: the rigid model's inverse dynamics sampled at t_k; elastic: the elastic model's "
+                        "(the deflections compensated), each sample the mean over its hold period")
+    p.add_argument("--law", choices=("quintic", "septic", "nonic"),
+                   help="rest-to-rest time law (C^2, C^3, C^4); default quintic for rigid, nonic for elastic")
     p.add_argument("--out", required=True)
     p.set_defaults(func=cmd_feedforward)
 

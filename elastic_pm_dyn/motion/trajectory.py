@@ -10,6 +10,7 @@ import numpy as np
 from scipy.interpolate import BPoly, CubicSpline
 
 from elastic_pm_dyn.errors import InputError
+from elastic_pm_dyn.motion.time_laws import time_law
 
 
 @dataclass(frozen=True)
@@ -42,6 +43,44 @@ class QuinticLine:
         sdd = 60 * x * (1 - x) * (1 - 2 * x) / self.move**2
         d = np.asarray(self.end, dtype=float) - np.asarray(self.start, dtype=float)
         return self.start + s * d, sd * d, sdd * d
+
+
+@dataclass(frozen=True)
+class Line:
+    """p(t) = p_A + (p_E - p_A) s(t/T) with the C^r rest-to-rest law of :mod:`time_laws`
+    (r = 2: :class:`QuinticLine`'s; r = 4, the default: the 9th-order law the elastic
+    feedforward wants), then hold p_E. Any number of coordinates (a point, or a platform's)."""
+
+    start: np.ndarray
+    end: np.ndarray
+    move: float  # T [s]
+    hold: float = 0.0  # time held at the end [s]
+    order: int = 4  # r: derivatives 1..r vanish at both ends
+
+    def __post_init__(self) -> None:
+        if not (self.move > 0 and self.hold >= 0 and np.isfinite(self.move + self.hold)):
+            raise InputError(f"move time must be > 0 and hold >= 0 (got {self.move}, {self.hold})")
+        if np.shape(self.start) != np.shape(self.end):
+            raise InputError("line start and end need the same number of coordinates")
+        if not np.all(np.isfinite(np.concatenate([np.ravel(self.start), np.ravel(self.end)]))):
+            raise InputError("line start and end must be finite")
+
+    @property
+    def duration(self) -> float:
+        return self.move + self.hold
+
+    def derivatives(self, t: float, n: int) -> np.ndarray:
+        """Rows: position and its first n time derivatives at t."""
+        s = time_law(self.order, self.move, t, n)
+        d = np.asarray(self.end, dtype=float) - np.asarray(self.start, dtype=float)
+        out = s[:, None] * d[None, :]
+        out[0] += np.asarray(self.start, dtype=float)
+        return out
+
+    def __call__(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Position, velocity, acceleration at time t (clamped to [0, duration])."""
+        p, pd, pdd = self.derivatives(t, 2)
+        return p, pd, pdd
 
 
 class JointSpline:
