@@ -115,7 +115,7 @@ def cmd_feedforward(args: argparse.Namespace) -> int:
     from elastic_pm_dyn.motion.feedforward import elastic_line_torques, line_torques
     from elastic_pm_dyn.motion.manoeuvre import REFERENCE_MANOEUVRE as ref
     from elastic_pm_dyn.motion.time_laws import law_order
-    from elastic_pm_dyn.motion.trajectory import Line
+    from elastic_pm_dyn.motion.trajectory import make_line
     from elastic_pm_dyn.sim.torque import write_torque_csv
     model = _load(args)
     names = [c.upper() for c in model.ee_names]
@@ -132,8 +132,8 @@ def cmd_feedforward(args: argparse.Namespace) -> int:
     rate = ref.control_rate if args.rate is None else args.rate
     # the elastic inverse's torques hold the path's 4th derivative: C^4 (nonic) unless told
     law = args.law or ("nonic" if args.method == "elastic" else "quintic")
-    line = Line(a, b, ref.move if args.move is None else args.move, ref.hold if args.hold is None else args.hold,
-                law_order(law))
+    line = make_line(a, b, ref.move if args.move is None else args.move,
+                     ref.hold if args.hold is None else args.hold, law_order(law))
     samples = line.duration * rate
     if not samples <= MAX_TORQUE_SAMPLES:  # before allocating the table
         raise InputError(f"--move {line.move:g} s + --hold {line.hold:g} s at --rate {rate:g} Hz means {samples:.4g} "

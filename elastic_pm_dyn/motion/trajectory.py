@@ -83,6 +83,15 @@ class Line:
         return p, pd, pdd
 
 
+def make_line(start: np.ndarray, end: np.ndarray, move: float, hold: float = 0.0, order: int = 2
+              ) -> QuinticLine | Line:
+    """The line of a time law: :class:`QuinticLine` for r = 2 (its closed form, so the rigid
+    feedforward's tables stay what they were, bit for bit), else :class:`Line`."""
+    if order == 2:
+        return QuinticLine(np.asarray(start, dtype=float), np.asarray(end, dtype=float), move, hold)
+    return Line(np.asarray(start, dtype=float), np.asarray(end, dtype=float), move, hold, order)
+
+
 class JointSpline:
     """A smooth motion of joints through waypoints; before the first and after the last at rest there.
 
