@@ -112,8 +112,11 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
 def cmd_feedforward(args: argparse.Namespace) -> int:
     from elastic_pm_dyn.errors import InputError
-    from elastic_pm_dyn.motion.feedforward import elastic_line_torques, line_torques
+    from elastic_pm_dyn.kinematics.mechanism import Mechanism
+    from elastic_pm_dyn.motion.feedforward import path_torques
     from elastic_pm_dyn.motion.manoeuvre import REFERENCE_MANOEUVRE as ref
+    from elastic_pm_dyn.motion.poses import PoseLine
+    from elastic_pm_dyn.motion.task import Task
     from elastic_pm_dyn.motion.time_laws import law_order
     from elastic_pm_dyn.motion.trajectory import make_line
     from elastic_pm_dyn.sim.torque import write_torque_csv
@@ -138,10 +141,15 @@ def cmd_feedforward(args: argparse.Namespace) -> int:
     if not samples <= MAX_TORQUE_SAMPLES:  # before allocating the table
         raise InputError(f"--move {line.move:g} s + --hold {line.hold:g} s at --rate {rate:g} Hz means {samples:.4g} "
                          f"samples, more than the limit of {MAX_TORQUE_SAMPLES:.0e}")
-    if args.method == "elastic":
-        times, torques, names, _ = elastic_line_torques(model, line, rate)
-    else:
-        times, torques, names = line_torques(model, line, rate)
+    task = Task(Mechanism(model))
+    if task.kind == "platform" and task.size == 6:  # a pose: the line's points and an orientation at each end
+        rpy = np.radians(args.rpy if args.rpy is not None else [0.0] * 6)
+        start, end = np.concatenate([line.start, rpy[2::-1]]), np.concatenate([line.end, rpy[:2:-1]])
+        line = PoseLine(start, end, line.move, line.hold, law_order(law))
+    elif args.rpy is not None:
+        raise InputError(f"--rpy: {model.name} has no platform orientation to command (its task coordinates: "
+                         f"{', '.join(task.names)})")
+    times, torques, names, _ = path_torques(model, line, rate, args.method)
     write_torque_csv(args.out, times, torques, names)
     print(f"{len(times)} samples at {rate:g} Hz -> {args.out}  (peak |tau| "
           + ", ".join(f"{n} {v:.3f} N m" for n, v in zip(names, np.abs(torques).max(0), strict=True)) + ")")
@@ -346,6 +354,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "(the deflections compensated), each sample the mean over its hold period")
     p.add_argument("--law", choices=("quintic", "septic", "nonic"),
                    help="rest-to-rest time law (C^2, C^3, C^4); default quintic for rigid, nonic for elastic")
+    p.add_argument("--rpy", type=float, nargs=6, metavar=("RA", "PA", "YA", "RB", "PB", "YB"),
+                   help="a 6-DOF platform's orientation at the start and the end: roll pitch yaw [deg] "
+                        "(R = Rz(yaw) Ry(pitch) Rx(roll)), interpolated on SO(3) with the line's time law; "
+                        "default 0 (level)")
     p.add_argument("--out", required=True)
     p.set_defaults(func=cmd_feedforward)
 

@@ -80,8 +80,9 @@ def solve(mech: Mechanism, path: Path, move: float, step: float, q_start: np.nda
     task = Task(mech) if task is None else task
     if not (step > 0 and move > 0):
         raise InputError(f"grid step and move time must be > 0 (got {step}, {move})")
+    # the grid k * step (the control instants when step = 1 / rate), past the move's end
     n = int(np.ceil(move / step - 1e-9))
-    t = np.arange(-PAD, n + PAD + 1) * (move / n)
+    t = np.arange(-PAD, n + PAD + 1) * step
     e = mech.elastic
     n_a = len(mech.active)
     k_e = mech.stiffness[e]

@@ -9,7 +9,9 @@ from elastic_pm_dyn.dynamics.inverse import RigidFeedforward
 from elastic_pm_dyn.kinematics.assembly import initial_state
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.model.description import Model
-from elastic_pm_dyn.motion.elastic_inverse import InverseMotion, solve, zoh_samples
+from elastic_pm_dyn.motion.elastic_inverse import PAD, InverseMotion, solve, zoh_samples
+from elastic_pm_dyn.motion.poses import PoseLine
+from elastic_pm_dyn.motion.task import Task
 from elastic_pm_dyn.motion.trajectory import Line, QuinticLine
 
 METHODS = ("rigid", "elastic")
@@ -36,13 +38,50 @@ def line_torques(model: Model, line: QuinticLine, rate: float) -> tuple[np.ndarr
     return times, torques, ff.mech.active_names
 
 
-def elastic_line_motion(model: Model, line: Line | QuinticLine, step: float) -> InverseMotion:
-    """The elastic machine's motion and torques along the line (grid ``step`` over the move)."""
+def elastic_line_motion(model: Model, line: Line | QuinticLine | PoseLine, step: float) -> InverseMotion:
+    """The elastic machine's motion and torques along the path of its task coordinates
+    (:class:`~elastic_pm_dyn.motion.task.Task`; grid ``step`` over the move)."""
     mech = Mechanism(model)
     return solve(mech, line, line.move, step, initial_state(mech))
 
 
-def elastic_line_torques(model: Model, line: Line | QuinticLine, rate: float
+def rigid_task_torques(model: Model, path: Line | QuinticLine | PoseLine, rate: float
+                       ) -> tuple[np.ndarray, np.ndarray, list[str]]:
+    """The rigid model's torques sampled at t_k = k / rate along a path of the task coordinates
+    (a platform's pose where the end-effector point does not fix the machine: the Hexa)."""
+    ff = rigid_feedforward(model)
+    motion = solve(ff.mech, path, path.move, 1.0 / rate, ff.q)
+    n = round(path.duration * rate)
+    k = np.minimum(np.arange(n + 1) + PAD, len(motion.t) - 1)  # the grid holds t_k; at rest after it
+    return np.arange(n + 1) / rate, motion.tau[k], ff.mech.active_names
+
+
+def path_torques(model: Model, path: Line | QuinticLine | PoseLine, rate: float, method: str
+                 ) -> tuple[np.ndarray, np.ndarray, list[str], np.ndarray]:
+    """Feedforward table of any path of the task coordinates by ``method`` (rigid: samples at
+    t_k, as :func:`line_torques`; elastic: :func:`elastic_line_torques`), and the elastic tree
+    position the plant starts from (at rest) for the torques to fit."""
+    if method == "elastic":
+        return elastic_line_torques(model, path, rate)
+    mech = Mechanism(model)
+    start = static_start(mech, path, 1.0 / rate) if len(mech.elastic) else None
+    if isinstance(path, (Line, QuinticLine)) and Task(mech).kind == "point":
+        times, values, names = line_torques(model, path, rate)
+    else:
+        times, values, names = rigid_task_torques(model, path, rate)
+    return times, values, names, initial_state(mech) if start is None else start
+
+
+def static_start(mech: Mechanism, path: Line | QuinticLine | PoseLine, step: float) -> np.ndarray:
+    """The elastic machine at rest (springs loaded by gravity) with the task coordinates of the
+    path's start: the elastic inverse of standing still there."""
+    y0 = np.array(path(0.0)[0])
+    zero = np.zeros_like(y0)
+    still = solve(mech, lambda t: (y0, zero, zero), 10 * step, step, initial_state(mech))
+    return still.q[PAD].copy()
+
+
+def elastic_line_torques(model: Model, line: Line | QuinticLine | PoseLine, rate: float
                          ) -> tuple[np.ndarray, np.ndarray, list[str], np.ndarray]:
     """Torques of the elastic inverse for a zero-order hold at ``rate`` over the line's duration.
 
