@@ -38,7 +38,7 @@ from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.motion.task import Task
 
 Path = Callable[[float], tuple[np.ndarray, np.ndarray, np.ndarray]]  # t -> (y, yd, ydd)
-TOLERANCE = 1e-7  # relative change of the deflections between passes at which the fixed point has converged
+TOLERANCE = 1e-6  # relative change of the deflections left (estimated) at which the fixed point has converged
 MAX_PASSES = 30
 KNOT = 5e-3  # [s] knot spacing of the deflections' spline (see _smooth)
 RESIDUAL_LIMIT = 1e-3  # unbalanced spring force over the spring forces beyond which the answer is refused
@@ -107,7 +107,9 @@ def solve(mech: Mechanism, path: Path, move: float, step: float, q_start: np.nda
         if not len(e):
             return InverseMotion(t, Q, Qd, Qdd, F, 1, 0.0)
         r = F[:, n_a:]
-        if size <= TOLERANCE:
+        # the change still to come, from the contraction seen so far (geometric): its torques'
+        # error is that small a part of the springs' share
+        if size <= TOLERANCE or (np.isfinite(last_change) and size * size / last_change <= TOLERANCE):
             # what the band could not hold, against the spring forces: a move the grid and knots
             # resolve leaves ~1e-6; a move faster than they (or the internal dynamics) allow, much more
             residual = float(np.max(np.abs(r)))

@@ -12,6 +12,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.interpolate import make_interp_spline
 
 from elastic_pm_dyn.dynamics.inverse import RigidFeedforward, tree_inverse_dynamics
 from elastic_pm_dyn.errors import AssemblyError, InputError
@@ -19,7 +20,7 @@ from elastic_pm_dyn.kinematics.assembly import solve_acceleration, solve_pose, s
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.model.description import Model
 from elastic_pm_dyn.motion.elastic_inverse import zoh_samples
-from elastic_pm_dyn.motion.feedforward import elastic_line_motion
+from elastic_pm_dyn.motion.feedforward import INVERSE_GRID, elastic_line_motion
 from elastic_pm_dyn.motion.trajectory import JointSpline, Line, QuinticLine
 
 
@@ -74,15 +75,17 @@ class ElasticLineReference:
         self.line = line
         self.rate = rate
         self.duration = line.duration
-        self.motion = elastic_line_motion(model, line, 1.0 / rate)
+        self.motion = elastic_line_motion(model, line, max(INVERSE_GRID, 1.0 / rate))
         self._index = [mech.joint_names.index(n) for n in joint_names]
         self._times, self._held = zoh_samples(self.motion, rate, line.move + 1.0 / rate)
         self._torque = self.motion.torque()
+        m = self.motion
+        # the motion between grid points: quintic splines (the PD's reference angles and rates)
+        self._splines = [make_interp_spline(m.t, x[:, self._index], k=5, axis=0) for x in (m.q, m.qd, m.qdd)]
 
     def sample(self, t: float) -> ReferenceSample:
-        m = self.motion
         t = min(max(t, 0.0), self.line.move)
-        q, qd, qdd = (np.array([np.interp(t, m.t, col) for col in x.T])[self._index] for x in (m.q, m.qd, m.qdd))
+        q, qd, qdd = (np.asarray(s(t)) for s in self._splines)
         k = round(t * self.rate)
         on_grid = abs(t - k / self.rate) <= 1e-9 and k < len(self._held)
         tau = self._held[k].copy() if on_grid else self._torque(t)
