@@ -19,7 +19,7 @@ from elastic_pm_dyn.motion.feedforward import elastic_line_motion, elastic_line_
 from elastic_pm_dyn.motion.time_laws import rest_to_rest
 from elastic_pm_dyn.motion.trajectory import Line, QuinticLine
 from elastic_pm_dyn.sim.simulator import SimulationOptions, Simulator
-from elastic_pm_dyn.sim.torque import FunctionTorque
+from elastic_pm_dyn.sim.torque import FunctionTorque, TorqueTable
 
 RATE = 1000.0
 # RK4 at 10 us: 0.35 rad a step of the five-bar's 552 Hz mode, far inside its accurate range
@@ -248,3 +248,28 @@ def test_cli_commands_a_hexapod_pose(tmp_path, capsys) -> None:
     assert main(["feedforward", "--model", "config/five_bar.yaml", "--rpy", "0", "0", "0", "0", "0", "5",
                  "--out", str(out)]) == 2
     assert "no platform orientation" in capsys.readouterr().err
+
+
+def test_positions_only_trajectory_starts_without_a_torque_step_and_rests_at_waypoints(five_bar_model) -> None:
+    """A positions-only JointTrajectory (the issue's case: a clamped cubic started with a -2.3 N m
+    step): every segment is a rest-to-rest C^4 move, so the torques start from the static ones
+    continuously and the machine passes each waypoint at rest; the elastic plant under the
+    held torques then stays < 0.01 N from static once it has arrived."""
+    from elastic_pm_dyn.motion.feedforward import rigid_feedforward
+    from elastic_pm_dyn.motion.references import JointReference
+    ff = rigid_feedforward(five_bar_model)
+    line = QuinticLine(np.array([-0.05, 0.35]), np.array([0.05, 0.45]), 0.2)
+    times = [0.0, 0.1, 0.25]
+    pos = [ff.joint_motion(*line(t))[0][ff.mech.active] for t in (0.0, 0.1, 0.2)]
+    ref = JointReference(ff, ff.mech.active_names, times, pos)
+    assert ref.path.rule == "at rest"
+    tau = np.array([ref.sample(k / RATE).tau for k in range(round(0.25 * RATE) + 1)])
+    assert np.abs(tau[1] - tau[0]).max() <= 1e-2  # N m (a clamped cubic: 2.3): C^4 grows as t^3 from rest
+    for t in times[1:]:
+        s = ref.sample(t)
+        assert np.abs(s.qd).max() <= 1e-12 and np.abs(s.qdd).max() <= 1e-9
+    mech = Mechanism(five_bar_model)
+    times_k = np.arange(len(tau)) / RATE
+    hold = np.vstack([tau, np.repeat(tau[-1:], 100, axis=0)])
+    r = Simulator(mech, RK4).run(TorqueTable(np.arange(len(hold)) / RATE, hold), 0.35)
+    assert np.abs(r.branch_forces[r.t >= times_k[-1]]).max() <= 1e-2

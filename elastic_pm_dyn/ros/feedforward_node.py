@@ -9,7 +9,9 @@ law (empty: quintic for rigid, nonic, C^4, for elastic). Desired motion (paramet
 - ``line``: the reference manoeuvre, a Cartesian straight line with quintic time law
   (``line.*`` parameters); started at start-up (``autostart``) or by ``~/start``;
 - ``trajectory``: trajectory_msgs/JointTrajectory of the active joints on ``trajectory``,
-  started at its header stamp (zero stamp: at once);
+  started at its header stamp (zero stamp: at once); joint_trajectory_controller's spline
+  rules (cubic with velocities, quintic with accelerations too), positions alone as
+  rest-to-rest 9th-order segments (logged once; :class:`~elastic_pm_dyn.motion.trajectory.JointSpline`);
 - ``hold``: the model's start pose at rest for ``hold.duration`` seconds, with the torques
   that hold it against gravity (any machine, also one whose end-effector point does not fix
   its pose, such as a hexapod); started like the line.
@@ -156,6 +158,7 @@ class FeedforwardNode(ManagedNode):
         self.waiting_since: float | None = None  # monotonic [s]: since when the pending stamp lacks its sample
         self.stale_used = 0  # commands computed without the encoder sample of their stamp
         self.warn = KindThrottle(self, WARN_EVERY)
+        self.told_at_rest = False  # the positions-only rule is logged once
 
         self.pub_command = self.create_publisher(
             JointState if self.command_type == "joint_state" else Float64MultiArray, p["topics.command"],
@@ -209,6 +212,12 @@ class FeedforwardNode(ManagedNode):
         except SOLVE_ERRORS as err:
             self.get_logger().warning(f"trajectory rejected: {err}")
             return
+        if reference.path.rule == "at rest" and not self.told_at_rest:
+            self.told_at_rest = True  # once: the rule does not change from one goal to the next
+            self.get_logger().info("trajectory with positions only: each segment is a rest-to-rest move with the "
+                                   "9th-order law, stopping at every waypoint (joint_trajectory_controller would "
+                                   "join them by straight lines: a torque impulse at each); give velocities for "
+                                   "a cubic, velocities and accelerations for a quintic")
         self.reference = reference
         self.start_ns = stamp_ns(msg.header.stamp) or None
         self.want_start = False
