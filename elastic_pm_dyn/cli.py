@@ -121,6 +121,8 @@ def cmd_feedforward(args: argparse.Namespace) -> int:
     from elastic_pm_dyn.motion.trajectory import make_line
     from elastic_pm_dyn.sim.torque import write_torque_csv
     model = _load(args)
+    if args.waypoints is not None:
+        return _waypoint_feedforward(args, model)
     names = [c.upper() for c in model.ee_names]
     dims = len(names)
     axes = " ".join(f"{c}A" for c in names) + " " + " ".join(f"{c}B" for c in names)
@@ -153,6 +155,40 @@ def cmd_feedforward(args: argparse.Namespace) -> int:
     write_torque_csv(args.out, times, torques, names)
     print(f"{len(times)} samples at {rate:g} Hz -> {args.out}  (peak |tau| "
           + ", ".join(f"{n} {v:.3f} N m" for n, v in zip(names, np.abs(torques).max(0), strict=True)) + ")")
+    return 0
+
+
+def _waypoint_feedforward(args: argparse.Namespace, model) -> int:
+    """feedforward --waypoints: poses of the task coordinates or motor positions with times."""
+    from elastic_pm_dyn.errors import InputError
+    from elastic_pm_dyn.kinematics.mechanism import Mechanism
+    from elastic_pm_dyn.motion.feedforward import joint_waypoint_torques, path_torques
+    from elastic_pm_dyn.motion.manoeuvre import REFERENCE_MANOEUVRE as ref
+    from elastic_pm_dyn.motion.task import Task
+    from elastic_pm_dyn.motion.time_laws import law_order
+    from elastic_pm_dyn.motion.waypoints import WaypointPath, read_waypoints
+    from elastic_pm_dyn.sim.torque import write_torque_csv
+    if args.line is not None or args.rpy is not None or args.move is not None:
+        raise InputError("--waypoints replaces --line, --rpy and --move: the file gives the poses and their times")
+    columns, table = read_waypoints(args.waypoints)
+    mech = Mechanism(model)
+    task = Task(mech)
+    rate = ref.control_rate if args.rate is None else args.rate
+    hold = ref.hold if args.hold is None else args.hold
+    law = args.law or ("nonic" if args.method == "elastic" else "quintic")
+    if columns == task.names:
+        path = WaypointPath(table[:, 0], table[:, 1:], hold, law_order(law))
+        times, torques, names, _ = path_torques(model, path, rate, args.method)
+    elif all(n in columns for n in mech.active_names):
+        if args.method == "elastic":
+            raise InputError("--waypoints with motor positions: rigid only (the elastic inverse prescribes the "
+                             f"end effector: give columns t,{','.join(task.names)})")
+        times, torques, names = joint_waypoint_torques(model, columns, table, rate, hold)
+    else:
+        raise InputError(f"--waypoints columns {','.join(columns)}: expected t,{','.join(task.names)} (poses) or "
+                         f"t,{','.join(mech.active_names)} [with _vel, _acc columns] (motor positions)")
+    write_torque_csv(args.out, times, torques, names)
+    print(f"{len(times)} samples at {rate:g} Hz -> {args.out}  ({len(table)} waypoints, {args.method})")
     return 0
 
 
@@ -358,6 +394,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="a 6-DOF platform's orientation at the start and the end: roll pitch yaw [deg] "
                         "(R = Rz(yaw) Ry(pitch) Rx(roll)), interpolated on SO(3) with the line's time law; "
                         "default 0 (level)")
+    p.add_argument("--waypoints", help="CSV t,<task coordinates> (poses: rest-to-rest segments through them) or "
+                   "t,<active joints>[,<joint>_vel ...][,<joint>_acc ...] (motor positions, rigid only) "
+                   "instead of --line")
     p.add_argument("--out", required=True)
     p.set_defaults(func=cmd_feedforward)
 

@@ -273,3 +273,40 @@ def test_positions_only_trajectory_starts_without_a_torque_step_and_rests_at_way
     hold = np.vstack([tau, np.repeat(tau[-1:], 100, axis=0)])
     r = Simulator(mech, RK4).run(TorqueTable(np.arange(len(hold)) / RATE, hold), 0.35)
     assert np.abs(r.branch_forces[r.t >= times_k[-1]]).max() <= 1e-2
+
+
+def test_waypoint_file_of_poses_and_of_motor_positions(tmp_path, capsys, five_bar_model) -> None:
+    """Poses with times: rest-to-rest segments; the elastic torques held at 1 kHz keep the
+    five-bar >= 10x closer to the path than the rigid ones. Motor positions: rigid only; a
+    wrong header or a bad row is one line."""
+    from elastic_pm_dyn.motion.feedforward import path_torques
+    from elastic_pm_dyn.motion.waypoints import WaypointPath, read_waypoints
+    poses = tmp_path / "poses.csv"
+    poses.write_text("t,x,y\n0,-0.05,0.35\n0.15,0.0,0.42\n0.3,0.05,0.45\n")
+    names, table = read_waypoints(poses)
+    assert names == ["x", "y"]
+    c4 = WaypointPath(table[:, 0], table[:, 1:], 0.1, 4)
+    quintic = WaypointPath(table[:, 0], table[:, 1:], 0.1, 2)
+    for t, p in zip(table[:, 0], table[:, 1:], strict=True):
+        y, yd, _ = c4(float(t))
+        assert np.allclose(y, p) and not np.any(yd)
+    te, ve, _, q0 = path_torques(five_bar_model, c4, RATE, "elastic")
+    tr, vr, _, _ = path_torques(five_bar_model, quintic, RATE, "rigid")
+    mech = Mechanism(five_bar_model)
+    elastic = score(mech, te, ve, q0, c4, c4.move, c4.duration, np.zeros(2), RK4)
+    rigid = score(mech, tr, vr, q0, quintic, c4.move, c4.duration, np.zeros(2), RK4)
+    assert rigid.path_deviation >= 10 * elastic.path_deviation
+    out = tmp_path / "tau.csv"
+    assert main(["feedforward", "--model", "config/five_bar.yaml", "--waypoints", str(poses), "--method", "elastic",
+                 "--hold", "0.1", "--out", str(out)]) == 0
+    assert np.allclose(np.loadtxt(out, delimiter=",", skiprows=1)[:, 1:], ve, rtol=0, atol=1e-12)
+    motors = tmp_path / "motors.csv"
+    motors.write_text("t,left_motor,right_motor\n0,2.6,0.87\n0.2,2.5,0.9\n")
+    assert main(["feedforward", "--model", "config/five_bar.yaml", "--waypoints", str(motors), "--out", str(out)]) == 0
+    capsys.readouterr()
+    for text, code in (("t,left_motor,right_motor\n0,2.6,0.87\n0.2,2.5,0.9\n", "elastic"),
+                       ("t,a,b\n0,1,2\n", "rigid"), ("t,x,y\n0,-0.05,0.35\n0.1,oops,0.4\n", "rigid")):
+        motors.write_text(text)
+        assert main(["feedforward", "--model", "config/five_bar.yaml", "--waypoints", str(motors), "--method", code,
+                     "--out", str(out)]) == 2
+        assert capsys.readouterr().err.count("\n") == 1
