@@ -151,7 +151,7 @@ def cmd_feedforward(args: argparse.Namespace) -> int:
     elif args.rpy is not None:
         raise InputError(f"--rpy: {model.name} has no platform orientation to command (its task coordinates: "
                          f"{', '.join(task.names)})")
-    times, torques, names, _ = path_torques(model, line, rate, args.method)
+    times, torques, names, _ = path_torques(model, line, rate, args.method, args.shaper)
     write_torque_csv(args.out, times, torques, names)
     print(f"{len(times)} samples at {rate:g} Hz -> {args.out}  (peak |tau| "
           + ", ".join(f"{n} {v:.3f} N m" for n, v in zip(names, np.abs(torques).max(0), strict=True)) + ")")
@@ -178,9 +178,9 @@ def _waypoint_feedforward(args: argparse.Namespace, model) -> int:
     law = args.law or ("nonic" if args.method == "elastic" else "quintic")
     if columns == task.names:
         path = WaypointPath(table[:, 0], table[:, 1:], hold, law_order(law))
-        times, torques, names, _ = path_torques(model, path, rate, args.method)
+        times, torques, names, _ = path_torques(model, path, rate, args.method, args.shaper)
     elif all(n in columns for n in mech.active_names):
-        if args.method == "elastic":
+        if args.method != "rigid":
             raise InputError("--waypoints with motor positions: rigid only (the elastic inverse prescribes the "
                              f"end effector: give columns t,{','.join(task.names)})")
         times, torques, names = joint_waypoint_torques(model, columns, table, rate, hold)
@@ -385,9 +385,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--move", type=float, help="move time [s] (default: the reference manoeuvre's)")
     p.add_argument("--hold", type=float, help="hold time at the end [s] (default: the reference manoeuvre's)")
     p.add_argument("--rate", type=float, help="sample rate [Hz] (default: the reference manoeuvre's)")
-    p.add_argument("--method", choices=("rigid", "elastic"), default="rigid",
+    p.add_argument("--method", choices=("rigid", "elastic", "shaped"), default="rigid",
                    help="rigid: the rigid model's inverse dynamics sampled at t_k; elastic: the elastic model's "
-                        "(the deflections compensated), each sample the mean over its hold period")
+                        "(the deflections compensated), each sample the mean over its hold period; shaped: the "
+                        "rigid inverse of the path through an input shaper of the elastic modes (--shaper)")
+    p.add_argument("--shaper", choices=("zv", "zvd", "ei"), default="zvd",
+                   help="--method shaped: the shaper (default zvd), built from the free-motor elastic modes at the "
+                        "path's start and end; the move lengthens by its length")
     p.add_argument("--law", choices=("quintic", "septic", "nonic"),
                    help="rest-to-rest time law (C^2, C^3, C^4); default quintic for rigid, nonic for elastic")
     p.add_argument("--rpy", type=float, nargs=6, metavar=("RA", "PA", "YA", "RB", "PB", "YB"),

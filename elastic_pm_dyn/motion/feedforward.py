@@ -6,15 +6,18 @@ from __future__ import annotations
 import numpy as np
 
 from elastic_pm_dyn.dynamics.inverse import RigidFeedforward
+from elastic_pm_dyn.dynamics.linear import elastic_modes
+from elastic_pm_dyn.errors import InputError
 from elastic_pm_dyn.kinematics.assembly import initial_state
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.model.description import Model
 from elastic_pm_dyn.motion.elastic_inverse import PAD, InverseMotion, solve, zoh_samples
 from elastic_pm_dyn.motion.poses import PoseLine
+from elastic_pm_dyn.motion.shaping import ShapedPath, Shaper, for_modes
 from elastic_pm_dyn.motion.task import Task
 from elastic_pm_dyn.motion.trajectory import Line, QuinticLine
 
-METHODS = ("rigid", "elastic")
+METHODS = ("rigid", "elastic", "shaped")
 # [s] grid of the elastic inverse: its torques are smooth within the move (a quintic spline
 # between grid points reproduces the 1 kHz ZOH means to ~1e-6 of the springs' share, measured
 # on the five-bar: the same path deviation and residual vibration as a 1 ms grid), and the
@@ -61,16 +64,38 @@ def rigid_task_torques(model: Model, path: Line | QuinticLine | PoseLine, rate: 
     return np.arange(n + 1) / rate, motion.tau[k], ff.mech.active_names
 
 
-def path_torques(model: Model, path: Line | QuinticLine | PoseLine, rate: float, method: str
-                 ) -> tuple[np.ndarray, np.ndarray, list[str], np.ndarray]:
+def path_shaper(model: Model, path, kind: str, step: float = INVERSE_GRID) -> Shaper:
+    """The ``kind`` shaper (zv, zvd, ei) of the machine's elastic modes at the path's start and
+    end poses: the plant at rest there, linearised with its motors free (a feedforward drives
+    torques, so those modes ring); of its n_a + n_e modes the n_e highest are the elastic ones."""
+    mech = Mechanism(model)
+    n_e = len(mech.elastic)
+    if not n_e:
+        raise InputError(f"{model.name} has no elastic joint: nothing to shape for")
+    freqs, damping = [], []
+    for when in (0.0, path.duration):
+        modes = elastic_modes(mech, _static_at(mech, path, when, step), clamp_motors=False)
+        order = np.argsort(modes.natural_hz)[-n_e:]
+        freqs.extend(modes.natural_hz[order])
+        damping.extend(modes.damping_ratio[order])
+    return for_modes(kind, np.array(freqs), np.array(damping))
+
+
+def path_torques(model: Model, path: Line | QuinticLine | PoseLine, rate: float, method: str,
+                 shaper: str = "zvd") -> tuple[np.ndarray, np.ndarray, list[str], np.ndarray]:
     """Feedforward table of any path of the task coordinates by ``method`` (rigid: samples at
-    t_k, as :func:`line_torques`; elastic: :func:`elastic_line_torques`), and the elastic tree
+    t_k, as :func:`line_torques`; elastic: :func:`elastic_line_torques`; shaped: the rigid
+    torques of the path through the ``shaper`` of :func:`path_shaper`), and the elastic tree
     position the plant starts from (at rest) for the torques to fit."""
+    if method == "shaped":
+        shaped = ShapedPath(path, path_shaper(model, path, shaper))
+        times, values, names, start = path_torques(model, shaped, rate, "rigid")
+        return times, values, names, start
     if method == "elastic":
         return elastic_line_torques(model, path, rate)
     mech = Mechanism(model)
     start = static_start(mech, path, 1.0 / rate) if len(mech.elastic) else None
-    if isinstance(path, (Line, QuinticLine)) and Task(mech).kind == "point":
+    if isinstance(path, Line | QuinticLine) and Task(mech).kind == "point":
         times, values, names = line_torques(model, path, rate)
     else:
         times, values, names = rigid_task_torques(model, path, rate)
@@ -80,9 +105,13 @@ def path_torques(model: Model, path: Line | QuinticLine | PoseLine, rate: float,
 def static_start(mech: Mechanism, path: Line | QuinticLine | PoseLine, step: float) -> np.ndarray:
     """The elastic machine at rest (springs loaded by gravity) with the task coordinates of the
     path's start: the elastic inverse of standing still there."""
-    y0 = np.array(path(0.0)[0])
+    return _static_at(mech, path, 0.0, step)
+
+
+def _static_at(mech: Mechanism, path, t: float, step: float) -> np.ndarray:
+    y0 = np.array(path(t)[0])
     zero = np.zeros_like(y0)
-    still = solve(mech, lambda t: (y0, zero, zero), 10 * step, step, initial_state(mech))
+    still = solve(mech, lambda _: (y0, zero, zero), 10 * step, step, initial_state(mech))
     return still.q[PAD].copy()
 
 
