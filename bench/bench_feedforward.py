@@ -12,7 +12,10 @@ loop at 1 kHz, zero-order hold, by
 - ``rigid C4``: the same on the 9th-order law (what the time law alone does);
 - ``elastic``: the elastic inverse on the 9th-order law, each sample the mean over its period;
 - ``elastic cont.``: the elastic inverse's torques applied continuously (no hold): the ZOH-free
-  limit; what separates it from ``elastic`` is the zero-order hold's own excitation,
+  limit; what separates it from ``elastic`` is the zero-order hold's own excitation;
+- ``shaped``: the rigid torques of the quintic path through a ZVD shaper of the free-motor
+  elastic modes (the move longer by the shaper's length; its path deviation against the
+  shaped path),
 
 on plants with the model's stiffness and 10 % softer and stiffer. Scores
 (:mod:`elastic_pm_dyn.analysis.feedforward_check`): path deviation during the move (distance of
@@ -33,8 +36,9 @@ import numpy as np
 from elastic_pm_dyn.analysis.feedforward_check import score
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.model.loader import load_model
-from elastic_pm_dyn.motion.feedforward import elastic_line_motion, path_torques
+from elastic_pm_dyn.motion.feedforward import elastic_line_motion, path_shaper, path_torques
 from elastic_pm_dyn.motion.poses import PoseLine
+from elastic_pm_dyn.motion.shaping import ShapedPath
 from elastic_pm_dyn.motion.trajectory import make_line
 from elastic_pm_dyn.sim.simulator import SimulationOptions, Simulator
 from elastic_pm_dyn.sim.torque import FunctionTorque
@@ -78,14 +82,17 @@ def run_move(model, start, end, move: float, options: SimulationOptions, stiffne
     static = mech.branch_forces(motion.q[-1], np.zeros(mech.n))
     tables = {"rigid": path_torques(model, quintic, RATE, "rigid"),
               "rigid C4": path_torques(model, c4, RATE, "rigid"),
-              "elastic": path_torques(model, c4, RATE, "elastic")}
-    paths = {"rigid": quintic, "rigid C4": c4, "elastic": c4}
+              "elastic": path_torques(model, c4, RATE, "elastic"),
+              "shaped": path_torques(model, quintic, RATE, "shaped", "zvd")}
+    paths = {"rigid": quintic, "rigid C4": c4, "elastic": c4,
+             "shaped": ShapedPath(quintic, path_shaper(model, quintic, "zvd"))}
     out: dict = {"compute_s": min(seconds), "passes": motion.passes, "scores": {}}
     for k in stiffness:
         plant = mech if k == 1.0 else Mechanism(model.with_stiffness_scaled(k))
         row = {}
         for name, (times, values, _, _) in tables.items():
-            row[name] = score(plant, times, values, q0, paths[name], move, c4.duration, static, options).as_dict()
+            row[name] = score(plant, times, values, q0, paths[name], paths[name].move, c4.duration, static,
+                              options).as_dict()
         out["scores"][f"{k:g}"] = row
     # the ZOH-free limit on the model's plant: the continuous elastic torques
     r = Simulator(mech, options).run(FunctionTorque(motion.torque()), c4.duration, q0=q0)
@@ -101,21 +108,23 @@ def run_move(model, start, end, move: float, options: SimulationOptions, stiffne
 
 def markdown(results: dict) -> str:
     lines = ["| machine | move | plant k | path dev. rigid | rigid C4 | elastic | ratio | residual vib. rigid [N] | "
-             "rigid C4 | elastic | ratio | elastic cont. (no ZOH): path / vib. | inverse [s] |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "rigid C4 | elastic | ratio | shaped (ZVD) | ratio | elastic cont. (no ZOH): path / vib. | inverse [s] |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for machine, moves in results["machines"].items():
         for move, res in moves.items():
             for k, row in res["scores"].items():
                 p = [row[m]["path_deviation"] for m in ("rigid", "rigid C4", "elastic")]
                 v = [row[m]["residual_vibration"] for m in ("rigid", "rigid C4", "elastic")]
+                vs = row["shaped"]["residual_vibration"] if "shaped" in row else float("nan")
+                shaped = f"{vs:.3g} | {v[0] / max(vs, 1e-300):.0f}x"
                 cont = (f"{res['continuous']['path_deviation']:.2g} / {res['continuous']['residual_vibration']:.2g}"
                         if k == "1" else "")
                 lines.append(f"| {machine} | {move} | {k} | {p[0]:.3g} | {p[1]:.3g} | {p[2]:.3g} | "
                              f"{p[0] / max(p[2], 1e-300):.0f}x | {v[0]:.3g} | {v[1]:.3g} | {v[2]:.3g} | "
-                             f"{v[0] / max(v[2], 1e-300):.0f}x | {cont} | "
+                             f"{v[0] / max(v[2], 1e-300):.0f}x | {shaped} | {cont} | "
                              f"{res['compute_s']:.3f} |" if k == "1" else
                              f"| | | {k} | {p[0]:.3g} | {p[1]:.3g} | {p[2]:.3g} | {p[0] / max(p[2], 1e-300):.0f}x | "
-                             f"{v[0]:.3g} | {v[1]:.3g} | {v[2]:.3g} | {v[0] / max(v[2], 1e-300):.0f}x | | |")
+                             f"{v[0]:.3g} | {v[1]:.3g} | {v[2]:.3g} | {v[0] / max(v[2], 1e-300):.0f}x | {shaped} | | |")
     return "\n".join(lines) + "\n"
 
 
