@@ -162,11 +162,11 @@ def _waypoint_feedforward(args: argparse.Namespace, model) -> int:
     """feedforward --waypoints: poses of the task coordinates or motor positions with times."""
     from elastic_pm_dyn.errors import InputError
     from elastic_pm_dyn.kinematics.mechanism import Mechanism
-    from elastic_pm_dyn.motion.feedforward import joint_waypoint_torques, path_torques
+    from elastic_pm_dyn.motion.feedforward import path_torques
     from elastic_pm_dyn.motion.manoeuvre import REFERENCE_MANOEUVRE as ref
     from elastic_pm_dyn.motion.task import Task
     from elastic_pm_dyn.motion.time_laws import law_order
-    from elastic_pm_dyn.motion.waypoints import WaypointPath, read_waypoints
+    from elastic_pm_dyn.motion.waypoints import WaypointPath, joint_waypoint_torques, read_waypoints
     from elastic_pm_dyn.sim.torque import write_torque_csv
     if args.line is not None or args.rpy is not None or args.move is not None:
         raise InputError("--waypoints replaces --line, --rpy and --move: the file gives the poses and their times")

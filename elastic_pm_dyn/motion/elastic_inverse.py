@@ -103,7 +103,7 @@ def solve(mech: Mechanism, path: Path, move: float, step: float, q_start: np.nda
             raise InputError(f"the elastic inverse does not converge (pass {passes}: change {size:.3g}, before "
                              f"{last_change:.3g}): the move is too fast for the machine's internal dynamics; "
                              "give it more time")
-        Q, Qd, Qdd, F, previous_pass = _pass(mech, task, ys, qe, qed, qedd, previous_pass, q_guess)
+        Q, Qd, Qdd, F, previous_pass = _pass(mech, task, ys, qe, qed, qedd, previous_pass, q_guess, t)
         if not len(e):
             return InverseMotion(t, Q, Qd, Qdd, F, 1, 0.0)
         r = F[:, n_a:]
@@ -143,7 +143,7 @@ def _smooth(t: np.ndarray, x: np.ndarray, lo: float, hi: float) -> tuple[np.ndar
 
 
 def _pass(mech: Mechanism, task: Task, ys: list, qe: np.ndarray, qed: np.ndarray, qedd: np.ndarray,
-          previous: tuple[np.ndarray, np.ndarray, np.ndarray] | None, q_guess: np.ndarray
+          previous: tuple[np.ndarray, np.ndarray, np.ndarray] | None, q_guess: np.ndarray, times: np.ndarray
           ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, tuple]:
     """Tree motion with the task coordinates of the path and the given deflections, and the
     generalised forces W^T (M_t qdd + h_t) on q_ae along it (eq 17).
@@ -162,6 +162,9 @@ def _pass(mech: Mechanism, task: Task, ys: list, qe: np.ndarray, qed: np.ndarray
     for k, (y, yd, ydd) in enumerate(ys):
         if previous is not None:
             q = previous[0][k] + previous[2][k] @ (qe[k] - previous[1][k])
+        elif k:  # first pass: Newton from the last point's second-order Taylor step (one iteration)
+            h = times[k] - times[k - 1]
+            q = Q[k - 1] + h * Qd[k - 1] + 0.5 * h * h * Qdd[k - 1]
         q[e] = qe[k]
         if task.kind == "platform":
             q[task.joints] = y

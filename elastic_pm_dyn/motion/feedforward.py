@@ -128,23 +128,3 @@ def elastic_line_torques(model: Model, line: Line | QuinticLine | PoseLine, rate
     k0 = int(np.argmin(np.abs(motion.t)))
     return times, values, Mechanism(model).active_names, motion.q[k0].copy()
 
-
-def joint_waypoint_torques(model: Model, names: list[str], table: np.ndarray, rate: float, hold: float
-                           ) -> tuple[np.ndarray, np.ndarray, list[str]]:
-    """Rigid torques at t_k of a motor-space waypoint table (columns ``names``: the active joints,
-    optionally ``<joint>_vel`` and ``<joint>_acc``), by joint_trajectory_controller's rules
-    (:class:`~elastic_pm_dyn.motion.trajectory.JointSpline`)."""
-    from elastic_pm_dyn.motion.references import JointReference  # references builds on this module
-    ff = rigid_feedforward(model)
-    active = ff.mech.active_names
-
-    def columns(suffix: str) -> np.ndarray | None:
-        wanted = [f"{n}{suffix}" for n in active]
-        if not all(w in names for w in wanted):
-            return None
-        return table[:, [1 + names.index(w) for w in wanted]]
-
-    ref = JointReference(ff, active, table[:, 0], columns(""), columns("_vel"), columns("_acc"))
-    n = round((ref.duration + hold) * rate)
-    times = np.arange(n + 1) / rate
-    return times, np.array([ref.sample(t).tau for t in times]), active

@@ -20,7 +20,10 @@ from pathlib import Path
 import numpy as np
 
 from elastic_pm_dyn.errors import InputError
+from elastic_pm_dyn.model.description import Model
+from elastic_pm_dyn.motion.feedforward import rigid_feedforward
 from elastic_pm_dyn.motion.poses import PoseLine
+from elastic_pm_dyn.motion.references import JointReference
 from elastic_pm_dyn.motion.trajectory import make_line
 
 
@@ -76,3 +79,23 @@ class WaypointPath:
     def __call__(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         k = int(np.clip(np.searchsorted(self.times, t, side="right") - 1, 0, len(self.segments) - 1))
         return self.segments[k](t - self.times[k])
+
+
+def joint_waypoint_torques(model: Model, names: list[str], table: np.ndarray, rate: float, hold: float
+                           ) -> tuple[np.ndarray, np.ndarray, list[str]]:
+    """Rigid torques at t_k of a motor-space waypoint table (columns ``names``: the active joints,
+    optionally ``<joint>_vel`` and ``<joint>_acc``), by joint_trajectory_controller's rules
+    (:class:`~elastic_pm_dyn.motion.trajectory.JointSpline`)."""
+    ff = rigid_feedforward(model)
+    active = ff.mech.active_names
+
+    def columns(suffix: str) -> np.ndarray | None:
+        wanted = [f"{n}{suffix}" for n in active]
+        if not all(w in names for w in wanted):
+            return None
+        return table[:, [1 + names.index(w) for w in wanted]]
+
+    ref = JointReference(ff, active, table[:, 0], columns(""), columns("_vel"), columns("_acc"))
+    n = round((ref.duration + hold) * rate)
+    times = np.arange(n + 1) / rate
+    return times, np.array([ref.sample(t).tau for t in times]), active
