@@ -342,6 +342,8 @@ def cmd_ros_demo(args: argparse.Namespace) -> int:
     from elastic_pm_dyn.ros.processes import NodeProcessError
     loop_only = [f"--{n.replace('_', '-')}" for n in ("elastic_dof_per_chain", "seed", "duration", "observer_config",
                                                       "kp", "kd") if getattr(args, n) is not None]
+    if args.observer and args.feedforward != "rigid":
+        raise InputError("--feedforward elastic: the open-loop demo only (not with --observer)")
     if loop_only and not args.observer:
         raise InputError(f"{', '.join(loop_only)}: only with --observer (the closed loop)")
     try:
@@ -355,7 +357,8 @@ def cmd_ros_demo(args: argparse.Namespace) -> int:
                                storage=args.storage, timeout=args.timeout or 1800.0, domain_id=args.domain_id)
             run_loop_demo(Path(args.out), opts)
             return 0
-        run_ros_demo(Path(args.out), Path(args.model), args.sync, args.storage, args.timeout or 120.0, args.domain_id)
+        run_ros_demo(Path(args.out), Path(args.model), args.sync, args.storage, args.timeout or 120.0, args.domain_id,
+                     feedforward=args.feedforward)
     except NodeProcessError as err:
         print(f"elastic-pm-dyn: error: {err}", file=sys.stderr)
         return EXIT_RUN_FAILED
@@ -454,6 +457,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--sync", choices=("lockstep", "realtime"), default="lockstep",
                    help="lockstep: deterministic, equals offline simulate (default); realtime: wall-clock paced")
     p.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap")
+    p.add_argument("--feedforward", choices=("rigid", "elastic"), default="rigid",
+                   help="the feedforward node's method: rigid (default) or elastic (the elastic inverse on the "
+                        "9th-order law: the manoeuvre without its ringing)")
     p.add_argument("--timeout", type=float, help="[s] limit for the run (default 120; with --observer 1800)")
     p.add_argument("--domain-id", type=int, help="ROS domain id (default: a private one from the process id)")
     p.add_argument("--observer", action="store_true",

@@ -356,3 +356,9 @@ def test_five_bar_shaped_rigid_feedforward_rings_less(five_bar_model, stiffness:
     assert rigid.residual_vibration >= (5.0 if stiffness == 1.0 else 3.0) * shaped_score.residual_vibration
     out_args = ["feedforward", "--model", "config/five_bar.yaml", "--method", "shaped", "--shaper", "ei", "--out"]
     assert main([*out_args, "/dev/null"]) == 0
+
+
+def test_ros_demo_feedforward_elastic_is_for_the_open_loop_demo(capsys) -> None:
+    """--feedforward elastic runs the open-loop demo (the node's method); with --observer it is one line."""
+    assert main(["ros-demo", "--observer", "--feedforward", "elastic", "--out", "/nonexistent/x"]) == 2
+    assert capsys.readouterr().err.count("\n") == 1
