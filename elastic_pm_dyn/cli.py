@@ -136,7 +136,8 @@ def cmd_feedforward(args: argparse.Namespace) -> int:
     a, b = np.array(points[:dims]), np.array(points[dims:])
     rate = ref.control_rate if args.rate is None else args.rate
     # the elastic inverse's torques hold the path's 4th derivative: C^4 (nonic) unless told
-    law = args.law or ("nonic" if args.method == "elastic" else "quintic")
+    elastic = args.method == "elastic" or (args.method == "shaped" and args.shaped_inverse == "elastic")
+    law = args.law or ("nonic" if elastic else "quintic")
     line = make_line(a, b, ref.move if args.move is None else args.move,
                      ref.hold if args.hold is None else args.hold, law_order(law))
     samples = line.duration * rate
@@ -151,7 +152,7 @@ def cmd_feedforward(args: argparse.Namespace) -> int:
     elif args.rpy is not None:
         raise InputError(f"--rpy: {model.name} has no platform orientation to command (its task coordinates: "
                          f"{', '.join(task.names)})")
-    times, torques, names, _ = path_torques(model, line, rate, args.method, args.shaper)
+    times, torques, names, _ = path_torques(model, line, rate, args.method, args.shaper, args.shaped_inverse)
     write_torque_csv(args.out, times, torques, names)
     print(f"{len(times)} samples at {rate:g} Hz -> {args.out}  (peak |tau| "
           + ", ".join(f"{n} {v:.3f} N m" for n, v in zip(names, np.abs(torques).max(0), strict=True)) + ")")
@@ -175,10 +176,11 @@ def _waypoint_feedforward(args: argparse.Namespace, model) -> int:
     task = Task(mech)
     rate = ref.control_rate if args.rate is None else args.rate
     hold = ref.hold if args.hold is None else args.hold
-    law = args.law or ("nonic" if args.method == "elastic" else "quintic")
+    elastic = args.method == "elastic" or (args.method == "shaped" and args.shaped_inverse == "elastic")
+    law = args.law or ("nonic" if elastic else "quintic")
     if columns == task.names:
         path = WaypointPath(table[:, 0], table[:, 1:], hold, law_order(law))
-        times, torques, names, _ = path_torques(model, path, rate, args.method, args.shaper)
+        times, torques, names, _ = path_torques(model, path, rate, args.method, args.shaper, args.shaped_inverse)
     elif all(n in columns for n in mech.active_names):
         if args.method != "rigid":
             raise InputError("--waypoints with motor positions: rigid only (the elastic inverse prescribes the "
@@ -395,6 +397,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--shaper", choices=("zv", "zvd", "ei"), default="zvd",
                    help="--method shaped: the shaper (default zvd), built from the free-motor elastic modes at the "
                         "path's start and end; the move lengthens by its length")
+    p.add_argument("--shaped-inverse", choices=("rigid", "elastic"), default="rigid",
+                   help="--method shaped: the inverse dynamics after the shaper (default rigid)")
     p.add_argument("--law", choices=("quintic", "septic", "nonic"),
                    help="rest-to-rest time law (C^2, C^3, C^4); default quintic for rigid, nonic for elastic")
     p.add_argument("--rpy", type=float, nargs=6, metavar=("RA", "PA", "YA", "RB", "PB", "YB"),

@@ -362,3 +362,20 @@ def test_ros_demo_feedforward_elastic_is_for_the_open_loop_demo(capsys) -> None:
     """--feedforward elastic runs the open-loop demo (the node's method); with --observer it is one line."""
     assert main(["ros-demo", "--observer", "--feedforward", "elastic", "--out", "/nonexistent/x"]) == 2
     assert capsys.readouterr().err.count("\n") == 1
+
+
+def test_shaper_before_the_elastic_inverse(five_bar_model) -> None:
+    """--method shaped --shaped-inverse elastic: the shaped path through the elastic inverse still
+    leaves the five-bar >= 20x quieter and >= 10x closer to its (shaped) path than rigid."""
+    from elastic_pm_dyn.motion.feedforward import path_shaper, path_torques
+    from elastic_pm_dyn.motion.shaping import ShapedPath
+    a, b = np.array([-0.05, 0.35]), np.array([0.05, 0.45])
+    c4 = Line(a, b, 0.2, 0.15, 4)
+    quintic = QuinticLine(a, b, 0.2, 0.15)
+    ts, vs, _, q0 = path_torques(five_bar_model, c4, RATE, "shaped", "zvd", "elastic")
+    tr, vr, _, _ = path_torques(five_bar_model, quintic, RATE, "rigid")
+    shaped = ShapedPath(c4, path_shaper(five_bar_model, c4, "zvd"))
+    mech = Mechanism(five_bar_model)
+    s = score(mech, ts, vs, q0, shaped, shaped.move, c4.duration, np.zeros(2), RK4)
+    r = score(mech, tr, vr, q0, quintic, 0.2, c4.duration, np.zeros(2), RK4)
+    assert r.residual_vibration >= 20 * s.residual_vibration and r.path_deviation >= 10 * s.path_deviation

@@ -82,15 +82,18 @@ def path_shaper(model: Model, path, kind: str, step: float = INVERSE_GRID) -> Sh
 
 
 def path_torques(model: Model, path: Line | QuinticLine | PoseLine, rate: float, method: str,
-                 shaper: str = "zvd") -> tuple[np.ndarray, np.ndarray, list[str], np.ndarray]:
+                 shaper: str = "zvd", shaped_inverse: str = "rigid"
+                 ) -> tuple[np.ndarray, np.ndarray, list[str], np.ndarray]:
     """Feedforward table of any path of the task coordinates by ``method`` (rigid: samples at
-    t_k, as :func:`line_torques`; elastic: :func:`elastic_line_torques`; shaped: the rigid
-    torques of the path through the ``shaper`` of :func:`path_shaper`), and the elastic tree
-    position the plant starts from (at rest) for the torques to fit."""
+    t_k, as :func:`line_torques`; elastic: :func:`elastic_line_torques`; shaped: the
+    ``shaped_inverse`` torques (rigid or elastic) of the path through the ``shaper`` of
+    :func:`path_shaper`), and the elastic tree position the plant starts from (at rest) for
+    the torques to fit."""
     if method == "shaped":
+        if shaped_inverse not in ("rigid", "elastic"):
+            raise InputError(f"the inverse after a shaper is rigid or elastic, got {shaped_inverse!r}")
         shaped = ShapedPath(path, path_shaper(model, path, shaper))
-        times, values, names, start = path_torques(model, shaped, rate, "rigid")
-        return times, values, names, start
+        return path_torques(model, shaped, rate, shaped_inverse)
     if method == "elastic":
         return elastic_line_torques(model, path, rate)
     mech = Mechanism(model)
