@@ -122,6 +122,19 @@ def test_elastic_method_in_lockstep_sends_the_elastic_table_and_the_plant_stays_
     assert np.abs(forces[int(line.move * 1000):]).max() < 1e-3  # N; the rigid torques ring at ~0.1 N
 
 
+def test_shaped_method_builds_the_shaped_line(ros: RosHarness) -> None:
+    """method shaped: the line through the ZVD shaper of the five-bar's modes, 3.6 ms longer; its
+    torques at the grid are the rigid table of the shaped path."""
+    from elastic_pm_dyn.motion.feedforward import path_torques
+    from elastic_pm_dyn.motion.shaping import ShapedPath
+    ff = make(ros, "feedforward", method="shaped", autostart=False)
+    assert isinstance(ff.line.line, ShapedPath)
+    assert 0.003 < ff.line.line.move - REFERENCE_MANOEUVRE.move < 0.004
+    _, table, _, _ = path_torques(load_model(FIVE_BAR), REFERENCE_LINE, 1000.0, "shaped", "zvd")
+    for k in (0, 50, 100, 150, 203):
+        np.testing.assert_allclose(ff.line.sample(k / 1000.0).tau, table[k], rtol=0, atol=1e-9)
+
+
 def test_timer_trigger_publishes_table_values_and_start_service(ros: RosHarness) -> None:
     """Timer mode, Float64MultiArray in a custom order, started by ~/start."""
     from std_srvs.srv import Trigger

@@ -2,9 +2,11 @@
 
 Publishes motor torques on ``torque_command`` at the control rate and the model's motion on
 ``reference_joint_states``. ``method``: ``rigid`` (the rigid model's inverse dynamics, sampled
-at each control instant) or ``elastic`` (source line only: the elastic model's inverse,
+at each control instant), ``elastic`` (source line only: the elastic model's inverse,
 computed when the line is made, each torque the mean over its hold period; the reference
-motion then has the motors at their deflection-compensated angles). ``line.law``: the time
+motion then has the motors at their deflection-compensated angles) or ``shaped`` (source line
+only: the rigid inverse of the line through the ``shaper`` of the free-motor elastic modes,
+the move longer by the shaper's length). ``line.law``: the time
 law (empty: quintic for rigid, nonic, C^4, for elastic). Desired motion (parameter ``source``):
 - ``line``: the reference manoeuvre, a Cartesian straight line with quintic time law
   (``line.*`` parameters); started at start-up (``autostart``) or by ``~/start``;
@@ -53,9 +55,10 @@ from elastic_pm_dyn.bags.msgtypes import NS, stamp_ns
 from elastic_pm_dyn.errors import ElasticPmDynError, InputError
 from elastic_pm_dyn.model.loader import load_model
 from elastic_pm_dyn.motion.feedback import EncoderError, EncoderRates, gains, pd_torque
-from elastic_pm_dyn.motion.feedforward import rigid_feedforward
+from elastic_pm_dyn.motion.feedforward import path_shaper, rigid_feedforward
 from elastic_pm_dyn.motion.manoeuvre import REFERENCE_MANOEUVRE
 from elastic_pm_dyn.motion.references import ElasticLineReference, HoldReference, JointReference, LineReference
+from elastic_pm_dyn.motion.shaping import SHAPERS, ShapedPath
 from elastic_pm_dyn.motion.time_laws import LAWS, law_order
 from elastic_pm_dyn.motion.trajectory import Line, QuinticLine, make_line
 from elastic_pm_dyn.ros.commands import CommandDecoder
@@ -92,8 +95,10 @@ PARAMS = [
     Param("line.hold", REFERENCE_MANOEUVRE.hold, "time at the end point that belongs to the manoeuvre [s]"),
     Param("line.law", "", "time law: quintic, septic or nonic (C^2, C^3, C^4); empty: quintic for method rigid, "
           "nonic for elastic", choices=("", *LAWS)),
-    Param("method", "rigid", "rigid (the rigid model's inverse dynamics) or elastic (the elastic model's, source "
-          "line only)", choices=("rigid", "elastic")),
+    Param("method", "rigid", "rigid (the rigid model's inverse dynamics), elastic (the elastic model's) or shaped "
+          "(the rigid one of the line through a shaper of the elastic modes); elastic and shaped: source line only",
+          choices=("rigid", "elastic", "shaped")),
+    Param("shaper", "zvd", "method shaped: zv, zvd or ei", choices=SHAPERS),
     Param("hold.duration", 0.5, "source hold: how long the start pose is held [s]", positive=True),
     Param("autostart", True, "line, hold: start at start-up (else call ~/start)"),
     Param("trigger", "timer", "timer (at rate, node clock) or state (one command per plant state)",
@@ -115,7 +120,7 @@ PARAMS = [
 
 
 class FeedforwardNode(ManagedNode):
-    """Rigid feedforward torques of a line or a joint trajectory (see module doc)."""
+    """Feedforward torques of a line (rigid, elastic or shaped) or a joint trajectory (see module doc)."""
 
     def __init__(self, **node_kwargs: Any):
         super().__init__("feedforward", **node_kwargs)
@@ -138,9 +143,15 @@ class FeedforwardNode(ManagedNode):
         self.exit_when_done = p["exit_when_done"]
         self.wait_for = p["wait_for_subscribers"]
         self.rate = p["rate"]
-        if p["method"] == "elastic" and self.source != "line":
-            raise ParameterError(f"parameter 'method': elastic takes source line only (source is {self.source!r})")
+        if p["method"] != "rigid" and self.source != "line":
+            raise ParameterError(f"parameter 'method': {p['method']} takes source line only (source is "
+                                 f"{self.source!r})")
         line = _line(p, len(rigid.ee_components)) if self.source == "line" else None
+        if line is not None and p["method"] == "shaped":  # the line through the shaper, then the rigid inverse
+            try:
+                line = ShapedPath(line, path_shaper(self.model, line, p["shaper"]))
+            except InputError as err:
+                raise ParameterError(f"parameter 'method': shaped: {err}") from None
         self.line = (_elastic(self.model, line, self.rate, rigid.joint_names)
                      if line is not None and p["method"] == "elastic" else
                      LineReference(rigid_feedforward(self.model), line, self.rate) if line is not None else
