@@ -13,6 +13,7 @@ open loop by the table (zero-order hold); then
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -41,7 +42,6 @@ class Score:
 def score(plant: Mechanism, times: np.ndarray, torques: np.ndarray, q0: np.ndarray, path: Path, move: float,
           duration: float, static_forces: np.ndarray, options: SimulationOptions) -> Score:
     """Simulate ``duration`` seconds of the table on ``plant`` from rest at ``q0`` and score it."""
-    import time
     start = time.perf_counter()
     result = Simulator(plant, options).run(TorqueTable(times, torques), duration, q0=q0)
     seconds = time.perf_counter() - start

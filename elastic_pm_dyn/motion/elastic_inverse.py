@@ -18,8 +18,9 @@ whose first pass is the quasi-static deflection under the rigid machine's inerti
 (the branch forces of the path, eqs 27-32, over the springs), and whose later passes add the
 deflections' own inertia. It converges at a rate of about (f_path / f_zero)^2, f_zero the
 internal (zero-dynamics) frequencies of the machine held at its output, and yields the
-solution without the internal oscillation: it is the stable (non-causal) inverse's
-low-frequency series, and for a rest-to-rest path at rest before and after the move. It
+solution without the internal oscillation: the stable inverse's low-frequency series, for a
+rest-to-rest path at rest before and after the move (no explicit pre- or post-actuation;
+a non-minimum-phase machine is untested here). It
 needs the path's second derivative and the deflections' second derivative, so the torques
 contain the path's fourth: a C^4 time law (``Line(order=4)``) makes them continuous. A move
 too fast for the internal dynamics makes the iteration diverge: refused with one line.
