@@ -113,11 +113,17 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
 def cmd_feedforward(args: argparse.Namespace) -> int:
     from elastic_pm_dyn.errors import InputError
-    from elastic_pm_dyn.motion.feedforward import line_torques
+    from elastic_pm_dyn.kinematics.mechanism import Mechanism
+    from elastic_pm_dyn.motion.feedforward import path_torques
     from elastic_pm_dyn.motion.manoeuvre import REFERENCE_MANOEUVRE as ref
-    from elastic_pm_dyn.motion.trajectory import QuinticLine
+    from elastic_pm_dyn.motion.poses import PoseLine
+    from elastic_pm_dyn.motion.task import Task
+    from elastic_pm_dyn.motion.time_laws import law_order
+    from elastic_pm_dyn.motion.trajectory import make_line
     from elastic_pm_dyn.sim.torque import write_torque_csv
     model = _load(args)
+    if args.waypoints is not None:
+        return _waypoint_feedforward(args, model)
     names = [c.upper() for c in model.ee_names]
     dims = len(names)
     axes = " ".join(f"{c}A" for c in names) + " " + " ".join(f"{c}B" for c in names)
@@ -137,15 +143,62 @@ def cmd_feedforward(args: argparse.Namespace) -> int:
     if args.move is not None and args.move < MIN_MOVE_PERIODS / rate:  # the samples would miss the motion
         raise InputError(f"--move {args.move:g} s is shorter than {MIN_MOVE_PERIODS} control periods "
                          f"({MIN_MOVE_PERIODS / rate:g} s at {rate:g} Hz): the torque table would not hold the move")
-    line = QuinticLine(a, b, ref.move if args.move is None else args.move, ref.hold if args.hold is None else args.hold)
+    # the elastic inverse's torques hold the path's 4th derivative: C^4 (nonic) unless told
+    elastic = args.method == "elastic" or (args.method == "shaped" and args.shaped_inverse == "elastic")
+    law = args.law or ("nonic" if elastic else "quintic")
+    line = make_line(a, b, ref.move if args.move is None else args.move,
+                     ref.hold if args.hold is None else args.hold, law_order(law))
     samples = line.duration * rate
     if not samples <= MAX_TORQUE_SAMPLES:  # before allocating the table
         raise InputError(f"--move {line.move:g} s + --hold {line.hold:g} s at --rate {rate:g} Hz means {samples:.4g} "
                          f"samples, more than the limit of {MAX_TORQUE_SAMPLES:.0e}")
-    times, torques, names = line_torques(model, line, rate)
+    task = Task(Mechanism(model))
+    if task.kind == "platform" and task.size == 6:  # a pose: the line's points and an orientation at each end
+        rpy = np.radians(args.rpy if args.rpy is not None else [0.0] * 6)
+        start, end = np.concatenate([line.start, rpy[2::-1]]), np.concatenate([line.end, rpy[:2:-1]])
+        line = PoseLine(start, end, line.move, line.hold, law_order(law))
+    elif args.rpy is not None:
+        raise InputError(f"--rpy: {model.name} has no platform orientation to command (its task coordinates: "
+                         f"{', '.join(task.names)})")
+    times, torques, names, _ = path_torques(model, line, rate, args.method, args.shaper, args.shaped_inverse)
     write_torque_csv(args.out, times, torques, names)
     print(f"{len(times)} samples at {rate:g} Hz -> {args.out}  (peak |tau| "
           + ", ".join(f"{n} {v:.3f} N m" for n, v in zip(names, np.abs(torques).max(0), strict=True)) + ")")
+    return 0
+
+
+def _waypoint_feedforward(args: argparse.Namespace, model) -> int:
+    """feedforward --waypoints: poses of the task coordinates or motor positions with times."""
+    from elastic_pm_dyn.errors import InputError
+    from elastic_pm_dyn.kinematics.mechanism import Mechanism
+    from elastic_pm_dyn.motion.feedforward import path_torques
+    from elastic_pm_dyn.motion.manoeuvre import REFERENCE_MANOEUVRE as ref
+    from elastic_pm_dyn.motion.task import Task
+    from elastic_pm_dyn.motion.time_laws import law_order
+    from elastic_pm_dyn.motion.waypoints import WaypointPath, joint_waypoint_torques, read_waypoints
+    from elastic_pm_dyn.sim.torque import write_torque_csv
+    if args.line is not None or args.rpy is not None or args.move is not None:
+        raise InputError("--waypoints replaces --line, --rpy and --move: the file gives the poses and their times")
+    columns, table = read_waypoints(args.waypoints)
+    mech = Mechanism(model)
+    task = Task(mech)
+    rate = ref.control_rate if args.rate is None else args.rate
+    hold = ref.hold if args.hold is None else args.hold
+    elastic = args.method == "elastic" or (args.method == "shaped" and args.shaped_inverse == "elastic")
+    law = args.law or ("nonic" if elastic else "quintic")
+    if columns == task.names:
+        path = WaypointPath(table[:, 0], table[:, 1:], hold, law_order(law))
+        times, torques, names, _ = path_torques(model, path, rate, args.method, args.shaper, args.shaped_inverse)
+    elif all(n in columns for n in mech.active_names):
+        if args.method != "rigid":
+            raise InputError("--waypoints with motor positions: rigid only (the elastic inverse prescribes the "
+                             f"end effector: give columns t,{','.join(task.names)})")
+        times, torques, names = joint_waypoint_torques(model, columns, table, rate, hold)
+    else:
+        raise InputError(f"--waypoints columns {','.join(columns)}: expected t,{','.join(task.names)} (poses) or "
+                         f"t,{','.join(mech.active_names)} [with _vel, _acc columns] (motor positions)")
+    write_torque_csv(args.out, times, torques, names)
+    print(f"{len(times)} samples at {rate:g} Hz -> {args.out}  ({len(table)} waypoints, {args.method})")
     return 0
 
 
@@ -300,6 +353,8 @@ def cmd_ros_demo(args: argparse.Namespace) -> int:
     from elastic_pm_dyn.ros.processes import NodeProcessError
     loop_only = [f"--{n.replace('_', '-')}" for n in ("elastic_dof_per_chain", "seed", "duration", "observer_config",
                                                       "kp", "kd") if getattr(args, n) is not None]
+    if args.observer and args.feedforward != "rigid":
+        raise InputError("--feedforward elastic: the open-loop demo only (not with --observer)")
     if loop_only and not args.observer:
         raise InputError(f"{', '.join(loop_only)}: only with --observer (the closed loop)")
     try:
@@ -313,7 +368,8 @@ def cmd_ros_demo(args: argparse.Namespace) -> int:
                                storage=args.storage, timeout=args.timeout or 1800.0, domain_id=args.domain_id)
             run_loop_demo(Path(args.out), opts)
             return 0
-        run_ros_demo(Path(args.out), Path(args.model), args.sync, args.storage, args.timeout or 120.0, args.domain_id)
+        run_ros_demo(Path(args.out), Path(args.model), args.sync, args.storage, args.timeout or 120.0, args.domain_id,
+                     feedforward=args.feedforward)
     except NodeProcessError as err:
         print(f"elastic-pm-dyn: error: {err}", file=sys.stderr)
         return EXIT_RUN_FAILED
@@ -333,8 +389,9 @@ def build_parser() -> argparse.ArgumentParser:
     _add_simulation_options(p)
     p.set_defaults(func=cmd_simulate)
 
-    p = sub.add_parser("feedforward", help="rigid inverse-dynamics torques of a quintic straight line")
-    _add_model(p)
+    p = sub.add_parser("feedforward", help="inverse-dynamics torques of a straight line: the rigid model's or the "
+                       "elastic model's (--method elastic)")
+    _add_model(p, dof=True)
     # Unset options take the reference manoeuvre's values (motion.manoeuvre), read when the command runs.
     p.add_argument("--line", type=float, nargs="+", metavar="X",
                    help="start and end point: XA YA XB YB (planar) or six numbers (spatial); "
@@ -342,6 +399,24 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--move", type=float, help="move time [s] (default: the reference manoeuvre's)")
     p.add_argument("--hold", type=float, help="hold time at the end [s] (default: the reference manoeuvre's)")
     p.add_argument("--rate", type=float, help="sample rate [Hz] (default: the reference manoeuvre's)")
+    p.add_argument("--method", choices=("rigid", "elastic", "shaped"), default="rigid",
+                   help="rigid: the rigid model's inverse dynamics sampled at t_k; elastic: the elastic model's "
+                        "(the deflections compensated), each sample the mean over its hold period; shaped: the "
+                        "rigid inverse of the path through an input shaper of the elastic modes (--shaper)")
+    p.add_argument("--shaper", choices=("zv", "zvd", "ei"), default="zvd",
+                   help="--method shaped: the shaper (default zvd), built from the free-motor elastic modes at the "
+                        "path's start and end; the move lengthens by its length")
+    p.add_argument("--shaped-inverse", choices=("rigid", "elastic"), default="rigid",
+                   help="--method shaped: the inverse dynamics after the shaper (default rigid)")
+    p.add_argument("--law", choices=("quintic", "septic", "nonic"),
+                   help="rest-to-rest time law (C^2, C^3, C^4); default quintic for rigid, nonic for elastic")
+    p.add_argument("--rpy", type=float, nargs=6, metavar=("RA", "PA", "YA", "RB", "PB", "YB"),
+                   help="a 6-DOF platform's orientation at the start and the end: roll pitch yaw [deg] "
+                        "(R = Rz(yaw) Ry(pitch) Rx(roll)), interpolated on SO(3) with the line's time law; "
+                        "default 0 (level)")
+    p.add_argument("--waypoints", help="CSV t,<task coordinates> (poses: rest-to-rest segments through them) or "
+                   "t,<active joints>[,<joint>_vel ...][,<joint>_acc ...] (motor positions, rigid only) "
+                   "instead of --line")
     p.add_argument("--out", required=True)
     p.set_defaults(func=cmd_feedforward)
 
@@ -395,6 +470,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--sync", choices=("lockstep", "realtime"), default="lockstep",
                    help="lockstep: deterministic, equals offline simulate (default); realtime: wall-clock paced")
     p.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap")
+    p.add_argument("--feedforward", choices=("rigid", "elastic"), default="rigid",
+                   help="the feedforward node's method: rigid (default) or elastic (the elastic inverse on the "
+                        "9th-order law: the manoeuvre without its ringing)")
     p.add_argument("--timeout", type=float, help="[s] limit for the run (default 120; with --observer 1800)")
     p.add_argument("--domain-id", type=int, help="ROS domain id (default: a private one from the process id)")
     p.add_argument("--observer", action="store_true",

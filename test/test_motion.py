@@ -37,7 +37,9 @@ def test_feedforward_parameter_file_repeats_the_reference_manoeuvre() -> None:
     params = yaml.safe_load((CONFIG / "feedforward.yaml").read_text())["/**"]["ros__parameters"]
     m = REFERENCE_MANOEUVRE
     assert params["rate"] == m.control_rate
-    assert params["line"] == {"start": list(m.start), "end": list(m.end), "move": m.move, "hold": m.hold}
+    assert params["line"] == {"start": list(m.start), "end": list(m.end), "move": m.move, "hold": m.hold,
+                              "law": ""}  # "": the method's own law (quintic for rigid)
+    assert params["method"] == "rigid"
 
 
 def test_launch_files_take_the_manoeuvre_from_the_parameter_file() -> None:

@@ -96,6 +96,45 @@ def test_lockstep_with_plant_reproduces_offline_simulate(ros: RosHarness) -> Non
                                rtol=0, atol=1e-12)
 
 
+def test_elastic_method_in_lockstep_sends_the_elastic_table_and_the_plant_stays_quiet(ros: RosHarness) -> None:
+    """method elastic: the commands are the offline elastic table bit for bit, and the plant
+    (elastic, in lockstep) ends the reference manoeuvre's line without the rigid torques' ringing."""
+    from elastic_pm_dyn.motion.feedforward import elastic_line_torques
+    from elastic_pm_dyn.motion.trajectory import Line
+    model = load_model(FIVE_BAR)
+    line = Line(np.array(REFERENCE_MANOEUVRE.start), np.array(REFERENCE_MANOEUVRE.end), REFERENCE_MANOEUVRE.move,
+                0.05, 4)  # 0.25 s in all: a sum without round-off, so the node stops where the table does
+    times, torques, _, _ = elastic_line_torques(model, line, 1000.0)
+    listener = Listener(ros)
+    make(ros, "plant", sync_mode="lockstep", publish_rate=1000.0, formulation="scdd", integrator="rk4", dt=2e-5)
+    ff = make(ros, "feedforward", trigger="state", exit_when_done=True, wait_for_subscribers=2, method="elastic",
+              line__hold=0.05)
+    ros.wait_until(lambda: ff.done, 60.0, "the feedforward to finish the manoeuvre")
+    ros.spin_for(0.05)
+    n = len(times) - 1
+    sent = np.array([[c.effort[list(c.name).index(j)] for j in ACTIVE] for c in listener.commands])
+    np.testing.assert_array_equal(sent, torques[:n])
+    mech = Mechanism(model)
+    idx = [list(listener.states[0].name).index(j) for j in mech.joint_names]
+    q = np.array([np.array(s.position)[idx] for s in listener.states])
+    qd = np.array([np.array(s.velocity)[idx] for s in listener.states])
+    _, forces, _ = mech.sample_outputs(q, qd)
+    assert np.abs(forces[int(line.move * 1000):]).max() < 1e-3  # N; the rigid torques ring at ~0.1 N
+
+
+def test_shaped_method_builds_the_shaped_line(ros: RosHarness) -> None:
+    """method shaped: the line through the ZVD shaper of the five-bar's modes, 3.6 ms longer; its
+    torques at the grid are the rigid table of the shaped path."""
+    from elastic_pm_dyn.motion.feedforward import path_torques
+    from elastic_pm_dyn.motion.shaping import ShapedPath
+    ff = make(ros, "feedforward", method="shaped", autostart=False)
+    assert isinstance(ff.line.line, ShapedPath)
+    assert 0.003 < ff.line.line.move - REFERENCE_MANOEUVRE.move < 0.004
+    _, table, _, _ = path_torques(load_model(FIVE_BAR), REFERENCE_LINE, 1000.0, "shaped", "zvd")
+    for k in (0, 50, 100, 150, 203):
+        np.testing.assert_allclose(ff.line.sample(k / 1000.0).tau, table[k], rtol=0, atol=1e-9)
+
+
 def test_timer_trigger_publishes_table_values_and_start_service(ros: RosHarness) -> None:
     """Timer mode, Float64MultiArray in a custom order, started by ~/start."""
     from std_srvs.srv import Trigger

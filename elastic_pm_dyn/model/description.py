@@ -306,6 +306,15 @@ class Model:
             raise ValueError(f"gravity must be 3 finite numbers, got {list(np.atleast_1d(gravity))!r}")
         return replace(self, gravity=g.copy())
 
+    def with_stiffness_scaled(self, factor: float) -> Model:
+        """The same machine with every elastic joint's stiffness times ``factor`` (a plant that
+        differs from its model: robustness checks of a feedforward)."""
+        if not (np.isfinite(factor) and factor > 0):
+            raise ValueError(f"stiffness factor must be > 0, got {factor!r}")
+        chains = tuple(replace(c, joints=tuple(replace(j, stiffness=j.stiffness * factor) if j.role == ELASTIC
+                                               else j for j in c.joints)) for c in self.chains)
+        return replace(self, chains=chains, name=f"{self.name} (stiffness x {factor:g})")
+
     def locked(self, role: str = ELASTIC) -> Model:
         """The same machine with every joint of ``role`` frozen at its rest position.
 

@@ -12,11 +12,16 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.interpolate import make_interp_spline
 
 from elastic_pm_dyn.dynamics.inverse import RigidFeedforward, tree_inverse_dynamics
 from elastic_pm_dyn.errors import AssemblyError, InputError
 from elastic_pm_dyn.kinematics.assembly import solve_acceleration, solve_pose, solve_velocity
-from elastic_pm_dyn.motion.trajectory import JointSpline, QuinticLine
+from elastic_pm_dyn.kinematics.mechanism import Mechanism
+from elastic_pm_dyn.model.description import Model
+from elastic_pm_dyn.motion.elastic_inverse import zoh_samples
+from elastic_pm_dyn.motion.feedforward import INVERSE_GRID, elastic_line_motion
+from elastic_pm_dyn.motion.trajectory import JointSpline, Line, QuinticLine
 
 
 @dataclass
@@ -37,7 +42,7 @@ class LineReference:
     are solved on demand.
     """
 
-    def __init__(self, ff: RigidFeedforward, line: QuinticLine, rate: float):
+    def __init__(self, ff: RigidFeedforward, line: Line | QuinticLine, rate: float):
         self.ff = ff
         self.line = line
         self.rate = rate
@@ -56,6 +61,35 @@ class LineReference:
         if k >= 0 and abs(t - k / self.rate) <= 1e-9:
             return self._table[k]
         return self._solve(t)
+
+
+class ElasticLineReference:
+    """A line through the elastic model's inverse (:mod:`elastic_inverse`), computed once when
+    the reference is made: at the grid instants t_k = k / rate the torque is the mean over
+    [t_k, t_k+1) (what a zero-order hold should hold), off the grid the continuous torque. The
+    motion is the elastic tree's, reported under ``joint_names`` (the rigid model's: the motors
+    at their deflection-compensated angles, the passive joints; the springs left out)."""
+
+    def __init__(self, model: Model, line: Line | QuinticLine, rate: float, joint_names: Sequence[str]):
+        mech = Mechanism(model)
+        self.line = line
+        self.rate = rate
+        self.duration = line.duration
+        self.motion = elastic_line_motion(model, line, max(INVERSE_GRID, 1.0 / rate))
+        self._index = [mech.joint_names.index(n) for n in joint_names]
+        self._times, self._held = zoh_samples(self.motion, rate, line.move + 1.0 / rate)
+        self._torque = self.motion.torque()
+        m = self.motion
+        # the motion between grid points: quintic splines (the PD's reference angles and rates)
+        self._splines = [make_interp_spline(m.t, x[:, self._index], k=5, axis=0) for x in (m.q, m.qd, m.qdd)]
+
+    def sample(self, t: float) -> ReferenceSample:
+        t = min(max(t, 0.0), self.line.move)
+        q, qd, qdd = (np.asarray(s(t)) for s in self._splines)
+        k = round(t * self.rate)
+        on_grid = abs(t - k / self.rate) <= 1e-9 and k < len(self._held)
+        tau = self._held[k].copy() if on_grid else self._torque(t)
+        return ReferenceSample(q, qd, qdd, tau)
 
 
 class JointReference:

@@ -7,9 +7,10 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.interpolate import BPoly, CubicSpline
+from scipy.interpolate import BPoly
 
 from elastic_pm_dyn.errors import InputError
+from elastic_pm_dyn.motion.time_laws import time_law
 
 
 @dataclass(frozen=True)
@@ -44,12 +45,63 @@ class QuinticLine:
         return self.start + s * d, sd * d, sdd * d
 
 
+@dataclass(frozen=True)
+class Line:
+    """p(t) = p_A + (p_E - p_A) s(t/T) with the C^r rest-to-rest law of :mod:`time_laws`
+    (r = 2: :class:`QuinticLine`'s; r = 4, the default: the 9th-order law the elastic
+    feedforward wants), then hold p_E. Any number of coordinates (a point, or a platform's)."""
+
+    start: np.ndarray
+    end: np.ndarray
+    move: float  # T [s]
+    hold: float = 0.0  # time held at the end [s]
+    order: int = 4  # r: derivatives 1..r vanish at both ends
+
+    def __post_init__(self) -> None:
+        if not (self.move > 0 and self.hold >= 0 and np.isfinite(self.move + self.hold)):
+            raise InputError(f"move time must be > 0 and hold >= 0 (got {self.move}, {self.hold})")
+        if np.shape(self.start) != np.shape(self.end):
+            raise InputError("line start and end need the same number of coordinates")
+        if not np.all(np.isfinite(np.concatenate([np.ravel(self.start), np.ravel(self.end)]))):
+            raise InputError("line start and end must be finite")
+
+    @property
+    def duration(self) -> float:
+        return self.move + self.hold
+
+    def derivatives(self, t: float, n: int) -> np.ndarray:
+        """Rows: position and its first n time derivatives at t."""
+        s = time_law(self.order, self.move, t, n)
+        d = np.asarray(self.end, dtype=float) - np.asarray(self.start, dtype=float)
+        out = s[:, None] * d[None, :]
+        out[0] += np.asarray(self.start, dtype=float)
+        return out
+
+    def __call__(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Position, velocity, acceleration at time t (clamped to [0, duration])."""
+        p, pd, pdd = self.derivatives(t, 2)
+        return p, pd, pdd
+
+
+def make_line(start: np.ndarray, end: np.ndarray, move: float, hold: float = 0.0, order: int = 2
+              ) -> QuinticLine | Line:
+    """The line of a time law: :class:`QuinticLine` for r = 2 (its closed form, so the rigid
+    feedforward's tables stay what they were, bit for bit), else :class:`Line`."""
+    if order == 2:
+        return QuinticLine(np.asarray(start, dtype=float), np.asarray(end, dtype=float), move, hold)
+    return Line(np.asarray(start, dtype=float), np.asarray(end, dtype=float), move, hold, order)
+
+
 class JointSpline:
     """A smooth motion of joints through waypoints; before the first and after the last at rest there.
 
-    Interpolation per joint: with velocities at every point, a piecewise polynomial that
-    matches positions, velocities and (when given at every point) accelerations (cubic or
-    quintic Hermite); with positions only, a C2 cubic spline starting and ending at rest.
+    Interpolation per joint, joint_trajectory_controller's rules where they give a torque:
+    with velocities at every point a cubic that matches positions and velocities, with
+    accelerations too a quintic that matches all three. Positions alone, which that
+    controller joins by straight lines (an infinite acceleration, so a torque impulse, at
+    every waypoint), get :data:`AT_REST_LAW` instead: each segment a rest-to-rest move with
+    the 9th-order (C^4) law, stopping at every waypoint (the elastic machine's torques stay
+    continuous; a clamped cubic spline, used before, started with a torque step).
     ``order`` picks the joints of the output from the columns of the waypoints (each row
     has ``len(order)`` values).
     """
@@ -74,10 +126,10 @@ class JointSpline:
         self.start = float(times[0])
         self.end = float(times[-1])
         self._splines = None
+        self.rule = "quintic" if acc is not None else "cubic" if vel is not None else "at rest"
         if len(times) > 1:
             if vel is None:
-                spline = CubicSpline(times, pos, bc_type="clamped", axis=0)
-                self._splines = [spline, spline.derivative(1), spline.derivative(2)]
+                self._splines = [_AtRest(times, pos, m) for m in range(3)]
             else:
                 derivs = [vel] if acc is None else [vel, acc]
                 polys = [BPoly.from_derivatives(times, np.stack([pos[:, j], *[d[:, j] for d in derivs]], axis=1))
@@ -92,6 +144,23 @@ class JointSpline:
         if t >= self.end:
             return self.positions[-1], rest, rest.copy()
         return tuple(np.asarray(s(t), dtype=float) for s in self._splines)
+
+
+AT_REST_LAW = 4  # r of the rest-to-rest law of a positions-only trajectory's segments (C^4)
+
+
+class _AtRest:
+    """Derivative ``order`` of the segment-wise rest-to-rest motion through waypoints."""
+
+    def __init__(self, times: np.ndarray, positions: np.ndarray, order: int):
+        self.times, self.positions, self.order = times, positions, order
+
+    def __call__(self, t: float) -> np.ndarray:
+        k = int(np.clip(np.searchsorted(self.times, t, side="right") - 1, 0, len(self.times) - 2))
+        t0, t1 = self.times[k], self.times[k + 1]
+        s = time_law(AT_REST_LAW, t1 - t0, t - t0, self.order)[self.order]
+        d = self.positions[k + 1] - self.positions[k]
+        return self.positions[k] + s * d if self.order == 0 else s * d
 
 
 class _Stack:

@@ -22,9 +22,9 @@ from elastic_pm_dyn.bags.series import read_series
 from elastic_pm_dyn.errors import InputError
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.model.loader import load_model
-from elastic_pm_dyn.motion.feedforward import line_torques
+from elastic_pm_dyn.motion.feedforward import elastic_line_torques, line_torques
 from elastic_pm_dyn.motion.manoeuvre import REFERENCE_MANOEUVRE
-from elastic_pm_dyn.motion.trajectory import QuinticLine
+from elastic_pm_dyn.motion.trajectory import Line, QuinticLine
 from elastic_pm_dyn.ros.params import share_path
 from elastic_pm_dyn.ros.processes import (
     NodeProcess,
@@ -37,6 +37,7 @@ from elastic_pm_dyn.sim.simulator import SimulationOptions, Simulator
 from elastic_pm_dyn.sim.torque import TorqueTable
 
 SYNC_MODES = ("lockstep", "realtime")
+FEEDFORWARDS = ("rigid", "elastic")  # the feedforward node's method
 PLANT_TOPICS = ["/joint_states", "/branch_forces", "/ee_pose"]
 CONTROL_RATE = REFERENCE_MANOEUVRE.control_rate  # [Hz] of plant and feedforward
 DRAIN = 1.0  # [s] after the feedforward ends, for the last states to reach the recorder
@@ -59,20 +60,27 @@ def fresh_bag(out: Path) -> Path:
 
 def run_ros_demo(out: Path, model_path: Path, sync: str = "lockstep", storage: str = "mcap",
                  timeout: float = 120.0, domain_id: int | None = None,
-                 line: QuinticLine = REFERENCE_MANOEUVRE.line) -> dict:
-    """Run the three nodes, record, analyse; returns the summary (also in out/summary.json)."""
+                 line: QuinticLine = REFERENCE_MANOEUVRE.line, feedforward: str = "rigid") -> dict:
+    """Run the three nodes, record, analyse; returns the summary (also in out/summary.json).
+
+    ``feedforward``: the node's method; ``elastic`` moves the line on the 9th-order law its
+    torques need (:mod:`elastic_pm_dyn.motion.elastic_inverse`)."""
     if sync not in SYNC_MODES:
         raise InputError(f"sync mode must be one of {', '.join(SYNC_MODES)}, got {sync!r}")
+    if feedforward not in FEEDFORWARDS:
+        raise InputError(f"feedforward must be one of {', '.join(FEEDFORWARDS)}, got {feedforward!r}")
+    if feedforward == "elastic":
+        line = Line(np.asarray(line.start, dtype=float), np.asarray(line.end, dtype=float), line.move, line.hold, 4)
     bag = fresh_bag(out)
     wall = time.monotonic()
-    _run_nodes(out, bag, model_path, sync, storage, timeout, domain_id or private_domain_id(), line)
+    _run_nodes(out, bag, model_path, sync, storage, timeout, domain_id or private_domain_id(), line, feedforward)
     wall = time.monotonic() - wall
     print(f"  bag -> {bag} ({wall:.1f} s)")
-    return analyse(out, bag, model_path, sync, line, wall)
+    return analyse(out, bag, model_path, sync, line, wall, feedforward)
 
 
 def _run_nodes(out: Path, bag: Path, model_path: Path, sync: str, storage: str, timeout: float,
-               domain_id: int, line: QuinticLine) -> None:
+               domain_id: int, line: QuinticLine | Line, feedforward: str = "rigid") -> None:
     env = ros_env(domain_id)
     logs = out / "logs"
     o = OPTIONS
@@ -84,7 +92,7 @@ def _run_nodes(out: Path, bag: Path, model_path: Path, sync: str, storage: str, 
                "-p", f"rate:={CONTROL_RATE!r}", "-p", "trigger:=" + ("state" if sync == "lockstep" else "timer"),
                "-p", f"line.start:={[float(x) for x in line.start]}", "-p", f"line.end:={[float(x) for x in line.end]}",
                "-p", f"line.move:={float(line.move)!r}", "-p", f"line.hold:={float(line.hold)!r}",
-               "-p", "autostart:=true", "-p", "exit_when_done:=true",
+               "-p", f"method:={feedforward}", "-p", "autostart:=true", "-p", "exit_when_done:=true",
                "-p", "wait_for_subscribers:=2"]  # the plant and the recorder
     rec_args = ["--params-file", str(share_path("config", "recorder.yaml")), "-p", f"output:={bag}",
                 "-p", f"storage:={storage}"]
@@ -112,7 +120,8 @@ def _run_nodes(out: Path, bag: Path, model_path: Path, sync: str, storage: str, 
         p.stop()
 
 
-def analyse(out: Path, bag: Path, model_path: Path, sync: str, line: QuinticLine, wall: float) -> dict:
+def analyse(out: Path, bag: Path, model_path: Path, sync: str, line: QuinticLine | Line, wall: float,
+            feedforward: str = "rigid") -> dict:
     """Bag -> plots and summary, with the offline simulation of the same torques beside it."""
     model = load_model(model_path)
     mech = Mechanism(model)
@@ -137,7 +146,10 @@ def analyse(out: Path, bag: Path, model_path: Path, sync: str, line: QuinticLine
     forces = {b.name: bf.column("force", b.name)[i_bf] for b in model.branches}
     gap = np.array([mech.gap(x) for x in q])
 
-    times, torques, _ = line_torques(model, line, CONTROL_RATE)  # in mech.active_names order
+    if feedforward == "elastic":  # in mech.active_names order
+        times, torques, _, _ = elastic_line_torques(model, line, CONTROL_RATE)
+    else:
+        times, torques, _ = line_torques(model, line, CONTROL_RATE)
     offline = Simulator(mech, OPTIONS).run(TorqueTable(times, torques, "zoh"), line.duration)
     label = f"ROS plant ({sync})"
     reference = np.array([line(s)[0] for s in t])
@@ -161,7 +173,10 @@ def analyse(out: Path, bag: Path, model_path: Path, sync: str, line: QuinticLine
         "longest_state_gap_s": float(np.diff(t).max()),
         "max_path_deviation_m": float(metrics.straight_line_deviation(ee, line.start, line.end).max()),
         "final_position_error_m": float(np.linalg.norm(ee[-1] - line.end)),
+        "feedforward": feedforward,
         "peak_branch_force_N": {n: float(np.abs(f).max()) for n, f in forces.items()},
+        # the ringing after the move: deviation from the last 50 ms of the hold's mean (the static force)
+        "residual_vibration_N": {n: _residual(t, f, line.move) for n, f in forces.items()},
         "max_gap_m": float(gap.max()),
     }
     if sync == "lockstep":  # same torques, same steps: the ROS run must equal offline simulate
@@ -172,8 +187,18 @@ def analyse(out: Path, bag: Path, model_path: Path, sync: str, line: QuinticLine
         summary["max_joint_velocity_difference_vs_offline"] = float(np.abs(qd[ok] - offline.qd[idx[ok]]).max())
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
     print(f"  plots (path, branch_forces, gap, torques) and summary.json in {out}")
+    print("  residual_vibration_N: " + ", ".join(f"{n} {v:.3g}" for n, v in summary["residual_vibration_N"].items()))
     for key in ("commands_in_manoeuvre", "states_in_manoeuvre", "max_path_deviation_m", "max_gap_m",
                 "max_joint_position_difference_vs_offline"):
         if key in summary:
             print(f"  {key}: {summary[key]:.6g}")
     return summary
+
+
+def _residual(t: np.ndarray, force: np.ndarray, move: float) -> float:
+    """Largest deviation over the hold from the mean of its last 50 ms (0 without a hold)."""
+    hold = t >= move
+    if not hold.any():
+        return 0.0
+    static = float(np.mean(force[t >= max(t[-1] - 0.05, move)]))
+    return float(np.abs(force[hold] - static).max())

@@ -1,11 +1,19 @@
-"""Rigid inverse-dynamics feedforward of a desired motion (console script ``feedforward_node``).
+"""Inverse-dynamics feedforward of a desired motion (console script ``feedforward_node``).
 
-Publishes motor torques on ``torque_command`` at the control rate and the rigid model's
-motion on ``reference_joint_states``. Desired motion (parameter ``source``):
+Publishes motor torques on ``torque_command`` at the control rate and the model's motion on
+``reference_joint_states``. ``method``: ``rigid`` (the rigid model's inverse dynamics, sampled
+at each control instant), ``elastic`` (source line only: the elastic model's inverse,
+computed when the line is made, each torque the mean over its hold period; the reference
+motion then has the motors at their deflection-compensated angles) or ``shaped`` (source line
+only: the rigid inverse of the line through the ``shaper`` of the free-motor elastic modes,
+the move longer by the shaper's length). ``line.law``: the time
+law (empty: quintic for rigid, nonic, C^4, for elastic). Desired motion (parameter ``source``):
 - ``line``: the reference manoeuvre, a Cartesian straight line with quintic time law
   (``line.*`` parameters); started at start-up (``autostart``) or by ``~/start``;
 - ``trajectory``: trajectory_msgs/JointTrajectory of the active joints on ``trajectory``,
-  started at its header stamp (zero stamp: at once);
+  started at its header stamp (zero stamp: at once); joint_trajectory_controller's spline
+  rules (cubic with velocities, quintic with accelerations too), positions alone as
+  rest-to-rest 9th-order segments (logged once; :class:`~elastic_pm_dyn.motion.trajectory.JointSpline`);
 - ``hold``: the model's start pose at rest for ``hold.duration`` seconds, with the torques
   that hold it against gravity (any machine, also one whose end-effector point does not fix
   its pose, such as a hexapod); started like the line.
@@ -47,10 +55,12 @@ from elastic_pm_dyn.bags.msgtypes import NS, stamp_ns
 from elastic_pm_dyn.errors import ElasticPmDynError, InputError
 from elastic_pm_dyn.model.loader import load_model
 from elastic_pm_dyn.motion.feedback import EncoderError, EncoderRates, gains, pd_torque
-from elastic_pm_dyn.motion.feedforward import rigid_feedforward
+from elastic_pm_dyn.motion.feedforward import path_shaper, rigid_feedforward
 from elastic_pm_dyn.motion.manoeuvre import REFERENCE_MANOEUVRE
-from elastic_pm_dyn.motion.references import HoldReference, JointReference, LineReference
-from elastic_pm_dyn.motion.trajectory import QuinticLine
+from elastic_pm_dyn.motion.references import ElasticLineReference, HoldReference, JointReference, LineReference
+from elastic_pm_dyn.motion.shaping import SHAPERS, ShapedPath
+from elastic_pm_dyn.motion.time_laws import LAWS, law_order
+from elastic_pm_dyn.motion.trajectory import Line, QuinticLine, make_line
 from elastic_pm_dyn.ros.commands import CommandDecoder
 from elastic_pm_dyn.ros.messages import joint_state, torque_command
 from elastic_pm_dyn.ros.node_main import ManagedNode, run_node
@@ -83,6 +93,12 @@ PARAMS = [
     Param("line.end", list(REFERENCE_MANOEUVRE.end), "end point p_E [m]"),
     Param("line.move", REFERENCE_MANOEUVRE.move, "move time [s]", positive=True),
     Param("line.hold", REFERENCE_MANOEUVRE.hold, "time at the end point that belongs to the manoeuvre [s]"),
+    Param("line.law", "", "time law: quintic, septic or nonic (C^2, C^3, C^4); empty: quintic for method rigid, "
+          "nonic for elastic", choices=("", *LAWS)),
+    Param("method", "rigid", "rigid (the rigid model's inverse dynamics), elastic (the elastic model's) or shaped "
+          "(the rigid one of the line through a shaper of the elastic modes); elastic and shaped: source line only",
+          choices=("rigid", "elastic", "shaped")),
+    Param("shaper", "zvd", "method shaped: zv, zvd or ei", choices=SHAPERS),
     Param("hold.duration", 0.5, "source hold: how long the start pose is held [s]", positive=True),
     Param("autostart", True, "line, hold: start at start-up (else call ~/start)"),
     Param("trigger", "timer", "timer (at rate, node clock) or state (one command per plant state)",
@@ -104,7 +120,7 @@ PARAMS = [
 
 
 class FeedforwardNode(ManagedNode):
-    """Rigid feedforward torques of a line or a joint trajectory (see module doc)."""
+    """Feedforward torques of a line (rigid, elastic or shaped) or a joint trajectory (see module doc)."""
 
     def __init__(self, **node_kwargs: Any):
         super().__init__("feedforward", **node_kwargs)
@@ -127,8 +143,18 @@ class FeedforwardNode(ManagedNode):
         self.exit_when_done = p["exit_when_done"]
         self.wait_for = p["wait_for_subscribers"]
         self.rate = p["rate"]
-        self.line = (LineReference(rigid_feedforward(self.model), _line(p, len(rigid.ee_components)), self.rate)
-                     if self.source == "line" else
+        if p["method"] != "rigid" and self.source != "line":
+            raise ParameterError(f"parameter 'method': {p['method']} takes source line only (source is "
+                                 f"{self.source!r})")
+        line = _line(p, len(rigid.ee_components)) if self.source == "line" else None
+        if line is not None and p["method"] == "shaped":  # the line through the shaper, then the rigid inverse
+            try:
+                line = ShapedPath(line, path_shaper(self.model, line, p["shaper"]))
+            except InputError as err:
+                raise ParameterError(f"parameter 'method': shaped: {err}") from None
+        self.line = (_elastic(self.model, line, self.rate, rigid.joint_names)
+                     if line is not None and p["method"] == "elastic" else
+                     LineReference(rigid_feedforward(self.model), line, self.rate) if line is not None else
                      HoldReference(rigid_feedforward(self.model), p["hold.duration"]) if self.source == "hold"
                      else None)
         try:
@@ -143,6 +169,7 @@ class FeedforwardNode(ManagedNode):
         self.waiting_since: float | None = None  # monotonic [s]: since when the pending stamp lacks its sample
         self.stale_used = 0  # commands computed without the encoder sample of their stamp
         self.warn = KindThrottle(self, WARN_EVERY)
+        self.told_at_rest = False  # the positions-only rule is logged once
 
         self.pub_command = self.create_publisher(
             JointState if self.command_type == "joint_state" else Float64MultiArray, p["topics.command"],
@@ -155,7 +182,7 @@ class FeedforwardNode(ManagedNode):
             self.create_subscription(JointState, p["topics.measured_joint_states"], self._on_encoders,
                                      OBSERVER_INPUT_QOS)
 
-        self.reference: LineReference | HoldReference | JointReference | None = None
+        self.reference: LineReference | ElasticLineReference | HoldReference | JointReference | None = None
         self.start_ns: int | None = None  # reference time origin; None = at the next tick/state
         self.last_ns: int | None = None  # newest control instant answered
         self.pending_ns: int | None = None  # state trigger: newest state not yet answered
@@ -196,6 +223,12 @@ class FeedforwardNode(ManagedNode):
         except SOLVE_ERRORS as err:
             self.get_logger().warning(f"trajectory rejected: {err}")
             return
+        if reference.path.rule == "at rest" and not self.told_at_rest:
+            self.told_at_rest = True  # once: the rule does not change from one goal to the next
+            self.get_logger().info("trajectory with positions only: each segment is a rest-to-rest move with the "
+                                   "9th-order law, stopping at every waypoint (joint_trajectory_controller would "
+                                   "join them by straight lines: a torque impulse at each); give velocities for "
+                                   "a cubic, velocities and accelerations for a quintic")
         self.reference = reference
         self.start_ns = stamp_ns(msg.header.stamp) or None
         self.want_start = False
@@ -324,12 +357,22 @@ class FeedforwardNode(ManagedNode):
         return True
 
 
-def _line(p: dict[str, Any], n_coordinates: int) -> QuinticLine:
+def _elastic(model, line: Line | QuinticLine, rate: float, joint_names: list[str]) -> ElasticLineReference:
+    """The elastic inverse of the line, computed now; a line it refuses is a parameter error."""
+    try:
+        return ElasticLineReference(model, line, rate, joint_names)
+    except InputError as err:
+        raise ParameterError(f"parameters 'line.*' with method elastic: {err}") from None
+
+
+def _line(p: dict[str, Any], n_coordinates: int) -> Line | QuinticLine:
     if len(p["line.start"]) != n_coordinates or len(p["line.end"]) != n_coordinates:
         raise ParameterError(f"parameters 'line.start' and 'line.end' need {n_coordinates} coordinates each "
                              "(the model's end-effector point)")
+    law = p["line.law"] or ("nonic" if p["method"] == "elastic" else "quintic")
     try:
-        return QuinticLine(np.array(p["line.start"]), np.array(p["line.end"]), p["line.move"], p["line.hold"])
+        return make_line(np.array(p["line.start"]), np.array(p["line.end"]), p["line.move"], p["line.hold"],
+                         law_order(law))
     except InputError as err:
         raise ParameterError(f"parameters 'line.*': {err}") from None
 

@@ -1,0 +1,217 @@
+"""Inverse dynamics of the elastic machine along a path of its task coordinates.
+
+The servo-constraint problem: find the tree motion q(t) and motor torques tau(t) with
+
+    M_t qdd + h_t = tau_t + A^T lambda       (eqs 4, 11: tree dynamics with the closure forces)
+    h(q) = 0                                 (eq 8: closure)
+    task(q) = y(t)                           (the path: end-effector point or platform coordinates)
+
+Projected with W = dq_t/dq_ae (eq 18) this is W^T (M_t qdd + h_t) = [tau_a; 0] (eq 17): the
+motor rows give the torques, the elastic rows (no actuator acts on a spring coordinate)
+W_e^T (M_t qdd + h_t) = 0 are the equations that fix the deflections. Given y(t) and q_e(t)
+the closure fixes every other coordinate (:class:`~elastic_pm_dyn.motion.task.Task`), so the
+unknown is q_e(t) alone. The spring term K_e (q_e - q_rest) sits in h_t, hence the fixed point
+
+    q_e  <-  q_e - K_e^-1 W_e^T (M_t qdd + h_t)       (all along the path at once)
+
+whose first pass is the quasi-static deflection under the rigid machine's inertia forces
+(the branch forces of the path, eqs 27-32, over the springs), and whose later passes add the
+deflections' own inertia. It converges at a rate of about (f_path / f_zero)^2, f_zero the
+internal (zero-dynamics) frequencies of the machine held at its output, and yields the
+solution without the internal oscillation: the stable inverse's low-frequency series, for a
+rest-to-rest path at rest before and after the move (no explicit pre- or post-actuation;
+a non-minimum-phase machine is untested here). It
+needs the path's second derivative and the deflections' second derivative, so the torques
+contain the path's fourth: a C^4 time law (``Line(order=4)``) makes them continuous. A move
+too fast for the internal dynamics makes the iteration diverge: refused with one line.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.interpolate import make_interp_spline, make_lsq_spline
+
+from elastic_pm_dyn.errors import InputError
+from elastic_pm_dyn.kinematics.mechanism import Mechanism
+from elastic_pm_dyn.motion.task import Task
+
+Path = Callable[[float], tuple[np.ndarray, np.ndarray, np.ndarray]]  # t -> (y, yd, ydd)
+TOLERANCE = 1e-6  # relative change of the deflections left (estimated) at which the fixed point has converged
+MAX_PASSES = 30
+KNOT = 5e-3  # [s] knot spacing of the deflections' spline (see _smooth)
+RESIDUAL_LIMIT = 1e-3  # unbalanced spring force over the spring forces beyond which the answer is refused
+CLOSURE_TOLERANCE = 1e-11  # [m] closure error of a predicted position below which no Newton runs
+PAD = 6  # grid points at rest before and after the move: the spline's ends see a flat signal
+
+
+@dataclass
+class InverseMotion:
+    """The elastic (or rigid) tree motion along the path and its motor torques, on a time grid."""
+
+    t: np.ndarray  # (N,)
+    q: np.ndarray  # (N, n_t)
+    qd: np.ndarray
+    qdd: np.ndarray
+    tau: np.ndarray  # (N, n_a) motor torques [N m or N], active order
+    passes: int  # fixed-point passes (1 for a rigid model)
+    residual: float  # largest elastic-row force left [N or N m]
+
+    def torque(self) -> Callable[[float], np.ndarray]:
+        """tau(t) between the grid points: an interpolating quintic spline over the move (its
+        ends, where the path's fifth derivative jumps, are the spline's ends), the rest values outside."""
+        inside = (self.t >= -1e-12) & (self.t <= self.t[-1 - PAD] + 1e-12)
+        t, tau = self.t[inside], self.tau[inside]
+        spline = make_interp_spline(t, tau, k=5 if len(t) > 5 else 1, axis=0)
+        lo, hi = t[0], t[-1]
+        first, last = tau[0], tau[-1]
+        return lambda x: first.copy() if x <= lo else last.copy() if x >= hi else np.asarray(spline(x))
+
+
+def solve(mech: Mechanism, path: Path, move: float, step: float, q_start: np.ndarray,
+          task: Task | None = None) -> InverseMotion:
+    """Inverse dynamics along ``path`` on a grid of ``step`` over [0, move] (plus rest on both sides).
+
+    ``q_start`` is a tree position near the path's start (warm start; it selects the assembly
+    mode). Elastic joints need a stiffness. Raises :class:`InputError` (one line) if the
+    fixed point diverges.
+    """
+    task = Task(mech) if task is None else task
+    if not (step > 0 and move > 0):
+        raise InputError(f"grid step and move time must be > 0 (got {step}, {move})")
+    # the grid k * step (the control instants when step = 1 / rate), past the move's end
+    n = int(np.ceil(move / step - 1e-9))
+    t = np.arange(-PAD, n + PAD + 1) * step
+    e = mech.elastic
+    n_a = len(mech.active)
+    k_e = mech.stiffness[e]
+    if len(e) and not np.all(k_e > 0):
+        raise InputError("the elastic inverse needs a stiffness > 0 on every elastic joint")
+    ys = [path(float(tk)) for tk in t]
+    q_guess = np.array(q_start, dtype=float)
+    qe = np.tile(q_guess[e], (len(t), 1))
+    Q = np.empty((len(t), mech.n))
+    last_change, previous, previous_pass = np.inf, None, None
+    for passes in range(1, MAX_PASSES + 1):
+        qe, qed, qedd = _smooth(t, qe, 0.0, move)
+        # converged when the deflections (in the spline's band) stop changing; the raw
+        # residual keeps the part of the exact deflections the band cannot hold
+        size = np.inf if previous is None else (float(np.max(np.abs(qe - previous)))
+                                                / max(float(np.max(np.abs(qe - mech.rest[e]))), 1e-300))
+        if passes > 2 and size > 0.5 * last_change and size > TOLERANCE:
+            raise InputError(f"the elastic inverse does not converge (pass {passes}: change {size:.3g}, before "
+                             f"{last_change:.3g}): the move is too fast for the machine's internal dynamics; "
+                             "give it more time")
+        Q, Qd, Qdd, F, previous_pass = _pass(mech, task, ys, qe, qed, qedd, previous_pass, q_guess, t)
+        if not len(e):
+            return InverseMotion(t, Q, Qd, Qdd, F, 1, 0.0)
+        r = F[:, n_a:]
+        # the change still to come, from the contraction seen so far (geometric): its torques'
+        # error is that small a part of the springs' share
+        if size <= TOLERANCE or (np.isfinite(last_change) and size * size / last_change <= TOLERANCE):
+            # what the band could not hold, against the spring forces: a move the grid and knots
+            # resolve leaves ~1e-6; a move faster than they (or the internal dynamics) allow, much more
+            residual = float(np.max(np.abs(r)))
+            spring = max(float(np.max(np.abs(k_e * (qe - mech.rest[e])))), 1e-300)
+            if residual > RESIDUAL_LIMIT * spring:
+                raise InputError(f"the elastic inverse leaves {residual / spring:.2g} of the spring forces "
+                                 f"unbalanced: the move ({move:g} s) is too fast for its grid ({step:g} s) or the "
+                                 "machine's internal dynamics; give it more time")
+            return InverseMotion(t, Q, Qd, Qdd, F[:, :n_a], passes, residual)
+        last_change, previous = size, qe
+        qe = qe - r / k_e
+    raise InputError(f"the elastic inverse did not converge in {MAX_PASSES} passes")
+
+
+def _smooth(t: np.ndarray, x: np.ndarray, lo: float, hi: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Samples on a grid as a least-squares quintic spline with a knot every KNOT seconds:
+    values, first and second derivatives. Why not interpolate: the update multiplies the
+    deflections' second derivative by M / K, which raises a component at frequency f by
+    (f / f_zero)^2; the grid's own round-off near its Nyquist frequency (above f_zero) would
+    grow pass by pass. The knots keep the deflections to the path's band. Triple knots at the
+    move's start ``lo`` and end ``hi``: the deflections follow the path's acceleration, whose
+    third derivative (the path's fifth) jumps there under a C^4 law."""
+    if x.shape[1] == 0:
+        return x.copy(), x.copy(), x.copy()
+    # at most KNOT apart, at least 10 intervals over the move, never closer than two grid steps
+    step = (hi - lo) / max(1, round((hi - lo) / max(min(KNOT, (hi - lo) / 10), 2 * (t[1] - t[0]))))
+    inner = np.arange(lo + step, hi - 0.5 * step, step)
+    knots = np.concatenate([[t[0]] * 6, [lo] * 3, inner, [hi] * 3, [t[-1]] * 6])
+    spline = make_lsq_spline(t, x, knots, k=5, axis=0)
+    return spline(t), spline(t, 1), spline(t, 2)
+
+
+def _pass(mech: Mechanism, task: Task, ys: list, qe: np.ndarray, qed: np.ndarray, qedd: np.ndarray,
+          previous: tuple[np.ndarray, np.ndarray, np.ndarray] | None, q_guess: np.ndarray, times: np.ndarray
+          ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, tuple]:
+    """Tree motion with the task coordinates of the path and the given deflections, and the
+    generalised forces W^T (M_t qdd + h_t) on q_ae along it (eq 17).
+
+    ``previous`` (the last pass's positions, deflections and dq/dq_e at fixed task
+    coordinates) predicts each position to first order in the deflections' change, so Newton
+    runs only where the closure is off by more than the assembly tolerance.
+    """
+    e, free, fixed = mech.elastic, task.free, task.fixed
+    N = len(ys)
+    n_task = 0 if task.kind == "platform" else task.size
+    Q, Qd, Qdd = np.empty((N, mech.n)), np.empty((N, mech.n)), np.empty((N, mech.n))
+    S = np.zeros((N, mech.n, len(e)))
+    F = np.empty((N, len(mech.ae)))
+    q = q_guess.copy()
+    for k, (y, yd, ydd) in enumerate(ys):
+        if previous is not None:
+            q = previous[0][k] + previous[2][k] @ (qe[k] - previous[1][k])
+        elif k:  # first pass: Newton from the last point's second-order Taylor step (one iteration)
+            h = times[k] - times[k - 1]
+            q = Q[k - 1] + h * Qd[k - 1] + 0.5 * h * h * Qdd[k - 1]
+        q[e] = qe[k]
+        if task.kind == "platform":
+            q[task.joints] = y
+        t0 = mech.terms(q)
+        if previous is None or np.linalg.norm(t0.residual) > CLOSURE_TOLERANCE or (
+                n_task and np.linalg.norm(mech.end_effector(q) - y) > CLOSURE_TOLERANCE):
+            q = task.pose(q, y)
+            t0 = mech.terms(q)
+        jac = task.jacobian(t0)
+        a = jac[:, free]
+        v = np.zeros(mech.n)
+        v[e] = qed[k]
+        rhs = np.zeros(len(jac))
+        if n_task:
+            rhs[-n_task:] = yd
+        else:
+            v[task.joints] = yd
+        # one factorisation: the rates, and each deflection's effect at fixed task coordinates
+        sol = np.linalg.solve(a, np.column_stack([rhs - jac[:, fixed] @ v[fixed], -jac[:, e]]))
+        qd = v
+        qd[free] = sol[:, 0]
+        S[k][free] = sol[:, 1:]
+        S[k][e, np.arange(len(e))] = 1.0
+        t1 = mech.terms(q, qd)
+        acc = np.zeros(mech.n)
+        acc[e] = qedd[k]
+        rhs = task.bias(t1)
+        if n_task:
+            rhs[-n_task:] += ydd
+        else:
+            acc[task.joints] = ydd
+        acc[free] = np.linalg.solve(a, rhs - jac[:, fixed] @ acc[fixed])
+        W, _ = mech.passive_map(t1)
+        F[k] = W.T @ (t1.M @ acc + t1.h)
+        Q[k], Qd[k], Qdd[k] = q, qd, acc
+    return Q, Qd, Qdd, F, (Q, qe.copy(), S)
+
+
+def zoh_samples(motion: InverseMotion, rate: float, duration: float) -> tuple[np.ndarray, np.ndarray]:
+    """Torque samples at t_k = k / rate for a zero-order hold: each the mean of tau over
+    [t_k, t_k+1) (Simpson on the spline), so the held staircase has the continuous torque's
+    impulse in every period. Point samples would lag it by half a period (a delay the
+    elastic machine answers with the vibration the inverse removed)."""
+    f = motion.torque()
+    n = round(duration * rate)
+    times = np.arange(n + 1) / rate
+    h = 1.0 / rate
+    values = np.array([(f(tk) + 4 * f(tk + 0.5 * h) + f(tk + h)) / 6 for tk in times])
+    return times, values

@@ -1,0 +1,101 @@
+"""Waypoint files: poses (task coordinates) or motor positions with times, as a path.
+
+A CSV file with a header ``t,<names>`` and one row per waypoint, times strictly increasing:
+
+- ``<names>`` the task coordinates (:class:`~elastic_pm_dyn.motion.task.Task`: ``x,y`` for the
+  five-bar, ``platform_x,...,platform_roll`` for a platform; m and rad): a path through the
+  poses, each segment a rest-to-rest move with the time law (a platform's orientation on the
+  SO(3) geodesic), at rest at every waypoint; for both methods;
+- ``<names>`` the active joints (optionally ``<joint>_vel`` and ``<joint>_acc`` columns):
+  a joint-space motion with joint_trajectory_controller's rules
+  (:class:`~elastic_pm_dyn.motion.trajectory.JointSpline`); rigid method only (the elastic
+  inverse prescribes the output, not the motors).
+Before the first time the path rests at its first waypoint.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from elastic_pm_dyn.errors import InputError
+from elastic_pm_dyn.model.description import Model
+from elastic_pm_dyn.motion.feedforward import rigid_feedforward
+from elastic_pm_dyn.motion.poses import PoseLine
+from elastic_pm_dyn.motion.references import JointReference
+from elastic_pm_dyn.motion.trajectory import make_line
+
+
+def read_waypoints(path: str | Path) -> tuple[list[str], np.ndarray]:
+    """(column names after ``t``, rows [t, values...]) of a waypoint CSV; one clear line on error."""
+    p = Path(path)
+    try:
+        lines = [ln.strip() for ln in p.read_text().splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
+    except (OSError, UnicodeDecodeError) as err:
+        raise InputError(f"waypoint file {p}: cannot read it ({type(err).__name__})") from None
+    if len(lines) < 2:
+        raise InputError(f"waypoint file {p}: needs a header t,<names> and at least one row")
+    header = [h.strip() for h in lines[0].split(",")]
+    if header[0] != "t" or len(header) < 2:
+        raise InputError(f"waypoint file {p}: the header must start with t and name the columns, got {lines[0][:60]!r}")
+    rows = []
+    for k, ln in enumerate(lines[1:], start=2):
+        cells = ln.split(",")
+        if len(cells) != len(header):
+            raise InputError(f"waypoint file {p} row {k}: {len(cells)} values for {len(header)} columns")
+        try:
+            rows.append([float(c) for c in cells])
+        except ValueError:
+            raise InputError(f"waypoint file {p} row {k}: not a number in {ln[:60]!r}") from None
+    table = np.array(rows)
+    if not np.all(np.isfinite(table)):
+        raise InputError(f"waypoint file {p}: NaN or Inf")
+    if table[0, 0] < 0 or np.any(np.diff(table[:, 0]) <= 0):
+        raise InputError(f"waypoint file {p}: times must be >= 0 and strictly increasing")
+    return header[1:], table
+
+
+class WaypointPath:
+    """Rest-to-rest segments through poses of the task coordinates (see module doc)."""
+
+    def __init__(self, times: np.ndarray, points: np.ndarray, hold: float, order: int):
+        times = np.asarray(times, dtype=float)
+        points = np.atleast_2d(np.asarray(points, dtype=float))
+        if len(times) < 2:
+            raise InputError("a waypoint path needs at least two waypoints")
+        pose = points.shape[1] == 6
+        self.times = times
+        self.segments = [(PoseLine if pose else make_line)(points[k], points[k + 1], times[k + 1] - times[k], 0.0,
+                                                            order) for k in range(len(times) - 1)]
+        self.move = float(times[-1])
+        self.hold = float(hold)
+        self.start = points[0]
+
+    @property
+    def duration(self) -> float:
+        return self.move + self.hold
+
+    def __call__(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        k = int(np.clip(np.searchsorted(self.times, t, side="right") - 1, 0, len(self.segments) - 1))
+        return self.segments[k](t - self.times[k])
+
+
+def joint_waypoint_torques(model: Model, names: list[str], table: np.ndarray, rate: float, hold: float
+                           ) -> tuple[np.ndarray, np.ndarray, list[str]]:
+    """Rigid torques at t_k of a motor-space waypoint table (columns ``names``: the active joints,
+    optionally ``<joint>_vel`` and ``<joint>_acc``), by joint_trajectory_controller's rules
+    (:class:`~elastic_pm_dyn.motion.trajectory.JointSpline`)."""
+    ff = rigid_feedforward(model)
+    active = ff.mech.active_names
+
+    def columns(suffix: str) -> np.ndarray | None:
+        wanted = [f"{n}{suffix}" for n in active]
+        if not all(w in names for w in wanted):
+            return None
+        return table[:, [1 + names.index(w) for w in wanted]]
+
+    ref = JointReference(ff, active, table[:, 0], columns(""), columns("_vel"), columns("_acc"))
+    n = round((ref.duration + hold) * rate)
+    times = np.arange(n + 1) / rate
+    return times, np.array([ref.sample(t).tau for t in times]), active
