@@ -22,10 +22,10 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from bench_observer_loop import machine, recording  # noqa: E402
+from bench_observer_loop import machine, recording
 
-from elastic_pm_dyn.observer import Observer, ObserverConfig  # noqa: E402
-from elastic_pm_dyn.observer.drivers.stream import ObserverStream  # noqa: E402
+from elastic_pm_dyn.observer import Observer, ObserverConfig
+from elastic_pm_dyn.observer.drivers.stream import ObserverStream
 
 
 def main() -> int:
