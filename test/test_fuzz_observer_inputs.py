@@ -224,6 +224,8 @@ def _assert_error_line(err: str) -> str:
 @example(items=["process.dt=" + "[" * 5000 + "]" * 5000], command="observe")
 @example(items=["process.dt=" + "9" * 400], command="observe")
 @example(items=["imu.stddev=[1, " + "9" * 400 + "]"], command="tune")
+@example(items=["branch_forces.branches=!!int 1.5"], command="observe")  # a ValueError traceback before
+@example(items=["process.dt=!!float abc"], command="tune")
 def test_set_values_are_accepted_or_one_line(items: list[str], command: str, capsys: pytest.CaptureFixture) -> None:
     with tempfile.TemporaryDirectory() as tmp:
         model = Path(tmp) / "missing.yaml"  # an accepted configuration stops at the model, before any work
