@@ -31,6 +31,12 @@ class OneLineParser(argparse.ArgumentParser):
     def error(self, message: str) -> NoReturn:
         self.exit(EXIT_USER_ERROR, f"{self.prog}: error: {_one_line(message)} (see {self.prog} --help)\n")
 
+    def _get_values(self, action: argparse.Action, arg_strings: list[str]):
+        # "--threads=--": argparse drops the "--" and hands the command [] for one number
+        if action.nargs is None and action.option_strings and list(arg_strings) == ["--"]:
+            self.error(f"argument {'/'.join(action.option_strings)}: expected one value, got '--'")
+        return super()._get_values(action, arg_strings)
+
 
 def _one_line(text: object) -> str:
     """A message as one line of at most MAX_MESSAGE characters, whatever it holds."""

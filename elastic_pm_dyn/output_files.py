@@ -10,6 +10,7 @@ becomes one line naming the user's path (:class:`OutputError`), never the tempor
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import os
 import shutil
 from collections.abc import Iterator
@@ -24,9 +25,17 @@ def _reason(err: OSError) -> str:
     return err.strerror or str(err)
 
 
+NAME_MAX = 255  # bytes of one file name (Linux, macOS)
+
+
 def temp_name(path: Path) -> Path:
-    """The hidden name an output is written under before it is renamed into place."""
-    return path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    """The hidden name an output is written under before it is renamed into place; within
+    NAME_MAX bytes whenever the output's own name is (a long name is cut and a hash of it added)."""
+    suffix = f".{os.getpid()}.tmp"
+    raw = os.fsencode(path.name)
+    room = NAME_MAX - 1 - len(suffix)
+    name = path.name if len(raw) <= room else os.fsdecode(raw[:room - 9]) + "-" + hashlib.sha1(raw).hexdigest()[:8]
+    return path.with_name(f".{name}{suffix}")
 
 
 @contextlib.contextmanager
@@ -44,7 +53,8 @@ def atomic_file(path: str | Path) -> Iterator[Path]:
     except OSError as err:
         raise OutputError(f"cannot write {path}: {_reason(err)}") from None
     finally:
-        tmp.unlink(missing_ok=True)
+        with contextlib.suppress(OSError):  # (no folder to hold it: nothing to remove, the error above says why)
+            tmp.unlink(missing_ok=True)
 
 
 def write_text(path: str | Path, text: str, encoding: str = "utf-8") -> None:

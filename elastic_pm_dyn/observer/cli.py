@@ -99,7 +99,7 @@ def _config(args: argparse.Namespace):
             raise InputError(f"--set {shown}: expected NAME=VALUE")
         try:
             params[name.strip().removeprefix("observer.")] = yaml12.load(value)
-        except yaml.YAMLError as exc:
+        except (yaml.YAMLError, RecursionError, ValueError) as exc:  # as yaml12.load_file: "!!int 1.5" is a ValueError
             reason = getattr(exc, "problem", None) or " ".join(str(exc).split())
             raise InputError(f"--set {shown}: not a valid YAML value: {reason[:200]}") from None
     for key, attr in (("torque_command", "torque_topic"), ("measured_joint_states", "joint_topic"),

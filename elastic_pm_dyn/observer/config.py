@@ -210,7 +210,7 @@ class ObserverConfig:
         for name, value in (params or {}).items():
             key = name[len(PREFIX):] if name.startswith(PREFIX) else name
             if key not in DEFAULT_PARAMETERS:
-                raise InputError(f"{source}: unknown observer parameter {PREFIX}{key}")
+                raise InputError(f"{source}: unknown observer parameter {_shown(PREFIX + key, bare=True)}")
             given[key] = value
         p = {k: _coerce(source, k, given.get(k, default), default) for k, default in DEFAULT_PARAMETERS.items()}
         cfg = cls(
@@ -261,7 +261,7 @@ class ObserverConfig:
 
         for s in self.sensors:
             if s not in SENSOR_KINDS:
-                raise bad("sensors", f"unknown sensor {s!r} (expected some of {', '.join(SENSOR_KINDS)})")
+                raise bad("sensors", f"unknown sensor {_shown(s)} (expected some of {', '.join(SENSOR_KINDS)})")
         if len(set(self.sensors)) != len(self.sensors):
             raise bad("sensors", "a sensor is listed twice")
         positive = {"process.max_interval": self.process.max_interval,
@@ -277,7 +277,7 @@ class ObserverConfig:
                     "observability.horizon": self.observability_horizon}
         for key, value in positive.items():
             if not value > 0:
-                raise bad(key, f"must be > 0, got {value!r}")
+                raise bad(key, f"must be > 0, got {_shown(value)}")
         non_negative = {"process.disturbance_intensity": self.process.disturbance_intensity,
                         "process.disturbance_stddev": self.process.disturbance_stddev,
                         "process.torque_noise_psd": self.process.torque_noise_psd,
@@ -287,7 +287,7 @@ class ObserverConfig:
                         "command_delay": self.command_delay, "process.dt": self.process.dt}
         for key, value in non_negative.items():
             if not value >= 0:
-                raise bad(key, f"must be >= 0, got {value!r}")
+                raise bad(key, f"must be >= 0, got {_shown(value)}")
         # Ranges with a physical sense, so an absurd value is one line instead of an endless run.
         ceilings = {"command_delay": (self.command_delay, MAX_COMMAND_DELAY, "an actuation latency"),
                     "process.max_interval": (self.process.max_interval, MAX_PREDICTION_INTERVAL,
@@ -306,10 +306,10 @@ class ObserverConfig:
                             ("encoders.velocity_stddev", self.encoders.velocity_stddev),
                             ("imu.stddev", self.imu.stddev), ("branch_forces.stddev", self.branch_forces.stddev)):
             if not values or not all(v > 0 for v in values):
-                raise bad(key, f"needs one or more values > 0, got {values!r}")
+                raise bad(key, f"needs one or more values > 0, got {_shown(values)}")
         bands = self.process.disturbance_bandwidth
         if not bands or not all(b > 0 for b in bands) or len(set(bands)) != len(bands):
-            raise bad("process.disturbance_bandwidth", f"needs distinct corner frequencies > 0, got {bands!r}")
+            raise bad("process.disturbance_bandwidth", f"needs distinct corner frequencies > 0, got {_shown(bands)}")
         choices = (("process.disturbance_band_order", self.process.disturbance_band_order, BAND_ORDERS),
                    ("process.disturbance", self.process.disturbance, DISTURBANCE_MODELS),
                    ("process.integrator", self.process.integrator, INTEGRATORS),
@@ -318,22 +318,23 @@ class ObserverConfig:
                    ("imu.sample_timing", self.imu.sample_timing, SAMPLE_TIMINGS))
         for key, value, allowed in choices:
             if value not in allowed:
-                raise bad(key, f"expected one of {', '.join(map(str, allowed))}, got {value!r}")
+                raise bad(key, f"expected one of {', '.join(map(str, allowed))}, got {_shown(value)}")
         if self.initial.source not in ("measurement", "model"):
-            raise bad("initial.source", f"expected measurement or model, got {self.initial.source!r}")
+            raise bad("initial.source", f"expected measurement or model, got {_shown(self.initial.source)}")
         if not self.imu.axes or any(a not in AXES for a in self.imu.axes) or len(set(self.imu.axes)) != len(
                 self.imu.axes):
-            raise bad("imu.axes", f"expected distinct axes among x, y, z, got {self.imu.axes!r}")
+            raise bad("imu.axes", f"expected distinct axes among x, y, z, got {_shown(self.imu.axes)}")
         if len(self.imu.rpy) != 3:
-            raise bad("imu.rpy", f"expected 3 angles, got {self.imu.rpy!r}")
+            raise bad("imu.rpy", f"expected 3 angles, got {_shown(self.imu.rpy)}")
         if not 0.5 < self.gating.probability < 1.0:
-            raise bad("gating.probability", f"expected a probability in (0.5, 1), got {self.gating.probability!r}")
+            raise bad("gating.probability",
+                      f"expected a probability in (0.5, 1), got {_shown(self.gating.probability)}")
         if self.process.relinearize_every < 1:
             raise bad("process.relinearize_every", f"must be >= 1, got {self.process.relinearize_every}")
         if not self.gating.nis_warn_factor > 1.0:
-            raise bad("gating.nis_warn_factor", f"must be > 1, got {self.gating.nis_warn_factor!r}")
+            raise bad("gating.nis_warn_factor", f"must be > 1, got {_shown(self.gating.nis_warn_factor)}")
         if self.gating.recover_after < 0:
-            raise bad("gating.recover_after", f"must be >= 0, got {self.gating.recover_after!r}")
+            raise bad("gating.recover_after", f"must be >= 0, got {_shown(self.gating.recover_after)}")
         if self.gating.max_consecutive_rejections < 1 or self.gating.nis_window < 1:
             raise bad("gating", "max_consecutive_rejections and nis_window must be >= 1")
 
@@ -344,40 +345,58 @@ MAX_PREDICTION_INTERVAL = 1.0  # [s] one linearised prediction piece
 MAX_HORIZON = 10.0  # [s] observability Gramian at start-up
 
 
+MAX_SHOWN = 80  # characters of a value quoted in an error line
+
+
+def _shown(value: Any, bare: bool = False) -> str:
+    """A value as an error line quotes it: its repr (a printable name bare), at most MAX_SHOWN characters."""
+    text = value if bare and isinstance(value, str) and value.isprintable() else repr(value)
+    return text if len(text) <= MAX_SHOWN else text[:MAX_SHOWN - 3] + "..."
+
+
+def _float(where: str, value: int | float) -> float:
+    """A YAML number as a float; an integer beyond the float range is one line, not an OverflowError."""
+    try:
+        return float(value)
+    except OverflowError:
+        digits = int(value.bit_length() * 0.30103) + 1 if isinstance(value, int) else 0
+        raise InputError(f"{where}: an integer of about {digits} digits, beyond the range of a float") from None
+
+
 def _coerce(source: str, key: str, value: Any, default: Any) -> Any:
     """Check a value against its default's type (ints are accepted for floats)."""
     where = f"{source}: {PREFIX}{key}"
     if isinstance(default, bool):
         if not isinstance(value, bool):
-            raise InputError(f"{where}: expected true or false, got {value!r}")
+            raise InputError(f"{where}: expected true or false, got {_shown(value)}")
         return value
     if isinstance(default, float):
         if isinstance(value, bool) or not isinstance(value, int | float):
-            raise InputError(f"{where}: expected a number, got {value!r}")
-        return float(value)
+            raise InputError(f"{where}: expected a number, got {_shown(value)}")
+        return _float(where, value)
     if isinstance(default, int):
         if isinstance(value, bool) or not isinstance(value, int):
-            raise InputError(f"{where}: expected an integer, got {value!r}")
+            raise InputError(f"{where}: expected an integer, got {_shown(value)}")
         return value
     if isinstance(default, str):
         if not isinstance(value, str):
-            raise InputError(f"{where}: expected a string, got {value!r}")
+            raise InputError(f"{where}: expected a string, got {_shown(value)}")
         return value
     if isinstance(default, list):
         if isinstance(value, str | int | float) and not isinstance(value, bool):
             value = [value]  # one value for a list: broadcast
         if not isinstance(value, list | tuple):
-            raise InputError(f"{where}: expected a list, got {value!r}")
+            raise InputError(f"{where}: expected a list, got {_shown(value)}")
         kind = type(default[0])
         out = []
         for v in value:
             if kind is float:
                 if isinstance(v, bool) or not isinstance(v, int | float):
-                    raise InputError(f"{where}: expected numbers, got {v!r}")
-                out.append(float(v))
+                    raise InputError(f"{where}: expected numbers, got {_shown(v)}")
+                out.append(_float(where, v))
             else:
                 if not isinstance(v, str):
-                    raise InputError(f"{where}: expected names, got {v!r}")
+                    raise InputError(f"{where}: expected names, got {_shown(v)}")
                 out.append(v)
         return out
     raise AssertionError(key)
