@@ -146,8 +146,9 @@ def cmd_feedforward(args: argparse.Namespace) -> int:
         value = getattr(args, name)
         if value is not None and not (np.isfinite(value) and value >= 0):
             raise InputError(f"--{name} must be a finite number of seconds >= 0, got {value!r}")
-    if args.move is not None and args.move < MIN_MOVE_PERIODS / rate:  # the samples would miss the motion
-        raise InputError(f"--move {args.move:g} s is shorter than {MIN_MOVE_PERIODS} control periods "
+    move = ref.move if args.move is None else args.move
+    if move < MIN_MOVE_PERIODS / rate:  # the samples would miss the motion (a short move or a tiny --rate)
+        raise InputError(f"--move {move:g} s is shorter than {MIN_MOVE_PERIODS} control periods "
                          f"({MIN_MOVE_PERIODS / rate:g} s at {rate:g} Hz): the torque table would not hold the move")
     # the elastic inverse's torques hold the path's 4th derivative: C^4 (nonic) unless told
     elastic = args.method == "elastic" or (args.method == "shaped" and args.shaped_inverse == "elastic")
@@ -189,6 +190,10 @@ def _waypoint_feedforward(args: argparse.Namespace, model) -> int:
     mech = Mechanism(model)
     task = Task(mech)
     rate = ref.control_rate if args.rate is None else args.rate
+    span = float(table[-1, 0] - table[0, 0])
+    if not span >= MIN_MOVE_PERIODS / rate:  # the samples would miss the motion
+        raise InputError(f"--waypoints span {span:g} s, shorter than {MIN_MOVE_PERIODS} control periods "
+                         f"({MIN_MOVE_PERIODS / rate:g} s at {rate:g} Hz): the torque table would not hold the move")
     hold = ref.hold if args.hold is None else args.hold
     elastic = args.method == "elastic" or (args.method == "shaped" and args.shaped_inverse == "elastic")
     law = args.law or ("nonic" if elastic else "quintic")

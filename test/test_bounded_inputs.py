@@ -167,5 +167,9 @@ def test_feedforward_move_and_analyze_hold_start(capsys, tmp_path: Path) -> None
     assert "--move" in _one_line(capsys, ["feedforward", "--model", str(FIVE_BAR), "--move", "1e-12",
                                           "--out", str(tmp_path / "t.csv")])
     assert not (tmp_path / "t.csv").exists()
+    # a rate too low for the default move to hold ten samples (a NaN/LinAlgError traceback before)
+    assert "control periods" in _one_line(capsys, ["feedforward", "--model", str(FIVE_BAR), "--rate", "1e-300",
+                                                   "--out", str(tmp_path / "t.csv")])
+    assert not (tmp_path / "t.csv").exists()
     assert "--hold-start" in _one_line(capsys, ["analyze", "none", "--hold-start", "nan", "--out",
                                                 str(tmp_path / "a")])
