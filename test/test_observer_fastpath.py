@@ -60,19 +60,24 @@ def _same_float(a, b) -> bool:
 
 @pytest.fixture
 def count_steps(monkeypatch) -> dict[str, int]:
-    """Messages the per-message API took through the compiled steps (period.sample_step, command_step)."""
-    from elastic_pm_dyn.observer.core import period
-
+    """Messages the per-message API took through the compiled steps (the Observer's callers of
+    period.sample_step and command_step; the kernels themselves stay untouched: a compiled
+    caller such as period.run_periods binds them when it is compiled)."""
     taken = {"sample_step": 0, "command_step": 0}
-    for name in taken:
-        inner = getattr(period, name)
+    inner_samples, inner_command = Observer._fast_samples, Observer._fast_command
 
-        def wrapped(*args, _inner=inner, _name=name):
-            r = _inner(*args)
-            taken[_name] += r != 0
-            return r
+    def samples(self, *args):
+        r = inner_samples(self, *args)
+        taken["sample_step"] += r is not None
+        return r
 
-        monkeypatch.setattr(period, name, wrapped)
+    def command(self, *args):
+        r = inner_command(self, *args)
+        taken["command_step"] += bool(r)
+        return r
+
+    monkeypatch.setattr(Observer, "_fast_samples", samples)
+    monkeypatch.setattr(Observer, "_fast_command", command)
     return taken
 
 
