@@ -125,6 +125,13 @@ def advance(ma, fixed, proc, state, cmd, ctl, timing, t_to, tree):
 
 
 @njit(cache=True)
+def _newest(pend_t, ctl):
+    """When the newest accepted command acts from (``Observer._newest_command``)."""
+    head, tail = int(ctl[HEAD]), int(ctl[TAIL])
+    return pend_t[tail - 1] if tail > head else ctl[T_COMMAND]
+
+
+@njit(cache=True)
 def _use_after(ctl, evidence):
     """The hypothesis in use: ``auto``'s likelier so far before its first choice."""
     return evidence[1] < evidence[0] if ctl[TRIAL] > 0.5 else ctl[AFTER] > 0.5
@@ -220,9 +227,7 @@ def sample_step(ma, fixed, proc, state, cmd, ctl, timing, evidence, enc, enc_gat
     result = TAKEN
     if ok and has_imu:
         # the command that starts to act at this sample may still come (the command of its stamp)
-        head, tail = int(ctl[HEAD]), int(ctl[TAIL])
-        newest = cmd[2][tail - 1] if tail > head else ctl[T_COMMAND]
-        waiting = imu_mode != 0 and no_delay and newest < t_to + delay - tol
+        waiting = imu_mode != 0 and no_delay and _newest(cmd[2], ctl) < t_to + delay - tol
         if waiting and _use_after(ctl, evidence):
             result = HELD
         else:
@@ -252,10 +257,9 @@ def command_step(ma, fixed, proc, state, cmd, ctl, timing, evidence, imu, imu_ga
     active_idx = fixed[4]
     tol, delay = timing[TOL], timing[DELAY]
     t = ctl[T_NOW]
-    head, tail = int(ctl[HEAD]), int(ctl[TAIL])
+    tail = int(ctl[TAIL])
     t_act = t_to + delay
-    newest = pend_t[tail - 1] if tail > head else ctl[T_COMMAND]
-    if t_act < newest - tol or t_act < t - tol or t_to < t - tol or tail >= pend_t.shape[0]:
+    if t_act < _newest(pend_t, ctl) - tol or t_act < t - tol or t_to < t - tol or tail >= pend_t.shape[0]:
         return 0
     if t_to >= ctl[T_STOP] - tol or (t_to - t > tol and waiting != TAKEN):
         return 0

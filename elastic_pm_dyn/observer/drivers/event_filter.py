@@ -199,9 +199,9 @@ class EventFilter:
                 if fixed is None:
                     obs.flat_layout()
                     imu = obs.imu
-                    # the accelerometer's bundle (kernels.ImuModel) and gate, placeholders without one
-                    fixed = (obs.fast_timing(), obs._imu or (np.zeros((0, 3)), np.zeros(3), np.zeros(0)),
-                             obs.gate(len(imu.axes)) if imu is not None else np.inf)
+                    # the steps' timing array, the accelerometer's bundle (kernels.ImuModel; a
+                    # placeholder without one) and its gate: the Observer's own
+                    fixed = (obs._timing, obs._imu_bundle, obs.gate(len(imu.axes)) if imu is not None else np.inf)
                 timing, imu_model, imu_gate = fixed
                 idx, H, var, js, wrap, _ = obs.encoders.fast_plan(run.names, obs.nx)
                 a, b = gi - run.g0, run.g1 - run.g0
