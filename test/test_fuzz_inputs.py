@@ -43,6 +43,19 @@ def _lines(data: bytes) -> list[bytes]:
     return data.split(b"\n")
 
 
+def run_main(argv: list[str], capsys: pytest.CaptureFixture) -> tuple[int, str, str]:
+    """``elastic-pm-dyn argv`` in-process: (exit code, stdout, stderr with every warning as one
+    more line, as a user would see it); argparse's SystemExit taken as its code."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            code = main(argv)
+        except SystemExit as exc:  # argparse: a value that is no number
+            code = exc.code
+    out, err = capsys.readouterr()
+    return code, out, err + "".join(f"{w.category.__name__}: {w.message}\n" for w in caught)
+
+
 @st.composite
 def mutated_model(draw: st.DrawFn) -> bytes:
     """A shipped model with one to three mutations."""
@@ -182,13 +195,7 @@ def test_simulate_flags_exit_0_or_2_with_one_line(flag: str, value: str, integra
         args[flag] = value
         argv = ["simulate", "--model", str(CONFIG / "five_bar.yaml"), "--torques", str(tau), "--out", str(out)]
         argv += [f"{k}={v}" for k, v in args.items()]
-        with warnings.catch_warnings(record=True) as caught:  # each would be a line more on stderr
-            warnings.simplefilter("always")
-            try:
-                code = main(argv)
-            except SystemExit as exc:  # argparse: a value that is no number
-                code = exc.code
-        err = capsys.readouterr().err + "".join(f"{w.category.__name__}: {w.message}\n" for w in caught)
+        code, _, err = run_main(argv, capsys)
         written = out.exists()
     assert code in (0, 2), err
     if code == 2:

@@ -18,7 +18,6 @@ from __future__ import annotations
 import math
 import os
 import tempfile
-import warnings
 from pathlib import Path
 
 import pytest
@@ -26,8 +25,9 @@ import yaml
 from conftest import fuzz_settings
 from hypothesis import example, given
 from hypothesis import strategies as st
+from test_fuzz_inputs import run_main
 
-from elastic_pm_dyn.cli import MAX_MESSAGE, main
+from elastic_pm_dyn.cli import MAX_MESSAGE
 from elastic_pm_dyn.errors import InputError
 from elastic_pm_dyn.observer.config import DEFAULT_PARAMETERS, PREFIX, ObserverConfig, load_config
 
@@ -202,17 +202,6 @@ def set_items(draw: st.DrawFn) -> str:
     return f"{name}={value}"
 
 
-def _run(argv: list[str], capsys: pytest.CaptureFixture) -> tuple[int, str, str]:
-    with warnings.catch_warnings(record=True) as caught:  # each would be a line more on stderr
-        warnings.simplefilter("always")
-        try:
-            code = main(argv)
-        except SystemExit as exc:  # argparse: a value that is no number
-            code = exc.code
-    out, err = capsys.readouterr()
-    return code, out, err + "".join(f"{w.category.__name__}: {w.message}\n" for w in caught)
-
-
 def _assert_error_line(err: str) -> str:
     assert err.count("\n") == 1 and "Traceback" not in err, err[:3000]
     assert err.startswith("elastic-pm-dyn") and len(err) <= MAX_MESSAGE + 120, err[:3000]
@@ -231,7 +220,7 @@ def test_set_values_are_accepted_or_one_line(items: list[str], command: str, cap
         model = Path(tmp) / "missing.yaml"  # an accepted configuration stops at the model, before any work
         argv = [command, "--model", str(model), "--bag", "none", "--out", str(Path(tmp) / "out")]
         argv += [f"--set={item}" for item in items]
-        code, _, err = _run(argv, capsys)
+        code, _, err = run_main(argv, capsys)
         assert os.listdir(tmp) == []
     assert code == 2, err
     _assert_error_line(err)
@@ -280,7 +269,7 @@ def test_numeric_flags_exit_0_or_2_with_one_line(case: tuple, data, capsys: pyte
         cwd = os.getcwd()
         os.chdir(tmp)  # anything written elsewhere would land here
         try:
-            code, _, err = _run(argv, capsys)
+            code, _, err = run_main(argv, capsys)
         finally:
             os.chdir(cwd)
         left = sorted(os.listdir(tmp))
@@ -349,7 +338,7 @@ def test_output_paths_are_written_complete_or_refused_in_one_line(case: tuple, c
         before = _tree_of(root)
         argv = (["urdf", str(FIVE_BAR)] if command == "urdf"
                 else ["feedforward", "--model", str(FIVE_BAR), "--move", "0.02", "--hold", "0"]) + ["--out", str(out)]
-        code, stdout, err = _run(argv, capsys)
+        code, stdout, err = run_main(argv, capsys)
         after = _tree_of(root)
         writable = _is_dir(out.parent) and not _is_dir(out) and len(out.name.encode()) <= 255
         assert code == (0 if writable else 2), (code, err[:3000])
