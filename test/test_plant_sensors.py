@@ -19,6 +19,7 @@ import pytest
 from ros_harness import RosHarness, domain_id, require
 
 from elastic_pm_dyn.dynamics.direct import Dynamics
+from elastic_pm_dyn.errors import InputError
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.model.loader import load_model
 from elastic_pm_dyn.observer.testing.scenarios import Noise, rest_state, simulate
@@ -235,6 +236,32 @@ def test_spectrum_disturbance_equals_offline_simulate(mech: Mechanism) -> None:
         etd2_bare.step(torques(k))
     effect = plant.q - bare.q
     np.testing.assert_allclose(etd2.q - etd2_bare.q, effect, rtol=0, atol=1e-6 * np.abs(effect).max())
+
+
+def test_static_start_stands_still_under_the_holding_torque(mech: Mechanism) -> None:
+    """``start: static``: the springs carry gravity from the first instant, so a plant held by
+    the rigid holding torque does not ring; ``relaxed`` (springs unloaded) sags and rings."""
+    from elastic_pm_dyn.dynamics.inverse import tree_inverse_dynamics
+    from elastic_pm_dyn.dynamics.statics import elastic_residual
+
+    options = SimulationOptions(dt=1e-4, sample=PERIOD)
+    static = Plant(mech, options, PERIOD, start="static")
+    relaxed = Plant(mech, SimulationOptions(dt=1e-4, sample=PERIOD), PERIOD)
+    # the start is balanced: no generalised force on the springs at rest (gravity vs deflection)
+    e = np.arange(len(mech.active), len(mech.ae))
+    assert np.max(np.abs(elastic_residual(mech, static.q0)[e])) < 1e-9
+    assert np.max(np.abs(elastic_residual(mech, relaxed.q0)[e])) > 1e-3
+    assert np.array_equal(static.q0[mech.active], relaxed.q0[mech.active])  # the motors where the file puts them
+    tau_ae = tree_inverse_dynamics(mech, static.q0, np.zeros(mech.n), np.zeros(mech.n))
+    hold = tau_ae[[list(mech.ae).index(j) for j in mech.active]]
+    for _ in range(20):
+        static.step(hold)
+        relaxed.step(hold)
+    ringing = np.max(np.abs(relaxed.qd[mech.elastic]))
+    assert ringing > 1e-4  # [rad/s] the unloaded springs take the weight: they ring
+    assert np.max(np.abs(static.qd)) < 1e-4 * ringing
+    with pytest.raises(InputError, match="start must be one of"):
+        Plant(mech, options, PERIOD, start="sagging")
 
 
 def test_held_disturbance_acts_as_a_commanded_torque(mech: Mechanism) -> None:

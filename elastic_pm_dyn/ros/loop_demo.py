@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 
 from elastic_pm_dyn.analysis import plots
-from elastic_pm_dyn.bags.msgtypes import BRANCH_FORCES, IMU, JOINT_STATE, NS, stamp_ns
+from elastic_pm_dyn.bags.msgtypes import BRANCH_FORCES, IMU, JOINT_STATE, stamp_ns
 from elastic_pm_dyn.bags.reader import open_bag
 from elastic_pm_dyn.bags.series import read_series
 from elastic_pm_dyn.bags.writer import BagWriter
@@ -57,7 +57,6 @@ from elastic_pm_dyn.sim.torque import TorqueTable
 
 CONTROL_RATE = REFERENCE_MANOEUVRE.control_rate  # [Hz] plant, controller, sensors
 PLANT_DT = 1e-4  # [s] the plant's RK4 step (config/plant_sensors.yaml)
-PERIOD_NS = round(NS / CONTROL_RATE)
 DRAIN = 1.0  # [s] after the controller ends, for the last messages to reach the recorder
 SETTLE = 3.0  # [s] wall time for a loop that started by itself to show
 KICK_EVERY = 30.0  # [s] wall time without progress after which the plant is reset again
@@ -404,11 +403,15 @@ class Kicker:
                 raise NodeProcessError("the plant's ~/reset service did not appear")
             for p in watch:
                 p.check_running()
-        while True:  # reset again only if nothing moved for KICK_EVERY (a reset that reached nobody)
+        # Reset again only if the reset's state did not appear within KICK_EVERY (a reset that
+        # reached nobody). Once it did, the loop runs, however slowly its first periods go (an
+        # observer loading its kernels on a busy machine): a second reset would restart the plant
+        # under a running controller and observer (seen: two resets 65 s into a loaded run).
+        while True:
             before = self.newest
             self.reset.call_async(self.request)
-            self._spin_for(KICK_EVERY, watch, lambda b=before: self.newest > b + PERIOD_NS)
-            if self.newest > before + PERIOD_NS:
+            self._spin_for(KICK_EVERY, watch, lambda b=before: self.newest > b)
+            if self.newest > before:
                 return "from the plant's ~/reset"
             if time.monotonic() > deadline:
                 raise NodeProcessError(f"the loop did not start within {timeout:g} s (see the node logs)")

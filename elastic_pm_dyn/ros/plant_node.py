@@ -76,7 +76,7 @@ from elastic_pm_dyn.ros.qos import (
 )
 from elastic_pm_dyn.ros.robot_description import publish_robot_description
 from elastic_pm_dyn.ros.throttle import KindThrottle
-from elastic_pm_dyn.sim.plant import Plant
+from elastic_pm_dyn.sim.plant import START_STATES, Plant
 from elastic_pm_dyn.sim.simulator import INTEGRATORS, STABILIZATIONS, SimulationOptions
 
 MODES = ("plant", "observer")
@@ -92,6 +92,9 @@ PARAMS = [
     Param("integrator", "rk4", "rk4 (fixed step dt), etd2 (fixed step dt, the springs exactly: a step of "
           "0.25-1 ms, see elastic-pm-dyn check) or dop853 (adaptive, offline accuracy)", choices=INTEGRATORS),
     Param("dt", 1.0e-4, "internal RK4 / ETD2 step [s]; shortened so steps end on control periods", positive=True),
+    Param("start", "relaxed", "start (and ~/reset) state: relaxed (the model's initial pose, springs unloaded, "
+          "as simulate) or static (springs deflected by gravity, motors held: a machine at rest, as the "
+          "observer assumes)", choices=START_STATES),
     Param("stabilization", "projection", "closure drift stabilisation", choices=tuple(STABILIZATIONS)),
     Param("publish_rate", 1000.0, "control and publish rate [Hz]; a command is held for one period",
           positive=True),
@@ -106,8 +109,9 @@ PARAMS = [
     *ESTIMATE_PARAMS,
 ]
 # Parameters that only one mode uses (a warning lists the ones given to the other mode); and observer.*
-ONLY = {"plant": ("formulation", "integrator", "dt", "stabilization", "publish_rate", "sync_mode", "command_timeout",
-                  "topics.command", *(s.name for s in SENSOR_PARAMS), *(s.name for s in DISTURBANCE_PARAMS)),
+ONLY = {"plant": ("formulation", "integrator", "dt", "start", "stabilization", "publish_rate", "sync_mode",
+                  "command_timeout", "topics.command", *(s.name for s in SENSOR_PARAMS),
+                  *(s.name for s in DISTURBANCE_PARAMS)),
         "observer": tuple(s.name for s in ESTIMATE_PARAMS)}
 OBSERVER_PREFIX = "observer."
 
@@ -149,7 +153,7 @@ class PlantNode(ManagedNode):
         options = SimulationOptions(formulation=p["formulation"], integrator=p["integrator"], dt=p["dt"],
                                     stabilization=p["stabilization"], sample=period)
         spec = sensor_spec(p)
-        self.plant = Plant(mech, options, period, spectrum_disturbance(p, len(mech.active)))
+        self.plant = Plant(mech, options, period, spectrum_disturbance(p, len(mech.active)), start=p["start"])
         self.period_ns = round(period * NS)
         self.timeout = p["command_timeout"]
         self.formulation = p["formulation"]

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from elastic_pm_dyn.dynamics.statics import static_deflection
 from elastic_pm_dyn.errors import AssemblyError, InputError, SingularConfigurationError
 from elastic_pm_dyn.kinematics.assembly import initial_state, solve_pose, solve_velocity
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
@@ -30,6 +31,7 @@ from elastic_pm_dyn.sim.stopped import integration_error
 from elastic_pm_dyn.sim.torque import ConstantTorque, HeldPlusSmooth
 
 # [rad or m] a requested position beyond this is a mistake: float spacing there exceeds 1e-10
+START_STATES = ("relaxed", "static")  # Plant(start=...): springs unloaded, or deflected by gravity
 MAX_POSITION = 1.0e6
 
 
@@ -47,14 +49,21 @@ class Plant:
     """Tree state (q, qd) of an elastic mechanism under zero-order-held motor torques."""
 
     def __init__(self, mech: Mechanism, options: SimulationOptions, period: float,
-                 disturbance: Callable[[float], np.ndarray] | None = None):
+                 disturbance: Callable[[float], np.ndarray] | None = None, start: str = "relaxed"):
+        """``start``: ``relaxed`` begins at the model's initial pose with every spring unloaded (as
+        ``simulate`` does); ``static`` with the springs deflected by gravity, the motors held there
+        (a machine standing at rest, as the observer assumes at its start)."""
         if not (np.isfinite(period) and period > 0):
             raise InputError(f"control period must be a positive number of seconds, got {period!r}")
         options.validate()
         self.mech = mech
         self.options = options
         self.period = period
+        if start not in START_STATES:
+            raise InputError(f"start must be one of {', '.join(START_STATES)}, got {start!r}")
         self.q0 = initial_state(mech)
+        if start == "static" and len(mech.elastic):
+            self.q0 = static_deflection(mech, self.q0, np.zeros(len(mech.ee_components)))
         self.q = self.q0.copy()
         self.qd = np.zeros(mech.n)
         self.k = 0  # control periods done
