@@ -63,10 +63,10 @@ def run_machine(name: str, args: argparse.Namespace) -> dict:
     model, dof = MACHINES[name]
     model = REPO / "config" / model
     mech = Mechanism(load_model(model, dof))
-    out = RESULTS / "loop_acceptance" / name
+    out = RESULTS / _tag(args) / name
     base = REPO / "config" / "observer_node.yaml"
     common = {"elastic_dof_per_chain": dof, "duration": args.duration, "timeout": args.timeout,
-              "domain_id": args.domain_id}
+              "domain_id": args.domain_id, "disturbance_rms": args.disturbance_rms}
     print(f"{name}: loop run for tuning (seed {args.tune_seed})")
     # the controller paced by the plant: the untuned observer may diverge (it did on the Triglide)
     # and must not stop the recording it is to be tuned on
@@ -96,7 +96,8 @@ KEYS = ("loop_periods", "branch_force_error_rms_N", "branch_force_error_rms_open
 
 def markdown(results: list[dict], args: argparse.Namespace) -> str:
     lines = ["# Closed-loop acceptance (bench/loop_acceptance.py)", "",
-             f"Lockstep, {args.duration:g} s, encoders + accelerometer, flat 2-200 Hz 0.02 N m disturbance; "
+             f"Lockstep, {args.duration:g} s, encoders + accelerometer, flat 2-200 Hz "
+             f"{args.disturbance_rms:g} N m (N) disturbance; "
              f"observer tuned on seed {args.tune_seed}, evaluated on seed {args.seed}.", "",
              "| machine | n_ek | F error [N] | open loop [N] | ratio (<= 0.5) | NEES in band (>= 0.8) "
              "| NEES mean / dof | live = observe | loop wall [s] | passed | after 0.2 s: ratio, NEES in band |",
@@ -112,6 +113,11 @@ def markdown(results: list[dict], args: argparse.Namespace) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _tag(args: argparse.Namespace) -> str:
+    """Results' name: loop_acceptance, or loop_acceptance_rms<value> for another unknown torque."""
+    return "loop_acceptance" if args.disturbance_rms == 0.02 else f"loop_acceptance_rms{args.disturbance_rms:g}"
+
+
 def _late(s: dict) -> str:
     late = s.get("after_0.2s")
     return "-" if not late else f"{late['branch_force_error_ratio_to_open_loop']:.3f}, {late['nees_in_band']:.3f}"
@@ -121,6 +127,8 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--machines", nargs="+", choices=tuple(MACHINES), default=["five_bar"])
     p.add_argument("--duration", type=float, default=2.0)
+    p.add_argument("--disturbance-rms", type=float, default=0.02,
+                   help="[N m or N] unknown torque per motor (the acceptance's: 0.02; see observer_bound_machines.py)")
     p.add_argument("--seed", type=int, default=1, help="seed of the evaluated run")
     p.add_argument("--tune-seed", type=int, default=2, help="seed of the run the observer is tuned on")
     p.add_argument("--tune-seconds", type=float, default=None, help="tune on the first S seconds (default: all)")
@@ -133,7 +141,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--domain-id", type=int, default=101, help="ROS domain of the runs (default 101)")
     args = p.parse_args(argv)
     RESULTS.mkdir(parents=True, exist_ok=True)
-    path = RESULTS / "loop_acceptance.json"
+    path = RESULTS / f"{_tag(args)}.json"
     results = {}
     for name in args.machines:
         results[name] = run_machine(name, args)
@@ -143,7 +151,7 @@ def main(argv: list[str] | None = None) -> int:
                 for m in MACHINES]
         rows = [r for r in rows if r is not None]
         path.write_text(json.dumps({"command": " ".join(sys.argv), "results": rows}, indent=2, default=str))
-        (RESULTS / "loop_acceptance.md").write_text(markdown(rows, args))
+        (RESULTS / f"{_tag(args)}.md").write_text(markdown(rows, args))
         print(markdown(rows, args))
     return 0 if all(results[m]["passed"] for m in args.machines) else 1
 
