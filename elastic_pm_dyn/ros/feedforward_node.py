@@ -30,7 +30,11 @@ and a count; with the timer trigger the newest sample is used, with a warning wh
 more than two periods old.
 
 Pacing (parameter ``trigger``):
-- ``timer``: a timer at ``rate`` on the node clock (simulated time with use_sim_time);
+- ``timer``: a timer at ``rate`` on the node clock (simulated time with use_sim_time). It
+  cannot keep up with a plant that runs ahead of the wall clock (``sync_mode: fast``): the
+  executor wakes at wall-clock moments, /clock has moved on by several periods, and the
+  control instants in between get no command (each skipped one is counted and warned about);
+  drive a fast plant with ``trigger: state``;
 - ``state``: one command per new plant state (``topics.state``), for the time of its
   stamp: with a lockstep plant this is deterministic and reproduces offline
   ``simulate`` with the same torque table. ``topics.state`` may be any JointState stamped
@@ -168,6 +172,7 @@ class FeedforwardNode(ManagedNode):
         self.samples: OrderedDict[int, tuple[np.ndarray, np.ndarray]] = OrderedDict()  # stamp -> (q, qd)
         self.waiting_since: float | None = None  # monotonic [s]: since when the pending stamp lacks its sample
         self.stale_used = 0  # commands computed without the encoder sample of their stamp
+        self.skipped = 0  # timer trigger: control instants that got no command (the clock ran ahead)
         self.warn = KindThrottle(self, WARN_EVERY)
         self.told_at_rest = False  # the positions-only rule is logged once
 
@@ -309,6 +314,15 @@ class FeedforwardNode(ManagedNode):
             self.warn.warning("stale sample", f"newest encoder sample is {(ns - newest) * 1e-9:.3g} s old")
         return self.samples[newest]
 
+    def _count_skipped(self, ns: int) -> None:
+        """Timer trigger: control instants between the last answered one and ``ns`` got no command."""
+        skipped = round((ns - self.last_ns) * self.rate / NS) - 1
+        if skipped > 0:
+            self.skipped += skipped
+            self.warn.warning("skipped", f"timer trigger: {skipped} control instant(s) before t = {ns * 1e-9:.6f} s "
+                              f"got no command ({self.skipped} so far): the clock ran ahead of the timer (a fast "
+                              "plant? use trigger state)")
+
     def _command_at(self, ns: int, quantise: bool = False) -> bool:
         """Publish the command for time ``ns`` (and the reference); False if there is none.
 
@@ -333,6 +347,8 @@ class FeedforwardNode(ManagedNode):
             ns = self.start_ns + round(t * NS)
             if self.last_ns is not None and ns <= self.last_ns:
                 return False
+            if self.last_ns is not None:
+                self._count_skipped(ns)
         if self.exit_when_done and t >= self.reference.duration:
             self.get_logger().info(f"reference finished at t = {t:.6g} s")
             self.done = True
