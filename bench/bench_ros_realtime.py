@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import platform
 import sys
 import tempfile
@@ -125,8 +126,8 @@ def main() -> int:
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         result = run(args.duration, args.cpus, args.priority, Path(tmp), private_domain_id())
-    result["machine"] = {"cpus": len(__import__("os").sched_getaffinity(0)), "python": platform.python_version(),
-                         "platform": platform.platform()}
+    result["machine"] = {"cpus": len(os.sched_getaffinity(0)), "python": platform.python_version(),
+                         "platform": platform.platform(), "load_average_1_5_15": list(os.getloadavg())}
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(result, indent=2))
     print(table(result))
