@@ -50,3 +50,32 @@ def test_first_messages_of_a_run_are_in_the_bag(tmp_path: Path) -> None:
                                0.01 * np.arange(COMMANDS), rtol=0, atol=0)
     stamps = np.unique(np.round(topics["/joint_states"].t * 1e3))  # the t = 0 state may be there twice
     np.testing.assert_array_equal(stamps, np.arange(COMMANDS + 1))
+
+
+def test_fast_plant_with_a_state_triggered_feedforward_every_command_is_in_the_bag(tmp_path: Path) -> None:
+    """Fast mode runs ahead of the controller (states it never answers are counted), but every
+    command the feedforward sends reaches the plant's recorder: nothing sent is missing."""
+    require("rclpy")
+    from rclpy.parameter import Parameter
+
+    from elastic_pm_dyn.ros.feedforward_node import FeedforwardNode
+    from elastic_pm_dyn.ros.plant_node import PlantNode
+    from elastic_pm_dyn.ros.recorder import DEMO_TYPES, RecorderNode
+
+    h = RosHarness(domain_id(63))
+    try:
+        recorder = h.add(RecorderNode(context=h.context, parameter_overrides=[
+            Parameter("output", value=str(tmp_path / "bag")), Parameter("topics", value=["/torque_command"]),
+            Parameter("topic_types", value=DEMO_TYPES)]))
+        h.add(PlantNode(context=h.context, parameter_overrides=[Parameter("sync_mode", value="fast")]))
+        ff = h.add(FeedforwardNode(context=h.context, parameter_overrides=[
+            Parameter("trigger", value="state"), Parameter("exit_when_done", value=True),
+            Parameter("wait_for_subscribers", value=2)]))
+        h.wait_until(lambda: ff.done, 120.0, "the feedforward's line")
+        h.wait_until(lambda: recorder.count("/torque_command") >= ff.sent, 20.0, "every command recorded")
+        h.spin_for(0.3)
+        assert ff.sent > 10
+        assert recorder.count("/torque_command") == ff.sent
+        recorder.close()
+    finally:
+        h.close()

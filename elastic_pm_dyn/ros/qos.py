@@ -1,7 +1,8 @@
 """QoS profiles of the nodes (one place, so publishers and subscribers always match).
 
-- Commands (``torque_command``, ``trajectory``): reliable, keep last 10, volatile. A
-  late-joining plant must never act on an old torque, so no history is kept.
+- Commands (``torque_command``, ``trajectory``): readers reliable, keep last 10, volatile: a
+  late-joining plant must never act on an old torque. Our controllers' writers
+  (:data:`COMMAND_OUT_QOS`) are transient local, for the recorder's sake only.
 - States (``joint_states``, ``branch_forces``, ``ee_pose``, ``reference_joint_states``):
   reliable, keep last 100, transient local. Volatile subscribers (RViz, ros2 topic echo)
   match as usual; transient-local ones (recorder, lockstep controllers) also get the
@@ -43,8 +44,12 @@ COMMAND_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=
 # A controller's publisher: the reader side as COMMAND_QOS, a deeper writer history so that reliable
 # delivery repairs a recorder that lags up to 0.1 s at 1 kHz (with 10, a loaded machine's recorder
 # lost 8 of 2000 lockstep commands, and the bag no longer held what the observer had used).
+# Transient local: only for transient-local readers (the recorder), which get the commands sent
+# before their side of the match completed (a fast run lost its first 31 of 142 commands that way:
+# the writer saw the recorder matched and sent, the recorder's reader had not matched the writer
+# yet). The plant's and the observer's readers are volatile: they never see an old command.
 COMMAND_OUT_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.RELIABLE,
-                             durability=DurabilityPolicy.VOLATILE)
+                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
 LOCKSTEP_COMMAND_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE,
                                   durability=DurabilityPolicy.VOLATILE)
 STATE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.RELIABLE,

@@ -8,10 +8,11 @@ with the message definitions stored in the bag, so that ``ros2 bag`` users and
 A topic whose type the configuration gives (``topic_types``; :data:`DEMO_TYPES`, in config/recorder.yaml)
 is subscribed at start-up, before any publisher exists, so the first message of a run is
 in the bag even from a publisher that starts sending as soon as its other subscribers
-matched (a volatile writer keeps nothing for a late reader). Until a publisher shows, the
-reader is reliable and volatile (it matches any reliable writer); when the publishers turn
-out to offer transient local (or best effort) and nothing has arrived yet, it is made anew
-with their QoS. Other topics are subscribed once the ROS graph shows a publisher (its type
+matched. Until a publisher shows, the reader is reliable and transient local: a writer that
+offers the same (the plant's states, our controllers' commands) hands it the samples sent
+before the reader's side of the match completed, which a volatile reader would miss; when
+the publishers turn out to be volatile (or best effort) they do not match it, nothing has
+arrived, and it is made anew with their QoS. Other topics are subscribed once the ROS graph shows a publisher (its type
 is used). Subscriptions take ``raw=True``: the wire bytes are written as they are, never
 re-serialised (rclpy's ``serialize_message`` can append bytes that rosbags rejects). Like
 ``ros2 bag record``, the subscription QoS follows the publishers: transient local when all
@@ -137,8 +138,7 @@ class RecorderNode(ManagedNode):
         for topic, msgtype in _topic_types(p["topic_types"]).items():
             if topic in self.wanted:
                 try:
-                    self._subscribe(topic, msgtype)
-                    self.topics[topic].early = True
+                    self._subscribe(topic, msgtype, early=True)
                 except InputError as err:  # BagError too
                     raise ParameterError(f"parameter 'topic_types': {topic}: {err}") from None
         self.pub_diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", DIAGNOSTICS_QOS)
@@ -175,14 +175,17 @@ class RecorderNode(ManagedNode):
                 self.skipped.add(topic)
                 self.get_logger().warning(f"not recording {topic}: {err}")
 
-    def _subscribe(self, topic: str, msgtype: str) -> None:
+    def _subscribe(self, topic: str, msgtype: str, early: bool = False) -> None:
         msg_class = _message_class(msgtype)
         if msgtype not in self.writer.typestore.types:
             register_msg_text(self.writer.typestore, msgtype, _installed_definition(msgtype))
         state = _Topic(self.writer.add_connection(topic, msgtype))
         state.msg_class = msg_class
+        state.early = early
         self.topics[topic] = state
-        self._create_subscription(topic, state)
+        self._create_subscription(topic, state, QoSProfile(
+            depth=subscription_depth(self.rate_hint, self.max_lag, []), reliability=ReliabilityPolicy.RELIABLE,
+            durability=DurabilityPolicy.TRANSIENT_LOCAL) if early else None)
 
     def _create_subscription(self, topic: str, state: _Topic, qos: QoSProfile | None = None) -> None:
         state.matched = self.count_publishers(topic)
@@ -216,10 +219,11 @@ class RecorderNode(ManagedNode):
         self.get_logger().info(f"subscribed to {topic} [{conn.msgtype}], depth {qos.depth}")
 
     def _settle(self, topic: str, s: _Topic, offered_types: list[str]) -> None:
-        """A topic subscribed at start-up, now that publishers show: its reader takes their QoS
-        (transient local: their history; best effort: a reliable reader would not match) while
-        nothing has arrived; a publisher of another type than configured is reported once."""
+        """A topic subscribed at start-up, now that publishers show: its transient-local reader
+        takes their QoS when they are volatile or best effort (they do not match it, so nothing has
+        arrived); a publisher of another type than configured is reported once."""
         s.early = False
+        s.subscribed_at = time.monotonic()  # silence counts from now: there was no one to hear before
         if offered_types and s.conn.msgtype not in offered_types:
             self.get_logger().warning(f"{topic}: configured as {s.conn.msgtype}, published as "
                                       f"{', '.join(offered_types)}: those publishers are not recorded")
