@@ -263,7 +263,7 @@ class ObserverMode:
         if findings:
             log.warning("; ".join(findings.values()), throttle_duration_sec=FINDINGS_EVERY)
         level, message, values = self.session.report()
-        status = DiagnosticStatus(name=f"{self.node.get_name()}: observer", hardware_id=self.model_name,
+        status = DiagnosticStatus(name=f"{self.node.get_fully_qualified_name()}: observer", hardware_id=self.model_name,
                                   level=LEVELS[level], message=message,
                                   values=[KeyValue(key=k, value=v) for k, v in values.items()])
         header = Header(stamp=stamp(self.node.get_clock().now().nanoseconds))

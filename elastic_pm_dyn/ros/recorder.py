@@ -307,7 +307,7 @@ class RecorderNode(ManagedNode):
                 self.write_error_reported = True
                 log.error(f"{self.writer.error}; recording stopped")
                 self.done = True
-        status = DiagnosticStatus(name=f"{self.get_name()}: recorder", hardware_id=str(self.path))
+        status = DiagnosticStatus(name=f"{self.get_fully_qualified_name()}: recorder", hardware_id=str(self.path))
         status.level = (DiagnosticStatus.ERROR if self.writer.error is not None
                         else DiagnosticStatus.WARN if problems else DiagnosticStatus.OK)
         status.message = "; ".join(problems) or "recording, nothing lost"
