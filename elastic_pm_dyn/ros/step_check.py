@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from elastic_pm_dyn.dynamics.linear import elastic_modes
+from elastic_pm_dyn.errors import ElasticPmDynError
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 
 ACCURATE_SHARE = 0.25  # of the stability limit (check: "use about a quarter of that for accuracy")
@@ -18,12 +19,15 @@ def rk4_step_warning(mech: Mechanism, q: np.ndarray, dt: float) -> str | None:
     sprung = [i for i in mech.elastic if mech.model.joints[i].stiffness > 0.0]
     if not sprung:
         return None
-    f_max = float(np.max(elastic_modes(mech, q, clamp_motors=True).natural_hz))
+    try:
+        f_max = float(np.max(elastic_modes(mech, q, clamp_motors=True).natural_hz))
+    except (ElasticPmDynError, np.linalg.LinAlgError, ValueError):  # advice only: no modes, no warning
+        return None
     if not np.isfinite(f_max) or f_max <= 0:
         return None
     limit = 2 * np.sqrt(2) / (2 * np.pi * f_max)
     if dt > limit:
-        verdict = f"above the RK4 stability limit {limit:.3g} s: the run will diverge"
+        verdict = f"above the RK4 stability limit {limit:.3g} s (the mode grows unless its damping holds it)"
     elif dt > ACCURATE_SHARE * limit:
         verdict = f"stable but above a quarter of the RK4 stability limit {limit:.3g} s: inaccurate branch forces"
     else:
