@@ -227,3 +227,17 @@ def test_coarse_rk4_step_is_said() -> None:
     assert rk4_step_warning(mech, q, 1e-6) is None
     five_bar = Mechanism(load_model(CONFIG / "five_bar.yaml"))
     assert rk4_step_warning(five_bar, initial_state(five_bar), 1e-4) is None  # the five-bar's default is fine
+
+
+def test_observer_rates_change_at_run_time_the_rest_is_refused(ros: RosHarness) -> None:
+    from rclpy.parameter import Parameter
+
+    from elastic_pm_dyn.ros.observer_node import ObserverNode
+    node = ros.add(ObserverNode(context=ros.context))
+    ok = node.set_parameters([Parameter("diagnostics_rate", value=5.0)])[0]
+    assert ok.successful and node.get_parameter("diagnostics_rate").value == 5.0
+    assert abs(node.observer.timers["diagnostics_rate"].timer_period_ns - 2e8) < 1  # the timer made anew
+    bad = node.set_parameters([Parameter("diagnostics_rate", value=0.0)])[0]
+    assert not bad.successful and "must be a positive number" in bad.reason
+    fixed = node.set_parameters([Parameter("observer.gating.probability", value=0.99)])[0]
+    assert not fixed.successful  # read-only: the filter's gates are set up at start-up

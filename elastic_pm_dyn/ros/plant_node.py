@@ -173,7 +173,7 @@ class PlantNode(ManagedNode):
         if self.mode == "observer":
             from elastic_pm_dyn.ros.observer_mode import ObserverMode
             self.observer = ObserverMode(self, mech, p)
-            on_runtime_change(self, PARAMS, lambda name, value: "fixed at start-up in mode observer")
+            on_runtime_change(self, PARAMS, self.observer.apply_parameter)
         else:
             self._start_plant(mech, p)
             on_runtime_change(self, PARAMS, self._apply_parameter)
