@@ -84,8 +84,8 @@ def command_joints_param(active_names: Sequence[str]) -> Param:
 
 def on_runtime_change(node: Node, specs: Iterable[Param], apply: Callable[[str, Any], str | None]) -> None:
     """Accept ``ros2 param set`` of the ``runtime`` specs: each new value is checked as at start-up,
-    then ``apply(name, value)`` takes it (or returns a one-line reason to refuse it). All or none
-    of a request's parameters change; a refusal is one line, logged and returned to the caller."""
+    then ``apply(name, value)`` takes it (or returns a one-line reason to refuse it). A request's
+    values are all checked before any is applied; a refusal is one line, logged and returned."""
     by_name = {s.name: s for s in specs if s.runtime}
 
     def callback(parameters: list[Parameter]) -> SetParametersResult:
@@ -95,7 +95,10 @@ def on_runtime_change(node: Node, specs: Iterable[Param], apply: Callable[[str, 
         except ParameterError as err:
             return _refuse(node, str(err))
         for name, value in checked:  # validated together, applied in order
-            reason = apply(name, value)
+            try:
+                reason = apply(name, value)
+            except Exception as err:  # never die on a parameter request: refuse it, say why
+                reason = f"not applied: {type(err).__name__}: {err}"
             if reason:
                 return _refuse(node, f"parameter '{name}': {reason}")
             node.get_logger().info(f"parameter '{name}' set to {value!r}")
