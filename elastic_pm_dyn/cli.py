@@ -478,8 +478,9 @@ def build_parser() -> argparse.ArgumentParser:
                        "processes -> bag, plots, summary")
     p.add_argument("--model", default=str(Path(__file__).resolve().parent.parent / "config" / "five_bar.yaml"))
     p.add_argument("--out", default="runs/demo")
-    p.add_argument("--sync", choices=("lockstep", "realtime"), default="lockstep",
-                   help="lockstep: deterministic, equals offline simulate (default); realtime: wall-clock paced")
+    p.add_argument("--sync", choices=("lockstep", "realtime", "fast"), default="lockstep",
+                   help="lockstep: deterministic, equals offline simulate (default); realtime: wall-clock paced; "
+                        "fast: the plant runs ahead of the wall clock, the feedforward answers each state")
     p.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap")
     p.add_argument("--feedforward", choices=("rigid", "elastic"), default="rigid",
                    help="the feedforward node's method: rigid (default) or elastic (the elastic inverse on the "

@@ -1,6 +1,6 @@
 """The five-bar reference manoeuvre with a full ROS 2 install: plant + feedforward + recorder.
 
-    ros2 launch elastic_pm_dyn five_bar_demo.launch.py [sync_mode:=lockstep|realtime]
+    ros2 launch elastic_pm_dyn five_bar_demo.launch.py [sync_mode:=lockstep|realtime|fast]
         [bag:=five_bar_bag] [storage:=mcap|sqlite3]
 
 The same nodes and parameters as ``elastic-pm-dyn ros-demo`` (which needs no launch and
@@ -23,8 +23,9 @@ PACKAGE = "elastic_pm_dyn"
 def generate_launch_description() -> LaunchDescription:
     sync_mode = LaunchConfiguration("sync_mode")
     config = PathJoinSubstitution([FindPackageShare(PACKAGE), "config"])
-    # lockstep: one command per plant state; realtime: the feedforward's own timer
-    trigger = PythonExpression(["'state' if '", sync_mode, "' == 'lockstep' else 'timer'"])
+    # lockstep and fast: one command per plant state (a timer cannot keep up with a plant that runs
+    # ahead of the wall clock); realtime: the feedforward's own timer
+    trigger = PythonExpression(["'timer' if '", sync_mode, "' == 'realtime' else 'state'"])
 
     plant = Node(package=PACKAGE, executable="plant_node", name="plant", output="screen",
                  parameters=[PathJoinSubstitution([config, "plant.yaml"]), {"sync_mode": sync_mode}])
@@ -37,8 +38,9 @@ def generate_launch_description() -> LaunchDescription:
                                     "wait_for_subscribers": 2}])  # the plant and the recorder
 
     return LaunchDescription([
-        DeclareLaunchArgument("sync_mode", default_value="lockstep", choices=["lockstep", "realtime"],
-                              description="lockstep: deterministic (equals offline simulate); realtime: wall clock"),
+        DeclareLaunchArgument("sync_mode", default_value="lockstep", choices=["lockstep", "realtime", "fast"],
+                              description="lockstep: deterministic (equals offline simulate); realtime: wall clock; "
+                              "fast: ahead of the wall clock"),
         DeclareLaunchArgument("bag", default_value="five_bar_bag", description="bag directory to create"),
         DeclareLaunchArgument("storage", default_value="mcap", choices=["mcap", "sqlite3"],
                               description="bag storage"),

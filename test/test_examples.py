@@ -109,3 +109,22 @@ def test_ros_controller(tmp_path: Path) -> None:
     assert number_after(text, "end-effector error: max") < 1000.0  # [um]
     log = (tmp_path / "out" / "logs" / "plant.log").read_text()
     assert "lockstep" in log and "Traceback" not in log
+
+
+def test_lockstep_defaults(tmp_path: Path) -> None:
+    require("rclpy")
+    text = run_example("lockstep_defaults.py", "--periods", "50", "--domain-id", domain_id(93), "--timeout", "60",
+                       "--out", tmp_path / "out", cwd=tmp_path, timeout=120.0)
+    assert "50 lockstep periods driven with default QoS; last state at t = 0.050 s" in text
+    log = (tmp_path / "out" / "logs" / "plant.log").read_text()
+    assert "Traceback" not in log
+
+
+def test_two_plants(tmp_path: Path) -> None:
+    require("rclpy")
+    text = run_example("two_plants.py", "--domain-id", domain_id(89), "--timeout", "60", "--out", tmp_path / "out",
+                       cwd=tmp_path, timeout=120.0)
+    for ns in ("r1", "r2"):
+        lines = [line for line in text.splitlines() if line.startswith(f"/{ns}/clock:")]
+        assert len(lines) == 1 and lines[0].endswith("strictly increasing: yes"), text
+        assert f"'/{ns}/plant: plant', hardware_id 'five_bar /{ns}/plant'" in text

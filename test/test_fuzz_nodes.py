@@ -1,7 +1,8 @@
 """Hostile message sequences and service calls against the plant node's logic (Hypothesis).
 
 Random interleavings of torque commands (finite, NaN, Inf, huge, unknown or duplicate
-names, empty, wrong lengths, out-of-order stamps), ~/set_state and ~/reset on one lockstep
+names, empty, wrong lengths, out-of-order stamps), ~/set_state, ~/reset, ~/pause, ~/unpause
+and ~/step (any count, paused or not) on one lockstep
 plant node, callbacks called directly: no handler raises, every published state is finite
 with the closure closed, and after ~/reset the closure gap is round-off again. A fixed,
 small example budget (a few seconds).
@@ -32,8 +33,10 @@ commands = st.one_of(
 set_states = st.tuples(st.just("set_state"), names, st.lists(values, max_size=4), st.lists(values, max_size=4))
 motor_states = st.tuples(st.just("set_state"), st.just(MOTORS), st.lists(st.floats(-3.2, 3.2), min_size=2,
                                                                          max_size=2), st.just([]))
-operations = st.lists(st.one_of(commands, commands, set_states, motor_states, st.tuples(st.just("reset"))),
-                      min_size=1, max_size=12)
+sim_control = st.one_of(st.tuples(st.just("pause")), st.tuples(st.just("unpause")),
+                        st.tuples(st.just("step"), st.integers(0, 30)))
+operations = st.lists(st.one_of(commands, commands, set_states, motor_states, st.tuples(st.just("reset")),
+                                sim_control), min_size=1, max_size=12)
 
 
 @pytest.fixture(scope="module")
@@ -58,7 +61,7 @@ def plant() -> Any:
 
 
 def _apply(node: Any, op: tuple) -> None:
-    from elastic_pm_dyn_msgs.srv import SetJointState
+    from elastic_pm_dyn_msgs.srv import SetJointState, StepPeriods
     from sensor_msgs.msg import JointState
     from std_srvs.srv import Trigger
     kind = op[0]
@@ -75,6 +78,15 @@ def _apply(node: Any, op: tuple) -> None:
                                                          velocity=[float(v) for v in velocity]))
         response = node._on_set_state(request, SetJointState.Response())
         assert isinstance(response.success, bool) and response.message
+    elif kind in ("pause", "unpause"):
+        handler = node._on_pause if kind == "pause" else node._on_unpause
+        assert handler(Trigger.Request(), Trigger.Response()).success
+        node._on_lockstep()
+    elif kind == "step":
+        k = node.plant.k
+        response = node._on_step(StepPeriods.Request(periods=op[1]), StepPeriods.Response())
+        assert response.message and node.plant.k == k + response.periods_advanced
+        assert response.success == (node.paused and node.plant.fault is None and response.periods_advanced == op[1])
     else:
         response = node._on_reset(Trigger.Request(), Trigger.Response())
         assert response.success, response.message
@@ -84,6 +96,7 @@ def _apply(node: Any, op: tuple) -> None:
 @fuzz_settings(60)
 @given(ops=operations)
 def test_hostile_sequences_never_raise_and_publish_finite_states(plant: Any, ops: list[tuple]) -> None:
+    _apply(plant, ("unpause",))
     _apply(plant, ("reset",))
     for op in ops:
         del plant.published[:]

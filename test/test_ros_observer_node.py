@@ -170,7 +170,7 @@ def test_node_publishes_the_plant_nodes_observer_estimates(rec: Any, five_bar: A
     assert worst == 0.0, f"observer node and plant node (mode: observer) differ by {worst:.3g}"
     # Its diagnostics carry its own name and the timing it chose; the choice is logged once, at info.
     status = ours["diag"][-1].status[0]
-    assert status.name == "observer: observer"
+    assert status.name == "/observer: observer"  # the fully qualified name: two observers in two namespaces differ
     assert {kv.key: kv.value for kv in status.values}["imu.sample_timing"] == "before_command"
     choices = [text for level, text in logged if "accelerometer sample timing" in text]
     assert len(choices) == 1 and choices[0].startswith("accelerometer sample timing: chose before_command at t = ")

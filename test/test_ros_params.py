@@ -62,6 +62,9 @@ def test_parameter_file_loads(name: str, tmp_path: Path) -> None:
     ("plant", "publish_rate", 1000, "parameter 'publish_rate' must be a float"),
     ("plant", "publish_rate", -5.0, "parameter 'publish_rate' must be a positive number"),
     ("plant", "dt", 0.0, "parameter 'dt' must be a positive number"),
+    ("plant", "command_timeout", 1, "parameter 'command_timeout' must be a float"),  # runtime: same line
+    ("plant", "command_timeout", -0.5, "parameter 'command_timeout' must be a positive number"),
+    ("plant", "realtime.priority", 120, "parameter 'realtime.priority' must lie in 0-99"),
     ("plant", "command_joints", ["left_motor"], "parameter 'command_joints'"),
     ("plant", "model", "/no/such/model.yaml", "parameter 'model': no such file"),
     ("plant", "formulaton", "lda", "unknown parameter(s) formulaton"),

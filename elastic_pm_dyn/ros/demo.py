@@ -5,7 +5,11 @@ the feedforward drives the reference manoeuvre through ``torque_command``; the r
 writes a bag; then the bag is read back with ``rosbags`` and compared with the offline
 simulation of the same torques: plots of path, branch forces, gap and torques, and
 ``summary.json``. In ``lockstep`` the ROS run equals offline ``simulate`` to round-off;
-``realtime`` shows the same manoeuvre paced by the wall clock.
+``realtime`` shows the same manoeuvre paced by the wall clock; ``fast`` lets the plant run
+ahead of the wall clock with a state-triggered feedforward (one command per plant state,
+applied when it arrives, a few periods late: every command is sent and recorded). A timer
+feedforward cannot drive a fast plant: its timer wakes at wall-clock moments while /clock
+moves many periods between two of them, so most control instants would get no command.
 """
 
 from __future__ import annotations
@@ -36,7 +40,7 @@ from elastic_pm_dyn.ros.processes import (
 from elastic_pm_dyn.sim.simulator import SimulationOptions, Simulator
 from elastic_pm_dyn.sim.torque import TorqueTable
 
-SYNC_MODES = ("lockstep", "realtime")
+SYNC_MODES = ("lockstep", "realtime", "fast")
 FEEDFORWARDS = ("rigid", "elastic")  # the feedforward node's method
 PLANT_TOPICS = ["/joint_states", "/branch_forces", "/ee_pose"]
 CONTROL_RATE = REFERENCE_MANOEUVRE.control_rate  # [Hz] of plant and feedforward
@@ -89,7 +93,7 @@ def _run_nodes(out: Path, bag: Path, model_path: Path, sync: str, storage: str, 
                   "-p", f"formulation:={o.formulation}", "-p", f"integrator:={o.integrator}",
                   "-p", f"dt:={o.dt!r}", "-p", f"stabilization:={o.stabilization}"]
     ff_args = ["--params-file", str(share_path("config", "feedforward.yaml")), "-p", f"model:={model_path}",
-               "-p", f"rate:={CONTROL_RATE!r}", "-p", "trigger:=" + ("state" if sync == "lockstep" else "timer"),
+               "-p", f"rate:={CONTROL_RATE!r}", "-p", "trigger:=" + ("timer" if sync == "realtime" else "state"),
                "-p", f"line.start:={[float(x) for x in line.start]}", "-p", f"line.end:={[float(x) for x in line.end]}",
                "-p", f"line.move:={float(line.move)!r}", "-p", f"line.hold:={float(line.hold)!r}",
                "-p", f"method:={feedforward}", "-p", "autostart:=true", "-p", "exit_when_done:=true",

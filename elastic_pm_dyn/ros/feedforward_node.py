@@ -30,7 +30,11 @@ and a count; with the timer trigger the newest sample is used, with a warning wh
 more than two periods old.
 
 Pacing (parameter ``trigger``):
-- ``timer``: a timer at ``rate`` on the node clock (simulated time with use_sim_time);
+- ``timer``: a timer at ``rate`` on the node clock (simulated time with use_sim_time). It
+  cannot keep up with a plant that runs ahead of the wall clock (``sync_mode: fast``): the
+  executor wakes at wall-clock moments, /clock has moved on by several periods, and the
+  control instants in between get no command (each skipped one is counted and warned about);
+  drive a fast plant with ``trigger: state``;
 - ``state``: one command per new plant state (``topics.state``), for the time of its
   stamp: with a lockstep plant this is deterministic and reproduces offline
   ``simulate`` with the same torque table. ``topics.state`` may be any JointState stamped
@@ -62,6 +66,7 @@ from elastic_pm_dyn.motion.shaping import SHAPERS, ShapedPath
 from elastic_pm_dyn.motion.time_laws import LAWS, law_order
 from elastic_pm_dyn.motion.trajectory import Line, QuinticLine, make_line
 from elastic_pm_dyn.ros.commands import CommandDecoder
+from elastic_pm_dyn.ros.losses import SequenceGaps
 from elastic_pm_dyn.ros.messages import joint_state, torque_command
 from elastic_pm_dyn.ros.node_main import ManagedNode, run_node
 from elastic_pm_dyn.ros.params import (
@@ -168,6 +173,8 @@ class FeedforwardNode(ManagedNode):
         self.samples: OrderedDict[int, tuple[np.ndarray, np.ndarray]] = OrderedDict()  # stamp -> (q, qd)
         self.waiting_since: float | None = None  # monotonic [s]: since when the pending stamp lacks its sample
         self.stale_used = 0  # commands computed without the encoder sample of their stamp
+        self.skipped = 0  # control instants that got no command (the clock or the plant ran ahead)
+        self.sent = 0  # commands published
         self.warn = KindThrottle(self, WARN_EVERY)
         self.told_at_rest = False  # the positions-only rule is logged once
 
@@ -190,7 +197,9 @@ class FeedforwardNode(ManagedNode):
         if self.trigger == "timer":
             self.create_timer(1.0 / p["rate"], self._on_tick)
         else:
-            self.create_subscription(JointState, p["topics.state"], self._on_state, STATE_QOS)
+            self.state_sub = self.create_subscription(JointState, p["topics.state"],
+                                                      lambda msg, info: self._on_state(msg, info), STATE_QOS)
+            self.state_gaps = SequenceGaps()
             self.create_timer(READY_POLL, self._respond, clock=Clock(clock_type=ClockType.STEADY_TIME))
         pd = (f"; PD on '{p['topics.measured_joint_states']}' kp {self.kp.tolist()} kd {self.kd.tolist()}"
               if self.feedback else "")
@@ -246,9 +255,15 @@ class FeedforwardNode(ManagedNode):
             self.samples.popitem(last=False)
         self._respond()
 
-    def _on_state(self, msg: JointState) -> None:
+    def _on_state(self, msg: JointState, info: dict[str, Any] | None = None) -> None:
         ns = stamp_ns(msg.header.stamp)
+        if info is not None:  # states that never reached this callback (the reader's queue overflowed)
+            lost = self.state_gaps.take(info.get("publication_sequence_number"), self.state_sub.get_publisher_count())
+            if lost and self.reference is not None:
+                self._count_skipped(lost, ns)
         if self.last_ns is None or ns > self.last_ns:
+            if self.pending_ns is not None and ns > self.pending_ns and self.reference is not None:
+                self._count_skipped(1, self.pending_ns)  # the pending state is never answered now
             self.pending_ns = ns
             self._respond()
 
@@ -309,6 +324,14 @@ class FeedforwardNode(ManagedNode):
             self.warn.warning("stale sample", f"newest encoder sample is {(ns - newest) * 1e-9:.3g} s old")
         return self.samples[newest]
 
+    def _count_skipped(self, skipped: int, ns: int) -> None:
+        """``skipped`` control instants before ``ns`` got no command: counted, warned (throttled)."""
+        self.skipped += skipped
+        why = ("the clock ran ahead of the timer (a fast plant? use trigger state)" if self.trigger == "timer" else
+               "newer states came first (a plant running ahead: fast mode; only the newest is answered)")
+        self.warn.warning("skipped", f"{skipped} control instant(s) before t = {ns * 1e-9:.6f} s got no command "
+                          f"({self.skipped} so far): {why}")
+
     def _command_at(self, ns: int, quantise: bool = False) -> bool:
         """Publish the command for time ``ns`` (and the reference); False if there is none.
 
@@ -333,8 +356,11 @@ class FeedforwardNode(ManagedNode):
             ns = self.start_ns + round(t * NS)
             if self.last_ns is not None and ns <= self.last_ns:
                 return False
+        if quantise and self.last_ns is not None and ns - self.last_ns > 1.5 * NS / self.rate:
+            self._count_skipped(round((ns - self.last_ns) * self.rate / NS) - 1, ns)
         if self.exit_when_done and t >= self.reference.duration:
-            self.get_logger().info(f"reference finished at t = {t:.6g} s")
+            self.get_logger().info(f"reference finished at t = {t:.6g} s: {self.sent} command(s) sent, "
+                                   f"{self.skipped} control instant(s) without one")
             self.done = True
             return True
         try:
@@ -354,6 +380,7 @@ class FeedforwardNode(ManagedNode):
         effort[self.active_index] = s.tau
         self.pub_reference.publish(joint_state(self.ff_names, ns, s.q, s.qd, effort))
         self.last_ns = ns
+        self.sent += 1
         return True
 
 

@@ -73,7 +73,8 @@ FINDINGS_EVERY = 10.0  # [s] throttle of the NIS findings (they describe a windo
 LEVELS = {0: DiagnosticStatus.OK, 1: DiagnosticStatus.WARN, 2: DiagnosticStatus.ERROR}
 
 # Every observer parameter, typed by its default (floats are floats), as config/observer.yaml.
-OBSERVER_PARAMS = [Param(PREFIX + name, default, "state observer; see config/observer.yaml")
+OBSERVER_PARAMS = [Param(PREFIX + name, default, "state observer; see config/observer.yaml",
+                         fixed="the filter (noise, gates, model) is set up at start-up: restart the node")
                    for name, default in DEFAULT_PARAMETERS.items()]
 
 
@@ -141,8 +142,10 @@ class ObserverMode:
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         if self.lockstep_order:
             node.create_timer(0.1, self._check_held, clock=steady)
-        node.create_timer(1.0 / p["marker_rate"], self._publish_markers, clock=steady)
-        node.create_timer(1.0 / p["diagnostics_rate"], self._publish_diagnostics, clock=steady)
+        self.steady = steady
+        self.timers = {"marker_rate": node.create_timer(1.0 / p["marker_rate"], self._publish_markers, clock=steady),
+                       "diagnostics_rate": node.create_timer(1.0 / p["diagnostics_rate"], self._publish_diagnostics,
+                                                             clock=steady)}
 
         log = node.get_logger()
         log.info(self.session.observability.text())
@@ -150,6 +153,15 @@ class ObserverMode:
                    "branch_forces": topics.measured_branch_forces}[self.session.primary]
         log.info(f"{self.model_name}: state observer ({', '.join(cfg.sensors)}) on "
                  + ", ".join(f"'{topic}'" for _, topic, _ in inputs) + f"; one estimate per '{primary}' message")
+
+    def apply_parameter(self, name: str, value: Any) -> str | None:
+        """A runtime parameter (checked already): the wall-clock rates; a reason for anything else."""
+        if name not in self.timers:
+            return "fixed at start-up in an observer (restart the node)"
+        callback = self._publish_markers if name == "marker_rate" else self._publish_diagnostics
+        self.node.destroy_timer(self.timers[name])
+        self.timers[name] = self.node.create_timer(1.0 / value, callback, clock=self.steady)
+        return None
 
     # ------------------------------------------------------------------ inputs
     def _held(self, kind: str, handler: Any) -> Any:
@@ -263,7 +275,7 @@ class ObserverMode:
         if findings:
             log.warning("; ".join(findings.values()), throttle_duration_sec=FINDINGS_EVERY)
         level, message, values = self.session.report()
-        status = DiagnosticStatus(name=f"{self.node.get_name()}: observer", hardware_id=self.model_name,
+        status = DiagnosticStatus(name=f"{self.node.get_fully_qualified_name()}: observer", hardware_id=self.model_name,
                                   level=LEVELS[level], message=message,
                                   values=[KeyValue(key=k, value=v) for k, v in values.items()])
         header = Header(stamp=stamp(self.node.get_clock().now().nanoseconds))

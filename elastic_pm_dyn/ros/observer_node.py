@@ -15,16 +15,19 @@ only what the observer reads, and a typo in it stops the start with one line.
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 from typing import Any
 
 from elastic_pm_dyn.ros.machine_params import DESCRIPTION_PARAMS, ESTIMATE_PARAMS, MACHINE_PARAMS, load_machine
 from elastic_pm_dyn.ros.node_main import ManagedNode, run_node
 from elastic_pm_dyn.ros.observer_mode import OBSERVER_PARAMS, ObserverMode
-from elastic_pm_dyn.ros.params import COMMAND_JOINTS, read_parameters, reject_unknown
+from elastic_pm_dyn.ros.params import COMMAND_JOINTS, on_runtime_change, read_parameters, reject_unknown
 from elastic_pm_dyn.ros.robot_description import publish_robot_description
 
-PARAMS = [*MACHINE_PARAMS, *ESTIMATE_PARAMS, *DESCRIPTION_PARAMS]
+# the wall-clock rates may change while it runs (their timers are made anew), as in the plant node
+PARAMS = [*(dataclasses.replace(s, runtime=True) if s.name in ("marker_rate", "diagnostics_rate") else s
+            for s in MACHINE_PARAMS), *ESTIMATE_PARAMS, *DESCRIPTION_PARAMS]
 
 
 class ObserverNode(ManagedNode):
@@ -36,6 +39,7 @@ class ObserverNode(ManagedNode):
         p = read_parameters(self, PARAMS)
         mech, _ = load_machine(self, p)  # the decoder checks command_joints
         self.observer = ObserverMode(self, mech, p)
+        on_runtime_change(self, PARAMS, self.observer.apply_parameter)
         # after the mode has started: a node that refuses to start says only why
         self.pub_robot_description = publish_robot_description(self, mech, p)
 

@@ -5,19 +5,24 @@ them read-only with their descriptions, checks names, types, choices and ranges,
 returns a plain dict, or raises :class:`ParameterError` whose one-line message names the
 parameter and says what is expected (the node then refuses to start with that line).
 :func:`reject_unknown` refuses overrides that no spec declares (typos in a YAML file).
+
+A spec with ``runtime=True`` may change while the node runs (``ros2 param set``):
+:func:`on_runtime_change` checks a new value with the same one-line errors as at start-up and
+hands it to the node, or refuses it with that line. The others stay read-only, their
+descriptor's ``additional_constraints`` saying why (``ros2 param describe``).
 """
 
 from __future__ import annotations
 
 import difflib
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
-from rcl_interfaces.msg import ParameterDescriptor
+from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.exceptions import InvalidParameterTypeException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -47,6 +52,8 @@ class Param:
     choices: tuple[str, ...] = ()
     positive: bool = False  # numbers (or every list entry) > 0; list defaults must not be empty
     item: type | None = None  # entry type of a list whose default is empty (unset): float, int or str
+    runtime: bool = False  # may be set while the node runs (the node applies it: on_runtime_change)
+    fixed: str = "fixed at start-up"  # why a read-only one cannot change (shown by ros2 param describe)
 
 
 def reject_unknown(node: Node, known: Iterable[str]) -> None:
@@ -75,8 +82,60 @@ def command_joints_param(active_names: Sequence[str]) -> Param:
                  "joint order of Float64MultiArray commands (default: the model's active joints)")
 
 
+def on_runtime_change(node: Node, specs: Iterable[Param], apply: Callable[[str, Any], str | None]) -> None:
+    """Accept ``ros2 param set`` of the ``runtime`` specs: each new value is checked as at start-up,
+    then ``apply(name, value)`` takes it (or returns a one-line reason to refuse it). A request's
+    values are all checked before any is applied; a refusal is one line, logged and returned."""
+    by_name = {s.name: s for s in specs if s.runtime}
+
+    def callback(parameters: list[Parameter]) -> SetParametersResult:
+        try:
+            checked = [(p.name, _check(by_name[p.name], _typed(by_name[p.name], p)))
+                       for p in parameters if p.name in by_name]
+        except ParameterError as err:
+            return _refuse(node, str(err))
+        for name, value in checked:  # validated together, applied in order
+            try:
+                reason = apply(name, value)
+            except Exception as err:  # never die on a parameter request: refuse it, say why
+                reason = f"not applied: {type(err).__name__}: {err}"
+            if reason:
+                return _refuse(node, f"parameter '{name}': {reason}")
+            node.get_logger().info(f"parameter '{name}' set to {value!r}")
+        return SetParametersResult(successful=True)
+
+    node.add_on_set_parameters_callback(callback)
+
+
+def _refuse(node: Node, reason: str) -> SetParametersResult:
+    node.get_logger().warning(f"refused: {reason}")
+    return SetParametersResult(successful=False, reason=reason)
+
+
+def _typed(spec: Param, parameter: Parameter) -> Any:
+    """The value of a dynamically typed (runtime) parameter if it has the spec's type, else ParameterError."""
+    value = parameter.value
+    kind = type(spec.default)
+    if kind is list:
+        item = spec.item or (type(spec.default[0]) if spec.default else float)
+        ok = isinstance(value, list | tuple) and all(type(v) is item for v in value)
+        value = list(value) if ok else value
+    else:
+        ok = type(value) is kind
+    if not ok:
+        expected = f"a list of {_TYPE_WORDS[item]}" if kind is list else _TYPE_WORDS[kind]
+        raise ParameterError(f"parameter '{spec.name}' must be {expected}, "
+                             f"got {parameter.type_.name.lower()} {value!r}")
+    return value
+
+
 def _declare(node: Node, spec: Param) -> Any:
-    descriptor = ParameterDescriptor(description=spec.description, read_only=True)
+    if spec.runtime:  # typed by our own check (the same line at start-up and at run time)
+        descriptor = ParameterDescriptor(description=spec.description, dynamic_typing=True)
+        value = node.declare_parameter(spec.name, spec.default, descriptor)
+        return _typed(spec, value)
+    descriptor = ParameterDescriptor(description=spec.description, read_only=True,
+                                     additional_constraints=f"read-only: {spec.fixed}")
     # An empty default has no type of its own: declared by the type of its entries, unset until given.
     default = _ARRAY_TYPES[spec.item] if spec.item is not None and spec.default == [] else spec.default
     try:

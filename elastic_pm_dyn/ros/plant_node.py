@@ -2,15 +2,25 @@
 
 Sync modes (parameter ``sync_mode``):
 - ``realtime``: a steady-clock timer at ``publish_rate`` advances one control period per
-  tick (catching up a few periods after a late tick) and stamps with wall time.
-- ``fast``: as fast as possible; stamps are simulated time, published on ``/clock``.
+  tick (catching up at most ``realtime.max_catch_up`` periods after a late tick, each counted
+  and logged as late) and stamps with wall time.
+- ``fast``: as fast as possible; stamps are simulated time, published on ``topics.clock``.
 - ``lockstep``: each command advances exactly one period, then the state at the end of
-  that period is published (stamp = simulated time, also on ``/clock``); a rejected
+  that period is published (stamp = simulated time, also on ``topics.clock``); a rejected
   command holds the last valid one (zero torque if none) for its period, so every command
-  is answered within one period while the plant runs. The state at t = 0 is published at start-up
-  (transient local, see :mod:`.qos`), so a controller that answers every state with the
-  next command drives the plant deterministically: the same torques give the same states
-  as offline ``simulate``.
+  is answered within one period while the plant runs. The state at t = 0 is published at
+  start-up and, until the first command arrives, again (same stamp) every
+  ``lockstep.waiting_republish_period`` seconds of wall time: a controller with any QoS (a
+  default volatile subscriber that matched late) gets it; it should answer each stamp once.
+  The same torques give the same states as offline ``simulate``.
+
+Simulator services (docs/ros.md): ``~/pause``, ``~/unpause`` (std_srvs/Trigger), ``~/step``
+(elastic_pm_dyn_msgs/StepPeriods: N periods while paused), ``~/reset`` (Trigger),
+``~/set_state`` (SetJointState). Runtime parameters: ``command_timeout``, ``disturbance.timeout``,
+``marker_rate``, ``diagnostics_rate``, ``lockstep.waiting_republish_period`` (``ros2 param set``,
+checked as at start-up); the rest is read-only. Several plants in one domain: each in its own
+namespace; ``topics.clock`` is relative (``<ns>/clock``), /diagnostics names each plant by its
+fully qualified node name and ``hardware_id``.
 
 Callbacks only validate and store; the timers and the lockstep handler (a guard
 condition) advance the :class:`~elastic_pm_dyn.sim.plant.Plant`. Nothing a message or a
@@ -32,6 +42,7 @@ Simulated sensors (``sensors.*``) and an unknown disturbance torque on the motor
 from __future__ import annotations
 
 import collections
+import dataclasses
 import sys
 import time
 from typing import Any
@@ -39,9 +50,10 @@ from typing import Any
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from elastic_pm_dyn_msgs.msg import BranchForces
-from elastic_pm_dyn_msgs.srv import SetJointState
+from elastic_pm_dyn_msgs.srv import SetJointState, StepPeriods
 from geometry_msgs.msg import PoseStamped
 from rclpy.clock import Clock, ClockType
+from rclpy.qos import DurabilityPolicy
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, Header
@@ -57,7 +69,14 @@ from elastic_pm_dyn.ros.machine_params import DESCRIPTION_PARAMS, ESTIMATE_PARAM
 from elastic_pm_dyn.ros.markers import MechanismMarkers
 from elastic_pm_dyn.ros.messages import PlantMessages, stamp
 from elastic_pm_dyn.ros.node_main import ManagedNode, run_node
-from elastic_pm_dyn.ros.params import COMMAND_JOINTS, Param, read_parameters, reject_unknown
+from elastic_pm_dyn.ros.params import (
+    COMMAND_JOINTS,
+    Param,
+    ParameterError,
+    on_runtime_change,
+    read_parameters,
+    reject_unknown,
+)
 from elastic_pm_dyn.ros.plant_sensors import (
     DISTURBANCE_PARAMS,
     SENSOR_PARAMS,
@@ -66,6 +85,7 @@ from elastic_pm_dyn.ros.plant_sensors import (
     sensor_spec,
     spectrum_disturbance,
 )
+from elastic_pm_dyn.ros.plant_stats import PlantStats
 from elastic_pm_dyn.ros.qos import (
     CLOCK_QOS,
     COMMAND_QOS,
@@ -74,14 +94,18 @@ from elastic_pm_dyn.ros.qos import (
     STATE_OUT_QOS,
     VIEWER_QOS,
 )
+from elastic_pm_dyn.ros.realtime import collect_young, prepare, restore
 from elastic_pm_dyn.ros.robot_description import publish_robot_description
+from elastic_pm_dyn.ros.step_check import rk4_step_warning
 from elastic_pm_dyn.ros.throttle import KindThrottle
 from elastic_pm_dyn.sim.plant import START_STATES, Plant
 from elastic_pm_dyn.sim.simulator import INTEGRATORS, STABILIZATIONS, SimulationOptions
 
 MODES = ("plant", "observer")
+RUNTIME_RATES = ("marker_rate", "diagnostics_rate")
 SYNC_MODES = ("realtime", "fast", "lockstep")
-MAX_CATCH_UP = 5  # realtime: periods advanced in one late tick before the schedule slips
+MAX_STEP_REQUEST = 1_000_000  # ~/step: periods in one request (the executor waits for them)
+WAITING_LOG_EVERY = 5.0  # [s] the "waiting for a command" line
 FAST_SLICE = 0.005  # [s] fast mode: wall time per executor turn (amortises its ~0.2 ms, stays responsive)
 WARN_EVERY = 1.0  # [s] throttle of repeated warnings, per kind
 
@@ -91,27 +115,45 @@ PARAMS = [
     Param("formulation", "scdd", "direct dynamics formulation", choices=FORMULATIONS),
     Param("integrator", "rk4", "rk4 (fixed step dt), etd2 (fixed step dt, the springs exactly: a step of "
           "0.25-1 ms, see elastic-pm-dyn check) or dop853 (adaptive, offline accuracy)", choices=INTEGRATORS),
-    Param("dt", 1.0e-4, "internal RK4 / ETD2 step [s]; shortened so steps end on control periods", positive=True),
+    Param("dt", 1.0e-4, "internal RK4 / ETD2 step [s]; shortened so steps end on control periods", positive=True,
+          fixed="the integrator is set up at start-up: restart the node"),
     Param("start", "relaxed", "start (and ~/reset) state: relaxed (the model's initial pose, springs unloaded, "
           "as simulate) or static (springs deflected by gravity, motors held: a machine at rest, as the "
-          "observer assumes)", choices=START_STATES),
+          "observer assumes)", choices=START_STATES, fixed="the start state is set up at start-up: restart the node"),
     Param("stabilization", "projection", "closure drift stabilisation", choices=tuple(STABILIZATIONS)),
     Param("publish_rate", 1000.0, "control and publish rate [Hz]; a command is held for one period",
-          positive=True),
-    Param("sync_mode", "realtime", "realtime | fast | lockstep", choices=SYNC_MODES),
+          positive=True, fixed="the control period is built into the integrator's steps and the stamps: "
+          "restart the node"),
+    Param("sync_mode", "realtime", "realtime | fast | lockstep", choices=SYNC_MODES,
+          fixed="QoS, clock and timers depend on it: restart the node"),
     Param("command_timeout", 0.1, "[s] an older command means zero torque (wall time in realtime, "
-          "simulated time in fast; unused in lockstep)", positive=True),
+          "simulated time in fast; unused in lockstep)", positive=True, runtime=True),
     Param("topics.command", "torque_command", "torque command topic"),
+    Param("topics.clock", "clock", "rosgraph_msgs/Clock in fast and lockstep; relative: <namespace>/clock "
+          "(a node with use_sim_time in that namespace remaps /clock:=clock)"),
+    Param("topics.diagnostics", "/diagnostics", "diagnostic_msgs/DiagnosticArray (status name: the node's "
+          "fully qualified name)"),
+    Param("hardware_id", "", "hardware_id of the diagnostics status; empty: <model name> <node's full name>"),
+    Param("lockstep.waiting_republish_period", 0.5, "[s] wall time: lockstep re-publishes the latest state "
+          "this often until the first command arrives", positive=True, runtime=True),
+    Param("realtime.max_catch_up", 5, "realtime: periods advanced in one late tick before the schedule slips "
+          "(each one counted as late)", positive=True),
+    Param("realtime.keep_gc_out", True, "realtime: no automatic garbage collection in the loop (the node "
+          "collects the young generations between periods, at the diagnostics rate)"),
+    Param("realtime.cpu_affinity", [], "realtime: CPUs the process runs on (empty: any)", item=int),
+    Param("realtime.priority", 0, "realtime: SCHED_FIFO priority 1-99 where permitted (0: normal scheduling)"),
     *SENSOR_PARAMS,
     *DISTURBANCE_PARAMS,
-    *MACHINE_PARAMS,
+    # the wall-clock rates may change while the plant runs (their timers are made anew)
+    *(dataclasses.replace(s, runtime=True) if s.name in RUNTIME_RATES else s for s in MACHINE_PARAMS),
     *DESCRIPTION_PARAMS,
     *ESTIMATE_PARAMS,
 ]
 # Parameters that only one mode uses (a warning lists the ones given to the other mode); and observer.*
 ONLY = {"plant": ("formulation", "integrator", "dt", "start", "stabilization", "publish_rate", "sync_mode",
-                  "command_timeout", "topics.command", *(s.name for s in SENSOR_PARAMS),
-                  *(s.name for s in DISTURBANCE_PARAMS)),
+                  "command_timeout", "topics.command", "topics.clock", "hardware_id",
+                  *(s.name for s in PARAMS if s.name.startswith(("lockstep.", "realtime."))),
+                  *(s.name for s in SENSOR_PARAMS), *(s.name for s in DISTURBANCE_PARAMS)),
         "observer": tuple(s.name for s in ESTIMATE_PARAMS)}
 OBSERVER_PREFIX = "observer."
 
@@ -134,8 +176,10 @@ class PlantNode(ManagedNode):
         if self.mode == "observer":
             from elastic_pm_dyn.ros.observer_mode import ObserverMode
             self.observer = ObserverMode(self, mech, p)
+            on_runtime_change(self, PARAMS, self.observer.apply_parameter)
         else:
             self._start_plant(mech, p)
+            on_runtime_change(self, PARAMS, self._apply_parameter)
         # Both modes show the same machine; only once started, so a node that refuses to start says one line.
         self.pub_robot_description = publish_robot_description(self, mech, p)
 
@@ -149,14 +193,27 @@ class PlantNode(ManagedNode):
 
     def _start_plant(self, mech: Mechanism, p: dict[str, Any]) -> None:
         self.sync_mode: str = p["sync_mode"]
+        if not 0 <= p["realtime.priority"] <= 99:
+            raise ParameterError(f"parameter 'realtime.priority' must lie in 0-99 (0: normal scheduling), "
+                                 f"got {p['realtime.priority']}")
+        if any(c < 0 for c in p["realtime.cpu_affinity"]):
+            raise ParameterError(f"parameter 'realtime.cpu_affinity' must list CPU numbers >= 0, "
+                                 f"got {p['realtime.cpu_affinity']}")
         period = 1.0 / p["publish_rate"]
         options = SimulationOptions(formulation=p["formulation"], integrator=p["integrator"], dt=p["dt"],
                                     stabilization=p["stabilization"], sample=period)
         spec = sensor_spec(p)
         self.plant = Plant(mech, options, period, spectrum_disturbance(p, len(mech.active)), start=p["start"])
+        if p["integrator"] == "rk4":  # as elastic-pm-dyn check computes it, at the start pose
+            coarse = rk4_step_warning(mech, self.plant.q, min(p["dt"], period))
+            if coarse:
+                self.get_logger().warning(coarse)
         self.period_ns = round(period * NS)
         self.timeout = p["command_timeout"]
         self.formulation = p["formulation"]
+        self.max_catch_up: int = p["realtime.max_catch_up"]
+        self.republish_period: float = p["lockstep.waiting_republish_period"]
+        self.hardware_id = p["hardware_id"] or f"{mech.model.name} {self.get_fully_qualified_name()}"
         self.messages = PlantMessages(self.plant, p["frames.base"])
         self.markers = MechanismMarkers(mech, p["frames.base"])
         self.stamp_base = 0  # [ns] stamp = stamp_base + k * period_ns
@@ -166,8 +223,8 @@ class PlantNode(ManagedNode):
         self.pub_branch_forces = self.create_publisher(BranchForces, p["topics.branch_forces"], STATE_OUT_QOS)
         self.pub_ee_pose = self.create_publisher(PoseStamped, p["topics.ee_pose"], STATE_OUT_QOS)
         self.pub_markers = self.create_publisher(MarkerArray, p["topics.markers"], VIEWER_QOS)
-        self.pub_diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", DIAGNOSTICS_QOS)
-        self.pub_clock = (self.create_publisher(ClockMsg, "/clock", CLOCK_QOS)
+        self.pub_diagnostics = self.create_publisher(DiagnosticArray, p["topics.diagnostics"], DIAGNOSTICS_QOS)
+        self.pub_clock = (self.create_publisher(ClockMsg, p["topics.clock"], CLOCK_QOS)
                           if self.sync_mode != "realtime" else None)
         msg_type = JointState if p["command_type"] == "joint_state" else Float64MultiArray
         self.command_sub = self.create_subscription(
@@ -187,33 +244,83 @@ class PlantNode(ManagedNode):
             self.create_subscription(msg_type, p["topics.disturbance_torque"], self._on_disturbance, COMMAND_QOS)
         self.create_service(Trigger, "~/reset", self._on_reset)
         self.create_service(SetJointState, "~/set_state", self._on_set_state)
+        self.create_service(Trigger, "~/pause", self._on_pause)
+        self.create_service(Trigger, "~/unpause", self._on_unpause)
+        self.create_service(StepPeriods, "~/step", self._on_step)
 
         # Command state: the callbacks write these, the stepping reads them.
         self.command: np.ndarray | None = None
         self.command_time = 0.0  # when it arrived: monotonic [s] (realtime) or simulated [s] (fast)
-        self.queue: collections.deque[np.ndarray] = collections.deque()  # lockstep
-        self.stats = _Stats()
+        self.command_arrival: float | None = None  # monotonic [s] of a command no period has used yet
+        # lockstep: (torque, arrival [monotonic s]) per command, in order
+        self.queue: collections.deque[tuple[np.ndarray, float]] = collections.deque()
+        self.stats = PlantStats()
+        self.paused = False
+        self.awaiting_first = True  # lockstep: no command since start, reset or set_state
+        self.last_command_wall = time.monotonic()
+        self.waiting_logged = 0.0
+        self.matched_since: float | None = None  # lockstep: a volatile state subscriber there since (monotonic)
+        self.last_state_wall = time.monotonic()
 
-        steady = Clock(clock_type=ClockType.STEADY_TIME)
-        self.create_timer(1.0 / p["marker_rate"], self._publish_markers, clock=steady)
-        self.create_timer(1.0 / p["diagnostics_rate"], self._publish_diagnostics, clock=steady)
+        self.steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self.marker_timer = self.create_timer(1.0 / p["marker_rate"], self._publish_markers, clock=self.steady)
+        self.diagnostics_timer = self.create_timer(1.0 / p["diagnostics_rate"], self._publish_diagnostics,
+                                                   clock=self.steady)
         self.wall_start: float | None = None  # realtime schedule origin (monotonic)
         self.k_start = 0  # plant period count at wall_start
         self.step_timer = None
+        self.republish_timer = None
+        self.keep_gc_out = False
+        extra = ""
         if self.sync_mode == "realtime":
-            self.step_timer = self.create_timer(period, self._on_realtime_tick, clock=steady)
+            self.step_timer = self.create_timer(period, self._on_realtime_tick, clock=self.steady)
+            applied = prepare(self.get_logger(), p["realtime.cpu_affinity"], p["realtime.priority"],
+                              p["realtime.keep_gc_out"])
+            self.keep_gc_out = p["realtime.keep_gc_out"]
+            extra = f" ({', '.join(applied)})" if applied else ""
         elif self.sync_mode == "fast":
-            self.step_timer = self.create_timer(0.0, self._on_fast_tick, clock=steady)
+            self.step_timer = self.create_timer(0.0, self._on_fast_tick, clock=self.steady)
         else:
             self.lockstep_trigger = self.create_guard_condition(self._on_lockstep)
+            self.republish_timer = self.create_timer(self.republish_period / 5, self._republish_waiting,
+                                                     clock=self.steady)
             self._publish_state()
         self.get_logger().info(
             f"{mech.model.name}: {self.formulation}, {p['integrator']} dt {p['dt']:g} s, "
-            f"{p['publish_rate']:g} Hz, {self.sync_mode}; commands ({p['command_type']}) on "
-            f"'{p['topics.command']}' for {', '.join(self.decoder.array_order)}")
+            f"{p['publish_rate']:g} Hz, {self.sync_mode}{extra}; commands ({p['command_type']}) on "
+            f"'{self.command_sub.topic_name}' for {', '.join(self.decoder.array_order)}"
+            + (f"; clock on '{self.pub_clock.topic_name}'" if self.pub_clock is not None else ""))
+
+    def destroy_node(self) -> None:
+        restore(getattr(self, "keep_gc_out", False))  # the process may go on without this node
+        super().destroy_node()
+
+    # ------------------------------------------------------- runtime parameters
+    def _apply_parameter(self, name: str, value: Any) -> str | None:
+        """Take a runtime parameter (already checked); a reason when it cannot be taken."""
+        if name == "command_timeout":
+            self.timeout = value
+        elif name == "disturbance.timeout":
+            self.disturbance_timeout = value
+        elif name == "marker_rate":
+            self.destroy_timer(self.marker_timer)
+            self.marker_timer = self.create_timer(1.0 / value, self._publish_markers, clock=self.steady)
+        elif name == "diagnostics_rate":
+            self.destroy_timer(self.diagnostics_timer)
+            self.diagnostics_timer = self.create_timer(1.0 / value, self._publish_diagnostics, clock=self.steady)
+        elif name == "lockstep.waiting_republish_period":
+            self.republish_period = value
+            if self.republish_timer is not None:
+                self.destroy_timer(self.republish_timer)
+                self.republish_timer = self.create_timer(value / 5, self._republish_waiting, clock=self.steady)
+        else:
+            return "not changeable at run time"
+        return None
 
     # ------------------------------------------------------------------ inputs
     def _on_command(self, msg: JointState | Float64MultiArray, info: dict[str, Any] | None = None) -> None:
+        arrival = time.monotonic()
+        self.last_command_wall = arrival
         if info is not None:
             self._count_overwritten(info.get("publication_sequence_number"))
         try:
@@ -224,8 +331,8 @@ class PlantNode(ManagedNode):
             if self.sync_mode == "lockstep":  # answered all the same: the last valid command holds
                 self.warn.warning(getattr(err, "kind", "rejected"),
                                   f"command rejected: {err}; holding the last valid one for the period")
-                self.queue.append(self.command if self.command is not None else np.zeros(len(self.plant.tau)))
-                self.lockstep_trigger.trigger()
+                held = self.command if self.command is not None else np.zeros(len(self.plant.tau))
+                self._queue(held, arrival)
             else:
                 self.warn.warning(getattr(err, "kind", "rejected"), f"command rejected: {err}")
             return
@@ -234,10 +341,15 @@ class PlantNode(ManagedNode):
             self.get_logger().info("first torque command received")
         self.command = tau
         if self.sync_mode == "lockstep":
-            self.queue.append(tau)
-            self.lockstep_trigger.trigger()
+            self._queue(tau, arrival)
         else:
             self.command_time = self._command_clock()
+            self.command_arrival = arrival
+
+    def _queue(self, tau: np.ndarray, arrival: float) -> None:
+        self.awaiting_first = False
+        self.queue.append((tau, arrival))
+        self.lockstep_trigger.trigger()
 
     def _count_overwritten(self, seq: int | None) -> None:
         """Lockstep answers every command it gets: one that a queue overwrote is reported, never silent."""
@@ -285,6 +397,7 @@ class PlantNode(ManagedNode):
         self.stats.stale += 1
         return np.zeros(len(self.plant.tau))
 
+    # --------------------------------------------------------------- services
     def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         try:
             self.plant.reset()
@@ -316,20 +429,101 @@ class PlantNode(ManagedNode):
             self.get_logger().error(response.message)
         return response
 
+    def _on_pause(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        response.success = True
+        if self.paused:
+            response.message = f"already paused at t = {self.plant.t:.6g} s"
+            return response
+        self.paused = True
+        if self.step_timer is not None:
+            self.step_timer.cancel()
+        response.message = (f"paused at t = {self.plant.t:.6g} s ({self.plant.k} periods)"
+                            + ("; commands queue until unpause or step" if self.sync_mode == "lockstep" else ""))
+        self.get_logger().info(response.message)
+        return response
+
+    def _on_unpause(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        response.success = True
+        if not self.paused:
+            response.message = f"not paused (t = {self.plant.t:.6g} s)"
+            return response
+        self.paused = False
+        self._resume()
+        response.message = f"running from t = {self.plant.t:.6g} s"
+        self.get_logger().info(response.message)
+        return response
+
+    def _on_step(self, request: StepPeriods.Request, response: StepPeriods.Response) -> StepPeriods.Response:
+        """N periods at once while paused, each with the torque the mode would hold (see StepPeriods.srv)."""
+        response.periods_advanced = 0
+        n = request.periods
+        if not self.paused:
+            response.success, response.message = False, "not paused: call ~/pause first (steps are counted exactly)"
+        elif self.plant.fault is not None:
+            response.success = False
+            response.message = f"integration stopped: {self.plant.fault}; call ~/reset or ~/set_state"
+        elif n > MAX_STEP_REQUEST:
+            response.success, response.message = False, f"{n} periods: at most {MAX_STEP_REQUEST} per request"
+        else:
+            try:
+                for _ in range(n):
+                    if not self._step(*self._step_torque()):
+                        break
+                    response.periods_advanced += 1
+            except Exception as err:  # never die on a service call: answer why
+                self.get_logger().error(f"step failed: {type(err).__name__}: {err}")
+            response.success = response.periods_advanced == n
+            response.message = (f"advanced {response.periods_advanced} of {n} period(s) to t = {self.plant.t:.6g} s"
+                                + ("" if response.success else f"; stopped: {self.plant.fault or 'see the log'}"))
+        response.sim_time = self.plant.t
+        if response.success:  # one severity per call site (rclpy's rule)
+            self.get_logger().info(f"step: {response.message}")
+        else:
+            self.get_logger().warning(f"step: {response.message}")
+        return response
+
+    def _step_torque(self) -> tuple[np.ndarray, float | None]:
+        """~/step: the torque of one period and its command's arrival (None: no new command)."""
+        if self.sync_mode != "lockstep":
+            return self._held_torque(), self._take_arrival()
+        if self.queue:
+            return self.queue.popleft()
+        held = self.command if self.command is not None else np.zeros(len(self.plant.tau))
+        return held, None
+
     def _restarted(self) -> None:
         """After reset/set_state: forget old commands, resume stepping, show the new state."""
         self.command = None
+        self.command_arrival = None
         self.queue.clear()
-        if self.step_timer is not None and self.step_timer.is_canceled():
+        self.awaiting_first = True
+        self._resume(publish=True)
+
+    def _resume(self, publish: bool = False) -> None:
+        """Stepping goes on (unless paused or stopped by a fault); the new realtime schedule's
+        first tick, or here ``publish``, shows the state."""
+        if self.paused:
+            if publish:
+                self._publish_state()
+            return
+        if self.step_timer is not None and self.step_timer.is_canceled() and self.plant.fault is None:
             self.step_timer.reset()
         if self.sync_mode == "realtime":
-            self.wall_start = None  # a fresh schedule; its first tick publishes the new state
-        else:
+            self.wall_start = None  # a fresh schedule; its first tick publishes the state
+        elif publish:
             self._publish_state()
+        if self.sync_mode == "lockstep" and self.queue:
+            self.lockstep_trigger.trigger()
 
     # ---------------------------------------------------------------- stepping
-    def _step(self, tau: np.ndarray) -> bool:
-        """Advance one period and publish; False when integration stopped."""
+    def _take_arrival(self) -> float | None:
+        """Arrival time of a command no period has used yet (it is used now), else None."""
+        arrival, self.command_arrival = self.command_arrival, None
+        return arrival
+
+    def _step(self, tau: np.ndarray, arrival: float | None = None) -> bool:
+        """Advance one period and publish; False when integration stopped. ``arrival``: when the
+        command of this period arrived, if it is a new one (latency, fresh-command share)."""
         t0 = time.perf_counter()
         held = self._held_disturbance()
         try:
@@ -347,7 +541,11 @@ class PlantNode(ManagedNode):
             return False
         t1 = time.perf_counter()
         self._publish_state()
-        self.stats.add(t1 - t0, time.perf_counter() - t0)
+        t2 = time.perf_counter()
+        self.stats.add(t1 - t0, t2 - t0)
+        if arrival is not None:
+            self.stats.fresh += 1
+            self.stats.latency.append(time.monotonic() - arrival)
         return True
 
     def _on_realtime_tick(self) -> None:
@@ -357,88 +555,151 @@ class PlantNode(ManagedNode):
             self.stamp_base = self.get_clock().now().nanoseconds - self.plant.k * self.period_ns
             self._publish_state()
             return
+        period = self.plant.period
         # Periods due by now; the half period tolerates ticks that come a little early.
-        due = int((now - self.wall_start) / self.plant.period + 0.5) - (self.plant.k - self.k_start)
-        if due > MAX_CATCH_UP:  # too far behind: let the schedule (and the stamps) slip
+        done = self.plant.k - self.k_start
+        due = int((now - self.wall_start) / period + 0.5) - done
+        if due > self.max_catch_up:  # too far behind: let the schedule (and the stamps) slip
             self.stats.overruns += 1
-            slip = due - MAX_CATCH_UP
-            self.wall_start += slip * self.plant.period
+            slip = due - self.max_catch_up
+            self.stats.slipped_periods += slip
+            self.wall_start += slip * period
             self.stamp_base += slip * self.period_ns
-            due = MAX_CATCH_UP
+            due = self.max_catch_up
+            self.warn.warning("slipped", f"realtime: {self.stats.slipped_periods} period(s) slipped so far, "
+                              f"{slip} now (more than {self.max_catch_up} periods behind); the stamps jump")
+        if due <= 0:
+            return
+        # Period n (counted from the schedule's origin) was due at wall_start + n period; one
+        # stepped more than half a period after that was late (caught up in this tick).
+        lateness = now - (self.wall_start + (done + 1) * period)
+        late = sum(1 for i in range(due) if lateness - i * period > 0.5 * period)
+        if late:
+            self.stats.late(late, lateness)
+            self.warn.warning("late", f"realtime: {late} period(s) caught up, the first {lateness * 1e3:.2f} ms "
+                              f"late ({self.stats.late_periods} late so far; cycle_load in /diagnostics)")
         for _ in range(due):
-            if not self._step(self._held_torque()):
+            if not self._step(self._held_torque(), self._take_arrival()):
                 return
 
     def _on_fast_tick(self) -> None:
         end = time.perf_counter() + FAST_SLICE
         while time.perf_counter() < end:
-            if not self._step(self._held_torque()):
+            if not self._step(self._held_torque(), self._take_arrival()):
                 return
 
     def _on_lockstep(self) -> None:
         """One period per command (a rejected one holds the last valid command). Every command
         is answered, so a controller that waits for the state never waits more than one period:
         while integration is stopped (ERROR in /diagnostics until ~/reset or ~/set_state) the
-        last good state is published again, with its own stamp (time does not advance)."""
-        while self.queue:
-            tau = self.queue.popleft()
+        last good state is published again, with its own stamp (time does not advance).
+        Paused: the commands wait in the queue (~/step or ~/unpause takes them)."""
+        while self.queue and not self.paused:
+            tau, arrival = self.queue.popleft()
             if self.plant.fault is not None:
                 self.stats.rejected += 1
                 self.warn.warning("stopped", f"command ignored, integration stopped: {self.plant.fault}; "
                                   "call ~/reset or ~/set_state")
                 self._publish_state()
-            elif not self._step(tau):
+            elif not self._step(tau, arrival):
                 self._publish_state()  # the last good state: the plant keeps it on a fault
+
+    def _republish_waiting(self) -> None:
+        """Lockstep before the first command: the latest state again, same stamp, for a controller
+        that subscribed after it was published (a volatile subscriber gets no history). Only while a
+        volatile subscriber is there (a transient-local one got the state when it matched), once it
+        has been there for a whole republish period and the state is that old: a controller that
+        answers within the period never sees a state twice."""
+        if not self.awaiting_first or self.paused:
+            return
+        now = time.monotonic()
+        readers = self.get_subscriptions_info_by_topic(self.pub_joint_states.topic_name)
+        if not any(r.qos_profile.durability == DurabilityPolicy.VOLATILE for r in readers):
+            self.matched_since = None
+            return
+        if self.matched_since is None:
+            self.matched_since = now
+        if now - self.matched_since < self.republish_period or now - self.last_state_wall < self.republish_period:
+            return
+        self._publish_state(again=True)
+        if now - self.waiting_logged >= WAITING_LOG_EVERY:
+            self.waiting_logged = now
+            self.get_logger().info(
+                f"lockstep: waiting for a command on '{self.command_sub.topic_name}' "
+                f"({self.command_sub.get_publisher_count()} publisher(s)); the state of t = {self.plant.t:.6g} s is "
+                f"published again every {self.republish_period:g} s until one arrives")
 
     # ----------------------------------------------------------------- outputs
     def _stamp_ns(self) -> int:
         return self.stamp_base + self.plant.k * self.period_ns
 
-    def _publish_state(self) -> None:
+    def _publish_state(self, again: bool = False) -> None:
+        """The state of the current period on every output; ``again``: the same state once more
+        (state topics and clock only: sensor noise is drawn once per stamp)."""
         m = self.messages
-        m.fill(self._stamp_ns())
+        self.last_state_wall = time.monotonic()
+        if not again:
+            m.fill(self._stamp_ns())
         # Serialized once, refilled in place: rclpy hands the bytes to the middleware as they are.
         self.pub_joint_states.publish(m.joint_state_raw)
         self.pub_branch_forces.publish(m.branch_forces_raw)
         self.pub_ee_pose.publish(m.ee_pose_raw)
+        if self.pub_clock is not None:
+            self.pub_clock.publish(m.clock_raw)
+        if again:
+            return
         if self.sensors is not None:
             self.sensors.publish_state(m.stamp_ns, m.force)
         if self.pub_disturbance is not None:  # the truth at t_k: the held part of the period that ended + d(t_k)
             self.pub_disturbance.publish(disturbance_message(
                 self.plant.mech.active_names, m.stamp_ns, self.plant.disturbance_at(self.plant.t)))
-        if self.pub_clock is not None:
-            self.pub_clock.publish(m.clock_raw)
 
     def _publish_markers(self) -> None:
         if self.pub_markers.get_subscription_count():
             self.pub_markers.publish(self.markers.build(self.plant.q, self._stamp_ns()))
 
+    def _waiting(self) -> str:
+        """Lockstep: what the plant waits for, if it waits (empty otherwise)."""
+        if self.sync_mode != "lockstep" or self.queue or self.plant.fault is not None:
+            return ""
+        if self.awaiting_first:
+            return (f"waiting for the first command (state of t = {self.plant.t:.6g} s re-published every "
+                    f"{self.republish_period:g} s while a volatile subscriber is there)")
+        idle = time.monotonic() - self.last_command_wall
+        return f"waiting for a command for {idle:.3g} s" if idle > 1.0 else ""
+
     def _publish_diagnostics(self) -> None:
         s, plant = self.stats, self.plant
+        if self.keep_gc_out:  # between periods: the collection's time shows in gc_time_ms, not in a period
+            s.gc_time = collect_young()
         wall = time.monotonic()
-        rtf = (plant.t - s.window_sim) / (wall - s.window_wall) if wall > s.window_wall else 0.0
         age = (f"{self._command_clock() - self.command_time:.6g}" if self.command is not None
                and self.sync_mode != "lockstep" else "")
-        status = DiagnosticStatus(name=f"{self.get_name()}: plant", hardware_id=plant.mech.model.name)
+        status = DiagnosticStatus(name=f"{self.get_fully_qualified_name()}: plant", hardware_id=self.hardware_id)
         if plant.fault is not None:
             status.level, status.message = DiagnosticStatus.ERROR, f"integration stopped: {plant.fault}"
         else:
             issues = [text for changed, text in (
                 (s.window_rejected != s.rejected, "commands rejected"),
                 (s.window_stale != s.stale, "zero torque (no command or a stale one)"),
+                (s.window_late != s.late_periods,
+                 f"realtime: {s.late_periods - s.window_late} period(s) late, up to "
+                 f"{s.window_max_lateness * 1e3:.2f} ms"),
                 (s.window_overruns != s.overruns, "realtime overrun: the schedule slipped"),
                 (s.window_overwritten != self.command_gaps.missed and self.sync_mode == "lockstep",
                  "commands overwritten (unanswered)"))
                 if changed]
             status.level = DiagnosticStatus.WARN if issues else DiagnosticStatus.OK
-            status.message = "; ".join(issues) or "running"
+            waiting = self._waiting()
+            status.message = "; ".join(issues + ([waiting] if waiting else [])) or (
+                "paused" if self.paused else "running")
+            if self.paused and issues:
+                status.message += "; paused"
         values = {
-            "sync_mode": self.sync_mode, "formulation": self.formulation, "sim_time_s": f"{plant.t:.6f}",
-            "periods": str(plant.k), "real_time_factor": f"{rtf:.4g}",
-            "step_time_mean_us": f"{s.mean(s.step) * 1e6:.1f}", "step_time_max_us": f"{s.max(s.step) * 1e6:.1f}",
-            "cycle_time_mean_us": f"{s.mean(s.cycle) * 1e6:.1f}",
-            "cycle_time_max_us": f"{s.max(s.cycle) * 1e6:.1f}",
-            "headroom": f"{s.mean(s.cycle) / plant.period:.4g}",  # cycle time / period: < 1 keeps up
+            "sync_mode": self.sync_mode, "formulation": self.formulation, "paused": str(self.paused).lower(),
+            "waiting_for_command": str(bool(self._waiting())).lower(), "sim_time_s": f"{plant.t:.6f}",
+            "periods": str(plant.k),
+            **s.values(plant.period, plant.t, plant.k, wall),
             "closure_gap_m": f"{plant.gap():.3g}", "command_age_s": age,
             "commands_accepted": str(s.accepted), "commands_rejected": str(s.rejected),
             "zero_torque_periods": str(s.stale), "overruns": str(s.overruns),
@@ -446,37 +707,8 @@ class PlantNode(ManagedNode):
         }
         status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
         self.pub_diagnostics.publish(DiagnosticArray(header=Header(stamp=stamp(self._stamp_ns())), status=[status]))
-        s.new_window(plant.t, wall)
+        s.new_window(plant.t, plant.k, wall)
         s.window_overwritten = self.command_gaps.missed
-
-
-class _Stats:
-    """Counters for /diagnostics; timing over the window since the last report."""
-
-    def __init__(self) -> None:
-        self.accepted = self.rejected = self.stale = self.overruns = 0
-        self.window_overwritten = 0  # commands_overwritten at the start of the window
-        self.step: list[float] = []
-        self.cycle: list[float] = []
-        self.new_window(0.0, time.monotonic())
-
-    def add(self, step: float, cycle: float) -> None:
-        self.step.append(step)
-        self.cycle.append(cycle)
-
-    def new_window(self, sim: float, wall: float) -> None:
-        self.window_sim, self.window_wall = sim, wall
-        self.window_rejected, self.window_stale, self.window_overruns = self.rejected, self.stale, self.overruns
-        self.step.clear()
-        self.cycle.clear()
-
-    @staticmethod
-    def mean(x: list[float]) -> float:
-        return float(np.mean(x)) if x else 0.0
-
-    @staticmethod
-    def max(x: list[float]) -> float:
-        return float(np.max(x)) if x else 0.0
 
 
 def main(args: list[str] | None = None) -> int:

@@ -5,13 +5,20 @@ default, sqlite3 as an option) through :class:`~elastic_pm_dyn.bags.writer.BagWr
 with the message definitions stored in the bag, so that ``ros2 bag`` users and
 ``rosbags``-based analysis read it alike.
 
-Topics are subscribed once the ROS graph shows a publisher (its type is used), and
-with ``raw=True``: the wire bytes are written as they are, never re-serialised (rclpy's
-``serialize_message`` can append bytes that rosbags rejects). Like ``ros2 bag record``,
-the subscription QoS follows the publishers: transient local when all of them offer it
-(so samples published before the recorder matched are still recorded), best effort
-when any of them is best effort. Bag time stamps are receive times on the node clock
-(simulated time with use_sim_time).
+A topic whose type the configuration gives (``topic_types``; :data:`DEMO_TYPES`, in config/recorder.yaml)
+is subscribed at start-up, before any publisher exists, so the first message of a run is
+in the bag even from a publisher that starts sending as soon as its other subscribers
+matched. Until a publisher shows, the reader is reliable and transient local: a writer that
+offers the same (the plant's states, our controllers' commands) hands it the samples sent
+before the reader's side of the match completed, which a volatile reader would miss; when
+the publishers turn out to be volatile (or best effort) they do not match it, nothing has
+arrived, and it is made anew with their QoS. Other topics are subscribed once the ROS graph shows a publisher (its type
+is used). Subscriptions take ``raw=True``: the wire bytes are written as they are, never
+re-serialised (rclpy's ``serialize_message`` can append bytes that rosbags rejects). Like
+``ros2 bag record``, the subscription QoS follows the publishers: transient local when all
+of them offer it (so samples published before the recorder matched are still recorded),
+best effort when any of them is best effort. Bag time stamps are receive times on the node
+clock (simulated time with use_sim_time).
 
 Keeping up: a callback only takes the serialized message and queues it; a writer thread
 (:class:`~elastic_pm_dyn.bags.queued_writer.QueuedWriter`) writes and flushes. The
@@ -56,6 +63,9 @@ from elastic_pm_dyn.ros.params import Param, ParameterError, read_parameters, re
 from elastic_pm_dyn.ros.qos import DIAGNOSTICS_QOS
 
 DEMO_TOPICS = ["/joint_states", "/branch_forces", "/ee_pose", "/torque_command", "/reference_joint_states"]
+DEMO_TYPES = ["/joint_states sensor_msgs/msg/JointState", "/branch_forces elastic_pm_dyn_msgs/msg/BranchForces",
+              "/ee_pose geometry_msgs/msg/PoseStamped", "/torque_command sensor_msgs/msg/JointState",
+              "/reference_joint_states sensor_msgs/msg/JointState"]
 DISCOVERY_PERIOD = 0.1  # [s] wall-clock poll of the ROS graph for the wanted topics
 FLUSH_PERIOD = 0.5  # [s] wall clock: at most this much of the recording is lost to a kill (plus the queue)
 REPORT_PERIOD = 1.0  # [s] /diagnostics, loss warnings and the silent-topic check
@@ -68,6 +78,9 @@ PARAMS = [
     Param("output", "bag", "bag directory to create (must not exist)"),
     Param("storage", "mcap", "mcap or sqlite3", choices=STORAGES),
     Param("topics", DEMO_TOPICS, "topics to record (absolute names)"),
+    Param("topic_types", [], "'<topic> <pkg/msg/Type>' per topic to subscribe at start-up (the others "
+          "wait for a publisher to show their type; config/recorder.yaml lists the demo's); a listed topic that is "
+          "not in 'topics' is not recorded", item=str),
     Param("rate_hint", 1000.0, "[Hz] the highest message rate expected on one topic", positive=True),
     Param("max_lag", 2.0, "[s] how far the recorder may fall behind a topic at rate_hint before "
           "the middleware drops messages (subscription depth = rate_hint * max_lag)", positive=True),
@@ -88,6 +101,7 @@ class _Topic:
         self.losses = TopicLosses()
         self.subscribed_at = time.monotonic()
         self.matched = 0  # publishers matched (the matched event; the graph's count until it fires)
+        self.early = False  # subscribed before any publisher showed: its QoS is still a guess
         self.subscription: Any = None
         self.msg_class: type | None = None
         self.arrive_reported = False
@@ -121,6 +135,12 @@ class RecorderNode(ManagedNode):
         self.skipped: set[str] = set()  # topics whose type cannot be recorded (warned once)
         self.lost_events_supported = True
         self.write_error_reported = False
+        for topic, msgtype in _topic_types(p["topic_types"]).items():
+            if topic in self.wanted:
+                try:
+                    self._subscribe(topic, msgtype, early=True)
+                except InputError as err:  # BagError too
+                    raise ParameterError(f"parameter 'topic_types': {topic}: {err}") from None
         self.pub_diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", DIAGNOSTICS_QOS)
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.create_timer(DISCOVERY_PERIOD, self._discover, clock=steady)
@@ -139,6 +159,9 @@ class RecorderNode(ManagedNode):
 
     def _discover(self) -> None:
         types = dict(self.get_topic_names_and_types())
+        for topic, s in self.topics.items():
+            if s.early and self.count_publishers(topic):
+                self._settle(topic, s, types.get(topic, []))
         for topic in self.wanted:
             # Wait for a publisher: its type and QoS decide the subscription. (The two graph
             # queries are not atomic: a publisher can show before its topic is listed.)
@@ -152,19 +175,22 @@ class RecorderNode(ManagedNode):
                 self.skipped.add(topic)
                 self.get_logger().warning(f"not recording {topic}: {err}")
 
-    def _subscribe(self, topic: str, msgtype: str) -> None:
+    def _subscribe(self, topic: str, msgtype: str, early: bool = False) -> None:
         msg_class = _message_class(msgtype)
         if msgtype not in self.writer.typestore.types:
             register_msg_text(self.writer.typestore, msgtype, _installed_definition(msgtype))
         state = _Topic(self.writer.add_connection(topic, msgtype))
         state.msg_class = msg_class
+        state.early = early
         self.topics[topic] = state
-        self._create_subscription(topic, state)
+        self._create_subscription(topic, state, QoSProfile(
+            depth=subscription_depth(self.rate_hint, self.max_lag, []), reliability=ReliabilityPolicy.RELIABLE,
+            durability=DurabilityPolicy.TRANSIENT_LOCAL) if early else None)
 
-    def _create_subscription(self, topic: str, state: _Topic) -> None:
+    def _create_subscription(self, topic: str, state: _Topic, qos: QoSProfile | None = None) -> None:
         state.matched = self.count_publishers(topic)
         state.subscribed_at = time.monotonic()
-        qos = self._qos(topic)
+        qos = qos or self._qos(topic)
         put, losses, clock = self.writer.put, state.losses, self.get_clock()
         conn = state.conn
 
@@ -191,6 +217,22 @@ class RecorderNode(ManagedNode):
         if not self.lost_events_supported:
             state.subscription = self.create_subscription(state.msg_class, topic, take, qos, raw=True)
         self.get_logger().info(f"subscribed to {topic} [{conn.msgtype}], depth {qos.depth}")
+
+    def _settle(self, topic: str, s: _Topic, offered_types: list[str]) -> None:
+        """A topic subscribed at start-up, now that publishers show: its transient-local reader
+        takes their QoS when they are volatile or best effort (they do not match it, so nothing has
+        arrived); a publisher of another type than configured is reported once."""
+        s.early = False
+        s.subscribed_at = time.monotonic()  # silence counts from now: there was no one to hear before
+        if offered_types and s.conn.msgtype not in offered_types:
+            self.get_logger().warning(f"{topic}: configured as {s.conn.msgtype}, published as "
+                                      f"{', '.join(offered_types)}: those publishers are not recorded")
+        wanted, current = self._qos(topic), s.subscription.qos_profile
+        if s.losses.received == 0 and (wanted.durability, wanted.reliability) != (current.durability,
+                                                                                 current.reliability):
+            self.destroy_subscription(s.subscription)
+            s.losses.gaps.last = None
+            self._create_subscription(topic, s, wanted)
 
     def _resubscribe(self, topic: str, state: _Topic) -> None:
         """A new reader for a topic that is matched but silent: a reader the publisher's side
@@ -265,7 +307,7 @@ class RecorderNode(ManagedNode):
                 self.write_error_reported = True
                 log.error(f"{self.writer.error}; recording stopped")
                 self.done = True
-        status = DiagnosticStatus(name=f"{self.get_name()}: recorder", hardware_id=str(self.path))
+        status = DiagnosticStatus(name=f"{self.get_fully_qualified_name()}: recorder", hardware_id=str(self.path))
         status.level = (DiagnosticStatus.ERROR if self.writer.error is not None
                         else DiagnosticStatus.WARN if problems else DiagnosticStatus.OK)
         status.message = "; ".join(problems) or "recording, nothing lost"
@@ -291,6 +333,17 @@ class RecorderNode(ManagedNode):
             f"bag {self.path} closed: "
             + (", ".join(f"{t} {n} (lost {lost[t]})" for t, n in counts.items()) or "no messages")
             + (f"; never seen: {', '.join(missing)}" if missing else ""))
+
+
+def _topic_types(entries: list[str]) -> dict[str, str]:
+    """'<topic> <pkg/msg/Type>' entries -> {absolute topic: type}; a malformed one is a ParameterError."""
+    out = {}
+    for entry in entries:
+        parts = entry.split()
+        if len(parts) != 2 or parts[1].count("/") != 2:
+            raise ParameterError(f"parameter 'topic_types': {entry!r} is not '<topic> <pkg/msg/Type>'")
+        out[parts[0] if parts[0].startswith("/") else "/" + parts[0]] = parts[1]
+    return out
 
 
 def _message_class(msgtype: str) -> type:
