@@ -8,11 +8,15 @@ package runs without it). The XML is read once more, with lines, to name element
 
 Mapping: hinge/slide/ball joints -> revolute/prismatic/three revolutes (several joints in
 one body -> a path of joints: a universal joint is two hinges); a body without joints is
-welded to its parent; joint ``stiffness``/``springref``/``damping`` -> an elastic joint,
-``damping`` alone -> viscous friction, ``armature`` -> rotor inertia; a joint driven by a
-``<motor>`` -> active; ``<connect>`` -> a point closure, ``<weld>`` -> a 6d closure; sites
-are frames; the first keyframe's joint positions guide the assembly. A joint ``ref`` keeps
-MuJoCo's coordinate (the joint angle is ``qpos``: the body is written at ``qpos = ref``).
+welded to its parent; joint ``stiffness``/``springref``/``damping`` -> an elastic joint
+(on a motor's joint: a spring in parallel with the motor), ``damping`` alone -> viscous
+friction, ``armature`` -> rotor inertia; a joint driven by a ``<motor>`` -> active, a
+``<motor>`` on a fixed tendon -> a motor on the tendon's first joint (exact where the
+equalities tie the others to it); ``<connect>`` -> a point closure, ``<weld>`` -> a 6d
+closure, ``<joint>``/``<tendon>`` equalities with a linear polycoef -> linear coupling rows;
+sites are frames. The start pose is the first keyframe, else qpos0 (a spring whose
+springref lies elsewhere starts preloaded, as in MuJoCo). A joint ``ref`` keeps MuJoCo's
+coordinate (the joint angle is ``qpos``: the body is written at ``qpos = ref``).
 
 A free joint (a floating base) is refused, unless ``fix_base``: then each body carried by
 a free joint is welded to the world at the pose the file writes it at (the free joint's
