@@ -16,6 +16,7 @@ from dataclasses import replace
 
 import numpy as np
 import scipy.linalg
+import scipy.optimize
 from scipy.spatial.transform import Rotation
 
 from elastic_pm_dyn.model.description import ELASTIC, PASSIVE, Closure, Model
@@ -137,10 +138,39 @@ def closure_terms(model: Model, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _assembled(model: Model, free: list[int], start: np.ndarray | None = None) -> np.ndarray | None:
-    """Tree coordinates closing the loops, moving ``free`` from ``start`` (default: the zero
-    pose; least-squares Newton: there are more free joints than equations); None if that fails."""
+    """Tree coordinates closing the loops, moving ``free`` from ``start`` (default: the file's
+    start pose); None if that fails. Least-squares Newton (there may be more free joints than
+    equations), and where it stalls a trust-region least-squares solve from the same start
+    before Newton again: a zero pose with rods folded far from closing (Gepetto's legs)."""
     q = np.array([model.initial.guess.get(j.name, j.rest) for j in model.joints], dtype=float) \
         if start is None else np.array(start, dtype=float)
+    closed = _newton(model, free, q)
+    if closed is not None or not free:
+        return closed
+    x0 = q[free]
+
+    def fun(x: np.ndarray) -> np.ndarray:
+        trial = q.copy()
+        trial[free] = x
+        return closure_terms(model, trial)[0]
+
+    def jac(x: np.ndarray) -> np.ndarray:
+        trial = q.copy()
+        trial[free] = x
+        return closure_terms(model, trial)[1][:, free]
+
+    with np.errstate(all="ignore"):
+        sol = scipy.optimize.least_squares(fun, x0, jac=jac, method="trf", xtol=1e-15, ftol=1e-15, gtol=1e-15,
+                                           max_nfev=100 * len(free))
+    if not np.all(np.isfinite(sol.x)):
+        return None
+    q = q.copy()
+    q[free] = sol.x
+    return _newton(model, free, q)
+
+
+def _newton(model: Model, free: list[int], q: np.ndarray) -> np.ndarray | None:
+    """Least-squares Newton with backtracking from q; None where it stalls."""
     r, J = closure_terms(model, q)
     for _ in range(100):
         norm = float(np.linalg.norm(r))

@@ -15,6 +15,7 @@ import warnings
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+import scipy.linalg
 
 from elastic_pm_dyn.model.closures_sidecar import Sidecar
 from elastic_pm_dyn.model.description import (
@@ -135,18 +136,28 @@ def _check_tendon_motors(tree: KinematicTree, model: Model) -> None:
         a = names.index(tm.joint)
         C = c.coupling_matrix(names)[:, :-1] if c is not None and c.couplings else np.zeros((0, len(names)))
         passive = [i for i, j in enumerate(model.joints) if j.role == PASSIVE and np.any(C[:, i] != 0.0)]
-        rate = {a: 1.0}
+        others = [i for i, j in enumerate(model.joints) if j.role != PASSIVE and i != a]
+        # d q_passive / d q_independent through the couplings; a passive joint the couplings do not
+        # fix alone (a loop's too, or free) has no constant rate
+        rate = {a: np.eye(len(names))[a]}
         if passive:
             Cp = C[:, passive]
-            if np.linalg.matrix_rank(Cp) == len(passive):
-                x = np.linalg.lstsq(Cp, -C[:, a], rcond=None)[0]
-                rate.update({i: float(v) for i, v in zip(passive, x, strict=True)})
+            X = np.linalg.lstsq(Cp, -C, rcond=None)[0]  # (passive, all joints): rates if determined
+            null = scipy.linalg.null_space(Cp)
+            for row, i in enumerate(passive):
+                if not null.shape[1] or np.abs(null[row]).max() < 1e-12:
+                    rate[i] = X[row]
         loose = [name for name, _ in tm.terms if names.index(name) not in rate]
         if loose:
             raise tm.where.error(f"not supported yet: the actuator's tendon runs over joints {', '.join(loose)} that "
                                  f"no <joint>/<tendon> equality ties to {tm.joint!r}: one motor for several degrees "
                                  "of freedom (under-actuated)")
-        k = sum(coef * rate[names.index(name)] for name, coef in tm.terms)
+        work = sum(coef * rate[names.index(name)] for name, coef in tm.terms)  # generalised force per unit f
+        side = [names[e] for e in others if abs(work[e]) > 1e-12]
+        if side:
+            raise tm.where.error(f"not supported yet: the actuator's tendon also drives {', '.join(side)} through the "
+                                 f"couplings, not {tm.joint!r} alone")
+        k = float(work[a])
         if abs(k) < 1e-12:
             raise tm.where.error(f"the actuator's tendon does not move as {tm.joint!r} moves (its coefficients cancel "
                                  "through the couplings): the motor does no work")
