@@ -519,3 +519,23 @@ def test_written_urdf_and_sidecar_load_as_the_same_machine(tmp_path):
             [(j.name, j.role, j.stiffness, j.rest) for j in m.model.joints]
         q0 = initial_state(m)
         np.testing.assert_allclose(initial_state(Mechanism(back)), q0, atol=1e-12)
+
+
+def test_position_and_velocity_servo_on_one_joint_are_one_motor(tmp_path):
+    """As Menagerie arms write a PD servo: a <position> and a <velocity> on one joint."""
+    text = FIVE_BAR.replace('<motor name="left" joint="left"/>',
+                            '<position name="left_kp" joint="left" kp="10"/>\n'
+                            '    <velocity name="left_kv" joint="left" kv="1"/>')
+    mech = Mechanism(load_model(_write(tmp_path, text), servos_as_motors=True))
+    assert mech.active_names == ["left"]
+
+
+def test_a_tendon_with_its_own_spring_is_refused_in_one_line(tmp_path):
+    from elastic_pm_dyn.errors import ModelError
+    text = GRIPPER.replace('<fixed name="split">', '<fixed name="split" stiffness="3">')
+    path = _write(tmp_path, text)
+    with pytest.raises(ModelError) as err:
+        load_model(path)
+    line = next(k for k, s in enumerate(text.splitlines(), 1) if '<fixed name="split"' in s)
+    assert str(err.value).startswith(f"{path}:{line}: fixed 'split': not supported yet: a tendon with stiffness"), \
+        str(err.value)

@@ -52,7 +52,7 @@ from elastic_pm_dyn.model.xml_source import XmlSource
 
 _EQ_KINDS = {0: "3d", 1: "6d"}  # mjEQ_CONNECT, mjEQ_WELD
 EQ_JOINT, EQ_TENDON = 2, 3  # mjEQ_JOINT, mjEQ_TENDON: linear couplings where the polycoef is
-TRN_JOINT, TRN_TENDON = 0, 3  # mjTRN_JOINT, mjTRN_TENDON
+TRN_JOINT, TRN_JOINTINPARENT, TRN_TENDON = 0, 1, 3  # mjTRN_*: on a hinge or slide the first two are one
 WRAP_JOINT = 1  # mjWRAP_JOINT: a fixed tendon's terms
 
 
@@ -200,6 +200,13 @@ class _Tree:
 
     def build(self, name: str) -> KinematicTree:
         m = self.m
+        for t in range(m.ntendon):  # a tendon's own spring, damper or armature would be left out silently
+            if m.tendon_stiffness[t] != 0 or m.tendon_damping[t] != 0 or m.tendon_armature[t] != 0:
+                where = self.where("fixed", self.tendon_names[t])
+                if where.line is None:
+                    where = self.where("spatial", self.tendon_names[t])
+                raise where.error("not supported yet: a tendon with stiffness, damping or armature (give them to "
+                                  "its joints)")
         motors = self._motors()
         world = self.body_names[0]
         links: dict[str, TreeLink] = {world: TreeLink(world, None, Where(self.file, "worldbody"))}
@@ -310,7 +317,7 @@ class _Tree:
             tags = ("motor", "general", "position", "velocity", "intvelocity", "damper", "cylinder", "muscle")
             where = Where(self.file, f"actuator {name!r}",
                           next((self.lines[(t, name)] for t in tags if (t, name) in self.lines), None))
-            if m.actuator_trntype[a] not in (TRN_JOINT, TRN_TENDON):
+            if m.actuator_trntype[a] not in (TRN_JOINT, TRN_JOINTINPARENT, TRN_TENDON):
                 raise where.error("not supported yet: an actuator on a site, body or slider-crank (only joints and "
                                   "fixed tendons)")
             if not self.servos_as_motors and (m.actuator_biastype[a] != 0 or m.actuator_gaintype[a] != 0):
@@ -326,8 +333,8 @@ class _Tree:
                 j = self.joint_names.index(terms[0][0])
             else:
                 j = int(m.actuator_trnid[a, 0])
-            if j in out:
-                raise where.error(f"joint {self.joint_names[j]!r} has two motors")
+            # several actuators on one joint (a servo's position and velocity parts) drive it as
+            # one motor: its input is their torques' sum
             out.add(j)
         return out
 
