@@ -232,8 +232,8 @@ def cmd_check(args: argparse.Namespace) -> int:
     print(f"  closure equations {mech.m}; non-redundant coordinates q_ae: {len(mech.ae)}")
     couplings = model.closure.couplings if model.closure is not None else ()
     for terms, constant in couplings:
-        sum_text = " + ".join(f"{c:g} {name}" for name, c in terms).replace("+ -", "- ")
-        print(f"  coupling {sum_text} = {constant:.9g} (a closure row)")
+        sum_text = " + ".join(f"{c:g}*{name}" for name, c in terms).replace("+ -", "- ")
+        print(f"  coupling: {sum_text} = {constant:.9g} (a closure row)")
     for line in _dropped_rows(model):
         print(line)
     q = initial_state(mech)
