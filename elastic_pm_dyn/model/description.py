@@ -354,14 +354,18 @@ class Model:
         return replace(self, chains=chains, name=f"{self.name} (stiffness x {factor:g})")
 
     def locked(self, role: str = ELASTIC) -> Model:
-        """The same machine with every joint of ``role`` frozen at its rest position.
+        """The same machine with every joint of ``role`` frozen at its rest position (at the start
+        pose's value where ``initial.guess`` gives one: a robot file's preloaded spring).
 
         The rigid model of the paper is the elastic one with the elastic DOF locked
         (u = 0, c -> infinity): each locked joint becomes a fixed offset, its body merges
         into its parent's, and the next joint's origin absorbs the offset.
         """
-        chains = tuple(_lock_chain(c, role) for c in self.chains)
-        rests = {j.name: j.rest for c in self.chains for j in c.joints if j.role == role}
+        # at rest, or where the start pose puts them (a robot file's spring preloaded there: its rest
+        # may not even close the loop)
+        rests = {j.name: self.initial.guess.get(j.name, j.rest) for c in self.chains for j in c.joints
+                 if j.role == role}
+        chains = tuple(_lock_chain(c, role, rests) for c in self.chains)
         branches = tuple(b for b in self.branches if b.joint not in rests)
         closure = self.closure
         if closure is not None and closure.couplings:  # a locked joint's term is a constant
@@ -413,9 +417,9 @@ def joint_motion(joint: Joint, q: float) -> tuple[np.ndarray, np.ndarray]:
     return np.eye(3) + np.sin(q) * k + (1 - np.cos(q)) * k @ k, np.zeros(3)
 
 
-def _lock_chain(chain: Chain, role: str) -> Chain:
+def _lock_chain(chain: Chain, role: str, at: dict[str, float]) -> Chain:
     if chain.parents or chain.point_bodies or chain.end_body != -1:
-        return _lock_subtree(chain, role)
+        return _lock_subtree(chain, role, at)
     out: list[Joint] = []
     # Transform of the pending fixed offset, from the frame the next kept joint's origin
     # is written in to the frame of the last kept joint's child.
@@ -429,7 +433,7 @@ def _lock_chain(chain: Chain, role: str) -> Chain:
             out.append(replace(j, origin_xyz=p_in, origin_rpy=matrix_to_rpy(R_in)))
             pend_R, pend_p = np.eye(3), np.zeros(3)
             continue
-        Rm, pm = joint_motion(j, j.rest)
+        Rm, pm = joint_motion(j, at[j.name])
         child_R = R_in @ Rm
         child_p = R_in @ pm + p_in
         if j.body is not None:
@@ -446,7 +450,7 @@ def _lock_chain(chain: Chain, role: str) -> Chain:
     return replace(chain, joints=tuple(out), end_xyz=end, points=points)
 
 
-def _lock_subtree(chain: Chain, role: str) -> Chain:
+def _lock_subtree(chain: Chain, role: str, at: dict[str, float]) -> Chain:
     """:func:`_lock_chain` for a subtree: a locked joint's children and points move to the
     body of its nearest kept ancestor, their frames composed with the locked offset."""
     out: list[Joint] = []
@@ -462,7 +466,7 @@ def _lock_subtree(chain: Chain, role: str) -> Chain:
             parents.append(kept)
             carrier.append((len(out) - 1, np.eye(3), np.zeros(3)))
             continue
-        Rm, pm = joint_motion(j, j.rest)
+        Rm, pm = joint_motion(j, at[j.name])
         child_R, child_p = R_in @ Rm, R_in @ pm + p_in
         if j.body is not None and kept >= 0:  # on the base it never moves: no dynamic effect
             moved = j.body.moved(child_R, child_p)
