@@ -539,3 +539,13 @@ def test_a_tendon_with_its_own_spring_is_refused_in_one_line(tmp_path):
     line = next(k for k, s in enumerate(text.splitlines(), 1) if '<fixed name="split"' in s)
     assert str(err.value).startswith(f"{path}:{line}: fixed 'split': not supported yet: a tendon with stiffness"), \
         str(err.value)
+
+
+def test_rigid_model_locks_a_preloaded_spring_where_the_file_puts_it(tmp_path):
+    """The rigid machine (springs locked) of a file whose spring starts away from its rest: locked
+    at the start pose, the machine stands where the elastic one starts."""
+    mech = Mechanism(load_model(_write(tmp_path, FIVE_BAR)))
+    rigid = Mechanism(mech.model.locked())
+    assert rigid.joint_names == ["left", "left_elbow", "right_elbow"]
+    q = initial_state(rigid)
+    np.testing.assert_allclose(rigid.end_effector(q), mech.end_effector(initial_state(mech)), rtol=0, atol=1e-12)

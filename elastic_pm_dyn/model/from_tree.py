@@ -496,7 +496,7 @@ def _lump_end_effector(chains: list[Chain], mass: float, closure: Closure | None
     plist = [(ci, c.end_xyz, c.end_and_point_bodies()[0]) for ci, c in enumerate(chains)]
     for ci, c in enumerate(chains):
         plist.extend((ci, xyz, b) for (_, xyz), b in zip(c.points, c.end_and_point_bodies()[1:], strict=True))
-    if closure is None:
+    if closure is None or not closure.pairs:  # no loop (couplings alone): the first chain's end
         owners = [plist[0]]
     else:
         first = closure.pairs[0][0]
