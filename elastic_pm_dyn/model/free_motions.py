@@ -169,6 +169,11 @@ def _assembled(model: Model, free: list[int], start: np.ndarray | None = None) -
     return _newton(model, free, q)
 
 
+def closes_from_start(model: Model, free: list[int]) -> np.ndarray | None:
+    """A closed pose reached from the file's start pose moving ``free``, None if none is found."""
+    return _assembled(model, free)
+
+
 def _newton(model: Model, free: list[int], q: np.ndarray) -> np.ndarray | None:
     """Least-squares Newton with backtracking from q; None where it stalls."""
     r, J = closure_terms(model, q)

@@ -31,7 +31,7 @@ from elastic_pm_dyn.model.description import (
     Model,
     matrix_to_rpy,
 )
-from elastic_pm_dyn.model.free_motions import drop_still_rows, free_passive_motions, repeated_rows
+from elastic_pm_dyn.model.free_motions import closes_from_start, drop_still_rows, free_passive_motions, repeated_rows
 from elastic_pm_dyn.model.kinematic_tree import (
     BALL,
     CARDAN,
@@ -526,6 +526,11 @@ def _check_counts(tree: KinematicTree, model: Model, sidecar: Sidecar | None, cl
         passive = [j.name for j in model.joints if j.role == PASSIVE]
         where = Where(sidecar.src.file, "closed_loop", sidecar.src.line(("closed_loop",))) if sidecar is not None \
             else closures[0].where if closures else Where(tree.file, "equality")
+        # rows that hold by themselves and free spins are found at a closed pose: none found, say so
+        idx = [i for i, j in enumerate(model.joints) if j.role == PASSIVE]
+        unclosed = m > 0 and idx and closes_from_start(model, idx) is None
+        hint = "; no closed pose was found from the file's start pose (motors where it puts them), so rows that " \
+            "hold by themselves and free spins could not be looked for: give initial_state.guess" if unclosed else ""
         raise where.error(f"the closures give {m} equations but the legs have {n_passive} passive joints "
                           f"({', '.join(passive[:8])}{', ...' if len(passive) > 8 else ''}): every joint that is "
-                          "neither a motor nor elastic must be fixed by the closures")
+                          f"neither a motor nor elastic must be fixed by the closures{hint}")
