@@ -162,15 +162,17 @@ def solve_pose(mech: Mechanism, q_guess: np.ndarray, free: np.ndarray,
 
     Newton-Raphson from the guess; with ``robust`` (a start pose from a file), where it does
     not close: Levenberg-Marquardt, then continuation from the guess, then several starts
-    about it (seeded), each polished by Newton, the closed pose nearest the guess taken.
-    Passive angles come back in (-pi, pi]. Raises :class:`AssemblyError` with the remaining
+    about it (seeded), each polished by Newton, the closed pose nearest the guess taken, and
+    the passive angles come back in (-pi, pi]. Raises :class:`AssemblyError` with the remaining
     residual (naming the file and the loop furthest from closing) if none closes, or if the
     Jacobian is singular there.
     """
     guess = np.array(q_guess, dtype=float)
     q, r, jac = _newton(mech, guess, free, target, max_iter)
     if float(np.linalg.norm(r)) <= TOLERANCE:
-        return _wrapped(mech, q, free)
+        # a start pose's passive angles wrapped; a pose solved along a motion (finite differences,
+        # trajectories) keeps its branch of the angle
+        return _wrapped(mech, q, free) if robust else q
     best = (q, r, jac)
     if robust:
         found = []
