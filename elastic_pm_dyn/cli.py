@@ -230,6 +230,10 @@ def cmd_check(args: argparse.Namespace) -> int:
         print(f"  free     {len(free)}: {', '.join(mech.joint_names[i] for i in free)} "
               "(left free by the closures: unactuated, no spring)")
     print(f"  closure equations {mech.m}; non-redundant coordinates q_ae: {len(mech.ae)}")
+    couplings = model.closure.couplings if model.closure is not None else ()
+    for terms, constant in couplings:
+        sum_text = " + ".join(f"{c:g}*{name}" for name, c in terms).replace("+ -", "- ")
+        print(f"  coupling: {sum_text} = {constant:.9g} (a closure row)")
     for line in _dropped_rows(model):
         print(line)
     q = initial_state(mech)
@@ -280,6 +284,17 @@ def _dropped_rows(model) -> list[str]:
         out.append(f"  dropped  row {n} of closure {k + 1} ({on(a)} = {on(b)}; the direction in the frame of the "
                    f"first): it holds by itself, every joint moving both points alike along it (a loop of hinges "
                    "parallel to it, closed by a 3-D point); the two rows across it are kept")
+    for k, frame, mask in closure.projected:
+        a, b = closure.pairs[k]
+        F = np.asarray(frame)
+        n = np.round(F[:, 2], 6).tolist()
+        pos = [i for i in range(3) if not mask & (1 << i)]
+        turn = [i for i in range(3) if not mask & (8 << i)]
+        what = [f"position along {np.round(F[:, i], 6).tolist()}" for i in pos] + \
+            [f"turn about {np.round(F[:, i], 6).tolist()}" for i in turn]
+        out.append(f"  dropped  {len(pos) + len(turn)} rows of weld {k + 1} ({on(a)} = {on(b)}; directions in the "
+                   f"weld's frame): {', '.join(what)}: they hold by themselves (a loop of hinges parallel to {n}, "
+                   f"closed by a 6-D weld); {bin(mask).count('1')} rows kept")
     return out
 
 

@@ -13,15 +13,18 @@ def retyped(pin, pm, side: dict):
     """The URDF model with the sidecar's joint_name/joint_type applied, rebuilt joint by joint
     as Gepetto's completeRobotLoader does, except that a SPHERICAL joint is three revolutes
     about its frame's x, y, z (<joint>_x, _y, _z, as ours: the same dynamics away from the
-    middle one's +-90 degrees, compared coordinate by coordinate) and CARDAN two (_X, _Y)."""
+    middle one's +-90 degrees, compared coordinate by coordinate) and CARDAN or UJOINT_AB two (_X, _Y; _A, _B)."""
     kinds = dict(zip(side.get("joint_name", []), side.get("joint_type", []), strict=True))
     kinds = {k: v.upper() for k, v in kinds.items() if k in pm.names}
     if not kinds:
         return pm
     if "FIXED" in kinds.values():
         raise NotImplementedError("joint_type FIXED in the Pinocchio peer")
+    about = {"X": pin.JointModelRX, "Y": pin.JointModelRY, "Z": pin.JointModelRZ}
     axes = {"SPHERICAL": [("_x", pin.JointModelRX), ("_y", pin.JointModelRY), ("_z", pin.JointModelRZ)],
             "CARDAN": [("_X", pin.JointModelRX), ("_Y", pin.JointModelRY)]}
+    # Gepetto's UJOINT_AB: RA then RB at the joint's frame (<joint>_A, <joint>_B)
+    axes |= {f"UJOINT_{a}{b}": [(f"_{a}", about[a]), (f"_{b}", about[b])] for a in "XYZ" for b in "XYZ" if a != b}
     new = pin.Model()
     new.gravity = pm.gravity
     last = {"universe": 0}  # old joint name -> the new joint carrying its body

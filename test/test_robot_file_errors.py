@@ -43,8 +43,8 @@ URDF_CASES = [
      '<mass value="-0.6"/>', "mass must be >= 0"),
     ("bad inertia", URDF.replace('iyy="3.125e-3" iyz="0" izz="3.125e-3"', 'iyy="-3.125e-3" iyz="0" izz="3.125e-3"', 1),
      'iyy="-3.125e-3"', "not positive semi-definite"),
-    ("mimic", URDF.replace('<axis xyz="0 0 1"/>\n  </joint>', '<axis xyz="0 0 1"/>\n    <mimic joint="right_elbow"/>\n'
-                           '  </joint>', 1), '<mimic joint=', "not supported yet: <mimic>"),
+    ("mimic", URDF.replace('<axis xyz="0 0 1"/>\n  </joint>', '<axis xyz="0 0 1"/>\n    <mimic joint="rigth_elbow"/>\n'
+                           '  </joint>', 1), '<mimic joint=', "<mimic> names a missing joint 'rigth_elbow'"),
     ("malformed", URDF.replace("</robot>", "</robt>"), "</robt>", "malformed XML"),
     ("doctype", '<?xml version="1.0"?>\n<!DOCTYPE robot [<!ENTITY a "aaaa">]>\n' + URDF.split("?>", 1)[1],
      "<!DOCTYPE", "DOCTYPE"),
@@ -77,9 +77,6 @@ SIDECAR_CASES = [
     ("unknown key", SIDECAR + "stifness: 3\n", "stifness", "unknown key"),
     ("counts", SIDECAR.replace("name_mot: ['left_motor', 'right_motor']", "name_mot: ['left_motor']"),
      "closed_loop:", "the closures give 2 equations but the legs have 3 passive joints"),
-    ("motor and spring", SIDECAR.replace("name_mot: ['left_motor', 'right_motor']",
-                                         "name_mot: ['left_motor', 'right_motor', 'left_spring']"),
-     "  left_spring:", "is a motor (name_mot) and elastic at once"),
 ]
 
 

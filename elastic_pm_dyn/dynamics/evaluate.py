@@ -68,7 +68,7 @@ def accelerations(form, ma, q, qd, tau, baumgarte_alpha, baumgarte_beta, qdd_pre
     J, a_pt, p_pt = point_buffers(ma.points, n)
     tree_terms(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_body, ma.gravity, q, qd, M, h, J, a_pt, p_pt)
     A, gamma, res = np.empty((m, n)), np.empty(m), np.empty(m)
-    gap = _closure_terms(ma, qd, J, a_pt, p_pt, A, gamma, res, baumgarte_alpha, baumgarte_beta, np.empty(m))
+    gap = _closure_terms(ma, q, qd, J, a_pt, p_pt, A, gamma, res, baumgarte_alpha, baumgarte_beta, np.empty(m))
     if form in (SCDD, SCDD_STACKED) and not (form == SCDD and ma.hub >= 0):
         return scdd(M, h, A, gamma, tau, ma.chain_start, qdd, lam), gap
     return _other_formulations(form, ma, M, h, A, gamma, tau, qdd_prev, qdd, lam), gap
@@ -84,7 +84,7 @@ def accelerations_into(form, ma, q, qd, tau, baumgarte_alpha, baumgarte_beta, qd
     M, h, J, a_pt, p_pt, A, gamma, res, wz, wo, jv, jw, fr, x, Y, S, L, dinv, XY, piv, r, tmh, bm, pc, pw = ws
     tree_terms_into(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_body, ma.gravity, q, qd, M, h, J, a_pt,
                     p_pt, wz, wo, jv, jw, fr)
-    gap = _closure_terms(ma, qd, J, a_pt, p_pt, A, gamma, res, baumgarte_alpha, baumgarte_beta, bm)
+    gap = _closure_terms(ma, q, qd, J, a_pt, p_pt, A, gamma, res, baumgarte_alpha, baumgarte_beta, bm)
     if form in (SCDD, SCDD_STACKED) and not (form == SCDD and ma.hub >= 0):
         cond = scdd_into(M, h, A, gamma, tau, ma.chain_start, qdd, lam, x, Y, S, L, dinv, XY, piv, r, tmh)
         return cond, gap
@@ -95,11 +95,11 @@ def accelerations_into(form, ma, q, qd, tau, baumgarte_alpha, baumgarte_beta, qd
 
 
 @njit(cache=True, inline="always")
-def _closure_terms(ma, qd, J, a_pt, p_pt, A, gamma, res, baumgarte_alpha, baumgarte_beta, work):
+def _closure_terms(ma, q, qd, J, a_pt, p_pt, A, gamma, res, baumgarte_alpha, baumgarte_beta, work):
     """Closure rows (A, gamma, residual) with Baumgarte's terms in gamma; returns |h(q)|."""
     if ma.p_index.shape[0] == 0:
         return 0.0
-    all_closure_rows(ma.closure_pairs, ma.closure_axes, ma.points, J, a_pt, p_pt, A, gamma, res)
+    all_closure_rows(ma.closure_pairs, ma.closure_axes, ma.points, ma.couplings, q, J, a_pt, p_pt, A, gamma, res)
     if baumgarte_alpha > 0.0 or baumgarte_beta > 0.0:
         gamma -= 2.0 * baumgarte_alpha * matvec(A, qd, work) + baumgarte_beta * baumgarte_beta * res
     return np.sqrt(np.sum(res * res))
@@ -131,7 +131,7 @@ def _other_formulations(form, ma, M, h, A, gamma, tau, qdd_prev, qdd, lam):
 
 @njit(cache=True)
 def accelerations_flat(form, jf, ji, chain_start, points, point_body, gravity, closure_pairs,
-                       closure_axes, hub, ae_index, p_index, q, qd, tau, baumgarte_alpha,
+                       closure_axes, hub, ae_index, p_index, couplings, q, qd, tau, baumgarte_alpha,
                        baumgarte_beta, qdd_prev, qdd, lam):
     """:func:`accelerations` with the model as separate arrays (``*mech.arrays``).
 
@@ -139,5 +139,5 @@ def accelerations_flat(form, jf, ji, chain_start, points, point_body, gravity, c
     namedtuple argument on a slow one (about 1.7 us per call, a third of an evaluation).
     """
     ma = ModelArrays(jf, ji, chain_start, points, point_body, gravity, closure_pairs, closure_axes,
-                     hub, ae_index, p_index)
+                     hub, ae_index, p_index, couplings)
     return accelerations(form, ma, q, qd, tau, baumgarte_alpha, baumgarte_beta, qdd_prev, qdd, lam)

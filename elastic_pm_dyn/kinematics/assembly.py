@@ -2,12 +2,16 @@
 
 Newton-Raphson on the chosen free joints with a backtracking line search, so a rough
 guess converges to the assembly mode it lies in (the guess selects the mode; the sign
-check in :func:`initial_state` makes a wrong mode an error, not a surprise).
+check in :func:`initial_state` makes a wrong mode an error, not a surprise). A start pose
+(:func:`initial_state`) that Newton does not close is tried further: Levenberg-Marquardt,
+continuation from the guess and several seeded starts about it, the closed pose nearest
+the guess kept.
 """
 
 from __future__ import annotations
 
 import numpy as np
+from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 from elastic_pm_dyn.errors import AssemblyError
@@ -54,19 +58,15 @@ def _residual(mech: Mechanism, q: np.ndarray, target: np.ndarray | None) -> tupl
     return np.concatenate(r), np.vstack(jac)
 
 
-def solve_pose(mech: Mechanism, q_guess: np.ndarray, free: np.ndarray,
-               target: np.ndarray | None = None, max_iter: int = 60) -> np.ndarray:
-    """Tree coordinates with h(q) = 0 (and end effector = target), moving only ``free``.
-
-    Raises :class:`AssemblyError` with the remaining residual if Newton does not converge
-    (target out of reach) or the Jacobian is singular there.
-    """
-    q = np.array(q_guess, dtype=float)
+def _newton(mech: Mechanism, q: np.ndarray, free: np.ndarray, target: np.ndarray | None, max_iter: int
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Gauss-Newton (least-squares steps) with backtracking from q: (q, residual, Jacobian) where it stops."""
+    q = np.array(q, dtype=float)
     r, jac = _residual(mech, q, target)
     for _ in range(max_iter):
         norm = float(np.linalg.norm(r))
         if norm <= TOLERANCE:
-            return q
+            break
         step, *_ = np.linalg.lstsq(jac[:, free], r, rcond=None)
         lam = 1.0
         while lam > 1e-6:
@@ -79,9 +79,132 @@ def solve_pose(mech: Mechanism, q_guess: np.ndarray, free: np.ndarray,
         else:
             break
         q, r, jac = trial, r_new, jac_new
+    return q, r, jac
+
+
+def _levenberg_marquardt(mech: Mechanism, q: np.ndarray, free: np.ndarray, target: np.ndarray | None
+                         ) -> np.ndarray:
+    """A damped least-squares solve from q (MINPACK's Levenberg-Marquardt; a trust region where
+    there are fewer rows than free joints): it walks down the residual where Newton's full
+    steps overshoot, from a pose far from closing (a file's zero pose with its rods flipped)."""
+    base = np.array(q, dtype=float)
+
+    def fun(x: np.ndarray) -> np.ndarray:
+        trial = base.copy()
+        trial[free] = x
+        return _residual(mech, trial, target)[0]
+
+    def jac(x: np.ndarray) -> np.ndarray:
+        trial = base.copy()
+        trial[free] = x
+        return _residual(mech, trial, target)[1][:, free]
+
+    rows = len(fun(base[free]))
+    method = "lm" if rows >= len(free) else "trf"
+    with np.errstate(all="ignore"):
+        sol = least_squares(fun, base[free], jac=jac, method=method, xtol=1e-15, ftol=1e-15, gtol=1e-15,
+                            max_nfev=200 * max(1, len(free)))
+    base[free] = sol.x
+    return base
+
+
+def _continuation(mech: Mechanism, q: np.ndarray, free: np.ndarray, target: np.ndarray | None,
+                  steps: int = 20) -> np.ndarray:
+    """Newton along the homotopy r(q) = (1 - s) r(q_guess), s from 0 to 1: a path of poses from
+    the guess (where it holds) to a closed one, the assembly mode the guess lies in."""
+    q = np.array(q, dtype=float)
+    r0 = _residual(mech, q, target)[0]
+    for s in np.linspace(0.0, 1.0, steps + 1)[1:]:
+        for _ in range(20):
+            r, jac = _residual(mech, q, target)
+            shifted = r - (1.0 - s) * r0
+            if np.linalg.norm(shifted) <= TOLERANCE * 10:
+                break
+            step, *_ = np.linalg.lstsq(jac[:, free], shifted, rcond=None)
+            q[free] -= step
+    return q
+
+
+def _wrapped(mech: Mechanism, q: np.ndarray, free: np.ndarray) -> np.ndarray:
+    """Passive revolute angles (the ones solved for) in (-pi, pi]: a solve that wandered whole
+    turns away gives the same pose, and its angles then read as the pose (and assembly-mode
+    signs as the file means them). Motors and springs keep their coordinate: it is theirs."""
+    q = np.array(q, dtype=float)
+    for j in free:
+        joint = mech.model.joints[j]
+        if joint.type == "revolute" and joint.role == "passive":
+            q[j] = q[j] - 2.0 * np.pi * np.round(q[j] / (2.0 * np.pi))
+            if q[j] <= -np.pi:
+                q[j] += 2.0 * np.pi
+    return q
+
+
+def _worst_loop(mech: Mechanism, r: np.ndarray) -> str:
+    """The closure the largest residual row belongs to, as the model names its points."""
+    closure = mech.model.closure
+    if closure is None or not len(r):
+        return "the closure"
+    rows = closure.row_pairs()
+    k = int(np.argmax(np.abs(r[:len(rows)]))) if len(rows) else 0
+    if k >= len(rows):
+        return "the closure"
+    labels = [label for _, _, label in mech.model.point_list()]
+    pair = rows[k]
+    if pair >= len(closure.pairs):  # a coupling row (closure.couplings), after the loops' rows
+        return f"coupling {pair - len(closure.pairs) + 1}"
+    a, b = closure.pairs[pair]
+    return f"closure {pair + 1} ({labels[a]} = {labels[b]})"
+
+
+def solve_pose(mech: Mechanism, q_guess: np.ndarray, free: np.ndarray,
+               target: np.ndarray | None = None, max_iter: int = 60, robust: bool = False) -> np.ndarray:
+    """Tree coordinates with h(q) = 0 (and end effector = target), moving only ``free``.
+
+    Newton-Raphson from the guess; with ``robust`` (a start pose from a file), where it does
+    not close: Levenberg-Marquardt, then continuation from the guess, then several starts
+    about it (seeded), each polished by Newton, the closed pose nearest the guess taken, and
+    the passive angles come back in (-pi, pi]. Raises :class:`AssemblyError` with the remaining
+    residual (naming the file and the loop furthest from closing) if none closes, or if the
+    Jacobian is singular there.
+    """
+    guess = np.array(q_guess, dtype=float)
+    q, r, jac = _newton(mech, guess, free, target, max_iter)
+    if float(np.linalg.norm(r)) <= TOLERANCE:
+        # a start pose's passive angles wrapped; a pose solved along a motion (finite differences,
+        # trajectories) keeps its branch of the angle
+        return _wrapped(mech, q, free) if robust else q
+    best = (q, r, jac)
+    if robust:
+        found = []
+        rng = np.random.default_rng(0)  # the same starts every load
+        starts = [lambda: _levenberg_marquardt(mech, guess, free, target),
+                  lambda: _continuation(mech, guess, free, target)]
+        for spread in (0.3, 0.3, 1.0, 1.0, np.pi, np.pi):
+            def shaken(spread: float = spread) -> np.ndarray:
+                start = guess.copy()
+                start[free] += rng.uniform(-spread, spread, len(free))
+                return _levenberg_marquardt(mech, start, free, target)
+            starts.append(shaken)
+        for start in starts:
+            try:
+                q_try, r_try, jac_try = _newton(mech, start(), free, target, max_iter)
+            except (np.linalg.LinAlgError, ValueError, FloatingPointError):
+                continue
+            if not np.all(np.isfinite(r_try)):
+                continue
+            if float(np.linalg.norm(r_try)) <= TOLERANCE:
+                found.append(_wrapped(mech, q_try, free))
+                if len(found) >= 2:
+                    break
+            elif float(np.linalg.norm(r_try)) < float(np.linalg.norm(best[1])):
+                best = (q_try, r_try, jac_try)
+        if found:  # the closed pose nearest the guess (angles compared on the circle)
+            def distance(qc: np.ndarray) -> float:
+                d = (qc - guess)[free]
+                return float(np.linalg.norm(np.arctan2(np.sin(d), np.cos(d))))
+            return min(found, key=distance)
+    q, r, jac = best
     norm = float(np.linalg.norm(r))
-    if norm <= TOLERANCE:
-        return q
     what = "end-effector target" if target is not None else "closure"
     sv = np.linalg.svd(jac[:, free], compute_uv=False)
     ratio = sv[-1] / sv[0] if len(sv) and sv[0] > 0 else 0.0
@@ -90,6 +213,11 @@ def solve_pose(mech: Mechanism, q_guess: np.ndarray, free: np.ndarray,
         raise AssemblyError(f"singular configuration (a parallel singularity): the closure Jacobian in the "
                             f"free joints has condition number {1 / max(ratio, 1e-300):.3g} here, so the "
                             f"{what} is solved only to a residual of {norm:.3g} m")
+    if robust and target is None:
+        raise AssemblyError(f"{mech.model.source}: cannot assemble {_worst_loop(mech, r)}: residual {norm:.3g} "
+                            "(m, rad) after Newton, Levenberg-Marquardt, continuation and 6 more starts from the "
+                            "file's start pose; give initial_state.guess (joint angles near a closed pose) in the "
+                            "model or sidecar")
     raise AssemblyError(f"cannot assemble the {what}: residual {norm:.3g} m after Newton "
                         "(out of reach, or a singular configuration)")
 
@@ -136,27 +264,27 @@ def _solve_square(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def initial_state(mech: Mechanism) -> np.ndarray:
-    """Start pose from the model's ``initial_state``: elastic joints at rest, at rest."""
+    """Start pose from the model's ``initial_state``, at rest: elastic joints where the guess puts
+    them (a robot file's keyframe or zero pose: a spring preloaded there, as in MuJoCo), else at
+    their spring's rest."""
     model = mech.model
     init = model.initial
     q = np.zeros(mech.n)
     for j, joint in enumerate(model.joints):
         q[j] = init.guess.get(joint.name, joint.rest)
-    for j in mech.elastic:
-        q[j] = model.joints[j].rest
     if init.active is not None:
         for name, value in init.active.items():
             q[model.joint_index(name)] = value
-        q = solve_pose(mech, q, mech.passive)
+        q = solve_pose(mech, q, mech.passive, robust=True)
     elif init.end_effector is not None:
         target = np.asarray(init.end_effector, dtype=float)
         if target.shape[0] != len(mech.ee_components):
             raise AssemblyError(f"initial end_effector has {target.shape[0]} coordinates, "
                                 f"the model's end effector {len(mech.ee_components)}")
         free = np.sort(np.concatenate([mech.active, mech.passive]))
-        q = solve_pose(mech, q, free, target)
+        q = solve_pose(mech, q, free, target, robust=True)
     else:
-        q = solve_pose(mech, q, mech.passive)
+        q = solve_pose(mech, q, mech.passive, robust=True)
     check_assembly_mode(mech, q)
     return q
 

@@ -371,7 +371,7 @@ def closure_rows(closure_pairs, closure_axes, J, a_pt, p_pt, A, gamma, res):
     Row block k holds S (p_a - p_b) for the k-th point pair (a, b), so that
     A qdd_t = gamma holds on the constraint manifold. S's rows are ``closure_axes``:
     x, y[, z], or a planar machine's in-plane directions. Pairs projected on a body's
-    directions (``closure_pairs[k, 2] == 2``) have no block here: :func:`weld_rows` writes
+    directions (``closure_pairs[k, 2] >= 2``) have no block here: :func:`weld_rows` writes
     their rows.
     """
     nc = closure_axes.shape[0]
@@ -380,7 +380,7 @@ def closure_rows(closure_pairs, closure_axes, J, a_pt, p_pt, A, gamma, res):
         e0, e1, e2 = closure_axes[i, 0], closure_axes[i, 1], closure_axes[i, 2]
         kk = 0  # the block: pairs before k less the projected ones
         for k in range(closure_pairs.shape[0]):
-            if closure_pairs[k, 2] == 2:
+            if closure_pairs[k, 2] >= 2:
                 continue
             pa = closure_pairs[k, 0]
             pb = closure_pairs[k, 1]
@@ -413,6 +413,11 @@ def weld_rows(closure_pairs, closure_axes, J, a_pt, p_pt, A, gamma, res):
     body's orientation times the frame the model gives it), the row along the third holding
     by itself. On the manifold (p_a = p_b, and so also their rates) u's own rate drops out:
     the rows are u^T (J_a - J_b), gamma = -u^T (a_a - a_b), the residual u^T (p_a - p_b).
+
+    Last the pairs projected on point a's frame with a mask (``closure_pairs[k, 2] = 3 + mask``,
+    Closure.projected): the position rows along the frame's columns i with bit i of the mask,
+    then, for a weld, the orientation rows (vee(E - E^T) / 2 and the angular rates) along the
+    columns i with bit 3 + i; the rows left out hold by themselves.
     """
     planar = closure_axes.shape[0] == 2
     nc = 1 if planar else 3
@@ -424,7 +429,7 @@ def weld_rows(closure_pairs, closure_axes, J, a_pt, p_pt, A, gamma, res):
     normal = 2 if n0 == 0.0 and n1 == 0.0 and n2 == 1.0 else 0 if n0 == 1.0 and n1 == 0.0 and n2 == 0.0 else -1
     n_proj = 0
     for k in range(closure_pairs.shape[0]):
-        n_proj += closure_pairs[k, 2] == 2
+        n_proj += closure_pairs[k, 2] >= 2
     r = (closure_pairs.shape[0] - n_proj) * closure_axes.shape[0]
     for k in range(closure_pairs.shape[0]):
         if closure_pairs[k, 2] != 1:
@@ -459,16 +464,60 @@ def weld_rows(closure_pairs, closure_axes, J, a_pt, p_pt, A, gamma, res):
             e0, e1, e2 = p_pt[pa, 3 + i], p_pt[pa, 6 + i], p_pt[pa, 9 + i]
             _directed_row(A, gamma, res, r, J, a_pt, p_pt, pa, pb, e0, e1, e2)
             r += 1
+    for k in range(closure_pairs.shape[0]):
+        if closure_pairs[k, 2] < 3:
+            continue
+        mask = closure_pairs[k, 2] - 3
+        pa = closure_pairs[k, 0]
+        pb = closure_pairs[k, 1]
+        for i in range(3):
+            if mask & (1 << i):
+                e0, e1, e2 = p_pt[pa, 3 + i], p_pt[pa, 6 + i], p_pt[pa, 9 + i]
+                _directed_row(A, gamma, res, r, J, a_pt, p_pt, pa, pb, e0, e1, e2)
+                r += 1
+        if mask < 8:
+            continue
+        E = v.mmt(v.row9(p_pt, pa, 3), v.row9(p_pt, pb, 3))
+        err = (0.5 * (E[7] - E[5]), 0.5 * (E[2] - E[6]), 0.5 * (E[3] - E[1]))
+        for i in range(3):
+            if mask & (8 << i):
+                e0, e1, e2 = p_pt[pa, 3 + i], p_pt[pa, 6 + i], p_pt[pa, 9 + i]
+                for j in range(A.shape[1]):
+                    A[r, j] = (e0 * (J[pa, 3, j] - J[pb, 3, j]) + e1 * (J[pa, 4, j] - J[pb, 4, j])
+                               + e2 * (J[pa, 5, j] - J[pb, 5, j]))
+                res[r] = e0 * err[0] + e1 * err[1] + e2 * err[2]
+                gamma[r] = -(e0 * (a_pt[pa, 3] - a_pt[pb, 3]) + e1 * (a_pt[pa, 4] - a_pt[pb, 4])
+                             + e2 * (a_pt[pa, 5] - a_pt[pb, 5]))
+                r += 1
 
+
+
+@njit(cache=True)
+def coupling_rows(couplings, q, A, gamma, res):
+    """The linear couplings' rows, the last ``couplings.shape[0]`` rows of A: row k of
+    ``couplings`` holds the coefficients on the tree joints, then the constant c (C q = c).
+    Constant rows: no bias acceleration (gamma = 0)."""
+    n = A.shape[1]
+    r0 = A.shape[0] - couplings.shape[0]
+    for k in range(couplings.shape[0]):
+        r = r0 + k
+        s = -couplings[k, n]
+        for j in range(n):
+            A[r, j] = couplings[k, j]
+            s += couplings[k, j] * q[j]
+        res[r] = s
+        gamma[r] = 0.0
 
 
 @njit(cache=True, inline="always")
-def all_closure_rows(closure_pairs, closure_axes, points, J, a_pt, p_pt, A, gamma, res):
-    """Every closure row: :func:`closure_rows` and, where the points carry frames (``points`` of
-    12 columns: welds, reduced pairs), :func:`weld_rows`."""
+def all_closure_rows(closure_pairs, closure_axes, points, couplings, q, J, a_pt, p_pt, A, gamma, res):
+    """Every closure row: :func:`closure_rows`, where the points carry frames (``points`` of
+    12 columns: welds, reduced pairs) :func:`weld_rows`, then :func:`coupling_rows`."""
     closure_rows(closure_pairs, closure_axes, J, a_pt, p_pt, A, gamma, res)
     if points.shape[1] == 12:
         weld_rows(closure_pairs, closure_axes, J, a_pt, p_pt, A, gamma, res)
+    if couplings.shape[0] > 0:
+        coupling_rows(couplings, q, A, gamma, res)
 
 
 @njit(cache=True)

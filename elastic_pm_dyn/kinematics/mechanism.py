@@ -87,7 +87,8 @@ class Mechanism:
         tree_terms(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_body, ma.gravity, q, qd, M, h, J, a_tip, p_tip)
         A, gamma, res = np.zeros((m, n)), np.zeros(m), np.zeros(m)
         if m:
-            all_closure_rows(ma.closure_pairs, ma.closure_axes, ma.points, J, a_tip, p_tip, A, gamma, res)
+            all_closure_rows(ma.closure_pairs, ma.closure_axes, ma.points, ma.couplings, q, J, a_tip, p_tip, A, gamma,
+                             res)
         return TreeTerms(M, h, J, a_tip, p_tip, A, gamma, res)
 
     def points(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -124,7 +125,7 @@ class Mechanism:
         closure = self.model.closure
         if closure is None:
             return 0.0
-        if closure.welds or closure.reduced:  # those rows need the frames' rotations
+        if closure.welds or closure.reduced or closure.projected or closure.couplings:  # rows beyond positions
             return float(np.linalg.norm(self.terms(q).residual))
         _, _, p = self.points(q)
         pairs = np.asarray(closure.pairs)
@@ -207,7 +208,7 @@ class Mechanism:
         axes = self.closure_axes
         if closure is None:
             gap = np.zeros(len(q))
-        elif closure.welds or closure.reduced:  # as gap(): those rows need the frames' rotations
+        elif closure.welds or closure.reduced or closure.projected or closure.couplings:  # as gap()
             gap = np.array([self.gap(qk) for qk in q])
         else:
             pairs = np.asarray(closure.pairs)

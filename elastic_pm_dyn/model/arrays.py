@@ -33,6 +33,8 @@ class ModelArrays(NamedTuple):
     hub: int  # platform chain onto which SCDD reduces, -1 for none
     ae_index: np.ndarray  # (n_ae,) int: tree indices of q_ae = [q_a, q_e]
     p_index: np.ndarray  # (n_p,) int: tree indices of q_p
+    couplings: np.ndarray  # (n_c, n_t + 1) float: linear coupling rows C q = c (coefficients, then c): the last
+    # closure rows (Closure.couplings)
 
     @property
     def point_chain(self) -> np.ndarray:
@@ -77,7 +79,8 @@ def pack(model: Model) -> ModelArrays:
             ji[b, L.JI_KEEP] = 1
     # A subtree with a stored frame, or any with point frames (welds, reduced pairs), takes the general sweep.
     closure = model.closure
-    framed = closure is not None and (len(closure.welds) > 0 or len(closure.reduced) > 0)
+    framed = closure is not None and (len(closure.welds) > 0 or len(closure.reduced) > 0
+                                      or len(closure.projected) > 0)
     for s, e in itertools.pairwise(starts):
         serial = parents[s:e] == [-1, *range(s, e - 1)]
         ji[s:e, L.JI_SUBTREE] = int(framed or not serial or ji[s:e, L.JI_KEEP].any())
@@ -85,7 +88,8 @@ def pack(model: Model) -> ModelArrays:
         if closure.reduced and closure.hub >= 0:
             raise ValueError("a closure pair projected on a body's directions with a platform hub")
         reduced = set(closure.reduced_pairs)
-        pairs = np.array([(a, b, 2 if k in reduced else int((a, b) in closure.welds))
+        masks = {k: mask for k, _, mask in closure.projected}
+        pairs = np.array([(a, b, 2 if k in reduced else 3 + masks[k] if k in masks else int((a, b) in closure.welds))
                           for k, (a, b) in enumerate(closure.pairs)], dtype=np.int64)
         cl_axes = np.ascontiguousarray(closure.axes, dtype=float)
         hub = closure.hub
@@ -97,9 +101,15 @@ def pack(model: Model) -> ModelArrays:
     points = np.array([xyz for _, xyz, _ in plist], dtype=float).reshape(-1, 3)
     if framed:  # the frames' orientations ride along with the points
         frames = np.tile(np.eye(3).ravel(), (len(plist), 1))
+        # a projected weld's frames both turned by its projection frame F: E = Ra Rb^T is the same,
+        # and point a's frame columns are the directions of its rows
+        turn = {closure.pairs[k]: np.asarray(F, dtype=float) for k, F, _ in closure.projected}
         welds = zip(closure.welds, closure.weld_rotations, strict=True)
-        given = [(i, np.asarray(R, dtype=float)) for (a, b), (Ra, Rb) in welds for i, R in ((a, Ra), (b, Rb))]
+        given = [(i, np.asarray(R, dtype=float) @ turn.get((a, b), np.eye(3)))
+                 for (a, b), (Ra, Rb) in welds for i, R in ((a, Ra), (b, Rb))]
         given += [(closure.pairs[k][0], np.asarray(R, dtype=float)) for k, R in closure.reduced]
+        given += [(closure.pairs[k][0], np.asarray(F, dtype=float)) for k, F, _ in closure.projected
+                  if closure.pairs[k] not in set(closure.welds)]
         for i, R in given:
             if not np.allclose(frames[i], np.eye(3).ravel()) and not np.allclose(frames[i], R.ravel()):
                 raise ValueError(f"point {plist[i][2]} carries two frames of different orientation")
@@ -112,4 +122,6 @@ def pack(model: Model) -> ModelArrays:
         gravity=np.asarray(model.gravity, dtype=float).copy(),
         closure_pairs=pairs.reshape(-1, 3), closure_axes=cl_axes, hub=int(hub),
         ae_index=model.ae_indices.astype(np.int64), p_index=model.indices(PASSIVE).astype(np.int64),
+        couplings=np.ascontiguousarray(closure.coupling_matrix(model.joint_names))
+        if closure is not None else np.zeros((0, n + 1)),
     )

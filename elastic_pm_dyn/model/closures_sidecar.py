@@ -4,11 +4,13 @@ example-parallel-robots, extended by our own keys where URDF has no words.
 Gepetto's keys::
 
     closed_loop: [[frameA, frameB], ...]   # frames (links) that coincide
-    type: ['3d', ...]                      # '3d' a point; '6d' a weld (not expressible yet)
+    type: ['3d', ...]                      # '3d' a point; '6d' a weld (position and orientation)
     name_mot: [joint, ...]                 # the actuated joints
     joint_name: [joint, ...]               # joints to re-type ...
     joint_type: ['SPHERICAL', ...]         # ... as SPHERICAL (ball), CARDAN (about the joint
-                                           # frame's x, then y) or FIXED
+                                           # frame's x, then y), UJOINT_XY / _YZ / _ZY ... (a
+                                           # universal joint about the two named axes of the
+                                           # joint frame, in that order) or FIXED
 
 As Gepetto's loader reads them: a ``type`` other than 3d/3D is a weld (6d), a
 ``joint_name`` the file does not have is passed over (it re-types only the joints it
@@ -17,9 +19,12 @@ joint whose name contains it (its ActuationModel matches by substring).
 
 Ours (all optional)::
 
-    elastic: {joint: {stiffness: c, damping: d, rest: u0}}   # lumped spring-damper joints
+    elastic: {joint: {stiffness: c, damping: d, rest: u0}}   # lumped spring-damper joints; on a
+                                      # motor (name_mot) a spring in parallel with it
     rotor_inertia: {joint: Jm}        # reflected rotor inertia (armature)
     universal: {joint: [x, y, z]}     # a universal joint: the URDF axis, then this second axis
+    couplings: [{terms: {joint: coefficient, ...}, constant: c}]  # linear couplings: the sum of
+                                      # coefficient times q = c, a closure row (as a URDF <mimic>)
     gravity: [gx, gy, gz]             # default [0, 0, -9.81], as in Pinocchio and Gazebo
     planar: true | false              # default: found from the joint axes
     end_effector: {mass: m}           # a point mass at the first closure's first frame
@@ -34,15 +39,17 @@ from pathlib import Path
 
 import numpy as np
 
-from elastic_pm_dyn.model.kinematic_tree import ClosureSpec, Where
+from elastic_pm_dyn.model.kinematic_tree import ClosureSpec, CouplingSpec, Where
 from elastic_pm_dyn.model.yaml_reader import YamlReader
 from elastic_pm_dyn.model.yaml_source import KeyPath, YamlSource, format_path
 
 SIDECAR_NAME = "robot.yaml"
 _KEYS = {"closed_loop", "type", "name_mot", "joint_name", "joint_type", "elastic", "rotor_inertia", "universal",
-         "gravity", "planar", "end_effector", "branches", "initial_state"}
+         "gravity", "planar", "end_effector", "branches", "initial_state", "couplings"}
 CLOSURE_TYPES = ("3d", "6d")
-JOINT_RETYPES = ("SPHERICAL", "FIXED", "UNIVERSAL", "CARDAN")
+# UJOINT_AB: two revolutes about the joint frame's axes A then B (UJOINT_XY is CARDAN)
+UJOINTS = tuple(f"UJOINT_{a}{b}" for a in "XYZ" for b in "XYZ" if a != b)
+JOINT_RETYPES = ("SPHERICAL", "FIXED", "UNIVERSAL", "CARDAN", *UJOINTS)
 
 
 @dataclass(frozen=True)
@@ -67,6 +74,7 @@ class Sidecar:
     gravity: np.ndarray | None = None
     planar: bool | None = None
     end_effector_mass: float = 0.0
+    couplings: list[CouplingSpec] = field(default_factory=list)
 
     def where(self, path: KeyPath) -> Where:
         return Where(self.src.file, format_path(path), self.src.line(path))
@@ -138,6 +146,13 @@ def read_sidecar(path: str | Path) -> Sidecar:
             if np.linalg.norm(axis) < 1e-12:
                 raise src.error(p, "the second axis must not be zero")
             out.universal[name] = (axis / np.linalg.norm(axis), out.where(p))
+    for i, _ in enumerate(r.sequence(("couplings",)) if r.has(("couplings",)) else []):
+        p = ("couplings", i)
+        r.mapping(p, {"terms", "constant"})
+        terms = tuple((name, r.number(p + ("terms", name))) for name in r.mapping(p + ("terms",)))
+        if not terms or all(c == 0.0 for _, c in terms):
+            raise src.error(p + ("terms",), "a coupling needs a joint with a coefficient other than zero")
+        out.couplings.append(CouplingSpec(terms, r.number(p + ("constant",), default=0.0), out.where(p)))
     if r.has(("gravity",)):
         out.gravity = r.vector(("gravity",), 3)
     if r.has(("planar",)):

@@ -135,6 +135,19 @@ class Closure:
     carrying the pair's point a, whose third column is that direction. Such a pair keeps two
     rows, p_a - p_b along the frame's first two columns as the body turns them, after the
     welds' rows; its three world rows are not among the point rows.
+
+    ``projected`` lists pairs (points or welds; indices into ``pairs``) some of whose rows hold
+    by themselves, with a frame (rows of a 3 x 3 rotation) and a mask: the pair keeps its
+    position rows along the frame's columns i with bit i set and, a weld, its orientation rows
+    along the columns i with bit 3 + i set (a weld closing a loop of parallel hinges keeps the
+    two position rows across them and the turn about them: mask 0b100011). A point pair's
+    frame is given in the frame of the body carrying its point a, a weld's in the weld's frame
+    of point a (``weld_rotations``' R_a). Their rows come after the reduced pairs'.
+
+    ``couplings`` are linear relations between joint coordinates, one row each after all the
+    others: sum of coefficient times q over (joint name, coefficient) = constant (an MJCF
+    ``<joint>`` or fixed-tendon equality with a linear polycoef, a URDF ``<mimic>``). Exact
+    constraint rows like the loops': constant Jacobian rows, no bias acceleration.
     """
 
     pairs: tuple[tuple[int, int], ...]
@@ -146,6 +159,8 @@ class Closure:
     # rows as tuples: closures compare by value (a model read twice is the same model)
     basis: tuple[tuple[float, float, float], ...] = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
     reduced: tuple[tuple[int, tuple[tuple[float, float, float], ...]], ...] = ()
+    couplings: tuple[tuple[tuple[tuple[str, float], ...], float], ...] = ()
+    projected: tuple[tuple[int, tuple[tuple[float, float, float], ...], int], ...] = ()
 
     @property
     def weld_components(self) -> tuple[int, ...]:
@@ -164,21 +179,44 @@ class Closure:
 
     @property
     def size(self) -> int:
-        return (len(self.pairs) - len(self.reduced)) * len(self.components) \
-            + len(self.welds) * len(self.weld_components) + 2 * len(self.reduced)
+        projected = {k for k, _, _ in self.projected}
+        n_welds = sum(1 for w in self.welds if self.pairs.index(w) not in projected)
+        return (len(self.pairs) - len(self.reduced) - len(projected)) * len(self.components) \
+            + n_welds * len(self.weld_components) + 2 * len(self.reduced) \
+            + sum(bin(mask).count("1") for _, _, mask in self.projected) + len(self.couplings)
 
     @property
     def reduced_pairs(self) -> tuple[int, ...]:
         """Indices into ``pairs`` of the pairs that keep two rows in a body's frame."""
         return tuple(k for k, _ in self.reduced)
 
+    @property
+    def projected_pairs(self) -> tuple[int, ...]:
+        """Indices into ``pairs`` of the pairs that keep the masked rows of a frame."""
+        return tuple(k for k, _, _ in self.projected)
+
     def row_pairs(self) -> list[int]:
         """Per closure row, in order, the index into ``pairs`` of the pair it belongs to: the
-        point rows, then the welds' orientation rows, then the reduced pairs' two each."""
-        skip = set(self.reduced_pairs)
+        point rows, then the welds' orientation rows, then the reduced pairs' two each; then
+        each coupling's row as len(pairs) + its index."""
+        skip = set(self.reduced_pairs) | set(self.projected_pairs)
         out = [k for k in range(len(self.pairs)) if k not in skip for _ in self.components]
-        out += [self.pairs.index(w) for w in self.welds for _ in self.weld_components]
+        out += [self.pairs.index(w) for w in self.welds if self.pairs.index(w) not in skip
+                for _ in self.weld_components]
         out += [k for k in self.reduced_pairs for _ in range(2)]
+        out += [k for k, _, mask in self.projected for _ in range(bin(mask).count("1"))]
+        out += [len(self.pairs) + k for k in range(len(self.couplings))]
+        return out
+
+    def coupling_matrix(self, joint_names: list[str]) -> np.ndarray:
+        """(couplings, n + 1): each coupling's coefficients on the joints ``joint_names`` and, last,
+        its constant."""
+        index = {name: k for k, name in enumerate(joint_names)}
+        out = np.zeros((len(self.couplings), len(joint_names) + 1))
+        for r, (terms, constant) in enumerate(self.couplings):
+            out[r, -1] = constant
+            for name, coef in terms:
+                out[r, index[name]] += coef
         return out
 
 
@@ -296,7 +334,7 @@ class Model:
 
     @property
     def end_effector_chain(self) -> int:
-        return self.closure.chains[0] if self.closure is not None else 0
+        return self.closure.chains[0] if self.closure is not None and self.closure.chains else 0
 
     def with_gravity(self, gravity: Sequence[float]) -> Model:
         """The same machine under another gravity vector [m/s^2] (world frame): e.g. a
@@ -316,16 +354,26 @@ class Model:
         return replace(self, chains=chains, name=f"{self.name} (stiffness x {factor:g})")
 
     def locked(self, role: str = ELASTIC) -> Model:
-        """The same machine with every joint of ``role`` frozen at its rest position.
+        """The same machine with every joint of ``role`` frozen at its rest position (at the start
+        pose's value where ``initial.guess`` gives one: a robot file's preloaded spring).
 
         The rigid model of the paper is the elastic one with the elastic DOF locked
         (u = 0, c -> infinity): each locked joint becomes a fixed offset, its body merges
         into its parent's, and the next joint's origin absorbs the offset.
         """
-        chains = tuple(_lock_chain(c, role) for c in self.chains)
-        locked_names = {j.name for c in self.chains for j in c.joints if j.role == role}
-        branches = tuple(b for b in self.branches if b.joint not in locked_names)
-        return replace(self, chains=chains, branches=branches,
+        # at rest, or where the start pose puts them (a robot file's spring preloaded there: its rest
+        # may not even close the loop)
+        rests = {j.name: self.initial.guess.get(j.name, j.rest) for c in self.chains for j in c.joints
+                 if j.role == role}
+        chains = tuple(_lock_chain(c, role, rests) for c in self.chains)
+        branches = tuple(b for b in self.branches if b.joint not in rests)
+        closure = self.closure
+        if closure is not None and closure.couplings:  # a locked joint's term is a constant
+            closure = replace(closure, couplings=tuple(
+                (tuple((n, c) for n, c in terms if n not in rests), const - sum(c * rests[n] for n, c in terms
+                                                                                  if n in rests))
+                for terms, const in closure.couplings))
+        return replace(self, chains=chains, branches=branches, closure=closure,
                        name=f"{self.name} ({role} locked)")
 
 
@@ -369,9 +417,9 @@ def joint_motion(joint: Joint, q: float) -> tuple[np.ndarray, np.ndarray]:
     return np.eye(3) + np.sin(q) * k + (1 - np.cos(q)) * k @ k, np.zeros(3)
 
 
-def _lock_chain(chain: Chain, role: str) -> Chain:
+def _lock_chain(chain: Chain, role: str, at: dict[str, float]) -> Chain:
     if chain.parents or chain.point_bodies or chain.end_body != -1:
-        return _lock_subtree(chain, role)
+        return _lock_subtree(chain, role, at)
     out: list[Joint] = []
     # Transform of the pending fixed offset, from the frame the next kept joint's origin
     # is written in to the frame of the last kept joint's child.
@@ -385,7 +433,7 @@ def _lock_chain(chain: Chain, role: str) -> Chain:
             out.append(replace(j, origin_xyz=p_in, origin_rpy=matrix_to_rpy(R_in)))
             pend_R, pend_p = np.eye(3), np.zeros(3)
             continue
-        Rm, pm = joint_motion(j, j.rest)
+        Rm, pm = joint_motion(j, at[j.name])
         child_R = R_in @ Rm
         child_p = R_in @ pm + p_in
         if j.body is not None:
@@ -402,7 +450,7 @@ def _lock_chain(chain: Chain, role: str) -> Chain:
     return replace(chain, joints=tuple(out), end_xyz=end, points=points)
 
 
-def _lock_subtree(chain: Chain, role: str) -> Chain:
+def _lock_subtree(chain: Chain, role: str, at: dict[str, float]) -> Chain:
     """:func:`_lock_chain` for a subtree: a locked joint's children and points move to the
     body of its nearest kept ancestor, their frames composed with the locked offset."""
     out: list[Joint] = []
@@ -418,7 +466,7 @@ def _lock_subtree(chain: Chain, role: str) -> Chain:
             parents.append(kept)
             carrier.append((len(out) - 1, np.eye(3), np.zeros(3)))
             continue
-        Rm, pm = joint_motion(j, j.rest)
+        Rm, pm = joint_motion(j, at[j.name])
         child_R, child_p = R_in @ Rm, R_in @ pm + p_in
         if j.body is not None and kept >= 0:  # on the base it never moves: no dynamic effect
             moved = j.body.moved(child_R, child_p)

@@ -16,6 +16,7 @@ from dataclasses import replace
 
 import numpy as np
 import scipy.linalg
+import scipy.optimize
 from scipy.spatial.transform import Rotation
 
 from elastic_pm_dyn.model.description import ELASTIC, PASSIVE, Closure, Model
@@ -92,7 +93,7 @@ def closure_terms(model: Model, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
     res, rows = [], []
     S, S_weld = c.axes, c.weld_axes  # in the plane and about its normal if planar
-    reduced = set(c.reduced_pairs)
+    reduced = set(c.reduced_pairs) | set(c.projected_pairs)
     for k, (a, b) in enumerate(c.pairs):
         if k in reduced:
             continue
@@ -100,6 +101,8 @@ def closure_terms(model: Model, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         res.append(S @ (xa - xb))
         rows.append(S @ (Ja - Jb)[:3])
     for (a, b), (Ra, Rb) in zip(c.welds, c.weld_rotations, strict=True):
+        if c.pairs.index((a, b)) in reduced:
+            continue
         (_, Rba, Ja), (_, Rbb, Jb) = point(a), point(b)
         phi = Rotation.from_matrix((Rba @ Ra) @ (Rbb @ Rb).T).as_rotvec()
         res.append(S_weld @ phi)
@@ -110,14 +113,69 @@ def closure_terms(model: Model, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         U = (Rba @ np.asarray(frame, dtype=float))[:, :2].T
         res.append(U @ (xa - xb))
         rows.append(U @ (Ja - Jb)[:3])
+    rotations = dict(zip(c.welds, c.weld_rotations, strict=True))
+    for k, frame, mask in c.projected:  # the masked rows along a's frame (a weld's: its frame R_a F)
+        a, b = c.pairs[k]
+        (xa, Rba, Ja), (xb, Rbb, Jb) = point(a), point(b)
+        F = np.asarray(frame, dtype=float)
+        U = (Rba @ rotations[(a, b)][0] @ F if (a, b) in rotations else Rba @ F).T
+        keep = [i for i in range(3) if mask & (1 << i)]
+        res.append(U[keep] @ (xa - xb))
+        rows.append(U[keep] @ (Ja - Jb)[:3])
+        turn = [i for i in range(3) if mask & (8 << i)]
+        if turn:
+            Ra, Rb = rotations[(a, b)]
+            phi = Rotation.from_matrix((Rba @ Ra) @ (Rbb @ Rb).T).as_rotvec()
+            res.append(U[turn] @ phi)
+            rows.append(U[turn] @ (Ja - Jb)[3:])
+    if c.couplings:  # linear rows: C q = constant
+        C = c.coupling_matrix(model.joint_names)
+        res.append(C[:, :-1] @ q - C[:, -1])
+        rows.append(C[:, :-1])
+    if not rows:
+        return np.zeros(0), np.zeros((0, n))
     return np.concatenate(res), np.vstack(rows)
 
 
 def _assembled(model: Model, free: list[int], start: np.ndarray | None = None) -> np.ndarray | None:
-    """Tree coordinates closing the loops, moving ``free`` from ``start`` (default: the zero
-    pose; least-squares Newton: there are more free joints than equations); None if that fails."""
+    """Tree coordinates closing the loops, moving ``free`` from ``start`` (default: the file's
+    start pose); None if that fails. Least-squares Newton (there may be more free joints than
+    equations), and where it stalls a trust-region least-squares solve from the same start
+    before Newton again: a zero pose with rods folded far from closing (Gepetto's legs)."""
     q = np.array([model.initial.guess.get(j.name, j.rest) for j in model.joints], dtype=float) \
         if start is None else np.array(start, dtype=float)
+    closed = _newton(model, free, q)
+    if closed is not None or not free:
+        return closed
+    x0 = q[free]
+
+    def fun(x: np.ndarray) -> np.ndarray:
+        trial = q.copy()
+        trial[free] = x
+        return closure_terms(model, trial)[0]
+
+    def jac(x: np.ndarray) -> np.ndarray:
+        trial = q.copy()
+        trial[free] = x
+        return closure_terms(model, trial)[1][:, free]
+
+    with np.errstate(all="ignore"):
+        sol = scipy.optimize.least_squares(fun, x0, jac=jac, method="trf", xtol=1e-15, ftol=1e-15, gtol=1e-15,
+                                           max_nfev=100 * len(free))
+    if not np.all(np.isfinite(sol.x)):
+        return None
+    q = q.copy()
+    q[free] = sol.x
+    return _newton(model, free, q)
+
+
+def closes_from_start(model: Model, free: list[int]) -> np.ndarray | None:
+    """A closed pose reached from the file's start pose moving ``free``, None if none is found."""
+    return _assembled(model, free)
+
+
+def _newton(model: Model, free: list[int], q: np.ndarray) -> np.ndarray | None:
+    """Least-squares Newton with backtracking from q; None where it stalls."""
     r, J = closure_terms(model, q)
     for _ in range(100):
         norm = float(np.linalg.norm(r))
@@ -203,7 +261,7 @@ def _pair_rows(model: Model, q: np.ndarray) -> tuple[np.ndarray, list[np.ndarray
     one forward kinematics for all."""
     c = model.closure
     probe = replace(model, closure=replace(c, components=(0, 1, 2), welds=(), weld_rotations=(), reduced=(),
-                                           basis=Closure.basis))
+                                           basis=Closure.basis, couplings=()))
     _, J = closure_terms(probe, q)
     R_body = _forward(model, q)[2]
     bodies = model.point_bodies()
@@ -260,8 +318,8 @@ def drop_still_rows(model: Model) -> tuple[Model, bool]:
         return model, False
     if _full_rank(closure_terms(model, q)[1][:, passive]):
         return model, True  # a row that holds by itself would be a zero row
-    if tuple(c.components) != (0, 1, 2):
-        return model, False  # planar: the rows along the normal are gone already
+    if tuple(c.components) != (0, 1, 2) or not c.pairs:
+        return model, False  # planar: the rows along the normal are gone already; or couplings alone
     welded = set(c.welds)
     found: list[tuple[int, np.ndarray]] = []
     rows, R = _pair_rows(model, q)
@@ -284,10 +342,91 @@ def drop_still_rows(model: Model) -> tuple[Model, bool]:
         confirmed += 1
         if confirmed == 2:
             break
-    if not found or not confirmed:
+    welds = _still_weld_rows(model, q, passive)
+    if (not found and not welds) or (not confirmed and found):
         return model, False
-    reduced = tuple((k, tuple(tuple(float(x) for x in row) for row in _across(n))) for k, n in found)
-    return replace(model, closure=replace(c, reduced=reduced)), False
+    reduced = tuple((k, _rows(_across(n))) for k, n in found)
+    projected = tuple((k, _rows(F), mask) for k, F, mask in welds)
+    return replace(model, closure=replace(c, reduced=reduced, projected=projected)), False
+
+
+def _rows(F: np.ndarray) -> tuple[tuple[float, float, float], ...]:
+    return tuple(tuple(float(x) for x in row) for row in F)
+
+
+def _weld_blocks(model: Model, q: np.ndarray) -> list[tuple[int, np.ndarray, np.ndarray, np.ndarray]]:
+    """Per weld: (pair index, its three position rows and three orientation rows in all joints,
+    expressed in the weld frame of its point a, and that frame's world orientation)."""
+    c = model.closure
+    p_joint, axes, R_body, p_body = _forward(model, q)
+    points = model.point_list()
+    bodies = model.point_bodies()
+
+    def point(i: int) -> tuple[np.ndarray, np.ndarray]:
+        b = bodies[i]
+        if b < 0:
+            return np.eye(3), np.zeros((6, len(axes)))
+        x = p_body[b] + R_body[b] @ np.asarray(points[i][1], dtype=float)
+        return R_body[b], _velocity_rows(model, p_joint, axes, x, b)
+
+    out = []
+    for (a, b), (Ra, _) in zip(c.welds, c.weld_rotations, strict=True):
+        (R_a, Ja), (_, Jb) = point(a), point(b)
+        W = R_a @ np.asarray(Ra, dtype=float)
+        D = Ja - Jb
+        out.append((c.pairs.index((a, b)), W.T @ D[:3], W.T @ D[3:], W))
+    return out
+
+
+def _still_weld_rows(model: Model, q: np.ndarray, passive: list[int]) -> list[tuple[int, np.ndarray, int]]:
+    """Welds some of whose rows hold by themselves, each as (pair index, frame F in its weld
+    frame, mask of the rows kept: bit i position along F's column i, bit 3 + i the turn about
+    it). A weld closing a loop of hinges parallel to n (Gepetto's legs: a knee four-bar closed
+    by a 6-D weld) never parts along n nor turns about the two directions across it: those
+    three rows hold by themselves, and the loop's two position rows across n and its turn
+    about n are kept, in the weld's frame as the body turns it. Found by each block's singular
+    values at q, confirmed at two poses the other joints reach from it."""
+    found = []
+    for k, P, Om, _ in _weld_blocks(model, q):
+        scale = max(np.linalg.norm(P, 2), np.linalg.norm(Om, 2), 1e-300)
+        up, sp, _ = np.linalg.svd(P)
+        uo, so, _ = np.linalg.svd(Om)
+        zp = [up[:, i] for i in range(3) if sp[i] <= RANK_TOL * scale]
+        zo = [uo[:, i] for i in range(3) if so[i] <= RANK_TOL * scale]
+        if not zp and not zo:
+            continue
+        if len(zp) > 1 or len(zo) == 3:
+            continue  # no simple split: the rank check refuses it, if it repeats
+        # the one direction both splits agree on: n, along which position holds (zp) and about
+        # which alone the weld turns (zo of two) or does not turn (zo of one)
+        n = zp[0] if zp else (uo[:, 0] if len(zo) == 2 else zo[0])
+        if len(zo) == 2 and abs(abs(n @ uo[:, 0]) - 1.0) > 1e-9:
+            continue
+        if len(zo) == 1 and abs(abs(n @ zo[0]) - 1.0) > 1e-9:
+            continue
+        n = np.where(np.abs(n) < SNAP, 0.0, n)
+        n = n / np.linalg.norm(n)
+        pos = 0b011 if zp else 0b111
+        turn = {0: 0b111, 1: 0b011, 2: 0b100}[len(zo)]
+        found.append((k, _across(n), pos | turn << 3))
+    if not found:
+        return []
+    confirmed = 0
+    for moved in _nearby_poses(model, q, passive, 4):
+        blocks = {k: (P, Om) for k, P, Om, _ in _weld_blocks(model, moved)}
+        keep = []
+        for k, F, mask in found:
+            P, Om = blocks[k]
+            scale = max(np.linalg.norm(P, 2), np.linalg.norm(Om, 2), 1e-300)
+            dropped = [F[:, i] @ P for i in range(3) if not mask & (1 << i)] + \
+                [F[:, i] @ Om for i in range(3) if not mask & (8 << i)]
+            if all(np.abs(row).max() <= RANK_TOL * scale for row in dropped):
+                keep.append((k, F, mask))
+        found = keep
+        confirmed += 1
+        if confirmed == 2:
+            break
+    return found if confirmed else []
 
 
 def repeated_rows(model: Model) -> tuple[list[int], int] | None:

@@ -15,6 +15,7 @@ import warnings
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+import scipy.linalg
 
 from elastic_pm_dyn.model.closures_sidecar import Sidecar
 from elastic_pm_dyn.model.description import (
@@ -30,7 +31,7 @@ from elastic_pm_dyn.model.description import (
     Model,
     matrix_to_rpy,
 )
-from elastic_pm_dyn.model.free_motions import drop_still_rows, free_passive_motions, repeated_rows
+from elastic_pm_dyn.model.free_motions import closes_from_start, drop_still_rows, free_passive_motions, repeated_rows
 from elastic_pm_dyn.model.kinematic_tree import (
     BALL,
     CARDAN,
@@ -38,6 +39,7 @@ from elastic_pm_dyn.model.kinematic_tree import (
     PRISMATIC,
     REVOLUTE,
     UNIVERSAL,
+    CouplingSpec,
     KinematicTree,
     TreeJoint,
     Where,
@@ -75,6 +77,9 @@ def build_model(tree: KinematicTree, sidecar: Sidecar | None = None) -> Model:
                          else tree.gravity if tree.gravity is not None else DEFAULT_GRAVITY, dtype=float)
     planar, basis = _planar(tree, legs, closures, sidecar)
     chains, closure, fixed = _closure(tree, legs, frames, closures, planar, basis)
+    couplings = list(tree.couplings) + (sidecar.couplings if sidecar else [])
+    closure = _with_couplings(couplings, joints, chains, closure, planar, basis)
+    closures = closures + couplings  # in the closure's row order: loops, then couplings
     ee_mass = sidecar.end_effector_mass if sidecar is not None else 0.0
     if ee_mass > 0:
         chains = _lump_end_effector(chains, ee_mass, closure)
@@ -92,9 +97,74 @@ def build_model(tree: KinematicTree, sidecar: Sidecar | None = None) -> Model:
     model, independent = drop_still_rows(model)
     model = free_passive_motions(model)  # after: a still row would hide a free spin from the rank
     _check_counts(tree, model, sidecar, closures)
+    _check_tendon_motors(tree, model)
     if not independent:  # found independent at the assembled pose: freeing joints keeps them so
         _check_repeated(model, closures)
     return model
+
+
+def _with_couplings(couplings: list[CouplingSpec], joints: list[TreeJoint], chains: list[Chain],
+                    closure: Closure | None, planar: bool, basis: np.ndarray) -> Closure | None:
+    """The closure with the file's linear couplings as its last rows (a closure of them alone
+    where the file has no loop)."""
+    if not couplings:
+        return closure
+    names = {j.name for c in chains for j in c.joints}
+    kinds = {j.name: j.type for j in joints}
+    for spec in couplings:
+        for name, _ in spec.terms:
+            if name not in names:
+                what = "fixed" if kinds.get(name) == FIXED else kinds.get(name, "not in the file")
+                raise spec.where.error(f"a coupling of joint {name!r} ({what}): only revolute and prismatic "
+                                       "joints can be coupled")
+    rows = tuple((spec.terms, spec.constant) for spec in couplings)
+    if closure is None:
+        return Closure(pairs=(), components=(0, 1) if planar else (0, 1, 2), chains=(), couplings=rows,
+                       basis=tuple(tuple(float(x) for x in row) for row in basis))
+    return replace(closure, couplings=rows)
+
+
+def _check_tendon_motors(tree: KinematicTree, model: Model) -> None:
+    """A motor on a fixed tendon is exact as a motor on its first joint when the tendon's other
+    joints follow that one through the couplings alone: the tendon force f then does the work
+    of a torque k f on it, k = sum of coefficient times d q_i / d q_first. Said as a warning
+    (the motor's input is that torque); a tendon over joints no coupling ties is one motor for
+    several degrees of freedom, refused."""
+    for tm in tree.tendon_motors:
+        c = model.closure
+        names = model.joint_names
+        a = names.index(tm.joint)
+        C = c.coupling_matrix(names)[:, :-1] if c is not None and c.couplings else np.zeros((0, len(names)))
+        passive = [i for i, j in enumerate(model.joints) if j.role == PASSIVE and np.any(C[:, i] != 0.0)]
+        others = [i for i, j in enumerate(model.joints) if j.role != PASSIVE and i != a]
+        # d q_passive / d q_independent through the couplings; a passive joint the couplings do not
+        # fix alone (a loop's too, or free) has no constant rate
+        rate = {a: np.eye(len(names))[a]}
+        if passive:
+            Cp = C[:, passive]
+            X = np.linalg.lstsq(Cp, -C, rcond=None)[0]  # (passive, all joints): rates if determined
+            null = scipy.linalg.null_space(Cp)
+            for row, i in enumerate(passive):
+                if not null.shape[1] or np.abs(null[row]).max() < 1e-12:
+                    rate[i] = X[row]
+        loose = [name for name, _ in tm.terms if names.index(name) not in rate]
+        if loose:
+            raise tm.where.error(f"not supported yet: the actuator's tendon runs over joints {', '.join(loose)} that "
+                                 f"no <joint>/<tendon> equality ties to {tm.joint!r}: one motor for several degrees "
+                                 "of freedom (under-actuated)")
+        work = sum(coef * rate[names.index(name)] for name, coef in tm.terms)  # generalised force per unit f
+        side = [names[e] for e in others if abs(work[e]) > 1e-12]
+        if side:
+            raise tm.where.error(f"not supported yet: the actuator's tendon also drives {', '.join(side)} through the "
+                                 f"couplings, not {tm.joint!r} alone")
+        k = float(work[a])
+        if abs(k) < 1e-12:
+            raise tm.where.error(f"the actuator's tendon does not move as {tm.joint!r} moves (its coefficients cancel "
+                                 "through the couplings): the motor does no work")
+        w = tm.where
+        warnings.warn(f"{w.file}:{w.line}: {w.element}: a motor on a fixed tendon is a motor on joint {tm.joint!r}, "
+                      f"its input the torque {k:.6g} times the tendon's force (exact: the other joints follow "
+                      "through the couplings)", stacklevel=3)
 
 
 def _check_repeated(model: Model, closures: list) -> None:
@@ -112,7 +182,7 @@ def _check_repeated(model: Model, closures: list) -> None:
 
 # ------------------------------------------------------------------------ joints
 def _retyped(tree: KinematicTree, sidecar: Sidecar | None) -> list[TreeJoint]:
-    """The tree's joints with the sidecar's re-typing (SPHERICAL, CARDAN, FIXED, UNIVERSAL) applied."""
+    """The tree's joints with the sidecar's re-typing (SPHERICAL, CARDAN, UJOINT_AB, FIXED, UNIVERSAL) applied."""
     if sidecar is None:
         return list(tree.joints)
     by_name = {j.name: j for j in tree.joints}
@@ -132,8 +202,10 @@ def _retyped(tree: KinematicTree, sidecar: Sidecar | None) -> list[TreeJoint]:
             j = replace(j, type=BALL)
         elif kind == "FIXED":
             j = replace(j, type=FIXED)
-        elif kind == "CARDAN":
-            j = replace(j, type=CARDAN, axis=np.array([1.0, 0.0, 0.0]), axis2=np.array([0.0, 1.0, 0.0]))
+        elif kind is not None and (kind == "CARDAN" or kind.startswith("UJOINT_")):
+            a, b = ("X", "Y") if kind == "CARDAN" else kind[-2:]  # CARDAN is UJOINT_XY
+            unit = {"X": np.array([1.0, 0.0, 0.0]), "Y": np.array([0.0, 1.0, 0.0]), "Z": np.array([0.0, 0.0, 1.0])}
+            j = replace(j, type=CARDAN, axis=unit[a], axis2=unit[b])
         elif kind == "UNIVERSAL":
             if j.name not in sidecar.universal:
                 raise sidecar.retype[j.name][1].error(f"UNIVERSAL joint {j.name!r} needs its second axis "
@@ -150,11 +222,7 @@ def _roles(tree: KinematicTree, joints: list[TreeJoint], sidecar: Sidecar | None
     motors = {j.name for j in joints if j.actuated}
     elastic = {j.name: (j.stiffness, j.damping, j.rest) for j in joints if j.stiffness > 0}
     rotor = {j.name: j.armature for j in joints if j.armature > 0}
-    if sidecar is None:
-        both = motors & set(elastic)
-        if both:
-            name = sorted(both)[0]
-            raise by_name[name].where.error("a joint with a spring cannot also be driven by a motor")
+    if sidecar is None:  # a motor on a sprung joint: the spring acts in parallel (MJCF stiffness)
         return motors, elastic, rotor
 
     def single_dof(name: str, where: Where, what: str) -> TreeJoint:
@@ -171,9 +239,7 @@ def _roles(tree: KinematicTree, joints: list[TreeJoint], sidecar: Sidecar | None
             single_dof(match, where, "a motor")
             motors.add(match)
     for name, spec in sidecar.elastic.items():
-        j = single_dof(name, spec.where, "elastic")
-        if name in motors:
-            raise spec.where.error(f"joint {name!r} is a motor (name_mot) and elastic at once")
+        j = single_dof(name, spec.where, "elastic")  # on a motor: a spring in parallel with it
         elastic[name] = (spec.stiffness, j.damping if spec.damping is None else spec.damping, spec.rest)
     for name, (value, where) in sidecar.rotor_inertia.items():
         single_dof(name, where, "given a rotor inertia")
@@ -188,6 +254,11 @@ def _expand(j: TreeJoint, R: np.ndarray, p: np.ndarray, motors: set[str],
     if j.type in (REVOLUTE, PRISMATIC):
         role = ACTIVE if j.name in motors else ELASTIC if j.name in elastic else PASSIVE
         c, d, rest = elastic.get(j.name, (0.0, 0.0, 0.0))
+        if role == ACTIVE and j.name in elastic:
+            # a driven joint with a parallel spring (MJCF stiffness on a motor's joint): the motor's
+            # coordinate carries the spring, its damper as the joint's viscous friction
+            return [Joint(name=j.name, type=j.type, role=role, axis=j.axis, origin_xyz=p, origin_rpy=rpy,
+                          stiffness=c, rest=rest, friction=d, rotor_inertia=rotor.get(j.name, 0.0))]
         return [Joint(name=j.name, type=j.type, role=role, axis=j.axis, origin_xyz=p, origin_rpy=rpy,
                       stiffness=c, damping=d, rest=rest, friction=0.0 if role == ELASTIC else j.damping,
                       rotor_inertia=rotor.get(j.name, 0.0))]
@@ -200,8 +271,8 @@ def _expand(j: TreeJoint, R: np.ndarray, p: np.ndarray, motors: set[str],
             warnings.warn(f"{w.file}:{w.line}: joint {j.name!r}: a ball's damping acts here on each of its three "
                           "angles' rates, not on its angular velocity as in MuJoCo (the two differ as the ball turns "
                           "away from its reference: 5e-7 rad over 0.2 s on Cassie's achilles rods)", stacklevel=2)
-    elif j.type == CARDAN:
-        axes = [("X", j.axis), ("Y", j.axis2)]  # the names Gepetto's loader gives them
+    elif j.type == CARDAN:  # the names Gepetto's loader gives them: <joint>_X, <joint>_Y for CARDAN
+        axes = [("XYZ"[int(np.argmax(a))], a) for a in (j.axis, j.axis2)]
     else:
         axes = [("1", j.axis), ("2", j.axis2)]
     out = []
@@ -425,7 +496,7 @@ def _lump_end_effector(chains: list[Chain], mass: float, closure: Closure | None
     plist = [(ci, c.end_xyz, c.end_and_point_bodies()[0]) for ci, c in enumerate(chains)]
     for ci, c in enumerate(chains):
         plist.extend((ci, xyz, b) for (_, xyz), b in zip(c.points, c.end_and_point_bodies()[1:], strict=True))
-    if closure is None:
+    if closure is None or not closure.pairs:  # no loop (couplings alone): the first chain's end
         owners = [plist[0]]
     else:
         first = closure.pairs[0][0]
@@ -455,6 +526,11 @@ def _check_counts(tree: KinematicTree, model: Model, sidecar: Sidecar | None, cl
         passive = [j.name for j in model.joints if j.role == PASSIVE]
         where = Where(sidecar.src.file, "closed_loop", sidecar.src.line(("closed_loop",))) if sidecar is not None \
             else closures[0].where if closures else Where(tree.file, "equality")
+        # rows that hold by themselves and free spins are found at a closed pose: none found, say so
+        idx = [i for i, j in enumerate(model.joints) if j.role == PASSIVE]
+        unclosed = m > 0 and idx and closes_from_start(model, idx) is None
+        hint = "; no closed pose was found from the file's start pose (motors where it puts them), so rows that " \
+            "hold by themselves and free spins could not be looked for: give initial_state.guess" if unclosed else ""
         raise where.error(f"the closures give {m} equations but the legs have {n_passive} passive joints "
                           f"({', '.join(passive[:8])}{', ...' if len(passive) > 8 else ''}): every joint that is "
-                          "neither a motor nor elastic must be fixed by the closures")
+                          f"neither a motor nor elastic must be fixed by the closures{hint}")

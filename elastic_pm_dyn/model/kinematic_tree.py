@@ -20,7 +20,9 @@ REVOLUTE = "revolute"  # continuous joints too: limits do not enter the dynamics
 PRISMATIC = "prismatic"
 BALL = "ball"  # three revolutes about the joint frame's x, y, z
 UNIVERSAL = "universal"  # two revolutes: axis, then axis2
-CARDAN = "cardan"  # two revolutes about the joint frame's x, then y (Gepetto's CARDAN: <joint>_X, _Y)
+# two revolutes about two axes of the joint frame: x then y for Gepetto's CARDAN (<joint>_X, _Y),
+# any two for its UJOINT_XY, _YZ, _ZY ... (<joint>_Y, _Z ...)
+CARDAN = "cardan"
 
 
 @dataclass(frozen=True)
@@ -77,6 +79,27 @@ class ClosureSpec:
     turn_a: np.ndarray | None = None
 
 
+@dataclass(frozen=True)
+class CouplingSpec:
+    """A linear relation between joint coordinates: the sum of coefficient times q over
+    ``terms`` ((joint name, coefficient), ...) equals ``constant`` (an MJCF joint or fixed-tendon
+    equality with a linear polycoef, a URDF mimic joint)."""
+
+    terms: tuple[tuple[str, float], ...]
+    constant: float
+    where: Where
+
+
+@dataclass(frozen=True)
+class TendonMotor:
+    """A motor on a fixed tendon (MJCF): its force f acts on each joint of ``terms`` as
+    coefficient times f; it becomes a motor on ``joint`` (the tendon's first)."""
+
+    joint: str
+    terms: tuple[tuple[str, float], ...]
+    where: Where
+
+
 @dataclass
 class KinematicTree:
     name: str
@@ -86,3 +109,5 @@ class KinematicTree:
     closures: list[ClosureSpec] = field(default_factory=list)  # from the file itself (MJCF)
     gravity: np.ndarray | None = None  # the file's, where it has one (MJCF)
     start: dict[str, float] = field(default_factory=dict)  # a start pose in the file (MJCF keyframe)
+    couplings: list[CouplingSpec] = field(default_factory=list)  # linear joint couplings (closure rows)
+    tendon_motors: list[TendonMotor] = field(default_factory=list)  # motors on fixed tendons (MJCF)

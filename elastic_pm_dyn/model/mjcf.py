@@ -8,11 +8,15 @@ package runs without it). The XML is read once more, with lines, to name element
 
 Mapping: hinge/slide/ball joints -> revolute/prismatic/three revolutes (several joints in
 one body -> a path of joints: a universal joint is two hinges); a body without joints is
-welded to its parent; joint ``stiffness``/``springref``/``damping`` -> an elastic joint,
-``damping`` alone -> viscous friction, ``armature`` -> rotor inertia; a joint driven by a
-``<motor>`` -> active; ``<connect>`` -> a point closure, ``<weld>`` -> a 6d closure; sites
-are frames; the first keyframe's joint positions guide the assembly. A joint ``ref`` keeps
-MuJoCo's coordinate (the joint angle is ``qpos``: the body is written at ``qpos = ref``).
+welded to its parent; joint ``stiffness``/``springref``/``damping`` -> an elastic joint
+(on a motor's joint: a spring in parallel with the motor), ``damping`` alone -> viscous
+friction, ``armature`` -> rotor inertia; a joint driven by a ``<motor>`` -> active, a
+``<motor>`` on a fixed tendon -> a motor on the tendon's first joint (exact where the
+equalities tie the others to it); ``<connect>`` -> a point closure, ``<weld>`` -> a 6d
+closure, ``<joint>``/``<tendon>`` equalities with a linear polycoef -> linear coupling rows;
+sites are frames. The start pose is the first keyframe, else qpos0 (a spring whose
+springref lies elsewhere starts preloaded, as in MuJoCo). A joint ``ref`` keeps MuJoCo's
+coordinate (the joint angle is ``qpos``: the body is written at ``qpos = ref``).
 
 A free joint (a floating base) is refused, unless ``fix_base``: then each body carried by
 a free joint is welded to the world at the pose the file writes it at (the free joint's
@@ -37,7 +41,9 @@ from elastic_pm_dyn.model.kinematic_tree import (
     PRISMATIC,
     REVOLUTE,
     ClosureSpec,
+    CouplingSpec,
     KinematicTree,
+    TendonMotor,
     TreeJoint,
     TreeLink,
     Where,
@@ -45,6 +51,9 @@ from elastic_pm_dyn.model.kinematic_tree import (
 from elastic_pm_dyn.model.xml_source import XmlSource
 
 _EQ_KINDS = {0: "3d", 1: "6d"}  # mjEQ_CONNECT, mjEQ_WELD
+EQ_JOINT, EQ_TENDON = 2, 3  # mjEQ_JOINT, mjEQ_TENDON: linear couplings where the polycoef is
+TRN_JOINT, TRN_JOINTINPARENT, TRN_TENDON = 0, 1, 3  # mjTRN_*: on a hinge or slide the first two are one
+WRAP_JOINT = 1  # mjWRAP_JOINT: a fixed tendon's terms
 
 
 def read_mjcf(path: str | Path, fix_base: bool = False, servos_as_motors: bool = False) -> KinematicTree:
@@ -181,13 +190,23 @@ class _Tree:
         self.body_names = [mujoco.mj_id2name(m, obj.mjOBJ_BODY, i) or f"body{i}" for i in range(m.nbody)]
         self.joint_names = [mujoco.mj_id2name(m, obj.mjOBJ_JOINT, i) or f"joint{i}" for i in range(m.njnt)]
         self.site_names = [mujoco.mj_id2name(m, obj.mjOBJ_SITE, i) or f"site{i}" for i in range(m.nsite)]
+        self.tendon_names = [mujoco.mj_id2name(m, obj.mjOBJ_TENDON, i) or f"tendon{i}" for i in range(m.ntendon)]
         self.obj = obj
+        self.tendon_motors: list[TendonMotor] = []
+        self.couplings: list[CouplingSpec] = []
 
     def where(self, tag: str, name: str) -> Where:
         return Where(self.file, f"{tag} {name!r}", self.lines.get((tag, name)))
 
     def build(self, name: str) -> KinematicTree:
         m = self.m
+        for t in range(m.ntendon):  # a tendon's own spring, damper or armature would be left out silently
+            if m.tendon_stiffness[t] != 0 or m.tendon_damping[t] != 0 or m.tendon_armature[t] != 0:
+                where = self.where("fixed", self.tendon_names[t])
+                if where.line is None:
+                    where = self.where("spatial", self.tendon_names[t])
+                raise where.error("not supported yet: a tendon with stiffness, damping or armature (give them to "
+                                  "its joints)")
         motors = self._motors()
         world = self.body_names[0]
         links: dict[str, TreeLink] = {world: TreeLink(world, None, Where(self.file, "worldbody"))}
@@ -224,13 +243,29 @@ class _Tree:
             joints.append(TreeJoint(f"{sname}_site", FIXED, self.body_names[b], sname,
                                     _quat_matrix(self.mj, m.site_quat[s]), m.site_pos[s] - shift[b],
                                     np.array([0.0, 0.0, 1.0]), self.where("site", sname)))
-        start = {}
-        if m.nkey:
-            for j in range(m.njnt):
-                if m.jnt_type[j] in (2, 3):
-                    start[self.joint_names[j]] = float(m.key_qpos[0, m.jnt_qposadr[j]])
+        # The start pose the file means: its first keyframe, else qpos0 (where MuJoCo starts). A
+        # spring whose springref lies elsewhere starts there preloaded, as in MuJoCo.
+        qpos = m.key_qpos[0] if m.nkey else m.qpos0
+        start = {self.joint_names[j]: float(qpos[m.jnt_qposadr[j]]) for j in range(m.njnt) if m.jnt_type[j] in (2, 3)}
         return KinematicTree(name=name, file=self.file, links=links, joints=joints,
-            closures=self._closures(shift), gravity=np.array(m.opt.gravity, dtype=float), start=start)
+            closures=self._closures(shift), gravity=np.array(m.opt.gravity, dtype=float), start=start,
+            couplings=self.couplings, tendon_motors=self.tendon_motors)
+
+    def _tendon_terms(self, t: int, where: Where) -> tuple[tuple[str, float], ...]:
+        """A fixed tendon's (joint name, coefficient) terms: its length is their sum times q."""
+        m = self.m
+        start, count = int(m.tendon_adr[t]), int(m.tendon_num[t])
+        terms = []
+        for w in range(start, start + count):
+            if int(m.wrap_type[w]) != WRAP_JOINT:
+                raise where.error(f"not supported yet: tendon {self.tendon_names[t]!r} is spatial (it wraps sites "
+                                  "or geoms); only a fixed tendon (joints and coefficients) is a linear coupling")
+            j = int(m.wrap_objid[w])
+            if int(m.jnt_type[j]) not in (2, 3):
+                raise where.error(f"not supported yet: tendon {self.tendon_names[t]!r} runs over a ball joint "
+                                  f"({self.joint_names[j]!r})")
+            terms.append((self.joint_names[j], float(m.wrap_prm[w])))
+        return tuple(terms)
 
     def _body(self, b: int, shift: np.ndarray) -> Body | None:
         m = self.m
@@ -282,17 +317,61 @@ class _Tree:
             tags = ("motor", "general", "position", "velocity", "intvelocity", "damper", "cylinder", "muscle")
             where = Where(self.file, f"actuator {name!r}",
                           next((self.lines[(t, name)] for t in tags if (t, name) in self.lines), None))
-            if m.actuator_trntype[a] != 0:
-                raise where.error("not supported yet: an actuator on a tendon, site or body (only joints)")
+            if m.actuator_trntype[a] not in (TRN_JOINT, TRN_JOINTINPARENT, TRN_TENDON):
+                raise where.error("not supported yet: an actuator on a site, body or slider-crank (only joints and "
+                                  "fixed tendons)")
             if not self.servos_as_motors and (m.actuator_biastype[a] != 0 or m.actuator_gaintype[a] != 0):
-                raise where.error("not supported yet: an actuator other than a <motor> on a joint (a servo); "
+                raise where.error("not supported yet: an actuator other than a <motor> (a servo); "
                                   "servos_as_motors=True (check/simulate --servos-as-motors) takes its joint for "
                                   "a motor's, the servo law left out")
-            j = int(m.actuator_trnid[a, 0])
-            if j in out:
-                raise where.error(f"joint {self.joint_names[j]!r} has two motors")
+            if m.actuator_trntype[a] == TRN_TENDON:
+                # a motor on a fixed tendon: on the tendon's first joint, the others coupled to it
+                terms = self._tendon_terms(int(m.actuator_trnid[a, 0]), where)
+                if not terms:
+                    raise where.error("the actuator's tendon has no joint")
+                self.tendon_motors.append(TendonMotor(terms[0][0], terms, where))
+                j = self.joint_names.index(terms[0][0])
+            else:
+                j = int(m.actuator_trnid[a, 0])
+            # several actuators on one joint (a servo's position and velocity parts) drive it as
+            # one motor: its input is their torques' sum
             out.add(j)
         return out
+
+    def _coupling(self, e: int, kind: int, where: Where) -> CouplingSpec:
+        """A <joint> or <tendon> equality: x1 - x1_0 = p0 + p1 (x2 - x2_0) (x_0 at qpos0; no x2: x1 fixed
+        at x1_0 + p0), exact as a linear closure row where the polycoef's higher terms are zero."""
+        m = self.m
+        poly = np.asarray(m.eq_data[e][:5], dtype=float)
+        if np.any(poly[2:] != 0.0):
+            raise where.error(f"not supported yet: a polycoef with terms beyond the linear one ({poly.tolist()}): "
+                              "only linear couplings are closure rows")
+        a, b = int(m.eq_obj1id[e]), int(m.eq_obj2id[e])
+        if kind == EQ_JOINT:
+            for j in (a, b):
+                if j >= 0 and int(m.jnt_type[j]) not in (2, 3):
+                    raise where.error(f"not supported yet: a joint equality on a ball or free joint "
+                                      f"({self.joint_names[j]!r})")
+
+            def side(j: int) -> tuple[tuple[tuple[str, float], ...], float]:
+                return ((self.joint_names[j], 1.0),), float(m.qpos0[m.jnt_qposadr[j]])
+        else:
+            def side(t: int) -> tuple[tuple[tuple[str, float], ...], float]:
+                return self._tendon_terms(t, where), float(m.tendon_length0[t])
+        terms1, ref1 = side(a)
+        terms = list(terms1)
+        constant = ref1 + poly[0]
+        if b >= 0:
+            terms2, ref2 = side(b)
+            terms += [(name, float(-poly[1] * c)) for name, c in terms2]
+            constant -= poly[1] * ref2
+        merged: dict[str, float] = {}
+        for name, c in terms:
+            merged[name] = merged.get(name, 0.0) + c
+        terms = [(name, c) for name, c in merged.items() if c != 0.0]
+        if not terms:
+            raise where.error("the equality's terms cancel: it constrains nothing")
+        return CouplingSpec(tuple(terms), float(constant), where)
 
     def _closures(self, shift: np.ndarray) -> list[ClosureSpec]:
         m = self.m
@@ -300,17 +379,24 @@ class _Tree:
         for e in range(m.neq):
             name = self.mj.mj_id2name(m, self.obj.mjOBJ_EQUALITY, e)
             kind = int(m.eq_type[e])
-            tag = {0: "connect", 1: "weld"}.get(kind, "equality")
+            tag = {0: "connect", 1: "weld", EQ_JOINT: "joint equality", EQ_TENDON: "tendon equality"}.get(
+                kind, "equality")
             a, b = int(m.eq_obj1id[e]), int(m.eq_obj2id[e])
-            names = self.site_names if m.eq_objtype[e] == self.obj.mjOBJ_SITE else self.body_names
-            # an unnamed one by what it joins, and its line by its place in the file
-            where = Where(self.file, f"{tag} {name!r}", self.lines.get((tag, name))) if name else \
-                Where(self.file, f"{tag} {names[a]}-{names[b]}", self.lines.get(("equality #", str(e))))
+            names = self.site_names if m.eq_objtype[e] == self.obj.mjOBJ_SITE else \
+                self.joint_names if kind == EQ_JOINT else self.tendon_names if kind == EQ_TENDON else self.body_names
+            # an unnamed one by what it joins, and its line by its place in the file (MuJoCo numbers
+            # the equalities in file order)
+            line = self.lines.get(("equality #", str(e)))
+            joined = names[a] + (f"-{names[b]}" if b >= 0 else "")
+            where = Where(self.file, f"{tag} {name!r}" if name else f"{tag} {joined}", line)
             if not m.eq_active0[e]:
                 continue
+            if kind in (EQ_JOINT, EQ_TENDON):
+                self.couplings.append(self._coupling(e, kind, where))
+                continue
             if kind not in _EQ_KINDS:
-                raise where.error("not supported yet: an equality other than <connect> or <weld> (joint, tendon, "
-                                  "flex couplings)")
+                raise where.error("not supported yet: an equality other than <connect>, <weld>, <joint> or "
+                                  "<tendon> (flex, distance)")
             if m.eq_objtype[e] == self.obj.mjOBJ_SITE:
                 out.append(ClosureSpec(self.site_names[a], self.site_names[b], _EQ_KINDS[kind], where))
             elif kind == 0:  # connect: the anchor in body1 (data[0:3]) and, at qpos0, in body2 (data[3:6])

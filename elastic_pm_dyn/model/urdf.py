@@ -19,6 +19,7 @@ from elastic_pm_dyn.model.kinematic_tree import (
     FIXED,
     PRISMATIC,
     REVOLUTE,
+    CouplingSpec,
     KinematicTree,
     TreeJoint,
     TreeLink,
@@ -50,7 +51,23 @@ def read_urdf(path: str | Path) -> KinematicTree:
             raise src.error(el, f"joint name is used twice (first at line {seen[joint.name]})")
         seen[joint.name] = joint.where.line
         joints.append(joint)
-    return KinematicTree(name=root.get("name") or Path(path).stem, file=src.file, links=links, joints=joints)
+    couplings = [_mimic(src, el, seen) for el in root.findall("joint") if el.find("mimic") is not None]
+    return KinematicTree(name=root.get("name") or Path(path).stem, file=src.file, links=links, joints=joints,
+                         couplings=couplings)
+
+
+def _mimic(src: XmlSource, el: ET.Element, joints: dict[str, int | None]) -> CouplingSpec:
+    """``<mimic joint= multiplier= offset=>``: q = multiplier q_joint + offset, a linear coupling."""
+    mimic = el.find("mimic")
+    what = describe(el)
+    other = mimic.get("joint")
+    if not other or other not in joints:
+        raise src.error(mimic, f"<mimic> names a missing joint {other!r}", what)
+    if other == el.get("name"):
+        raise src.error(mimic, "a joint cannot mimic itself", what)
+    multiplier = float(numbers(src, mimic, "multiplier", 1, [1.0], what)[0])
+    offset = float(numbers(src, mimic, "offset", 1, [0.0], what)[0])
+    return CouplingSpec(((el.get("name"), 1.0), (other, -multiplier)), offset, _where(src, mimic))
 
 
 def _where(src: XmlSource, el: ET.Element) -> Where:
@@ -127,8 +144,6 @@ def _joint(src: XmlSource, el: ET.Element, links: dict[str, TreeLink]) -> TreeJo
                         "this package's machines stand on a fixed base")
     if kind not in _JOINT_TYPES:
         raise src.error(el, f"unknown joint type {kind!r} (URDF: revolute, continuous, prismatic, fixed)")
-    if el.find("mimic") is not None:
-        raise src.error(el.find("mimic"), "not supported yet: <mimic> (a coupled joint)", what)
     ends = []
     for tag in ("parent", "child"):
         ref = el.find(tag)

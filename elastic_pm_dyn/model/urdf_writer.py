@@ -95,9 +95,15 @@ def closure_sidecar(model: Model) -> str:
         data["closed_loop"] = [[labels[a], labels[b]] for a, b in model.closure.pairs]
         welds = set(model.closure.welds)
         data["type"] = ["6d" if pair in welds else "3d" for pair in model.closure.pairs]
+        if model.closure.couplings:
+            data["couplings"] = [{"terms": {name: float(c) for name, c in terms}, "constant": float(constant)}
+                                 for terms, constant in model.closure.couplings]
     data["name_mot"] = [j.name for j in model.joints if j.role == ACTIVE]
     elastic = {j.name: {"stiffness": j.stiffness, "damping": j.damping, "rest": j.rest}
                for j in model.joints if j.role == ELASTIC and not _free(j)}
+    # a motor's parallel spring: its damper is the joint's viscous friction
+    elastic |= {j.name: {"stiffness": j.stiffness, "damping": j.friction, "rest": j.rest}
+                for j in model.joints if j.role == ACTIVE and j.stiffness > 0}
     if elastic:
         data["elastic"] = elastic
     rotor = {j.name: j.rotor_inertia for j in model.joints if j.rotor_inertia > 0}

@@ -57,10 +57,10 @@ def run_pieces(method, scheme, form, ma, active, q, qd, coefs, hs, steps, record
 
 @njit(cache=True)
 def run_pieces_flat(method, scheme, form, jf, ji, chain_start, points, point_body, gravity, closure_pairs,
-                    closure_axes, hub, ae_index, p_index, active, q, qd, coefs, hs, steps, record, q_out,
+                    closure_axes, hub, ae_index, p_index, couplings, active, q, qd, coefs, hs, steps, record, q_out,
                     qd_out, row, stab, alpha, beta, tol, singular_tol, phase_step, qdd_prev, lam, info):
     """:func:`run_pieces` with the model as separate arrays (``*mech.arrays``)."""
     ma = ModelArrays(jf, ji, chain_start, points, point_body, gravity, closure_pairs, closure_axes,
-                     hub, ae_index, p_index)
+                     hub, ae_index, p_index, couplings)
     return run_pieces(method, scheme, form, ma, active, q, qd, coefs, hs, steps, record, q_out, qd_out, row, stab,
                       alpha, beta, tol, singular_tol, phase_step, qdd_prev, lam, info)

@@ -557,11 +557,11 @@ def exponential_steps_ws(scheme, form, ma, q, qd, tau_coef, dt, n_steps, stab, a
 
 @njit(cache=True)
 def exponential_steps_flat(scheme, form, jf, ji, chain_start, points, point_chain, gravity, closure_pairs,
-                           closure_axes, hub, ae_index, p_index, q, qd, tau_coef, dt, n_steps, stab, alpha,
+                           closure_axes, hub, ae_index, p_index, couplings, q, qd, tau_coef, dt, n_steps, stab, alpha,
                            beta, tol, singular_tol, phase_step, qdd_prev, lam, info):
     """:func:`exponential_steps` with the model as separate arrays (``*mech.arrays``)."""
     ma = ModelArrays(jf, ji, chain_start, points, point_chain, gravity, closure_pairs, closure_axes,
-                     hub, ae_index, p_index)
+                     hub, ae_index, p_index, couplings)
     return exponential_steps(scheme, form, ma, q, qd, tau_coef, dt, n_steps, stab, alpha, beta, tol, singular_tol,
                              phase_step, qdd_prev, lam, info)
 

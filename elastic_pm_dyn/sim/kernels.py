@@ -53,7 +53,7 @@ DIVERGED = 2
 @njit(cache=True)
 def _closure(ma, q, qd, M, h, J, a_pt, p_pt, A, gamma, res):
     tree_terms(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_body, ma.gravity, q, qd, M, h, J, a_pt, p_pt)
-    all_closure_rows(ma.closure_pairs, ma.closure_axes, ma.points, J, a_pt, p_pt, A, gamma, res)
+    all_closure_rows(ma.closure_pairs, ma.closure_axes, ma.points, ma.couplings, q, J, a_pt, p_pt, A, gamma, res)
     return np.sqrt(np.sum(res * res))
 
 
@@ -191,7 +191,7 @@ def _closure_at(ma, q, pws, inertia=True):
     else:
         tree_terms_into(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_body, ma.gravity, q, zero, M[:0, :0],
                         h[:0], J, a_pt, p_pt, wz, wo, jv, jw, fr)
-    all_closure_rows(ma.closure_pairs, ma.closure_axes, ma.points, J, a_pt, p_pt, A, gamma, res)
+    all_closure_rows(ma.closure_pairs, ma.closure_axes, ma.points, ma.couplings, q, J, a_pt, p_pt, A, gamma, res)
     return np.sqrt(np.sum(res * res))
 
 
@@ -447,11 +447,11 @@ def _diverged(ma, qs, vs, tau, a, b, qdd_prev, acc, lam, ws, form, info):
 
 @njit(cache=True)
 def rk4_steps_flat(form, jf, ji, chain_start, points, point_body, gravity, closure_pairs, closure_axes,
-                   hub, ae_index, p_index, q, qd, tau_coef, dt, n_steps, stab, alpha, beta, tol, singular_tol,
-                   qdd_prev, lam, info):
+                   hub, ae_index, p_index, couplings, q, qd, tau_coef, dt, n_steps, stab, alpha, beta, tol,
+                   singular_tol, qdd_prev, lam, info):
     """:func:`rk4_steps` with the model as separate arrays (``*mech.arrays``): the cheap
     entry point from Python (see ``accelerations_flat``)."""
     ma = ModelArrays(jf, ji, chain_start, points, point_body, gravity, closure_pairs, closure_axes,
-                     hub, ae_index, p_index)
+                     hub, ae_index, p_index, couplings)
     return rk4_steps(form, ma, q, qd, tau_coef, dt, n_steps, stab, alpha, beta, tol, singular_tol,
                      qdd_prev, lam, info)
