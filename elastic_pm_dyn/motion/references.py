@@ -74,8 +74,10 @@ class ElasticLineReference:
         mech = Mechanism(model)
         self.line = line
         self.rate = rate
-        self.duration = line.duration
         self.motion = elastic_line_motion(model, line, max(INVERSE_GRID, 1.0 / rate))
+        # pre- and post-actuation (non-minimum phase): the reference starts pre before the move
+        self.pre, self.post = self.motion.pre, self.motion.post
+        self.duration = line.duration + self.pre + self.post
         self._index = [mech.joint_names.index(n) for n in joint_names]
         self._times, self._held = zoh_samples(self.motion, rate, line.move + 1.0 / rate)
         self._torque = self.motion.torque()
@@ -84,11 +86,11 @@ class ElasticLineReference:
         self._splines = [make_interp_spline(m.t, x[:, self._index], k=5, axis=0) for x in (m.q, m.qd, m.qdd)]
 
     def sample(self, t: float) -> ReferenceSample:
-        t = min(max(t, 0.0), self.line.move)
-        q, qd, qdd = (np.asarray(s(t)) for s in self._splines)
+        t = min(max(t, 0.0), self.line.move + self.pre + self.post)  # t = pre: the move's start
+        q, qd, qdd = (np.asarray(s(t - self.pre)) for s in self._splines)
         k = round(t * self.rate)
         on_grid = abs(t - k / self.rate) <= 1e-9 and k < len(self._held)
-        tau = self._held[k].copy() if on_grid else self._torque(t)
+        tau = self._held[k].copy() if on_grid else self._torque(t - self.pre)
         return ReferenceSample(q, qd, qdd, tau)
 
 
