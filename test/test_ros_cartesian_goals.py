@@ -139,7 +139,9 @@ def test_node_streams_the_cli_waypoint_torques_after_refusing_bad_goals(ros: Ros
                    "goal subscriptions")
     for bad in (five_bar_goal(name="tool0"), five_bar_goal(frame="map"),
                 goal([0.0, 0.2], [[-0.05, 0.35, 0.0], [0.5, 0.5, 0.0]]),  # unreachable: 0.71 m from the base
-                goal([0.0, 0.2, 0.1], [[-0.05, 0.35, 0.0]] * 3)):
+                goal([0.0, 0.2, 0.1], [[-0.05, 0.35, 0.0]] * 3),
+                goal([0.0, 0.005], [[-0.05, 0.35, 0.0], [-0.05, 0.351, 0.0]]),  # 5 control periods
+                goal([0.0, 500.0], [[-0.05, 0.35, 0.0], [-0.05, 0.351, 0.0]])):  # 5e5 of them
         pub.publish(bad)
     if method != "rigid":  # motor positions do not fix the end effector's path: refused, node alive
         from trajectory_msgs.msg import JointTrajectoryPoint

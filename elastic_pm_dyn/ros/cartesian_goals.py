@@ -50,6 +50,10 @@ ANGLE_TOLERANCE = 1e-6  # [rad] likewise a rotation the machine cannot make
 UNIT_TOLERANCE = 1e-3  # |q| - 1 of a quaternion accepted (and normalised)
 REST_TOLERANCE = 1e-9  # twist and acceleration components taken as zero
 NS = 1_000_000_000
+MIN_PERIODS = 10  # a goal shorter than this many control periods would not be in its torques (the CLI's rule)
+# The goal is computed in the subscription's callback (the node answers nothing else meanwhile):
+# 1e5 control instants (100 s at 1 kHz) take some 10-60 s on one core
+MAX_SAMPLES = 100_000
 _AXES = ([1, 0, 0], [0, 1, 0], [0, 0, 1])
 
 
@@ -158,9 +162,17 @@ def _task_row(k: int, xyz: np.ndarray, rotation: Rotation, model: Model, mech: M
     return np.asarray(xyz, dtype=float)
 
 
-def goal_path(msg: Any, model: Model, frame: str, order: int) -> WaypointPath:
-    """The goal as rest-to-rest segments through its poses with the time law of ``order``."""
+def goal_path(msg: Any, model: Model, frame: str, order: int, rate: float) -> WaypointPath:
+    """The goal as rest-to-rest segments through its poses with the time law of ``order``;
+    its span between MIN_PERIODS and MAX_SAMPLES control periods at ``rate``."""
     times, points = goal_waypoints(msg, model, frame)
+    span = float(times[-1] - times[0])
+    if span * rate < MIN_PERIODS:
+        raise InputError(f"the goal spans {span:g} s, shorter than {MIN_PERIODS} control periods "
+                         f"({MIN_PERIODS / rate:g} s)")
+    if times[-1] * rate > MAX_SAMPLES:
+        raise InputError(f"the goal lasts {times[-1]:g} s: more than {MAX_SAMPLES} control periods to compute at once; "
+                         "send it in parts")
     return WaypointPath(times, points, 0.0, order)
 
 

@@ -263,7 +263,7 @@ class FeedforwardNode(ManagedNode):
     def _on_cartesian(self, msg: MultiDOFJointTrajectory) -> None:
         """A Cartesian goal: its path through the node's method, computed now; bad goals: one line."""
         try:
-            path = goal_path(msg, self.model, self.frame, self.goal_law)
+            path = goal_path(msg, self.model, self.frame, self.goal_law, self.rate)
             reference = goal_reference(self.model, path, self.method, self.rate, self.shaper, self.ff_names)
         except (*SOLVE_ERRORS, ValueError) as err:  # ValueError: scipy on a degenerate input
             self.get_logger().warning(f"cartesian goal rejected: {err}")
