@@ -64,11 +64,12 @@ def test_hexa_goal_is_the_platform_pose_in_urdf_rpy() -> None:
     x2, y2, z2, w2 = qy
     q = [w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2, w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
          w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2, w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2]  # qz * qy
-    times, points = goal_waypoints(goal([0.0, 0.2], [[0, 0, -0.4], [0.02, 0.02, -0.385]],
+    times, points, rates, _ = goal_waypoints(goal([0.0, 0.2], [[0, 0, -0.4], [0.02, 0.02, -0.385]],
                                         [[0, 0, 0, 1], q], name="platform"), model, "world")
     np.testing.assert_allclose(times, [0.0, 0.2])
     np.testing.assert_allclose(points[0], [0, 0, -0.4, 0, 0, 0], atol=1e-12)
     np.testing.assert_allclose(points[1], [0.02, 0.02, -0.385, yaw, pitch, 0.0], atol=1e-12)
+    assert not np.any(rates)
 
 
 @pytest.mark.parametrize("model_file, msg, words", [
@@ -87,12 +88,16 @@ def test_hexa_goal_is_the_platform_pose_in_urdf_rpy() -> None:
     (FIVE_BAR, lambda: goal([0.0, 0.2], [[-0.05, 0.35, 0.0], [0.0, 0.4, 0.0]], [[0, 0, 0, 1], [0, 0, 0, 0]]),
      "unit quaternion"),
     (FIVE_BAR, lambda: goal([0.0, 0.2], [[-0.05, 0.35, 0.0], [0.0, 0.4, 0.0]], twist=[0.1, 0, 0, 0, 0, 0]),
-     "non-zero velocities"),
+     "the first and the last waypoint"),
+    (FIVE_BAR, lambda: goal([0.0, 0.2], [[-0.05, 0.35, 0.0], [0.0, 0.4, 0.0]], twist=[0, 0, 0, 0, 0, 0.1]),
+     "cannot turn"),
+    (FIVE_BAR, lambda: goal([0.0, 0.2], [[-0.05, 0.35, 0.0], [0.0, 0.4, 0.0]], twist=[0, 0, 0.1, 0, 0, 0]),
+     "out of the plane"),
 ])
 def test_bad_goal_is_one_line(model_file: Path, msg: Any, words: str) -> None:
-    from elastic_pm_dyn.ros.cartesian_goals import goal_waypoints
+    from elastic_pm_dyn.ros.cartesian_goals import goal_path
     with pytest.raises(InputError) as err:
-        goal_waypoints(msg(), load_model(model_file), "world")
+        goal_path(msg(), load_model(model_file), "world", 2, 1000.0)
     assert words in str(err.value) and "\n" not in str(err.value)
 
 
@@ -160,3 +165,52 @@ def test_node_streams_the_cli_waypoint_torques_after_refusing_bad_goals(ros: Ros
     # and the whole table, off the timer: the reference's grid samples are the CLI's rows
     ref = np.array([ff.reference.sample(t).tau for t in table[:, 0]])
     np.testing.assert_allclose(ref, table[:, 1:], rtol=0, atol=1e-12)
+
+
+def test_moving_waypoints_with_zero_rates_are_the_rest_to_rest_path_and_pass_given_twists() -> None:
+    """Hermite segments of degree 2 r + 1 with zero rates are the rest-to-rest law per segment;
+    a twist at a waypoint is the path's rate there; a yaw rate is the angular twist about z."""
+    from elastic_pm_dyn.motion.waypoints import MovingWaypointPath, WaypointPath
+    from elastic_pm_dyn.ros.cartesian_goals import goal_path, goal_waypoints
+    times = np.array([0.0, 0.1, 0.25])
+    points = np.array([[-0.05, 0.35], [0.0, 0.42], [0.05, 0.45]])
+    zero = np.zeros_like(points)
+    for order in (2, 4):
+        moving, resting = MovingWaypointPath(times, points, zero, zero, 0.0, order), WaypointPath(times, points, 0.0,
+                                                                                                  order)
+        for t in np.linspace(-0.01, 0.26, 55):
+            for a, b in zip(moving(float(t)), resting(float(t)), strict=True):
+                np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-9)  # round-off of degree-9 polynomials
+    five_bar = load_model(FIVE_BAR)
+    msg = goal(list(times), [[x, y, 0.0] for x, y in points])
+    msg.points[1].velocities = goal([0.0], [[0, 0, 0]], twist=[0.4, 0.1, 0.0, 0, 0, 0]).points[0].velocities
+    path = goal_path(msg, five_bar, "world", 4, 1000.0)
+    y, yd, ydd = path(0.1)
+    np.testing.assert_allclose(y, points[1], atol=1e-15)
+    np.testing.assert_allclose(yd, [0.4, 0.1], atol=1e-12)
+    np.testing.assert_allclose(ydd, [0.0, 0.0], atol=1e-9)
+    hexa = load_model(HEXA)
+    spin = goal([0.0, 0.1, 0.2], [[0, 0, -0.4], [0.01, 0, -0.39], [0.02, 0.02, -0.385]], name="platform")
+    spin.points[1].velocities = goal([0.0], [[0, 0, 0]], twist=[0.1, 0.0, 0.15, 0, 0, 0.5]).points[0].velocities
+    _, _, rates, _ = goal_waypoints(spin, hexa, "world")
+    np.testing.assert_allclose(rates[1], [0.1, 0.0, 0.15, 0.5, 0.0, 0.0], atol=1e-12)
+
+
+def test_elastic_torques_of_a_goal_with_moving_waypoints_keep_the_plant_on_it() -> None:
+    """A goal passed with a twist (C^4 Hermite segments): the elastic inverse's continuous torques
+    drive the elastic five-bar along it to 1e-7 m."""
+    from elastic_pm_dyn.kinematics.mechanism import Mechanism
+    from elastic_pm_dyn.motion.feedforward import elastic_line_motion
+    from elastic_pm_dyn.ros.cartesian_goals import goal_path
+    from elastic_pm_dyn.sim.simulator import SimulationOptions, Simulator
+    from elastic_pm_dyn.sim.torque import FunctionTorque
+    model = load_model(FIVE_BAR)
+    msg = five_bar_goal()
+    msg.points[1].velocities = goal([0.0], [[0, 0, 0]], twist=[0.4, 0.1, 0.0, 0, 0, 0]).points[0].velocities
+    path = goal_path(msg, model, "world", 4, 1000.0)
+    motion = elastic_line_motion(model, path, 1e-3)
+    q0 = motion.q[int(np.argmin(np.abs(motion.t)))]
+    r = Simulator(Mechanism(model), SimulationOptions(integrator="rk4", dt=1e-5, sample=1e-4)).run(
+        FunctionTorque(motion.torque()), path.duration + 0.02, q0=q0)
+    y = np.array([path(float(t))[0] for t in r.t])
+    assert np.linalg.norm(r.ee - y, axis=1).max() <= 1e-7

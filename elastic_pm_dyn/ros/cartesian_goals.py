@@ -17,11 +17,16 @@ Rules (each broken rule: one :class:`InputError` line, nothing else happens):
   of the plane) is refused;
 - at least two points, ``time_from_start`` >= 0 and strictly increasing, finite numbers,
   unit quaternions (to 1e-3; then normalised);
-- twists and accelerations may be left out or be zero: the path passes every waypoint at
-  rest (each segment a rest-to-rest move with the time law, a rotation on its SO(3)
-  geodesic: :class:`~elastic_pm_dyn.motion.waypoints.WaypointPath`, the CLI's
-  ``--waypoints``). Non-zero ones are refused: a path through moving waypoints is not C^4,
-  which the elastic inverse needs.
+- twists and accelerations left out or zero: the path passes every waypoint at rest (each
+  segment a rest-to-rest move with the time law, a rotation on its SO(3) geodesic:
+  :class:`~elastic_pm_dyn.motion.waypoints.WaypointPath`, the CLI's ``--waypoints``);
+- given (in the base frame, like the transforms; the angular ones the platform's angular
+  velocity and acceleration): the path passes the waypoints with them, per coordinate the
+  Hermite polynomial of the time law's continuity C^r (r = 2, quintic, for rigid as
+  joint_trajectory_controller; r = 4 for elastic;
+  :class:`~elastic_pm_dyn.motion.waypoints.MovingWaypointPath`, angles as coordinates). The
+  first and the last point must be at rest; a twist the task cannot hold (a turn of a point)
+  is refused like such a pose.
 
 The path starts at the first point (the plant must stand there, as for a JointTrajectory)
 and rests there until its ``time_from_start``.
@@ -39,10 +44,11 @@ from elastic_pm_dyn.errors import InputError
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.model.description import Model
 from elastic_pm_dyn.motion.feedforward import path_shaper, rigid_feedforward
+from elastic_pm_dyn.motion.poses import _rates_matrix, _rates_matrix_dot
 from elastic_pm_dyn.motion.references import ElasticLineReference, TaskReference
 from elastic_pm_dyn.motion.shaping import ShapedPath
 from elastic_pm_dyn.motion.task import Task
-from elastic_pm_dyn.motion.waypoints import WaypointPath
+from elastic_pm_dyn.motion.waypoints import MovingWaypointPath, WaypointPath
 
 END_EFFECTOR = "end_effector"
 POSITION_TOLERANCE = 1e-6  # [m] a coordinate the machine cannot move must match to this
@@ -87,8 +93,9 @@ def _vector(v: Any) -> np.ndarray:
     return np.array([v.x, v.y, v.z], dtype=float)
 
 
-def goal_waypoints(msg: Any, model: Model, frame: str) -> tuple[np.ndarray, np.ndarray]:
-    """(times, task coordinates per point) of a MultiDOFJointTrajectory (see module doc)."""
+def goal_waypoints(msg: Any, model: Model, frame: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(times, task coordinates, their rates, their accelerations per point) of a
+    MultiDOFJointTrajectory (see module doc)."""
     ff = rigid_feedforward(model)
     mech = ff.mech
     task = Task(mech)
@@ -104,22 +111,21 @@ def goal_waypoints(msg: Any, model: Model, frame: str) -> tuple[np.ndarray, np.n
     times = np.array([_seconds(p.time_from_start) for p in points])
     if times[0] < 0 or np.any(np.diff(times) <= 0):
         raise InputError("time_from_start must be >= 0 and strictly increasing")
-    rows = []
+    rows, rates, accs = [], [], []
     angles_before = ff.q[task.joints[3:]] if task.kind == "platform" and task.size == 6 else None
     for k, p in enumerate(points):
         if len(p.transforms) != 1:
             raise InputError(f"point {k}: {len(p.transforms)} transforms for 1 joint")
+        twist = []
         for what in ("velocities", "accelerations"):
             twists = getattr(p, what)
             if len(twists) not in (0, 1):
                 raise InputError(f"point {k}: {len(twists)} {what} for 1 joint")
-            values = np.concatenate([np.concatenate([_vector(t.linear), _vector(t.angular)]) for t in twists] or
-                                    [np.zeros(0)])
+            values = (np.concatenate([_vector(twists[0].linear), _vector(twists[0].angular)]) if len(twists)
+                      else np.zeros(6))
             if not np.all(np.isfinite(values)):
                 raise InputError(f"point {k}: {what} contain NaN or Inf")
-            if np.any(np.abs(values) > REST_TOLERANCE):
-                raise InputError(f"point {k}: non-zero {what}: the path passes every waypoint at rest (rest-to-rest "
-                                 "segments, C^4 for the elastic inverse); leave them out or zero")
+            twist.append(np.where(np.abs(values) > REST_TOLERANCE, values, 0.0))
         tr = p.transforms[0]
         xyz = _vector(tr.translation)
         quat = np.array([tr.rotation.x, tr.rotation.y, tr.rotation.z, tr.rotation.w], dtype=float)
@@ -130,9 +136,36 @@ def goal_waypoints(msg: Any, model: Model, frame: str) -> tuple[np.ndarray, np.n
             raise InputError(f"point {k}: rotation quaternion of norm {norm:.6g}, not a unit quaternion")
         rotation = Rotation.from_quat(quat / norm)
         rows.append(_task_row(k, xyz, rotation, model, mech, task, ff.q, angles_before))
+        r, a = _task_rates(k, twist[0], twist[1], rotation, rows[-1], mech, task, model)
+        rates.append(r)
+        accs.append(a)
         if angles_before is not None:
             angles_before = rows[-1][3:]
-    return times, np.array(rows)
+    return times, np.array(rows), np.array(rates), np.array(accs)
+
+
+def _task_rates(k: int, velocity: np.ndarray, acceleration: np.ndarray, rotation: Rotation, y: np.ndarray,
+                mech: Mechanism, task: Task, model: Model) -> tuple[np.ndarray, np.ndarray]:
+    """The task coordinates' rates and accelerations of a twist and its rate (base frame)."""
+    if not (np.any(velocity) or np.any(acceleration)):
+        return np.zeros(len(y)), np.zeros(len(y))
+    if task.kind == "platform" and task.size == 6:
+        # Euler rates: w_body = R^T w = E [yawd, pitchd, rolld]; the body acceleration is R^T alpha
+        E = _rates_matrix(y[4], y[5])
+        rates = np.linalg.solve(E, rotation.inv().apply(velocity[3:]))
+        E_dot = _rates_matrix_dot(y[4], y[5], rates[1], rates[2])
+        angles_dd = np.linalg.solve(E, rotation.inv().apply(acceleration[3:]) - E_dot @ rates)
+        return np.concatenate([velocity[:3], rates]), np.concatenate([acceleration[:3], angles_dd])
+    if np.any(velocity[3:]) or np.any(acceleration[3:]):
+        raise InputError(f"point {k}: an angular twist, but {model.name} holds only {', '.join(task.names)} (its "
+                         "end effector cannot turn)")
+    if task.kind == "platform":
+        return velocity[:3].copy(), acceleration[:3].copy()
+    if len(mech.ee_components) == 2:
+        normal = model.plane_basis[2]
+        if abs(normal @ velocity[:3]) > REST_TOLERANCE or abs(normal @ acceleration[:3]) > REST_TOLERANCE:
+            raise InputError(f"point {k}: a twist out of the plane of {model.name}")
+    return mech.ee_of(velocity[:3]), mech.ee_of(acceleration[:3])
 
 
 def _task_row(k: int, xyz: np.ndarray, rotation: Rotation, model: Model, mech: Mechanism, task: Task,
@@ -162,10 +195,10 @@ def _task_row(k: int, xyz: np.ndarray, rotation: Rotation, model: Model, mech: M
     return np.asarray(xyz, dtype=float)
 
 
-def goal_path(msg: Any, model: Model, frame: str, order: int, rate: float) -> WaypointPath:
+def goal_path(msg: Any, model: Model, frame: str, order: int, rate: float) -> WaypointPath | MovingWaypointPath:
     """The goal as rest-to-rest segments through its poses with the time law of ``order``;
     its span between MIN_PERIODS and MAX_SAMPLES control periods at ``rate``."""
-    times, points = goal_waypoints(msg, model, frame)
+    times, points, rates, accelerations = goal_waypoints(msg, model, frame)
     span = float(times[-1] - times[0])
     if span * rate < MIN_PERIODS:
         raise InputError(f"the goal spans {span:g} s, shorter than {MIN_PERIODS} control periods "
@@ -173,10 +206,12 @@ def goal_path(msg: Any, model: Model, frame: str, order: int, rate: float) -> Wa
     if times[-1] * rate > MAX_SAMPLES:
         raise InputError(f"the goal lasts {times[-1]:g} s: more than {MAX_SAMPLES} control periods to compute at once; "
                          "send it in parts")
+    if np.any(rates) or np.any(accelerations):
+        return MovingWaypointPath(times, points, rates, accelerations, 0.0, order)
     return WaypointPath(times, points, 0.0, order)
 
 
-def goal_reference(model: Model, path: WaypointPath, method: str, rate: float, shaper: str,
+def goal_reference(model: Model, path: WaypointPath | MovingWaypointPath, method: str, rate: float, shaper: str,
                    joint_names: Sequence[str]) -> TaskReference | ElasticLineReference:
     """The reference of a goal's path by ``method`` (rigid, elastic, shaped: as ``feedforward
     --waypoints``'s table at the control instants). Unreachable or singular poses raise."""
