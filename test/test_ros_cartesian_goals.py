@@ -126,7 +126,7 @@ def _cli_table(tmp_path: Path, method: str) -> np.ndarray:
     return np.loadtxt(out, delimiter=",", skiprows=1)
 
 
-@pytest.mark.parametrize("method", ["rigid", "elastic"])
+@pytest.mark.parametrize("method", ["rigid", "elastic", "shaped"])
 def test_node_streams_the_cli_waypoint_torques_after_refusing_bad_goals(ros: RosHarness, tmp_path: Path,
                                                                        method: str) -> None:
     from sensor_msgs.msg import JointState
