@@ -124,10 +124,13 @@ def elastic_line_torques(model: Model, line: Line | QuinticLine | PoseLine, rate
 
     Returns (times, torques (N x n_a), active joint names, the elastic tree position at t = 0:
     where the plant must start, at rest, for the torques to fit: with gravity its springs are
-    loaded and its motors offset so that the end effector sits on the line's start).
+    loaded and its motors offset so that the end effector sits on the line's start). A machine
+    with slow unstable zero dynamics (:func:`~elastic_pm_dyn.motion.elastic_inverse.zero_dynamics`)
+    needs pre-actuation: the table then starts ``motion.pre`` before the move, which begins at
+    t = pre, and runs ``motion.post`` longer.
     """
     motion = elastic_line_motion(model, line, max(INVERSE_GRID, 1.0 / rate))
     times, values = zoh_samples(motion, rate, line.duration)
-    k0 = int(np.argmin(np.abs(motion.t)))
+    k0 = int(np.argmin(np.abs(motion.t + motion.pre)))  # the table's t = 0 (before any pre-actuation)
     return times, values, Mechanism(model).active_names, motion.q[k0].copy()
 

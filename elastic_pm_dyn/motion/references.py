@@ -19,7 +19,7 @@ from elastic_pm_dyn.errors import AssemblyError, InputError
 from elastic_pm_dyn.kinematics.assembly import solve_acceleration, solve_pose, solve_velocity
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.model.description import Model
-from elastic_pm_dyn.motion.elastic_inverse import zoh_samples
+from elastic_pm_dyn.motion.elastic_inverse import PAD, solve, zoh_samples
 from elastic_pm_dyn.motion.feedforward import INVERSE_GRID, elastic_line_motion
 from elastic_pm_dyn.motion.trajectory import JointSpline, Line, QuinticLine
 
@@ -74,8 +74,10 @@ class ElasticLineReference:
         mech = Mechanism(model)
         self.line = line
         self.rate = rate
-        self.duration = line.duration
         self.motion = elastic_line_motion(model, line, max(INVERSE_GRID, 1.0 / rate))
+        # pre- and post-actuation (non-minimum phase): the reference starts pre before the move
+        self.pre, self.post = self.motion.pre, self.motion.post
+        self.duration = line.duration + self.pre + self.post
         self._index = [mech.joint_names.index(n) for n in joint_names]
         self._times, self._held = zoh_samples(self.motion, rate, line.move + 1.0 / rate)
         self._torque = self.motion.torque()
@@ -84,11 +86,35 @@ class ElasticLineReference:
         self._splines = [make_interp_spline(m.t, x[:, self._index], k=5, axis=0) for x in (m.q, m.qd, m.qdd)]
 
     def sample(self, t: float) -> ReferenceSample:
-        t = min(max(t, 0.0), self.line.move)
-        q, qd, qdd = (np.asarray(s(t)) for s in self._splines)
+        t = min(max(t, 0.0), self.line.move + self.pre + self.post)  # t = pre: the move's start
+        q, qd, qdd = (np.asarray(s(t - self.pre)) for s in self._splines)
         k = round(t * self.rate)
         on_grid = abs(t - k / self.rate) <= 1e-9 and k < len(self._held)
-        tau = self._held[k].copy() if on_grid else self._torque(t)
+        tau = self._held[k].copy() if on_grid else self._torque(t - self.pre)
+        return ReferenceSample(q, qd, qdd, tau)
+
+
+class TaskReference:
+    """Any path of the task coordinates (:class:`~elastic_pm_dyn.motion.task.Task`: a platform's
+    pose, waypoints, a shaped path) through the rigid model's inverse, solved once on the grid
+    t_k = k / rate: the table of :func:`~elastic_pm_dyn.motion.feedforward.rigid_task_torques`,
+    bit for bit, at the grid instants; quintic splines between them; at rest at the path's
+    start before it and at its end after it."""
+
+    def __init__(self, ff: RigidFeedforward, path, rate: float):
+        self.line = path
+        self.rate = rate
+        self.duration = path.duration
+        self.motion = m = solve(ff.mech, path, path.move, 1.0 / rate, ff.q)
+        self._splines = [make_interp_spline(m.t, x, k=5, axis=0) for x in (m.q, m.qd, m.qdd, m.tau)]
+
+    def sample(self, t: float) -> ReferenceSample:
+        m = self.motion
+        k = round(t * self.rate)
+        if abs(t - k / self.rate) <= 1e-9 or t <= 0.0 or t >= self.line.move:  # at rest outside the move
+            i = int(np.clip(k + PAD, PAD, len(m.t) - 1))  # rigid_task_torques' row of t_k
+            return ReferenceSample(m.q[i].copy(), m.qd[i].copy(), m.qdd[i].copy(), m.tau[i].copy())
+        q, qd, qdd, tau = (np.asarray(s(t)) for s in self._splines)
         return ReferenceSample(q, qd, qdd, tau)
 
 

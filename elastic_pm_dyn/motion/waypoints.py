@@ -18,6 +18,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+from scipy.interpolate import BPoly
 
 from elastic_pm_dyn.errors import InputError
 from elastic_pm_dyn.model.description import Model
@@ -79,6 +80,56 @@ class WaypointPath:
     def __call__(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         k = int(np.clip(np.searchsorted(self.times, t, side="right") - 1, 0, len(self.segments) - 1))
         return self.segments[k](t - self.times[k])
+
+
+class MovingWaypointPath:
+    """Segments through poses of the task coordinates passed with given rates (and
+    accelerations): per coordinate the Hermite polynomial of degree 2 r + 1 that matches
+    position and derivatives 1 .. r at both ends of its segment, the rates and accelerations
+    given (zero where not given) and the higher ones zero, so the path is C^r like the time
+    law of order r (r = 2: joint_trajectory_controller's quintic; r = 4: what the elastic
+    inverse needs). With zero rates it is :class:`WaypointPath` of a point task. A platform's
+    angles are interpolated as coordinates (not on the SO(3) geodesic). It starts and ends at
+    rest: before the first and after the last time it rests at the first and last pose."""
+
+    def __init__(self, times: np.ndarray, points: np.ndarray, rates: np.ndarray, accelerations: np.ndarray,
+                 hold: float, order: int):
+        times = np.asarray(times, dtype=float)
+        points, rates, accelerations = (np.atleast_2d(np.asarray(a, dtype=float))
+                                        for a in (points, rates, accelerations))
+        if len(times) < 2:
+            raise InputError("a waypoint path needs at least two waypoints")
+        if np.any(rates[[0, -1]]) or np.any(accelerations[[0, -1]]):
+            raise InputError("the first and the last waypoint need zero rates and accelerations (the path starts "
+                             "and ends at rest)")
+        n, dims = points.shape
+        derivs = np.zeros((n, order + 1, dims))
+        derivs[:, 0], derivs[:, 1] = points, rates
+        if order >= 2:
+            derivs[:, 2] = accelerations
+        elif np.any(accelerations):
+            raise InputError("accelerations need a time law of order 2 or more")
+        self._polys = [BPoly.from_derivatives(times, derivs[:, :, j]) for j in range(dims)]
+        self._rates = [[p.derivative(m) for p in self._polys] for m in (1, 2)]
+        self.times = times
+        self.move = float(times[-1])
+        self.hold = float(hold)
+        self.start = points[0]
+        self._first, self._last = points[0], points[-1]
+
+    @property
+    def duration(self) -> float:
+        return self.move + self.hold
+
+    def __call__(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        rest = np.zeros(len(self._polys))
+        if t <= self.times[0]:
+            return self._first.copy(), rest, rest.copy()
+        if t >= self.times[-1]:
+            return self._last.copy(), rest, rest.copy()
+        y = np.array([float(p(t)) for p in self._polys])
+        yd, ydd = (np.array([float(p(t)) for p in ps]) for ps in self._rates)
+        return y, yd, ydd
 
 
 def joint_waypoint_torques(model: Model, names: list[str], table: np.ndarray, rate: float, hold: float

@@ -2,18 +2,22 @@
 
 Publishes motor torques on ``torque_command`` at the control rate and the model's motion on
 ``reference_joint_states``. ``method``: ``rigid`` (the rigid model's inverse dynamics, sampled
-at each control instant), ``elastic`` (source line only: the elastic model's inverse,
-computed when the line is made, each torque the mean over its hold period; the reference
-motion then has the motors at their deflection-compensated angles) or ``shaped`` (source line
-only: the rigid inverse of the line through the ``shaper`` of the free-motor elastic modes,
-the move longer by the shaper's length). ``line.law``: the time
-law (empty: quintic for rigid, nonic, C^4, for elastic). Desired motion (parameter ``source``):
+at each control instant), ``elastic`` (a line or a Cartesian goal: the elastic model's inverse,
+computed when the line or goal is made, each torque the mean over its hold period; the reference
+motion then has the motors at their deflection-compensated angles) or ``shaped`` (a line or a
+Cartesian goal: the rigid inverse of the path through the ``shaper`` of the free-motor elastic modes,
+the move longer by the shaper's length). ``line.law``: the time law of lines and Cartesian
+goals (empty: quintic for rigid, nonic, C^4, for elastic). Desired motion (parameter ``source``):
 - ``line``: the reference manoeuvre, a Cartesian straight line with quintic time law
   (``line.*`` parameters); started at start-up (``autostart``) or by ``~/start``;
 - ``trajectory``: trajectory_msgs/JointTrajectory of the active joints on ``trajectory``,
   started at its header stamp (zero stamp: at once); joint_trajectory_controller's spline
   rules (cubic with velocities, quintic with accelerations too), positions alone as
   rest-to-rest 9th-order segments (logged once; :class:`~elastic_pm_dyn.motion.trajectory.JointSpline`);
+- ``trajectory`` also takes Cartesian goals: trajectory_msgs/MultiDOFJointTrajectory of the end
+  effector or platform on ``topics.cartesian_trajectory`` (:mod:`~elastic_pm_dyn.ros.cartesian_goals`):
+  rest-to-rest segments through its poses, computed with ``method`` (rigid, elastic, shaped) when
+  the goal arrives; a JointTrajectory takes the rigid method only;
 - ``hold``: the model's start pose at rest for ``hold.duration`` seconds, with the torques
   that hold it against gravity (any machine, also one whose end-effector point does not fix
   its pose, such as a hexapod); started like the line.
@@ -53,7 +57,7 @@ from rclpy.clock import Clock, ClockType
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
-from trajectory_msgs.msg import JointTrajectory
+from trajectory_msgs.msg import JointTrajectory, MultiDOFJointTrajectory
 
 from elastic_pm_dyn.bags.msgtypes import NS, stamp_ns
 from elastic_pm_dyn.errors import ElasticPmDynError, InputError
@@ -61,10 +65,17 @@ from elastic_pm_dyn.model.loader import load_model
 from elastic_pm_dyn.motion.feedback import EncoderError, EncoderRates, gains, pd_torque
 from elastic_pm_dyn.motion.feedforward import path_shaper, rigid_feedforward
 from elastic_pm_dyn.motion.manoeuvre import REFERENCE_MANOEUVRE
-from elastic_pm_dyn.motion.references import ElasticLineReference, HoldReference, JointReference, LineReference
+from elastic_pm_dyn.motion.references import (
+    ElasticLineReference,
+    HoldReference,
+    JointReference,
+    LineReference,
+    TaskReference,
+)
 from elastic_pm_dyn.motion.shaping import SHAPERS, ShapedPath
 from elastic_pm_dyn.motion.time_laws import LAWS, law_order
 from elastic_pm_dyn.motion.trajectory import Line, QuinticLine, make_line
+from elastic_pm_dyn.ros.cartesian_goals import goal_path, goal_reference
 from elastic_pm_dyn.ros.commands import CommandDecoder
 from elastic_pm_dyn.ros.losses import SequenceGaps
 from elastic_pm_dyn.ros.messages import joint_state, torque_command
@@ -101,7 +112,8 @@ PARAMS = [
     Param("line.law", "", "time law: quintic, septic or nonic (C^2, C^3, C^4); empty: quintic for method rigid, "
           "nonic for elastic", choices=("", *LAWS)),
     Param("method", "rigid", "rigid (the rigid model's inverse dynamics), elastic (the elastic model's) or shaped "
-          "(the rigid one of the line through a shaper of the elastic modes); elastic and shaped: source line only",
+          "(the rigid one of the line through a shaper of the elastic modes); elastic and shaped: source line, or "
+          "trajectory with Cartesian goals",
           choices=("rigid", "elastic", "shaped")),
     Param("shaper", "zvd", "method shaped: zv, zvd or ei", choices=SHAPERS),
     Param("hold.duration", 0.5, "source hold: how long the start pose is held [s]", positive=True),
@@ -114,6 +126,9 @@ PARAMS = [
     Param("topics.reference", "reference_joint_states", "rigid model's reference motion"),
     Param("topics.state", "joint_states", "plant state that paces the state trigger"),
     Param("topics.trajectory", "trajectory", "JointTrajectory input (source trajectory)"),
+    Param("topics.cartesian_trajectory", "cartesian_trajectory", "MultiDOFJointTrajectory input of the end "
+          "effector's poses (source trajectory; any method)"),
+    Param("frames.base", "world", "frame of the Cartesian goals' poses (the model's base; empty frame_id accepted)"),
     Param("topics.measured_joint_states", "measured_joint_states", "encoder samples (JointState) for the feedback"),
     Param("feedback.kp", [0.0], "PD on the encoders: [N m/rad] one value or one per active joint; 0 = none"),
     Param("feedback.kd", [0.0], "PD on the encoders: [N m s/rad] one value or one per active joint; 0 = none"),
@@ -148,9 +163,11 @@ class FeedforwardNode(ManagedNode):
         self.exit_when_done = p["exit_when_done"]
         self.wait_for = p["wait_for_subscribers"]
         self.rate = p["rate"]
-        if p["method"] != "rigid" and self.source != "line":
-            raise ParameterError(f"parameter 'method': {p['method']} takes source line only (source is "
-                                 f"{self.source!r})")
+        self.method, self.shaper, self.frame = p["method"], p["shaper"], p["frames.base"]
+        self.goal_law = law_order(p["line.law"] or ("nonic" if p["method"] == "elastic" else "quintic"))
+        if p["method"] != "rigid" and self.source == "hold":
+            raise ParameterError(f"parameter 'method': {p['method']} takes source line or trajectory (Cartesian "
+                                 f"goals); source is {self.source!r}")
         line = _line(p, len(rigid.ee_components)) if self.source == "line" else None
         if line is not None and p["method"] == "shaped":  # the line through the shaper, then the rigid inverse
             try:
@@ -185,11 +202,14 @@ class FeedforwardNode(ManagedNode):
         self.create_service(Trigger, "~/start", self._on_start)
         if self.source == "trajectory":
             self.create_subscription(JointTrajectory, p["topics.trajectory"], self._on_trajectory, COMMAND_QOS)
+            self.create_subscription(MultiDOFJointTrajectory, p["topics.cartesian_trajectory"], self._on_cartesian,
+                                     COMMAND_QOS)
         if self.feedback:  # volatile: matches any publisher; the samples of this run only
             self.create_subscription(JointState, p["topics.measured_joint_states"], self._on_encoders,
                                      OBSERVER_INPUT_QOS)
 
-        self.reference: LineReference | ElasticLineReference | HoldReference | JointReference | None = None
+        self.reference: (LineReference | ElasticLineReference | HoldReference | JointReference | TaskReference
+                         | None) = None
         self.start_ns: int | None = None  # reference time origin; None = at the next tick/state
         self.last_ns: int | None = None  # newest control instant answered
         self.pending_ns: int | None = None  # state trigger: newest state not yet answered
@@ -209,7 +229,8 @@ class FeedforwardNode(ManagedNode):
     # ------------------------------------------------------------------ inputs
     def _on_start(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         if self.source == "trajectory":
-            response.success, response.message = False, "source is 'trajectory': publish a JointTrajectory"
+            response.success, response.message = False, ("source is 'trajectory': publish a JointTrajectory or a "
+                                                          "MultiDOFJointTrajectory")
             return response
         self.want_start = True
         response.success, response.message = True, f"{self.source} starts at the next control period"
@@ -223,6 +244,10 @@ class FeedforwardNode(ManagedNode):
 
     def _on_trajectory(self, msg: JointTrajectory) -> None:
         pts = msg.points
+        if self.method != "rigid":
+            self.get_logger().warning(f"trajectory rejected: method {self.method} needs the end effector's path: "
+                                      "send a MultiDOFJointTrajectory (a JointTrajectory takes method rigid)")
+            return
         try:
             times = [p.time_from_start.sec + p.time_from_start.nanosec / NS for p in pts]
             vel = [p.velocities for p in pts] if pts and all(len(p.velocities) for p in pts) else None
@@ -242,6 +267,21 @@ class FeedforwardNode(ManagedNode):
         self.start_ns = stamp_ns(msg.header.stamp) or None
         self.want_start = False
         self.get_logger().info(f"trajectory of {len(pts)} points, {reference.duration:.3g} s accepted")
+        self._respond()
+
+    def _on_cartesian(self, msg: MultiDOFJointTrajectory) -> None:
+        """A Cartesian goal: its path through the node's method, computed now; bad goals: one line."""
+        try:
+            path = goal_path(msg, self.model, self.frame, self.goal_law, self.rate)
+            reference = goal_reference(self.model, path, self.method, self.rate, self.shaper, self.ff_names)
+        except (*SOLVE_ERRORS, ValueError) as err:  # ValueError: scipy on a degenerate input
+            self.get_logger().warning(f"cartesian goal rejected: {err}")
+            return
+        self.reference = reference
+        self.start_ns = stamp_ns(msg.header.stamp) or None
+        self.want_start = False
+        self.get_logger().info(f"cartesian goal of {len(msg.points)} points, {reference.duration:.3g} s "
+                               f"({self.method}) accepted")
         self._respond()
 
     def _on_encoders(self, msg: JointState) -> None:
