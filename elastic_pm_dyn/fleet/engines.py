@@ -89,15 +89,21 @@ class LocalPool:
             return again
         except BaseException:  # Ctrl-C: stop the workers now; finished items stay in place
             _stop(pool)
+            store.sweep(out)  # the stopped items' half-written folders
             raise
         finally:
             pool.shutdown(wait=True, cancel_futures=True)
 
 
 def _stop(pool: ProcessPoolExecutor) -> None:
-    for proc in list((getattr(pool, "_processes", None) or {}).values()):
+    """Terminate the pool's workers (no public API for it) and wait until they are gone."""
+    procs = list((getattr(pool, "_processes", None) or {}).values())
+    for proc in procs:
         with contextlib.suppress(OSError, ValueError, AttributeError):
             proc.terminate()
+    for proc in procs:
+        with contextlib.suppress(OSError, ValueError, AttributeError, AssertionError):
+            proc.join(5)
     pool.shutdown(wait=False, cancel_futures=True)
 
 
