@@ -3,7 +3,8 @@
 Tiny recordings made here with the package's own recording tools; the pool and a Dask
 LocalCluster of two workers against the single-item commands run in this process, bit for
 bit; a corrupt bag is one failed row; a re-run skips what is complete; a worker SIGKILLed
-mid-item is retried and no item runs twice.
+mid-item is retried and no item runs twice. The Dask and the Ctrl-C (a subprocess) tests
+run with ``pytest --fleet-long``.
 """
 
 from __future__ import annotations
@@ -131,7 +132,7 @@ def test_resume_runs_only_what_is_missing(pooled, bags, one_by_one, tmp_path) ->
     _assert_same_as_one_by_one(copy, one_by_one)
 
 
-def test_dask_local_cluster_gives_identical_results(bags, one_by_one, tmp_path) -> None:
+def test_dask_local_cluster_gives_identical_results(fleet_long, bags, one_by_one, tmp_path) -> None:
     pytest.importorskip("distributed", reason="Dask distributed not installed (extra 'batch')")
     res = batch("observe", [bags], tmp_path, model=MODEL, options=OPTIONS, cluster="local:2", progress=False,
                 plots_on=False)
@@ -262,7 +263,7 @@ def test_store_sees_a_changed_input_as_not_complete(pooled, bags) -> None:
     assert store.complete(out, other) is None
 
 
-def test_ctrl_c_keeps_finished_items_and_a_rerun_finishes_only_the_rest(tmp_path) -> None:
+def test_ctrl_c_keeps_finished_items_and_a_rerun_finishes_only_the_rest(fleet_long, tmp_path) -> None:
     import subprocess
     import sys
     study = _study(tmp_path, dt=1e-5)
