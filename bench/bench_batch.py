@@ -121,7 +121,8 @@ def main() -> None:
                     "setup": vars(a)}
     tune_opts = {**OPTIONS, "max_evaluations": a.max_evaluations}
     tune_opts.pop("no_bag")
-    study = study_file(results / "batch_study.yaml", a.points)
+    work.mkdir(parents=True, exist_ok=True)
+    study = study_file(work / "study.yaml", a.points)
     for name, kind, inputs, options, st in (
             ("observe", "observe", bags, OPTIONS, None), ("tune", "tune", bags, tune_opts, None),
             ("study", "simulate", (), None, study)):

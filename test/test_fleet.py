@@ -286,3 +286,41 @@ def test_ctrl_c_keeps_finished_items_and_a_rerun_finishes_only_the_rest(fleet_lo
     status = json.loads((out / "batch.json").read_text())["counts"]
     assert status == {"items": 4, "ok": 4 - len(kept), "failed": 0, "skipped": len(kept), "missing": 0}
     assert stamps == {k: (out / "items" / k / "item.json").stat().st_mtime_ns for k in kept}
+
+
+def test_tune_and_analyze_items_are_the_single_commands(bags, tmp_path) -> None:
+    """A tune item (run with --threads 1) writes the file `elastic-pm-dyn tune` (2 threads)
+    writes; an analyze item the summary `elastic-pm-dyn analyze` writes."""
+    bag = bags / "robot0"
+    assert cli_main(["tune", "--model", str(MODEL), "--bag", str(bag), "--out", str(tmp_path / "tuned.yaml"),
+                     "--sensors", "encoders", "imu", "--max-evaluations", "8"]) == 0
+    item = discover([str(bag)], Inputs("tune", str(MODEL), {"sensors": "encoders imu", "max_evaluations": 8}))[0]
+    record = run_item(item, tmp_path / "b")
+    assert record["status"] == "ok", record
+    assert (tmp_path / "b" / "items" / "robot0" / "tuned.yaml").read_bytes() == (tmp_path / "tuned.yaml").read_bytes()
+    assert record["figures"]["nll_after"] <= record["figures"]["nll_before"]
+    assert any(k.startswith("tuned.") for k in record["figures"])
+    assert cli_main(["analyze", str(bag), "--model", str(MODEL), "--out", str(tmp_path / "a"), "--no-plots"]) == 0
+    item = discover([str(bag)], Inputs("analyze", str(MODEL), {"no_plots": True}))[0]
+    record = run_item(item, tmp_path / "b")
+    assert record["status"] == "ok", record
+    single = json.loads((tmp_path / "a" / "summary.json").read_text())
+    batched = json.loads((tmp_path / "b" / "items" / "robot0" / "summary.json").read_text())
+    assert batched["runs"] == single["runs"]
+
+
+def test_simulate_items_over_torque_tables_equal_the_simulate_command(tmp_path) -> None:
+    tables = tmp_path / "tables"
+    tables.mkdir()
+    for move in ("0.1", "0.15"):
+        assert cli_main(["feedforward", "--model", str(MODEL), "--move", move, "--hold", "0.05",
+                         "--out", str(tables / f"move{move}.csv")]) == 0
+    res = batch("simulate", [tables], tmp_path / "out", model=MODEL, options={"dt": 2e-4}, jobs=1, progress=False,
+                plots_on=False)
+    assert res.counts["ok"] == 2
+    for move, duration in (("0.1", "0.15"), ("0.15", "0.2")):
+        single = tmp_path / f"single{move}.csv"
+        assert cli_main(["simulate", "--model", str(MODEL), "--torques", str(tables / f"move{move}.csv"),
+                         "--duration", duration, "--dt", "2e-4", "--out", str(single)]) == 0
+        batched = tmp_path / "out" / "items" / f"move{move}" / "simulation.csv"
+        assert batched.read_bytes() == single.read_bytes()

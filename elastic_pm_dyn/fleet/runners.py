@@ -96,7 +96,11 @@ def leaves(d: Mapping, prefix: str = "") -> dict[str, float | int | str | bool |
 def _observe(item: Item, work: Path) -> dict:
     _run_command(["observe", "--model", item.model, "--bag", item.source, "--out", str(work), *item.argv_options()])
     summary = store.read_json(work / "summary.json") or {}
-    return {k: v for k, v in leaves(summary).items() if not isinstance(v, str) or k in ("health.1",)}
+    figures = {k: v for k, v in leaves(summary).items() if not isinstance(v, str)}
+    health = summary.get("health")
+    if isinstance(health, list) and health and isinstance(health[0], int):
+        figures["health_level"] = health[0]  # 0 fine; the message is in summary.json
+    return figures
 
 
 NLL = re.compile(r"NLL \(gate off\): (\S+) -> (\S+)")
