@@ -324,3 +324,12 @@ def test_simulate_items_over_torque_tables_equal_the_simulate_command(tmp_path) 
                          "--duration", duration, "--dt", "2e-4", "--out", str(single)]) == 0
         batched = tmp_path / "out" / "items" / f"move{move}" / "simulation.csv"
         assert batched.read_bytes() == single.read_bytes()
+
+
+def test_bags_in_the_output_folder_are_not_items(tmp_path) -> None:
+    """`batch observe . --out runs/x` must not take its own items' estimate bags for new recordings."""
+    own = tmp_path / "runs" / "x" / "items" / "a" / "estimates"
+    own.mkdir(parents=True)
+    (own / "metadata.yaml").write_text("rosbag2_bagfile_information: {}\n")
+    with pytest.raises(InputError, match="no items outside the output folder"):
+        batch("observe", [tmp_path], tmp_path / "runs" / "x", model=MODEL, progress=False)

@@ -58,6 +58,11 @@ def items_of(kind: str, inputs: Sequence[str | Path] = (), model: str | Path | N
     return discover([str(i) for i in inputs], Inputs(kind, None if model is None else str(model), dict(options or {})))
 
 
+def _inside(source: str, out: Path) -> bool:
+    """Whether an input lies in the output folder (an item's own estimates bag, found again)."""
+    return bool(source) and Path(source).resolve().is_relative_to(out.resolve())
+
+
 def batch(kind: str, inputs: Sequence[str | Path] = (), out: str | Path = "runs/batch", *,
           model: str | Path | None = None, options: Mapping[str, object] | None = None,
           study: str | Path | None = None, jobs: int | None = None, cluster: str | None = None,
@@ -79,9 +84,11 @@ def batch(kind: str, inputs: Sequence[str | Path] = (), out: str | Path = "runs/
     say = log or (lambda s: print(s, file=sys.stderr))
     if not 0 <= retries <= 100:
         raise InputError(f"--retries must be 0 to 100, got {retries}")
-    items = items_of(kind, inputs, model, options, study)
-    runner = engines.engine(cluster, jobs)
     out = Path(out)
+    items = [it for it in items_of(kind, inputs, model, options, study) if not _inside(it.source, out)]
+    if not items:
+        raise InputError(f"no items outside the output folder {out}")
+    runner = engines.engine(cluster, jobs)
     if out.exists() and not out.is_dir():
         raise InputError(f"--out {out}: exists and is not a folder")
     out.mkdir(parents=True, exist_ok=True)

@@ -24,7 +24,7 @@ from pathlib import Path
 from elastic_pm_dyn.errors import InputError
 from elastic_pm_dyn.fleet import store
 from elastic_pm_dyn.fleet.items import Item
-from elastic_pm_dyn.fleet.runners import run_item
+from elastic_pm_dyn.fleet.runners import one_line, run_item
 
 OnRecord = Callable[[dict], None]
 
@@ -150,9 +150,12 @@ class DaskEngine:
                     it = futures[fut]
                     try:
                         record = fut.result()
-                    except Exception:  # KilledWorker: died allowed-failures + 1 times (or the cluster lost it)
-                        record = store.complete(out, it) or killed_record(it, retries + 1)
-                        if record["status"] != "ok":
+                    except Exception as err:  # KilledWorker: its workers died allowed-failures + 1 times
+                        record = store.complete(out, it)
+                        if record is None:
+                            record = killed_record(it, retries + 1)
+                            if type(err).__name__ != "KilledWorker":  # lost otherwise (a worker without the package)
+                                record["error"] = one_line(f"{type(err).__name__}: {err}")
                             store.write_failure(out, record)
                     on_record(record)
             except BaseException:  # Ctrl-C: cancel what has not finished; finished items stay
