@@ -145,30 +145,30 @@ model: {model}
 fixed: {{integrator: {integrator}, sample: 2.0e-3, dt: {dt}}}
 grid:
   stiffness_scale: [0.5, 2.0]
-  move: [0.05, 0.08]
+  move: {moves}
   payload: [0.2]
 """
 
 
-def _study(tmp_path: Path, integrator: str = "rk4", dt: float = 2e-4) -> Path:
+def _study(tmp_path: Path, integrator: str = "rk4", dt: float = 2e-4, moves: str = "[0.05, 0.08]") -> Path:
     path = tmp_path / "study.yaml"
-    path.write_text(STUDY.format(model=MODEL, integrator=integrator, dt=dt) + "  hold: [0.02]\n")
+    path.write_text(STUDY.format(model=MODEL, integrator=integrator, dt=dt, moves=moves) + "  hold: [0.02]\n")
     return path
 
 
 def test_study_grid_points_equal_their_single_runs_and_softer_springs_deflect_more(tmp_path) -> None:
-    study = _study(tmp_path)
+    study = _study(tmp_path, moves="[0.05]")
     items = study_items(study)
-    assert [dict(it.study)["stiffness_scale"] for it in items] == [0.5, 0.5, 2.0, 2.0]
+    assert [dict(it.study)["stiffness_scale"] for it in items] == [0.5, 2.0]
     res = batch("simulate", out=tmp_path / "out", study=study, jobs=2, progress=False)
-    assert res.counts["ok"] == 4
+    assert res.counts["ok"] == 2
     for it in items:
         single = run_item(it, tmp_path / "single")
         assert single["status"] == "ok"
         assert (tmp_path / "out" / "items" / it.id / "simulation.csv").read_bytes() == \
             (tmp_path / "single" / "items" / it.id / "simulation.csv").read_bytes()
     rows = {r["id"]: r for r in res.table}
-    soft, stiff = rows[items[0].id], rows[items[2].id]  # same move, a quarter of the stiffness
+    soft, stiff = rows[items[0].id], rows[items[1].id]  # same move, a quarter of the stiffness
     assert soft["peak_deflection.left_spring"] > 2 * stiff["peak_deflection.left_spring"]
     assert (tmp_path / "out" / "sensitivity.png").is_file()
 
@@ -333,3 +333,25 @@ def test_bags_in_the_output_folder_are_not_items(tmp_path) -> None:
     (own / "metadata.yaml").write_text("rosbag2_bagfile_information: {}\n")
     with pytest.raises(InputError, match="no items outside the output folder"):
         batch("observe", [tmp_path], tmp_path / "runs" / "x", model=MODEL, progress=False)
+
+
+def test_study_parameters_change_the_model_and_a_payload_loads_the_branches(tmp_path) -> None:
+    from elastic_pm_dyn.fleet.items import Item
+    from elastic_pm_dyn.fleet.runners import study_model
+    from elastic_pm_dyn.model.loader import load_model
+    model = load_model(MODEL)
+
+    def total(m) -> float:
+        return sum(j.body.mass for c in m.chains for j in c.joints if j.body is not None)
+
+    springs = [j.stiffness for c in model.chains for j in c.joints if j.role == "elastic"]
+    assert total(study_model(model, {"payload": 0.5})) == pytest.approx(total(model) + 0.5, rel=1e-12)
+    assert total(study_model(model, {"mass_scale": 2.0})) == pytest.approx(2 * total(model), rel=1e-12)
+    stiff = study_model(model, {"stiffness_scale": 3.0})
+    assert [j.stiffness for c in stiff.chains for j in c.joints if j.role == "elastic"] == [3 * k for k in springs]
+    peak = {}
+    for payload in (0.0, 1.0):
+        point = {"payload": payload, "move": 0.2, "hold": 0.02, "integrator": "etd2", "sample": 1e-3}
+        record = run_item(Item("simulate", f"m{payload}", str(MODEL), study=tuple(sorted(point.items()))), tmp_path)
+        peak[payload] = record["figures"]["peak_branch_force_N"]
+    assert peak[1.0] > 1.5 * peak[0.0]  # a kilogram at the tip, where the model has 0.2 kg

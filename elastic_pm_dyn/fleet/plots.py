@@ -107,7 +107,8 @@ def write(out: Path, rows: Sequence[dict], figure_names: Sequence[str], paramete
     params = [p for p in parameter_names if len(_outputs(ok, [p])) == 1]
     if names and params:
         rho = np.array([[spearman(_numeric(ok, p), _numeric(ok, n)) for n in names] for p in params])
-        fig, ax = plt.subplots(figsize=(1.0 + 0.8 * len(names), 1.2 + 0.5 * len(params)))
+        # room below for the rotated output names (up to ~30 characters)
+        fig, ax = plt.subplots(figsize=(3.0 + 0.8 * len(names), 3.5 + 0.5 * len(params)))
         im = ax.imshow(rho, vmin=-1, vmax=1, cmap="coolwarm", aspect="auto")
         ax.set_xticks(range(len(names)), names, rotation=60, ha="right", fontsize=7)
         ax.set_yticks(range(len(params)), params, fontsize=7)

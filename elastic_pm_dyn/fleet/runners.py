@@ -183,7 +183,9 @@ def _simulate(item: Item, work: Path) -> dict:
 
 
 def study_model(model, p: Mapping):
-    """The model with a study point's parameters (see study.MODEL_PARAMETERS)."""
+    """The model with a study point's parameters (see study.MODEL_PARAMETERS): the scales
+    first (mass_scale includes the end-effector mass the loader lumped into the chain ends),
+    then the payload added at the end effector."""
     k, d, m = (float(p.get(name, 1.0)) for name in ("stiffness_scale", "damping_scale", "mass_scale"))
 
     def joint(j):
@@ -193,11 +195,19 @@ def study_model(model, p: Mapping):
             j = replace(j, body=replace(j.body, mass=j.body.mass * m, inertia=j.body.inertia * m))
         return j
 
-    chains = tuple(replace(c, joints=tuple(joint(j) for j in c.joints)) for c in model.chains)
-    model = replace(model, chains=chains)
-    if "payload" in p:
-        model = replace(model, end_effector_mass=float(p["payload"]))
-    return model
+    chains = [replace(c, joints=tuple(joint(j) for j in c.joints)) for c in model.chains]
+    payload = float(p.get("payload", 0.0))
+    if payload > 0:  # a point mass at the end effector, split over the chain ends as the loader lumps the model's own
+        from elastic_pm_dyn.model.description import Body
+        closure = model.closure
+        owners = (0,) if closure is None else (closure.hub,) if closure.hub >= 0 else closure.chains
+        for ci in owners:
+            c = chains[ci]
+            last = c.joints[-1]
+            point = Body(payload / len(owners), c.end_xyz.copy(), np.zeros((3, 3)))
+            body = point if last.body is None else last.body.combined(point)
+            chains[ci] = replace(c, joints=c.joints[:-1] + (replace(last, body=body),))
+    return replace(model, chains=tuple(chains), end_effector_mass=model.end_effector_mass + payload)
 
 
 def _study_point(item: Item, work: Path) -> dict:

@@ -38,8 +38,8 @@ from elastic_pm_dyn.fleet.items import Item
 MODEL_PARAMETERS = {
     "stiffness_scale": (float, "every elastic joint's stiffness times this"),
     "damping_scale": (float, "every elastic joint's damping times this"),
-    "mass_scale": (float, "every body's mass and inertia times this"),
-    "payload": (float, "end-effector mass [kg] (replaces the model's)"),
+    "mass_scale": (float, "every body's mass and inertia times this (the end effector's share included)"),
+    "payload": (float, "a point mass [kg] added at the end effector (split over the chain ends it joins)"),
     "elastic_dof_per_chain": (int, "discretisation of flexible links (models with flexible_link only)"),
 }
 MOTION_PARAMETERS = {"move": (float, "move time [s]"), "hold": (float, "hold time after the move [s]")}
