@@ -63,6 +63,16 @@ def one_by_one(items, out: Path) -> float:
     return time.perf_counter() - start
 
 
+def cli_loop(items, out: Path) -> float:
+    """Each item as its own `elastic-pm-dyn` process, one after the other: a shell loop."""
+    shutil.rmtree(out, ignore_errors=True)
+    start = time.perf_counter()
+    for it in items:
+        argv = [it.kind, "--model", it.model, "--bag", it.source, "--out", str(out / it.id), *it.argv_options()]
+        subprocess.run([sys.executable, "-m", "elastic_pm_dyn", *argv], capture_output=True, timeout=3600)
+    return time.perf_counter() - start
+
+
 def same(a: Path, b: Path, items) -> bool:
     """Every output file of every complete item equal byte for byte (the item records' timing aside)."""
     for it in items:
@@ -102,6 +112,33 @@ def interrupt_and_resume(bags: list[Path], out: Path, after: int) -> dict:
             "rerun_exit": again.returncode, "rerun_counts": status["counts"]}
 
 
+def kill_one_worker(bags: list[Path], out: Path, jobs: int) -> dict:
+    """SIGKILL the worker running the second bag's item mid-item (its hidden folder names its pid)."""
+    import threading
+
+    from elastic_pm_dyn.fleet.api import batch
+    shutil.rmtree(out, ignore_errors=True)
+    victim = bags[1].name
+    killed: list[int] = []
+
+    def killer() -> None:
+        deadline = time.monotonic() + 3600
+        while not killed and time.monotonic() < deadline:
+            for tmp in (out / "items").glob(f".{victim}.*.tmp") if (out / "items").is_dir() else ():
+                os.kill(int(tmp.name.split(".")[2]), signal.SIGKILL)
+                killed.append(int(tmp.name.split(".")[2]))
+                break
+            time.sleep(0.005)
+
+    thread = threading.Thread(target=killer, daemon=True)
+    thread.start()
+    res = batch("observe", bags, out, model=MODEL, options=OPTIONS, jobs=jobs, progress=False, plots_on=False)
+    thread.join(1)
+    attempts = {r["id"]: r["attempt"] for r in res.records}
+    return {"killed_pid": killed, "counts": res.counts, "attempts_of_killed_item": attempts.get(victim),
+            "items_started_more_than_once": sorted(k for k, a in attempts.items() if a > 1)}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--recordings", type=int, default=40)
@@ -130,10 +167,12 @@ def main() -> None:
         if name == "observe":  # warm the compiled kernels' cache for every phase alike
             one_by_one(items[:1], work / "warm")
         serial = one_by_one(items, work / f"{name}_serial")
+        cli_s = cli_loop(items, work / f"{name}_cli") if name == "observe" else None
         shutil.rmtree(work / f"{name}_pool", ignore_errors=True)
         res = batch(kind, inputs, work / f"{name}_pool", model=MODEL if st is None else None, options=options,
                     study=st, jobs=a.jobs, progress=False, plots_on=True)
-        row = {"items": len(items), "serial_s": serial, "pool_s": res.wall_s, "speedup": serial / res.wall_s,
+        row = {"items": len(items), "serial_s": serial, "cli_loop_s": cli_s, "pool_s": res.wall_s,
+               "speedup": serial / res.wall_s,
                "counts": res.counts, "pool_equals_serial": same(work / f"{name}_serial", work / f"{name}_pool", items),
                "failed": {r["id"]: r["error"] for r in res.failed},
                "item_s_mean": sum(r["wall_s"] or 0 for r in res.records) / max(1, len(res.records))}
@@ -150,10 +189,12 @@ def main() -> None:
     seconds = (a.recordings - 1) * a.seconds
     report["per_recording_second"] = {"observe_cpu_s": report["observe"]["serial_s"] / seconds,
                                       "tune_cpu_s": report["tune"]["serial_s"] / seconds}
+    report["worker_killed"] = kill_one_worker(bags, work / "killed", a.jobs)
     report["ctrl_c_resume"] = interrupt_and_resume(bags, work / "resume", after=max(2, a.recordings // 4))
     report["machine"]["loadavg_end"] = os.getloadavg()
     (results / "batch.json").write_text(json.dumps(report, indent=1, default=str) + "\n")
-    print(json.dumps({k: report[k] for k in ("observe_tune_speedup", "per_recording_second", "ctrl_c_resume")},
+    print(json.dumps({k: report[k] for k in ("observe_tune_speedup", "per_recording_second", "worker_killed",
+                                             "ctrl_c_resume")},
                      indent=1))
 
 
