@@ -53,6 +53,7 @@ _EXPORTS: dict[str, tuple[str, str]] = {
     "observe": ("elastic_pm_dyn.observer.offline", "observe_bag"),
     "load_observer_config": ("elastic_pm_dyn.observer.config", "load_config"),
     "analyze": ("elastic_pm_dyn.analysis.report", "analyze"),
+    "batch": ("elastic_pm_dyn.fleet.api", "batch"),
     "ElasticPmDynError": ("elastic_pm_dyn.errors", "ElasticPmDynError"),
     "ModelError": ("elastic_pm_dyn.errors", "ModelError"),
     "InputError": ("elastic_pm_dyn.errors", "InputError"),
@@ -78,6 +79,7 @@ __all__ = [  # written out, not derived from _EXPORTS: static tools read it lite
     "SingularConfigurationError",
     "TorqueTable",
     "analyze",
+    "batch",
     "elastic_modes",
     "initial_state",
     "line_torques",
@@ -100,6 +102,7 @@ if TYPE_CHECKING:  # what type checkers and IDEs see; at run time __getattr__ be
         ModelError,
         SingularConfigurationError,
     )
+    from elastic_pm_dyn.fleet.api import batch
     from elastic_pm_dyn.kinematics.assembly import initial_state, random_consistent_state
     from elastic_pm_dyn.kinematics.mechanism import Mechanism
     from elastic_pm_dyn.model.loader import load_model

@@ -65,11 +65,21 @@ settings.register_profile("fuzz-long", deadline=None, derandomize=False, databas
 def pytest_addoption(parser: pytest.Parser) -> None:
     parser.addoption("--fuzz-long", action="store_true", default=False,
                      help=f"input fuzz suites: {FUZZ_LONG_FACTOR}x the examples, new ones each run")
+    parser.addoption("--fleet-long", action="store_true", default=False,
+                     help="test_fleet: also the Dask LocalCluster and the Ctrl-C-then-resume runs (~30 s more; "
+                          "or ELASTIC_PM_DYN_FLEET=long)")
 
 
 def pytest_configure(config: pytest.Config) -> None:
     if config.getoption("--fuzz-long"):
         _fuzz["long"] = True
+
+
+@pytest.fixture
+def fleet_long(request: pytest.FixtureRequest) -> None:
+    """Skip unless --fleet-long (or ELASTIC_PM_DYN_FLEET=long): the batch tests that start clusters or processes."""
+    if not (request.config.getoption("--fleet-long") or os.environ.get("ELASTIC_PM_DYN_FLEET") == "long"):
+        pytest.skip("a long batch test: run with --fleet-long")
 
 
 def fuzz_settings(examples: int) -> settings:

@@ -28,7 +28,7 @@ LAYERS: list[set[str]] = [
     {"motion"},
     {"sim"},
     {"observer", "analysis"},
-    {"demo"},
+    {"demo", "fleet"},
     {"ros"},
     {"cli"},
     {"entry"},
