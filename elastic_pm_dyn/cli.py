@@ -489,7 +489,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--domain-id", type=int, help="ROS domain id (default: a private one from the process id)")
     p.add_argument("--observer", action="store_true",
                    help="the closed loop: plant with sensors and a disturbance, observer node, PD + feedforward "
-                        "controller, recorder; summary with estimate vs truth vs open loop (README 'Closing the loop')")
+                        "controller, recorder; summary with estimate vs truth vs open loop "
+                        "(docs/nodes.md, 'Closing the loop')")
     p.add_argument("--elastic-dof-per-chain", type=int, help="--observer: override the model's discretisation")
     p.add_argument("--seed", type=int, help="--observer: seed of the sensor noise and the disturbance (default 1)")
     p.add_argument("--duration", type=float, help="--observer: [s] of loop (default 2)")

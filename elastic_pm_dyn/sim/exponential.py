@@ -33,7 +33,7 @@ is a filter, the one of mollified impulse methods (Garcia-Archilla, Sanz-Serna a
 1999; Hochbruck and Lubich 1999): a mode's oscillation reaches N reduced by
 |sinc(omega H / 2)|, the slow motion unchanged. What it gives up is the vibration's rectified
 part (the mean of the products): at omega H >> 1 a free, undamped machine drifts more slowly
-than it should under its own vibration (README Limits). ETD2RK is kept (scheme ETD2RK) for
+than it should under its own vibration (docs/limits.md). ETD2RK is kept (scheme ETD2RK) for
 that comparison. After each macro step (q, qd) is projected onto the constraint manifold,
 positions in the metric M + H^2 K so that the correction does not shift the stiff springs
 (:func:`elastic_pm_dyn.sim.kernels.project_springs`).
