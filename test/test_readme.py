@@ -69,3 +69,35 @@ def test_snippet_runs(page: Path, k: int, workdir: Path) -> None:
         plant.stop()
     assert out.startswith("100 states"), out
     assert "Traceback" not in (workdir / "logs" / "plant.log").read_text()
+
+
+# Pages the README links that other branches write (issues #25, #26, #28 and the observer loop):
+# drop each name once its page is merged, so that a dead link fails here.
+PENDING_PAGES = {"docs/ros.md", "docs/robot_files.md", "docs/batch.md", "docs/observer.md"}
+
+
+def github_anchor(heading: str) -> str:
+    """The id GitHub gives a Markdown heading: lower case, punctuation but - and _ dropped, spaces -."""
+    text = re.sub(r"[^\w\- ]", "", heading.strip().lower())
+    return text.replace(" ", "-")
+
+
+def test_every_relative_link_of_the_readme_docs_and_bench_resolves() -> None:
+    pages = [*PAGES, *sorted((REPO / "bench").rglob("README*.md"))]
+    dead = []
+    for page in pages:
+        text = re.sub(r"^```.*?^```", "", page.read_text(), flags=re.MULTILINE | re.DOTALL)
+        for target in re.findall(r"\]\(([^)\s]+)\)", text):
+            if target.startswith(("http://", "https://", "mailto:")):
+                continue
+            path, _, anchor = target.partition("#")
+            file = (page.parent / path).resolve() if path else page
+            if str(file.relative_to(REPO)) in PENDING_PAGES:
+                continue
+            if not file.exists():
+                dead.append(f"{page.relative_to(REPO)}: {target}")
+            elif anchor and file.suffix == ".md":
+                headings = re.findall(r"^#+ (.*)$", file.read_text(), re.MULTILINE)
+                if anchor not in {github_anchor(h) for h in headings}:
+                    dead.append(f"{page.relative_to(REPO)}: {target} (no such heading)")
+    assert not dead, "\n".join(dead)
