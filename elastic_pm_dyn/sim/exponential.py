@@ -548,7 +548,7 @@ def exponential_steps_ws(scheme, form, ma, q, qd, tau_coef, dt, n_steps, stab, a
         qd[:] = v1
         if stab & STAB_PROJECTION:
             # with the gains' Y, S^-1 (at the step's start; IMPULSE's at its end): no factorisation
-            project_springs(ma, q, qd, tol, 3, pws, fast, sk, G, gws[1], gws[2], gws[7], gws[8], gws[9], sw)
+            project_springs(ma, q, qd, tol, np.int64(3), pws, fast, sk, G, gws[1], gws[2], gws[7], gws[8], gws[9], sw)
         info[0] = step + 1
     info[1] = worst
     info[2] = gap
