@@ -5,6 +5,6 @@ demo:
 test:
 	bash scripts/test.sh
 bench:
-	bash scripts/bootstrap.sh && .venv/bin/python bench/bench_dynamics.py
+	bash scripts/bootstrap.sh && .venv/bin/python bench/benchmarks/bench_dynamics.py
 lint:
 	.venv/bin/ruff check .

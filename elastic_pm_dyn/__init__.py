@@ -21,6 +21,7 @@ simulator.
 from __future__ import annotations
 
 import importlib
+from types import ModuleType
 from typing import TYPE_CHECKING, Any
 
 from elastic_pm_dyn._numba_cache import configure as _configure_numba_cache
@@ -127,4 +128,9 @@ def __getattr__(name: str) -> Any:
 
 
 def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(__all__))
+    """The public names, the dunders and the subpackages loaded so far; not what this file
+    imports for itself (``Any``, ``importlib``, ``TYPE_CHECKING``, ``annotations``)."""
+    own = {name for name, value in globals().items()
+           if name.startswith("__") or (isinstance(value, ModuleType) and value.__name__.startswith(f"{__name__}.")
+                                        and not name.startswith("_"))}
+    return sorted(own | set(__all__))

@@ -299,10 +299,11 @@ def _dropped_rows(model) -> list[str]:
 
 
 def _print_integrator_steps(mech, q: np.ndarray, rk4_limit: float) -> None:
-    """One line per integrator: the step it needs and why (bench/README_integrators.md)."""
+    """One line per integrator: the step it needs and why (bench/benchmarks/README_integrators.md)."""
     from elastic_pm_dyn.sim import exponential
     rate, n_sub = exponential.substeps_at(mech, q, exponential.RECOMMENDED_STEP)
-    print("integrators (step for branch forces within 1 % of their elastic part, bench/README_integrators.md):")
+    print("integrators (step for branch forces within 1 % of their elastic part, "
+          "bench/benchmarks/README_integrators.md):")
     print(f"  rk4:  stability limit {rk4_limit:.3g} s (fastest mode); the accuracy needed {rk4_limit / 30:.2g}-"
           f"{rk4_limit / 4:.2g} s (1/30 to 1/4 of the limit) on the machines measured")
     print(f"  etd2: no stability limit from the springs (integrated exactly: {n_sub} sub-steps per "
@@ -504,7 +505,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--domain-id", type=int, help="ROS domain id (default: a private one from the process id)")
     p.add_argument("--observer", action="store_true",
                    help="the closed loop: plant with sensors and a disturbance, observer node, PD + feedforward "
-                        "controller, recorder; summary with estimate vs truth vs open loop (README 'Closing the loop')")
+                        "controller, recorder; summary with estimate vs truth vs open loop "
+                        "(docs/nodes.md, 'Closing the loop')")
     p.add_argument("--elastic-dof-per-chain", type=int, help="--observer: override the model's discretisation")
     p.add_argument("--seed", type=int, help="--observer: seed of the sensor noise and the disturbance (default 1)")
     p.add_argument("--duration", type=float, help="--observer: [s] of loop (default 2)")

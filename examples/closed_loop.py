@@ -18,7 +18,7 @@ Run (needs ROS 2 Jazzy's rclpy and the elastic_pm_dyn_msgs package):
 
 DIR (default closed_loop_out) receives the bag, summary.json, branch_forces.png (estimate
 with its 2-sigma band, truth, open loop), path.png, torques.png and the node logs. The same
-as ``elastic-pm-dyn ros-demo --observer``; the nodes' wiring is README "Closing the loop".
+as ``elastic-pm-dyn ros-demo --observer``; the nodes' wiring is docs/nodes.md, "Closing the loop".
 """
 
 from __future__ import annotations

@@ -4,7 +4,7 @@
         [observer_config:=tuned.yaml] [kp:="[77.0, 80.0]"] [kd:="[3.4, 3.6]"] [bag:=closed_loop_bag]
 
 The same nodes and wiring as ``elastic-pm-dyn ros-demo --observer`` (which needs no launch and
-also reads the bag back; README "Closing the loop"): the plant (config/plant_sensors.yaml:
+also reads the bag back; docs/nodes.md, "Closing the loop"): the plant (config/plant_sensors.yaml:
 lockstep, encoders, accelerometer, a flat 2-200 Hz unknown torque) publishes the truth and
 the sensors; the observer publishes its estimates under ``observer/`` and takes its inputs in
 offline observe's order (``lockstep_order``); the controller (config/feedforward.yaml: the reference line,

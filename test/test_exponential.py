@@ -1,6 +1,6 @@
 """ETD2 (sim/exponential.py): accuracy against DOP853, undamped energy, the kernel contract, the plant.
 
-The accuracy criterion is the one of bench/bench_integrators.py: branch forces within 1 % of
+The accuracy criterion is the one of bench/benchmarks/bench_integrators.py: branch forces within 1 % of
 the RMS of their elastic part (F minus the quasi-static force of the locked machine) of a
 DOP853 run at rtol 1e-10.
 """

@@ -1,4 +1,4 @@
-"""MJCF features met in public third-party models (bench/third_party_mjcf.py): a joint
+"""MJCF features met in public third-party models (bench/studies/third_party_mjcf.py): a joint
 ``ref``, a body weld's relative pose, a floating base fixed on request, redundant closures.
 
 Each is checked against MuJoCo itself: our assembled start pose, handed to MuJoCo as qpos

@@ -11,7 +11,7 @@ prior of 0.05 N on each branch force): branch-force error RMS relative to the RM
 F - F_qs, against an open-loop elastic simulation driven by the same commands; motor
 error against the encoder noise; NEES of [q_ae, qd_ae] in its 95 % band.
 
-What the physics allows (bench/observer_bound.py): an accelerometer makes the vibration
+What the physics allows (bench/studies/observer_bound.py): an accelerometer makes the vibration
 and the disturbance observable, and the combination meets every target. With encoders
 alone the target "half the open loop's error" is out of reach for any live filter: the
 quasi-static branch force follows the unknown torque at once, but the torque moves a motor
@@ -81,7 +81,7 @@ def test_every_sensor_set_tracks_motors_consistently(scores, label, name) -> Non
     assert s["motor_rmse_rad"] < 2e-5, s  # below the encoder noise
     # Target 0.9 (0.88 here: one seed's margin). Without the accelerometer on the chirp the
     # filter is cautious, never over-confident: the spring states' uncertainty comes from the
-    # process noise no encoder sees (bench/observer_identifiability.py); with the RK4 substep
+    # process noise no encoder sees (bench/studies/observer_identifiability.py); with the RK4 substep
     # from the model's modes (process.dt: 0) its error fell 3x there and its NEES mean is 5.7 of 8.
     cautious = label == "chirp" and name != "encoders+imu"
     assert s["nees_in_band"] >= (0.8 if cautious else 0.88), s

@@ -1,4 +1,4 @@
-"""The operation counter of bench/opcount.py: exact on known factorizations, stable on the five-bar.
+"""The operation counter of bench/tools/opcount.py: exact on known factorizations, stable on the five-bar.
 
 The counter runs the kernels' Python source (NUMBA_DISABLE_JIT=1) in a subprocess, so
 these tests start one (about 1 s each).
@@ -17,7 +17,7 @@ import pytest
 
 from elastic_pm_dyn.dynamics.evaluate import FORMULATION_CODES, accelerations_flat
 
-BENCH = Path(__file__).resolve().parent.parent / "bench"
+BENCH = Path(__file__).resolve().parent.parent / "bench" / "tools"
 sys.path.insert(0, str(BENCH))
 
 from opcount import OPS as FLOPS  # noqa: E402

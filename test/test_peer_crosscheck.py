@@ -1,6 +1,6 @@
 """Physics cross-check against Pinocchio's constraintDynamics (skipped without ``pin``).
 
-The Pinocchio five-bar (bench/peers_five_bar.py) is built from the numbers of
+The Pinocchio five-bar (bench/tools/peers_five_bar.py) is built from the numbers of
 docs/five_bar.md, not from our YAML loader, so this also checks what the
 loader made of config/five_bar.yaml (end-effector mass split, rotor inertia, spring).
 Its joint order and signs are our tree order and signs. The closure is a 3D contact
@@ -25,7 +25,7 @@ from elastic_pm_dyn.kinematics.mechanism import Mechanism  # noqa: E402
 from elastic_pm_dyn.model.loader import load_model  # noqa: E402
 
 REPO = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(REPO / "bench"))
+sys.path.insert(0, str(REPO / "bench" / "tools"))
 from peers_five_bar import PinFiveBar, five_bar_spec  # noqa: E402
 
 N_STATES = 20

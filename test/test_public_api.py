@@ -49,6 +49,9 @@ def test_dir_lists_the_public_names() -> None:
     listed = dir(epd)
     assert set(epd.__all__) <= set(listed)
     assert "__version__" in listed and isinstance(epd.__version__, str)
+    assert not {"Any", "importlib", "TYPE_CHECKING", "ModuleType", "annotations"} & set(listed)
+    import elastic_pm_dyn.errors  # noqa: F401 (a loaded subpackage is listed, as a module attribute)
+    assert "errors" in dir(epd)
 
 
 def test_mapped_names_are_the_library_objects() -> None:

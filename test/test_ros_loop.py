@@ -1,4 +1,4 @@
-"""The closed loop (README "Closing the loop"): the PD law on its own, then one short lockstep
+"""The closed loop (docs/nodes.md, "Closing the loop"): the PD law on its own, then one short lockstep
 run of the five-bar through ROS 2 (plant with sensors, observer node, controller, recorder)."""
 
 from __future__ import annotations

@@ -154,7 +154,7 @@ def serial_chain_terms(jf, ji, s, e, points, point_body, grav, q, qd, M, h, J, a
     """:func:`subtree_terms` of a serial chain (joint k's parent k - 1) whose points all sit
     on its last body and have no frames (``ji[s, JI_SUBTREE] == 0``): the sweep carries one
     body's frame and rates along, every body's Jacobian has the columns s..k. The general
-    sweep's parent lookups and stored frames cost such a chain 7 % (bench/bench_tree_sweep.py).
+    sweep's parent lookups and stored frames cost such a chain 7 % (bench/benchmarks/bench_tree_sweep.py).
     An empty M (0 x 0) asks for the kinematics alone (points, their Jacobians and bias
     accelerations): no inertia, M and h untouched."""
     g = (grav[0], grav[1], grav[2])

@@ -15,7 +15,7 @@ class ModelArrays(NamedTuple):
     """Everything the kernels need, as contiguous arrays (see :mod:`layout`).
 
     As few arrays as will do: each one more costs every call from Python its unboxing
-    (about 0.15 us, bench/bench_dynamics.py's ``ours.kernel.*``).
+    (about 0.15 us, bench/benchmarks/bench_dynamics.py's ``ours.kernel.*``).
     """
 
     jf: np.ndarray  # (n_t, JF_WIDTH) float

@@ -1,4 +1,4 @@
-"""The ROS demo (``elastic-pm-dyn ros-demo``, the README's first command).
+"""The ROS demo (``elastic-pm-dyn ros-demo``, the README's demo command).
 
 Plant, feedforward and recorder run as separate processes on a private loopback domain;
 the feedforward drives the reference manoeuvre through ``torque_command``; the recorder

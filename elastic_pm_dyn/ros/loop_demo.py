@@ -77,7 +77,7 @@ TOPICS = {  # role -> topic
 
 @dataclass
 class LoopOptions:
-    """One closed-loop run (the defaults are the acceptance run's, README "Closing the loop")."""
+    """One closed-loop run (the defaults are the acceptance run's, docs/nodes.md, "Closing the loop")."""
 
     model: Path
     elastic_dof_per_chain: int | None = None
@@ -141,7 +141,7 @@ def rk4_limit(mech: Mechanism) -> float:
 
 def plant_numerics(mech: Mechanism) -> list[str]:
     """The plant's integrator: the project's RK4 at 1e-4 s where it is stable with a margin, else
-    ETD2 at 5e-4 s (springs integrated exactly: the README's choice for stiff machines, e.g.
+    ETD2 at 5e-4 s (springs integrated exactly: docs/simulation.md's choice for stiff machines, e.g.
     the Triglide at n_ek = 2 whose fastest mode, 4.8 kHz, needs an RK4 step below 9.3e-5 s)."""
     if rk4_limit(mech) > 2 * PLANT_DT:
         return []
@@ -221,7 +221,7 @@ def _p_item(v: Any) -> str:
 
 
 def node_arguments(bag: Path, mech: Mechanism, opts: LoopOptions) -> dict[str, list[str]]:
-    """The --ros-args of each node (README "Closing the loop" lists the same wiring)."""
+    """The --ros-args of each node (docs/nodes.md, "Closing the loop" lists the same wiring)."""
     model = ["-p", f"model:={opts.model}"]
     dof = (_p("elastic_dof_per_chain", int(opts.elastic_dof_per_chain))
            if opts.elastic_dof_per_chain is not None else [])

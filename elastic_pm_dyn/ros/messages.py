@@ -7,7 +7,7 @@ setters take without their per-element checks (this matters at 1-10 kHz). The pl
 four 1 kHz topics go further (:class:`PlantMessages`): each message is serialized once
 and its stamp and numbers are then written into the bytes in place, which rclpy publishes
 as they are (``Publisher.publish(bytes)``: no conversion of a Python message, no CDR
-serialization in the middleware; bench/README_plant.md has the times).
+serialization in the middleware; bench/benchmarks/README_plant.md has the times).
 """
 
 from __future__ import annotations

@@ -296,8 +296,8 @@ class RecorderNode(ManagedNode):
                     s.silent_reported = True
                     log.warning(f"{topic}: {s.matched} publisher(s) matched but still no message after "
                                 f"{s.resubscribed} new subscription(s): nothing of it is recorded (a silent "
-                                "publisher, or a transport that does not deliver: see README, 'Recorder QoS "
-                                "and losses')")
+                                "publisher, or a transport that does not deliver: see docs/nodes.md, 'Recorder "
+                                "QoS and losses')")
             elif (s.silent_reported or s.resubscribed) and s.losses.received and not s.arrive_reported:
                 s.arrive_reported = True
                 log.info(f"{topic}: messages arrive now (after {s.resubscribed} new subscription(s))")

@@ -28,12 +28,12 @@ N (G's change with the deflection times the spring force, the vibrating arms' Co
 terms). Sampled at two instants (ETD2RK, Cox and Matthews 2002: N at z0 and at x(H), a ramp
 between) those products alias into a slow forcing in phase with the modes, which pumped
 energy into them: the undamped Hexa at n_ek = 4 gained up to 16x its deflection's energy
-in 10 s at steps from 0.06 to 0.5 ms (bench/README_integrators.md). The average over the step
+in 10 s at steps from 0.06 to 0.5 ms (bench/benchmarks/README_integrators.md). The average over the step
 is a filter, the one of mollified impulse methods (Garcia-Archilla, Sanz-Serna and Skeel
 1999; Hochbruck and Lubich 1999): a mode's oscillation reaches N reduced by
 |sinc(omega H / 2)|, the slow motion unchanged. What it gives up is the vibration's rectified
 part (the mean of the products): at omega H >> 1 a free, undamped machine drifts more slowly
-than it should under its own vibration (README Limits). ETD2RK is kept (scheme ETD2RK) for
+than it should under its own vibration (docs/limits.md). ETD2RK is kept (scheme ETD2RK) for
 that comparison. After each macro step (q, qd) is projected onto the constraint manifold,
 positions in the metric M + H^2 K so that the correction does not shift the stiff springs
 (:func:`elastic_pm_dyn.sim.kernels.project_springs`).
@@ -47,7 +47,7 @@ Gershgorin's circles), i.e. O(n_f^2) operations per sub-step against a formulati
 evaluation per macro step.
 
 The impulse splitting (r-RESPA: kick H/2 with everything but the springs, the springs alone
-over H, kick H/2; scheme IMPULSE) shares the sub-steps; bench/bench_integrators.py measured it
+over H, kick H/2; scheme IMPULSE) shares the sub-steps; bench/benchmarks/bench_integrators.py measured it
 against ETD2 and it lost: a stiff spring under a slow load rings after every kick.
 """
 
@@ -90,7 +90,7 @@ TAYLOR_TOL = 2.1e-10
 DEFAULT_PHASE_STEP = 9.0
 
 # [s] the step `check` suggests: it met the 1 % branch-force criterion for ZOH torques at
-# 1 kHz on 6 of the 7 machines of bench/bench_integrators.py (bench/README_integrators.md)
+# 1 kHz on 6 of the 7 machines of bench/benchmarks/bench_integrators.py (bench/benchmarks/README_integrators.md)
 RECOMMENDED_STEP = 5e-4
 
 # Upper end of the sub-steps per macro step: a fastest mode 10^4 times the macro step's
@@ -343,7 +343,7 @@ def phi_response(G, fast, kf, df, H, n_sub, order, bq, bv, u1, u2, xq, xv, fw, B
 
 
 AVERAGED = 0  # the etd2 integrator (module docstring)
-IMPULSE = 1  # r-RESPA / impulse splitting, kept for the comparison in bench/bench_integrators.py
+IMPULSE = 1  # r-RESPA / impulse splitting, kept for the comparison in bench/benchmarks/bench_integrators.py
 ETD2RK = 2  # N sampled at the step's ends, kept for the same comparison
 
 
@@ -548,7 +548,7 @@ def exponential_steps_ws(scheme, form, ma, q, qd, tau_coef, dt, n_steps, stab, a
         qd[:] = v1
         if stab & STAB_PROJECTION:
             # with the gains' Y, S^-1 (at the step's start; IMPULSE's at its end): no factorisation
-            project_springs(ma, q, qd, tol, 3, pws, fast, sk, G, gws[1], gws[2], gws[7], gws[8], gws[9], sw)
+            project_springs(ma, q, qd, tol, np.int64(3), pws, fast, sk, G, gws[1], gws[2], gws[7], gws[8], gws[9], sw)
         info[0] = step + 1
     info[1] = worst
     info[2] = gap

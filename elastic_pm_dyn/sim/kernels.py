@@ -373,7 +373,7 @@ def rk4_steps(form, ma, q, qd, tau_coef, dt, n_steps, stab, alpha, beta, tol, si
                     v4[i] = qd[i] + dt * a3[i]
                 qs, vs, acc = q4, v4, a4
             if form == LDA:
-                g, cond = partition(ma, qs, vs, tol, 4)
+                g, cond = partition(ma, qs, vs, tol, np.int64(4))
                 if cond < lda_tol or not g <= NEWTON_FAILED:
                     if not _sane(qs, vs, limit):
                         return _diverged(ma, qs, vs, tau, a, b, qdd_prev, acc, lam, ws, form, info)
@@ -408,13 +408,13 @@ def rk4_steps(form, ma, q, qd, tau_coef, dt, n_steps, stab, alpha, beta, tol, si
         q[:] = q4
         qd[:] = v4
         if form == LDA:
-            gap, cond = partition(ma, q, qd, tol, 4)
+            gap, cond = partition(ma, q, qd, tol, np.int64(4))
             if cond < lda_tol or not gap <= NEWTON_FAILED:
                 info[1] = cond
                 info[2] = gap
                 return SINGULAR
         elif stab & STAB_PROJECTION:
-            project(ma, q, qd, tol, 3)
+            project(ma, q, qd, tol, np.int64(3))
         info[0] = step + 1
     info[1] = worst
     info[2] = gap

@@ -137,7 +137,7 @@ def _work(ma, n):
 def evaluate(ma, q, qd, tau, point, with_point, qdd, lam, qdd_prev, a_pt_out):
     """SCDD accelerations at (q, qd, tau) and, if with_point, the world acceleration of
     attachment point ``point`` (J qdd + Jdot qd). Returns the conditioning."""
-    cond, _ = accelerations(SCDD, ma, q, qd, tau, 0.0, 0.0, qdd_prev, qdd, lam)
+    cond, _ = accelerations(np.int64(SCDD), ma, q, qd, tau, 0.0, 0.0, qdd_prev, qdd, lam)
     if with_point:
         n = q.shape[0]
         M, h, J, a_pt, p_pt, A, gamma, res = _work(ma, n)
@@ -167,7 +167,7 @@ def point_from_scratch(ws, point, qdd, out):
 @njit(cache=True)
 def fast_evaluate(ma, q, qd, tau, point, with_point, ws, qdd, lam, a_pt_out):
     """:func:`evaluate` on work arrays (bit-identical). Returns the conditioning."""
-    cond, _ = accelerations_into(SCDD, ma, q, qd, tau, 0.0, 0.0, qdd, qdd, lam, ws)
+    cond, _ = accelerations_into(np.int64(SCDD), ma, q, qd, tau, 0.0, 0.0, qdd, qdd, lam, ws)
     if with_point:
         point_from_scratch(ws, point, qdd, a_pt_out)
     return cond
@@ -335,7 +335,7 @@ def difference_columns(ma, q, qd, tau, point, with_point, eps_q, eps_v, W, ws, l
             for i in range(n):
                 qp[i] = q[i] + W[i, j] * e
                 vp[i] = qd[i]
-            partition(ma, qp, vp, PERTURBED_TOL, 2)
+            partition(ma, qp, vp, PERTURBED_TOL, np.int64(2))
             worst = min(worst, fast_evaluate(ma, qp, vp, tau, point, with_point, ws, qdd1, lam, a1))
             for i in range(nae):
                 Aq[i, j] = (qdd1[ae[i]] - qdd0[ae[i]]) / e
@@ -609,15 +609,17 @@ def predict(ma, fixed, proc, state, tau, relinearize, T, n_sub):
     rk_info = np.zeros(3)
     if method[0] == ETD2:
         # the plant's integrator: the springs exact, the closure projected after each step
-        status = exponential_steps(AVERAGED, SCDD, ma, q, qd, coef, T / n_sub, n_sub, STAB_PROJECTION, 0.0, 0.0,
-                                   CLOSURE_TOL, SINGULAR_TOL, DEFAULT_PHASE_STEP, np.zeros(n), lam, rk_info)
+        # np.int64(): a literal constant would compile the kernels a second time (a Literal[int] signature)
+        status = exponential_steps(np.int64(AVERAGED), np.int64(SCDD), ma, q, qd, coef, T / n_sub, n_sub,
+                                   np.int64(STAB_PROJECTION), 0.0, 0.0, CLOSURE_TOL, SINGULAR_TOL, DEFAULT_PHASE_STEP,
+                                   np.zeros(n), lam, rk_info)
     else:
-        status = rk4_steps(SCDD, ma, q, qd, coef, T / n_sub, n_sub, 0, 0.0, 0.0, CLOSURE_TOL, SINGULAR_TOL,
-                           np.zeros(n), lam, rk_info)
+        status = rk4_steps(np.int64(SCDD), ma, q, qd, coef, T / n_sub, n_sub, np.int64(0), 0.0, 0.0, CLOSURE_TOL,
+                           SINGULAR_TOL, np.zeros(n), lam, rk_info)
     info[0] = min(cond, rk_info[1])
     if status != OK:
         return status
-    gap, ratio = partition(ma, q, qd, CLOSURE_TOL, 4)
+    gap, ratio = partition(ma, q, qd, CLOSURE_TOL, np.int64(4))
     info[1] = gap
     if not ratio >= SINGULAR_TOL or not gap <= 1e-9:
         return 1
@@ -741,7 +743,7 @@ def apply_correction(ma, q, qd, z, dx):
         qd[ae[i]] += dx[nae + i]
     for k in range(z.shape[0]):
         z[k] += dx[2 * nae + k]
-    return partition(ma, q, qd, CLOSURE_TOL, 6)
+    return partition(ma, q, qd, CLOSURE_TOL, np.int64(6))
 
 
 @njit(cache=True)

@@ -38,7 +38,7 @@ OMEGA_H = 0.2
 # for the fastest elastic mode, at least twice. The springs themselves are exact at any step;
 # what the step must still follow is their coupling with the geometry and the motion, which
 # ETD2 takes as forcing averaged over the step. Measured on chirps through the modes with an
-# accelerometer (bench/bench_observer_loop.py): the reference five-bar needs 2 steps per 1 ms
+# accelerometer (bench/benchmarks/bench_observer_loop.py): the reference five-bar needs 2 steps per 1 ms
 # (one leaves the mechanical NEES in its band 0.76 of the time instead of 0.93), the Triglide
 # at n_ek = 2 (4.9 kHz) 8 (at 4 the filter's NEES leaves its band; at 2 it gates half the
 # accelerometer samples); the rule gives both, and 4 steps for the Hexa at n_ek = 2.

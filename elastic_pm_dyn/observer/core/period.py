@@ -179,7 +179,7 @@ def _imu(ma, fixed, proc, state, cmd, ctl, timing, evidence, imu, imu_gate, meas
     tau_hold, tau_last = cmd[0], cmd[1]
     trees, prior, tau_before = work
     tree_b, tree_a = trees[0], trees[1]
-    _tree(active_idx, tau_last, False, tree_b)
+    _tree(active_idx, tau_last, np.bool_(False), tree_b)
     _tree(active_idx, tau_hold, _expired(timing, ctl[T_NOW], ctl[T_COMMAND]), tree_a)
     after = _use_after(ctl, evidence)
     if int(timing[IMU_MODE]) == 2 and not waiting:
@@ -286,7 +286,7 @@ def command_step(ma, fixed, proc, state, cmd, ctl, timing, evidence, imu, imu_ga
             imu_innovations(ma, fixed, proc, prior, imu, tau_before, trees[1], imu_meas, imu_gate, evidence)
         elif waiting == HELD:
             nis, st, ld = _imu(ma, fixed, proc, state, cmd, ctl, timing, evidence, imu, imu_gate, imu_meas, work,
-                               False)
+                               np.bool_(False))
             nis_row[1], nis_row[3] = nis, ld
             ok = st == 0
     if not ok:
@@ -330,8 +330,10 @@ def run_periods(ma, fixed, proc, state, cmd, ctl, timing, evidence, enc, enc_gat
     row = np.empty(4)
     for k in range(start, stop):
         _snapshot(state, cmd, evidence, ctl, period)
+        # np.bool_/np.int64 constants in calls between kernels: a literal True, False or 0 would give the callee a
+        # second (Literal-typed) specialisation, compiled a second time (see test_numba_cache.py)
         waiting = sample_step(ma, fixed, proc, state, cmd, ctl, timing, evidence, enc, enc_gate, imu, imu_gate,
-                              ts[k], True, enc_meas[k], has_imu, imu_meas[k], work, save, nis_out[k])
+                              ts[k], np.bool_(True), enc_meas[k], has_imu, imu_meas[k], work, save, nis_out[k])
         if waiting == 0:
             return k - start
         if command_step(ma, fixed, proc, state, cmd, ctl, timing, evidence, imu, imu_gate, ts[k], taus[k], waiting,

@@ -8,7 +8,7 @@ torques do not; with d in the state the sensors estimate them, and with them the
 quasi-static branch forces they cause: encoders the slow part (d moves a motor only through
 a double integration, so it must act for a while, ~10 ms for 0.02 N m on the reference
 five-bar, before the encoders see it), an accelerometer or strain gauges also the fast
-part (see bench/observer_bound.py for what is possible at all). The tree state (every
+part (see bench/studies/observer_bound.py for what is possible at all). The tree state (every
 joint) follows from x through the closure; a start from encoders puts the springs in
 static equilibrium.
 

@@ -1,4 +1,4 @@
-"""Scoring the observer on simulated recordings (the figures bench/bench_observer.py reports).
+"""Scoring the observer on simulated recordings (the figures bench/benchmarks/bench_observer.py reports).
 
 - Elastic part of a branch force: F minus its quasi-static rigid-model value F_qs, the
   force the rod would carry were it rigid, at the same state under the same (true) motor
