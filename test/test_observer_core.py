@@ -196,3 +196,26 @@ def test_start_from_encoders_puts_the_springs_in_static_equilibrium(five_bar_ver
     assert np.max(np.abs(slope)) < 1e-3 * np.max(np.abs(slope_rest)), (slope, slope_rest)
     F = obs.estimate().branch_force
     assert np.abs(F).max() > 0.4  # the weight's share, not zero
+
+
+def test_measurement_noise_changes_in_a_running_filter(five_bar) -> None:
+    """set_measurement_noise: a noisier encoder pulls the estimate less (the Kalman gain
+    R-weighted, as for a filter built with that noise), the state stays; other settings refused."""
+    names = list(five_bar.joint_names)
+    q0 = initial_state(five_bar)
+    meas = q0.copy()
+    meas[five_bar.active] += 1e-4  # one sample 1e-4 rad off the start
+
+    def pulled(stddev: float, runtime: bool) -> float:
+        obs = make(five_bar) if runtime else make(five_bar, encoders__position_stddev=[stddev])
+        if runtime:
+            obs.set_measurement_noise(obs.cfg.with_overrides(encoders__position_stddev=[stddev]))
+        obs.update_joint_states(0.0, names, meas)
+        return float(np.max(np.abs(obs.q[five_bar.active] - q0[five_bar.active])))
+
+    for stddev in (2e-5, 1e-3):
+        assert pulled(stddev, runtime=True) == pytest.approx(pulled(stddev, runtime=False), rel=1e-12)
+    assert pulled(1e-3, runtime=True) < 0.5 * pulled(2e-5, runtime=True)
+    obs = make(five_bar)
+    with pytest.raises(InputError, match="only the noise levels and the gate"):
+        obs.set_measurement_noise(obs.cfg.with_overrides(process__max_interval=2e-3))

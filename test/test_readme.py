@@ -23,6 +23,7 @@ HANG_GUARD = 900.0  # [s] a guard against a hang (a cold numba cache compiles fi
 
 
 def snippets(page: Path) -> list[str]:
+    """The ```python blocks of a page (```py blocks are illustrations that need the user's own files)."""
     return re.findall(r"^```python\n(.*?)^```", page.read_text(), re.MULTILINE | re.DOTALL)
 
 

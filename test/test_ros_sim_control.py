@@ -239,5 +239,28 @@ def test_observer_rates_change_at_run_time_the_rest_is_refused(ros: RosHarness) 
     assert abs(node.observer.timers["diagnostics_rate"].timer_period_ns - 2e8) < 1  # the timer made anew
     bad = node.set_parameters([Parameter("diagnostics_rate", value=0.0)])[0]
     assert not bad.successful and "must be a positive number" in bad.reason
-    fixed = node.set_parameters([Parameter("observer.gating.probability", value=0.99)])[0]
-    assert not fixed.successful  # read-only: the filter's gates are set up at start-up
+    fixed = node.set_parameters([Parameter("observer.process.max_interval", value=2e-3)])[0]
+    assert not fixed.successful  # read-only: the filter's schedule is set up at start-up
+
+
+def test_observer_noise_and_gate_change_at_run_time(ros: RosHarness) -> None:
+    """``ros2 param set`` of the sensors' noise levels and the gate reaches the running filter;
+    a bad value is refused in one line and leaves the filter as it was."""
+    from rclpy.parameter import Parameter
+    from scipy.stats import chi2
+
+    from elastic_pm_dyn.ros.observer_node import ObserverNode
+    node = ros.add(ObserverNode(context=ros.context, parameter_overrides=[
+        Parameter("observer.sensors", value=["encoders", "imu"])]))
+    obs = node.observer.session.obs
+    ok = node.set_parameters([Parameter("observer.imu.stddev", value=[0.05]),
+                              Parameter("observer.encoders.position_stddev", value=[1e-4]),
+                              Parameter("observer.gating.probability", value=0.99)])
+    assert all(r.successful for r in ok), [r.reason for r in ok]
+    np.testing.assert_allclose(obs.imu.var, 0.05 ** 2)
+    np.testing.assert_allclose(obs._imu[2], 0.05 ** 2)  # the compiled steps' bundle too
+    np.testing.assert_allclose(obs.encoders.pos_var, 1e-8)
+    assert obs.gate(2) == pytest.approx(chi2.ppf(0.99, 2))
+    bad = node.set_parameters([Parameter("observer.imu.stddev", value=[-1.0])])[0]
+    assert not bad.successful and "imu.stddev" in bad.reason and "\n" not in bad.reason
+    np.testing.assert_allclose(obs.imu.var, 0.05 ** 2)  # unchanged

@@ -37,6 +37,10 @@ AXES = ("x", "y", "z")
 
 # Every parameter (without the "observer." prefix) and its default. Floats are floats,
 # so that a ROS node can declare them with the right type.
+# What may change while a filter runs (Observer.set_measurement_noise): the sensors' noise levels
+# and the gate; everything else shapes the state, the model or the schedule.
+RUNTIME_PARAMETERS = ("encoders.position_stddev", "encoders.velocity_stddev", "imu.stddev", "branch_forces.stddev",
+                      "gating.probability")
 DEFAULT_PARAMETERS: dict[str, Any] = {
     "sensors": ["encoders", "imu"],
     # --- sensors

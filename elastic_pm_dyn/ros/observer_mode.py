@@ -58,7 +58,7 @@ from visualization_msgs.msg import MarkerArray
 from elastic_pm_dyn.bags.msgtypes import stamp_ns
 from elastic_pm_dyn.errors import InputError
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
-from elastic_pm_dyn.observer.config import DEFAULT_PARAMETERS, PREFIX
+from elastic_pm_dyn.observer.config import DEFAULT_PARAMETERS, PREFIX, RUNTIME_PARAMETERS
 from elastic_pm_dyn.ros.markers import MechanismMarkers
 from elastic_pm_dyn.ros.messages import EstimateMessages, stamp
 from elastic_pm_dyn.ros.observer_session import ObserverSession, Outcome, observer_config, parameter_message
@@ -73,8 +73,10 @@ FINDINGS_EVERY = 10.0  # [s] throttle of the NIS findings (they describe a windo
 LEVELS = {0: DiagnosticStatus.OK, 1: DiagnosticStatus.WARN, 2: DiagnosticStatus.ERROR}
 
 # Every observer parameter, typed by its default (floats are floats), as config/observer.yaml.
+# The sensors' noise levels and the gate may change while the filter runs (ros2 param set).
 OBSERVER_PARAMS = [Param(PREFIX + name, default, "state observer; see config/observer.yaml",
-                         fixed="the filter (noise, gates, model) is set up at start-up: restart the node")
+                         runtime=name in RUNTIME_PARAMETERS,
+                         fixed="the filter (model, process noise, schedule) is set up at start-up: restart the node")
                    for name, default in DEFAULT_PARAMETERS.items()]
 
 
@@ -155,7 +157,16 @@ class ObserverMode:
                  + ", ".join(f"'{topic}'" for _, topic, _ in inputs) + f"; one estimate per '{primary}' message")
 
     def apply_parameter(self, name: str, value: Any) -> str | None:
-        """A runtime parameter (checked already): the wall-clock rates; a reason for anything else."""
+        """A runtime parameter (checked already): the wall-clock rates, the sensors' noise levels
+        and the gate; a reason for anything else."""
+        if name.startswith(PREFIX) and name[len(PREFIX):] in RUNTIME_PARAMETERS:
+            try:  # validated as at start-up, then taken by the running filter
+                cfg = self.cfg.with_overrides(**{name[len(PREFIX):].replace(".", "__"): value})
+                self.session.set_measurement_noise(cfg)
+            except InputError as err:  # on_runtime_change names the parameter itself
+                return parameter_message(err).removeprefix(f"parameter '{name}': ")
+            self.cfg = cfg
+            return None
         if name not in self.timers:
             return "fixed at start-up in an observer (restart the node)"
         callback = self._publish_markers if name == "marker_rate" else self._publish_diagnostics

@@ -39,7 +39,7 @@ class ObserverNode(ManagedNode):
         p = read_parameters(self, PARAMS)
         mech, _ = load_machine(self, p)  # the decoder checks command_joints
         self.observer = ObserverMode(self, mech, p)
-        on_runtime_change(self, PARAMS, self.observer.apply_parameter)
+        on_runtime_change(self, [*PARAMS, *OBSERVER_PARAMS], self.observer.apply_parameter)
         # after the mode has started: a node that refuses to start says only why
         self.pub_robot_description = publish_robot_description(self, mech, p)
 

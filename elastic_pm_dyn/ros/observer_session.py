@@ -135,6 +135,11 @@ class ObserverSession:
         self._released: list[UpdateResult] = []  # held accelerometer samples the last message corrected
         self._late_run: list[int] = []  # stamps of the late joint states in a row (the stream contradicts the filter)
 
+    def set_measurement_noise(self, cfg: ObserverConfig) -> None:
+        """The running filter takes ``cfg``'s noise levels and gate (``Observer.set_measurement_noise``)."""
+        self.obs.set_measurement_noise(cfg)
+        self.cfg = cfg
+
     # ------------------------------------------------------------------ inputs
     def torque_command(self, ns: int, names: Sequence[str], effort: Sequence[float]) -> Outcome:
         """``names`` empty: ``effort`` in the command-joint order (Float64MultiArray)."""

@@ -174,9 +174,9 @@ class PlantNode(ManagedNode):
         mech, self.decoder = load_machine(self, p)
         self._warn_unused()
         if self.mode == "observer":
-            from elastic_pm_dyn.ros.observer_mode import ObserverMode
+            from elastic_pm_dyn.ros.observer_mode import OBSERVER_PARAMS, ObserverMode
             self.observer = ObserverMode(self, mech, p)
-            on_runtime_change(self, PARAMS, self.observer.apply_parameter)
+            on_runtime_change(self, [*PARAMS, *OBSERVER_PARAMS], self.observer.apply_parameter)
         else:
             self._start_plant(mech, p)
             on_runtime_change(self, PARAMS, self._apply_parameter)

@@ -431,6 +431,23 @@ class Observer:
         from elastic_pm_dyn.observer.core.observability import linear_model
         _, _, self.Hpt = linear_model(self, self.q, self.qd, self.tau_last)
 
+    def set_measurement_noise(self, cfg: ObserverConfig) -> None:
+        """Take the sensors' noise levels and the gate of ``cfg`` (``config.RUNTIME_PARAMETERS``)
+        from the next sample on; state, covariance, schedule and model stay. ``cfg`` must differ
+        from the current configuration only there (InputError otherwise)."""
+        from elastic_pm_dyn.observer.config import RUNTIME_PARAMETERS
+        old, new = self.cfg.parameters, cfg.parameters
+        other = sorted(k for k in old if old[k] != new.get(k) and k not in RUNTIME_PARAMETERS)
+        if other:
+            raise InputError(f"only the noise levels and the gate change in a running filter, not {', '.join(other)}")
+        self.cfg = cfg
+        self.encoders = self.model.encoders.with_noise(cfg) if self.model.encoders is not None else None
+        self.imu = self.model.imu.with_noise(cfg) if self.model.imu is not None else None
+        self.branch = self.model.branch.with_noise(cfg) if self.model.branch is not None else None
+        self._imu = None if self.imu is None else tuple(kernels.ImuModel(self.imu.S, self.imu.g, self.imu.var))
+        self._imu_bundle = self._imu or (np.zeros((0, 3)), np.zeros(3), np.zeros(0))
+        self._gates.clear()
+
     def gate(self, dof: int) -> float:
         if not self.gating:
             return np.inf
