@@ -241,8 +241,7 @@ def test_spectrum_disturbance_equals_offline_simulate(mech: Mechanism) -> None:
 def test_static_start_stands_still_under_the_holding_torque(mech: Mechanism) -> None:
     """``start: static``: the springs carry gravity from the first instant, so a plant held by
     the rigid holding torque does not ring; ``relaxed`` (springs unloaded) sags and rings."""
-    from elastic_pm_dyn.dynamics.inverse import tree_inverse_dynamics
-    from elastic_pm_dyn.dynamics.statics import elastic_residual
+    from elastic_pm_dyn.dynamics.statics import elastic_residual, holding_torques
 
     options = SimulationOptions(dt=1e-4, sample=PERIOD)
     static = Plant(mech, options, PERIOD, start="static")
@@ -252,8 +251,7 @@ def test_static_start_stands_still_under_the_holding_torque(mech: Mechanism) -> 
     assert np.max(np.abs(elastic_residual(mech, static.q0)[e])) < 1e-9
     assert np.max(np.abs(elastic_residual(mech, relaxed.q0)[e])) > 1e-3
     assert np.array_equal(static.q0[mech.active], relaxed.q0[mech.active])  # the motors where the file puts them
-    tau_ae = tree_inverse_dynamics(mech, static.q0, np.zeros(mech.n), np.zeros(mech.n))
-    hold = tau_ae[[list(mech.ae).index(j) for j in mech.active]]
+    hold = holding_torques(mech, static.q0)
     for _ in range(20):
         static.step(hold)
         relaxed.step(hold)

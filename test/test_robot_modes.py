@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from elastic_pm_dyn.dynamics.linear import elastic_modes
-from elastic_pm_dyn.dynamics.statics import static_deflection
+from elastic_pm_dyn.dynamics.statics import rest_state
 from elastic_pm_dyn.kinematics.assembly import initial_state
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.model.loader import load_model
@@ -28,7 +28,7 @@ FIVE_BAR_MJCF = ROBOTS / "five_bar.xml"
 
 
 def static_pose(mech: Mechanism) -> np.ndarray:
-    return static_deflection(mech, initial_state(mech), np.zeros(len(mech.ee_components)))
+    return rest_state(mech)
 
 
 def mujoco_modes(xml: Path, mech: Mechanism, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

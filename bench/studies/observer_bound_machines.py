@@ -40,10 +40,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from observer_bound import bounds  # noqa: E402
 
-from elastic_pm_dyn.dynamics.inverse import tree_inverse_dynamics  # noqa: E402
+from elastic_pm_dyn.dynamics.statics import holding_torques, rest_state  # noqa: E402
 from elastic_pm_dyn.kinematics.mechanism import Mechanism  # noqa: E402
 from elastic_pm_dyn.model.loader import load_model  # noqa: E402
-from elastic_pm_dyn.observer.testing.scenarios import Noise, rest_state, simulate  # noqa: E402
+from elastic_pm_dyn.observer.testing.scenarios import Noise, simulate  # noqa: E402
 
 SENSORS = {"encoders": ("enc",), "encoders+imu": ("enc", "imu")}
 TRUTH_DT = {"five_bar": 5e-5, "triglide": 2.5e-5, "hexa": 5e-5}  # [s] RK4, stable with a margin
@@ -58,8 +58,7 @@ def machine(spec: str) -> tuple[str, Mechanism]:
 def sensitivities(mech: Mechanism, freqs: np.ndarray, duration: float, truth_dt: float, unit: float) -> dict:
     """Columns of G (one-sided differences from the undisturbed hold: the response is linear)."""
     q0 = rest_state(mech)
-    tau_ae = tree_inverse_dynamics(mech, q0, np.zeros(mech.n), np.zeros(mech.n))
-    hold = tau_ae[[list(mech.ae).index(j) for j in mech.active]]
+    hold = holding_torques(mech, q0)
     n_a = len(mech.active)
     zero = Noise(0.0, 0.0, 0.0)
     rng = np.random.default_rng(0)

@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from elastic_pm_dyn.dynamics.inverse import tree_inverse_dynamics
 from elastic_pm_dyn.errors import SingularConfigurationError
-from elastic_pm_dyn.kinematics.assembly import solve_pose
+from elastic_pm_dyn.kinematics.assembly import initial_state, solve_pose
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 
 
@@ -60,3 +61,18 @@ def static_deflection(mech: Mechanism, q0: np.ndarray, ee_force: np.ndarray, tol
     if np.linalg.norm(r) <= 1e3 * tol * scale:
         return q
     raise SingularConfigurationError(f"static equilibrium not found: residual {np.linalg.norm(r):.3g}")
+
+
+def rest_state(mech: Mechanism) -> np.ndarray:
+    """The model's initial pose at rest: the springs in static equilibrium under gravity with
+    the motors held where the file puts them (a machine standing still)."""
+    return static_deflection(mech, initial_state(mech), np.zeros(len(mech.ee_components)))
+
+
+def holding_torques(mech: Mechanism, q: np.ndarray) -> np.ndarray:
+    """Motor torques (active joint order) that hold the consistent pose q at rest against
+    gravity: the motors' rows of the inverse dynamics at zero rates and accelerations."""
+    zero = np.zeros(mech.n)
+    tau_ae = tree_inverse_dynamics(mech, q, zero, zero)
+    ae = list(mech.ae)
+    return tau_ae[[ae.index(j) for j in mech.active]]

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from elastic_pm_dyn.dynamics.statics import static_deflection
+from elastic_pm_dyn.dynamics.statics import rest_state
 from elastic_pm_dyn.errors import AssemblyError, InputError, SingularConfigurationError
 from elastic_pm_dyn.kinematics.assembly import initial_state, solve_pose, solve_velocity
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
@@ -61,9 +61,7 @@ class Plant:
         self.period = period
         if start not in START_STATES:
             raise InputError(f"start must be one of {', '.join(START_STATES)}, got {start!r}")
-        self.q0 = initial_state(mech)
-        if start == "static" and len(mech.elastic):
-            self.q0 = static_deflection(mech, self.q0, np.zeros(len(mech.ee_components)))
+        self.q0 = rest_state(mech) if start == "static" and len(mech.elastic) else initial_state(mech)
         self.q = self.q0.copy()
         self.qd = np.zeros(mech.n)
         self.k = 0  # control periods done

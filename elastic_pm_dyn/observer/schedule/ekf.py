@@ -265,11 +265,8 @@ class Observer:
         # the mean's step in use: process.dt if given, else from the model's fastest spring
         self.dt = (model.etd2_step(pc.dt, pc.max_interval) if pc.integrator == "etd2"
                    else model.substep(pc.dt))
-        # Sensors: the model's geometry with this configuration's noise levels
-        self.encoders = model.encoders.with_noise(cfg) if model.encoders is not None else None
-        self.imu = model.imu.with_noise(cfg) if model.imu is not None else None
-        self.branch = model.branch.with_noise(cfg) if model.branch is not None else None
-        self._imu = None if self.imu is None else tuple(kernels.ImuModel(self.imu.S, self.imu.g, self.imu.var))
+        self._gates: dict[int, float] = {}
+        self._take_noise(cfg)  # the sensors: the model's geometry with this configuration's noise levels
         self.point = model.point
         self.with_point = model.with_point
         # Sample timing and actuation latency (module docstring)
@@ -286,7 +283,6 @@ class Observer:
         self._held: tuple[float, np.ndarray] | None = None  # an accelerometer sample waiting for its command
         self._deferred: tuple | None = None  # (t, sample, its prior state, tau before) to weigh when its command comes
         self.released: list[UpdateResult] = []  # held samples the last call corrected
-        self._gates: dict[int, float] = {}
         # False: no sample is gated (gate = inf), so that a likelihood cannot be won by gating
         # (observer.tuning.tuning sets it before the first sample)
         self.gating = True
@@ -302,7 +298,6 @@ class Observer:
         self.steps_compiled = False
         self.reset(t0, q0, qd0, initialised=q0 is not None or cfg.initial.source == "model")
         self._timing = self.fast_timing()
-        self._imu_bundle = self._imu or (np.zeros((0, 3)), np.zeros(3), np.zeros(0))
         n, nx = self.mech.n, self.nx
         # the compiled steps' work arrays and snapshot (period.step_work, period.snapshot_buffers)
         self._work = (np.zeros((3, n)), tuple(a.copy() for a in self._state()), np.zeros(n))
@@ -441,9 +436,15 @@ class Observer:
         if other:
             raise InputError(f"only the noise levels and the gate change in a running filter, not {', '.join(other)}")
         self.cfg = cfg
-        self.encoders = self.model.encoders.with_noise(cfg) if self.model.encoders is not None else None
-        self.imu = self.model.imu.with_noise(cfg) if self.model.imu is not None else None
-        self.branch = self.model.branch.with_noise(cfg) if self.model.branch is not None else None
+        self._take_noise(cfg)
+
+    def _take_noise(self, cfg: ObserverConfig) -> None:
+        """The sensor models with ``cfg``'s noise levels, the compiled steps' accelerometer bundle,
+        and no cached gate (``gating.probability``)."""
+        model = self.model
+        self.encoders = model.encoders.with_noise(cfg) if model.encoders is not None else None
+        self.imu = model.imu.with_noise(cfg) if model.imu is not None else None
+        self.branch = model.branch.with_noise(cfg) if model.branch is not None else None
         self._imu = None if self.imu is None else tuple(kernels.ImuModel(self.imu.S, self.imu.g, self.imu.var))
         self._imu_bundle = self._imu or (np.zeros((0, 3)), np.zeros(3), np.zeros(0))
         self._gates.clear()

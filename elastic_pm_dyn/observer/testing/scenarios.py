@@ -30,9 +30,7 @@ import numpy as np
 
 from elastic_pm_dyn.bags.msgtypes import NS
 from elastic_pm_dyn.dynamics.direct import Dynamics
-from elastic_pm_dyn.dynamics.inverse import tree_inverse_dynamics
-from elastic_pm_dyn.dynamics.statics import static_deflection
-from elastic_pm_dyn.kinematics.assembly import initial_state
+from elastic_pm_dyn.dynamics.statics import holding_torques, rest_state  # rest_state: used from here too
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.motion.feedforward import line_torques
 from elastic_pm_dyn.motion.manoeuvre import REFERENCE_MANOEUVRE
@@ -59,11 +57,6 @@ class Multisine:
     def __call__(self, t: float) -> np.ndarray:
         w = 1.0 if t >= self.fade else 0.5 - 0.5 * np.cos(np.pi * max(t, 0.0) / self.fade)
         return w * np.sum(self.amp * np.sin(2 * np.pi * self.f * t + self.phase), axis=1)
-
-
-def rest_state(mech: Mechanism) -> np.ndarray:
-    """The model's initial pose at rest: springs in static equilibrium (gravity) with the motors there."""
-    return static_deflection(mech, initial_state(mech), np.zeros(len(mech.ee_components)))
 
 
 @dataclass
@@ -203,9 +196,7 @@ def chirp_recording(mech: Mechanism, seed: int = 2, amplitude: float = 3.0, f0: 
     dist = dist if disturbance is None else disturbance
     q0 = rest_state(mech)
     ref = q0[mech.active]
-    # the motor torques that hold the start pose against gravity (zero on a horizontal machine)
-    tau_ae = tree_inverse_dynamics(mech, q0, np.zeros(mech.n), np.zeros(mech.n))
-    hold = tau_ae[[list(mech.ae).index(j) for j in mech.active]]
+    hold = holding_torques(mech, q0)  # zero on a horizontal machine
     last = {"enc": ref.copy()}
     sign = np.array([1.0, -1.0] + [1.0] * (len(mech.active) - 2))
     ramp = 0.02  # [s] amplitude ramp at both ends
