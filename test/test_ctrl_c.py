@@ -9,6 +9,7 @@ traceback and end with -2.
 
 from __future__ import annotations
 
+import os
 import signal
 import subprocess
 import sys
@@ -68,3 +69,21 @@ def test_the_cli_interrupted_while_it_starts(module: str, tmp_path: Path) -> Non
     assert "Traceback" not in err, err
     assert code == 130, err
     assert "interrupted" in err.strip().splitlines()[-1]
+
+
+def test_finalizers_of_objects_an_interrupt_left_half_built_print_nothing(tmp_path: Path) -> None:
+    """An interrupted numba compile leaves llvmlite objects whose finalizers fail at exit (seen in CI:
+    "Exception ignored ... AttributeError: '_GlobalsIterator' object ..." after our line)."""
+    (tmp_path / "halfbuilt.py").write_text(
+        "class HalfBuilt:\n"
+        "    def __del__(self):\n"
+        "        raise AttributeError('half-built')\n"
+        "keep = []\n"
+        "def main(argv):\n"
+        "    keep.append(HalfBuilt())\n"
+        "    raise KeyboardInterrupt\n")
+    code = "import sys; from elastic_pm_dyn.entry import run; sys.exit(run('prog', 'halfbuilt:main', []))"
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path), os.environ.get("PYTHONPATH", "")])}
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=HANG_GUARD)
+    assert proc.returncode == 130, proc.stderr
+    assert proc.stderr.strip().splitlines() == ["prog: interrupted (Ctrl-C)"], proc.stderr

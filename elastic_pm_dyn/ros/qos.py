@@ -42,13 +42,15 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 COMMAND_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.VOLATILE)
 # A controller's publisher: the reader side as COMMAND_QOS, a deeper writer history so that reliable
-# delivery repairs a recorder that lags up to 0.1 s at 1 kHz (with 10, a loaded machine's recorder
+# delivery repairs a recorder that lags up to 1 s at 1 kHz (with 10, a loaded machine's recorder
 # lost 8 of 2000 lockstep commands, and the bag no longer held what the observer had used).
 # Transient local: only for transient-local readers (the recorder), which get the commands sent
 # before their side of the match completed (a fast run lost its first 31 of 142 commands that way:
 # the writer saw the recorder matched and sent, the recorder's reader had not matched the writer
-# yet). The plant's and the observer's readers are volatile: they never see an old command.
-COMMAND_OUT_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.RELIABLE,
+# yet). 1000 deep (1 s at 1 kHz, as the plant's state writers): a loaded CI machine's recorder matched
+# the writer 215 lockstep commands after the writer had matched it, and a 100-deep history had lost them.
+# The plant's and the observer's readers are volatile: they never see an old command.
+COMMAND_OUT_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE,
                              durability=DurabilityPolicy.TRANSIENT_LOCAL)
 LOCKSTEP_COMMAND_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE,
                                   durability=DurabilityPolicy.VOLATILE)
