@@ -82,6 +82,20 @@ def _tree(active_idx, tau, expired, out):
 
 
 @njit(cache=True)
+def piece_end(t, t_to, max_interval, t_command, timeout, pend_t, head, tail, tol):
+    """Where the prediction piece from ``t`` toward ``t_to`` ends: at most ``max_interval`` long,
+    cut where the held command (acting from ``t_command``) times out or where the next delayed
+    command (``pend_t[head]``, if head < tail) starts to act. The one rule of the filter's
+    pieces (:func:`advance`) and of the smoother's replay of them."""
+    end = min(t_to, t + max_interval)
+    if timeout > 0 and t < t_command + timeout < end - tol:
+        end = t_command + timeout  # the command expires inside: stop there
+    if head < tail and pend_t[head] < end - tol:
+        end = pend_t[head]  # a delayed command starts to act there
+    return end
+
+
+@njit(cache=True)
 def advance(ma, fixed, proc, state, cmd, ctl, timing, t_to, tree):
     """Predict from ctl[T_NOW] to ``t_to`` in pieces of at most max_interval, each with the command
     held then (zero once it has timed out; a piece ends where the held command expires or a
@@ -97,11 +111,7 @@ def advance(ma, fixed, proc, state, cmd, ctl, timing, t_to, tree):
     t_command = t_act if t_act > -np.inf else t_command
     status = OK
     while t_to - t > tol:
-        end = min(t_to, t + max_interval)
-        if timeout > 0 and t < t_command + timeout < end - tol:
-            end = t_command + timeout  # the command expires inside: stop there
-        if head < tail and pend_t[head] < end - tol:
-            end = pend_t[head]  # a delayed command starts to act there
+        end = piece_end(t, t_to, max_interval, t_command, timeout, pend_t, head, tail, tol)
         T = end - t
         expired = _expired(timing, t, t_command)
         _tree(active_idx, tau_hold, expired, tree)

@@ -46,7 +46,7 @@ from scipy.linalg import LinAlgError, cho_factor, cho_solve
 from elastic_pm_dyn.errors import InputError
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.observer.config import ObserverConfig
-from elastic_pm_dyn.observer.core import kernels
+from elastic_pm_dyn.observer.core import kernels, period
 from elastic_pm_dyn.observer.drivers.bag_input import Event
 from elastic_pm_dyn.observer.drivers.results import Rows
 from elastic_pm_dyn.observer.drivers.stream import ObserverStream
@@ -86,12 +86,11 @@ class Replay(Observer):
         timeout = self.cfg.timing.command_timeout
         Phi = np.eye(self.nx)
         self._activate_due()
+        no_pending = np.zeros(0)
         while t_to - self.t > tol:
-            end = min(t_to, self.t + self.cfg.process.max_interval)
-            if timeout > 0 and self.t < self.t_command + timeout < end - tol:
-                end = self.t_command + timeout
-            if self._pending and self._pending[0][0] < end - tol:
-                end = self._pending[0][0]
+            next_t = np.array([self._pending[0][0]]) if self._pending else no_pending
+            end = period.piece_end(self.t, t_to, self.cfg.process.max_interval, self.t_command, timeout, next_t,
+                                   0, len(next_t), tol)
             self._advance(end)  # exactly one piece up to ``end``
             Phi = self.Phi @ Phi
         return Phi
