@@ -79,8 +79,8 @@ def batch(kind: str, inputs: Sequence[str | Path] = (), out: str | Path = "runs/
     core); ``cluster``: ``"local:N"`` or a Dask scheduler address instead. Complete items are
     skipped; an item that fails is a row with its one-line error; a worker killed mid-item is
     retried ``retries`` times. ``engine``: an engine of your own instead of ``jobs``/``cluster``
-    (``with LocalPool(4) as pool:`` keeps its warm workers for every batch in the block). On Ctrl-C the table of what is finished is written and the
-    KeyboardInterrupt goes on.
+    (``with LocalPool(4) as pool:`` keeps its warm workers for every batch in the block).
+    On Ctrl-C the table of what is finished is written and the KeyboardInterrupt goes on.
     """
     started = time.perf_counter()
     say = log or (lambda s: print(s, file=sys.stderr))

@@ -3,8 +3,8 @@
 A fresh process pays the package's imports and numba's cache loading (seconds on a loaded
 machine) the first time each kernel runs; done once per worker here, every item's time is
 its own work. The warm-up runs the batch's first item's own code on a tiny input (a few
-milliseconds of the same simulation; a throwaway observer of the item's configuration fed a
-few zero samples), so it loads the kernels that item's kind needs. It changes nothing the
+milliseconds of the same simulation; the item's observer over the first events of its bag),
+so it loads the kernels that item's kind needs. It changes nothing the
 items compute, and whatever fails here is ignored: the item fails again with its reason.
 """
 
@@ -16,8 +16,6 @@ import tempfile
 import warnings
 from dataclasses import replace
 from pathlib import Path
-
-import numpy as np
 
 from elastic_pm_dyn.fleet.items import Item
 
@@ -62,19 +60,20 @@ def _simulate(item: Item) -> None:
 
 
 def _observer(item: Item) -> None:
-    """An observer of the item's configuration through a few zero samples (the nodes' warm-up)."""
-    from elastic_pm_dyn.bags import reader  # noqa: F401 (the bag reader's imports)
+    """The offline filter of the item's configuration over the first events of its own bag
+    (read lazily: a day-long bag costs no more), and its CSV written to a scratch folder."""
     from elastic_pm_dyn.fleet.runners import _command
-    from elastic_pm_dyn.observer import Observer
     from elastic_pm_dyn.observer.cli import _config
+    from elastic_pm_dyn.observer.drivers import event_filter
+    from elastic_pm_dyn.observer.drivers.bag_input import Topics, iter_events
+    from elastic_pm_dyn.observer.drivers.bag_output import write_outputs
     args = _command([item.kind, "--model", item.model, "--bag", item.source, "--out", "-", *item.argv_options()])
     cfg = _config(args)
     mech = _mechanism(item.model, args.closures)
-    obs = Observer(mech, cfg, 0.0)
-    names, zeros = list(mech.joint_names), np.zeros(mech.n)
-    obs.command(0.0, np.zeros(len(mech.active)))
-    for t in (0.0, 1e-3, 2e-3):
-        obs.update_imu(t, np.zeros(3))
-        obs.update_branch_forces(t, obs.branch_names, np.zeros(len(obs.branch_names)))
-        obs.update_joint_states(t, names, obs.q, zeros, zeros)
-    obs.estimate()
+    events = next(iter(iter_events(Path(item.source), Topics.from_config(cfg), cfg, {}, EVENTS)), [])
+    run = event_filter.filter_all(mech, cfg, events, getattr(args, "order", "stamp"), lambda s: None)
+    with tempfile.TemporaryDirectory(prefix="epd-warm-") as scratch:
+        write_outputs(Path(scratch), run.obs, run.rows, False, "mcap", None)
+
+
+EVENTS = 300  # the first events of the bag a warm-up filters: every kernel of a pass runs on them
