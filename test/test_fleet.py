@@ -383,3 +383,13 @@ def test_study_parameters_change_the_model_and_a_payload_loads_the_branches(tmp_
         record = run_item(Item("simulate", f"m{payload}", str(MODEL), study=tuple(sorted(point.items()))), tmp_path)
         peak[payload] = record["figures"]["peak_branch_force_N"]
     assert peak[1.0] > 1.5 * peak[0.0]  # a kilogram at the tip, where the model has 0.2 kg
+
+
+def test_a_warm_up_that_fails_is_silent_and_the_item_says_why(tmp_path, capfd) -> None:
+    from elastic_pm_dyn.fleet.items import Item
+    from elastic_pm_dyn.fleet.warm import warm_up
+    item = Item("observe", "gone", str(MODEL), source=str(tmp_path / "no_such_bag"))
+    assert warm_up(item) is None
+    assert capfd.readouterr() == ("", "")
+    record = run_item(item, tmp_path / "out")
+    assert record["status"] == "failed" and "no_such_bag" in record["error"]
