@@ -24,6 +24,7 @@ from elastic_pm_dyn.errors import InputError
 from elastic_pm_dyn.fleet import store
 from elastic_pm_dyn.fleet.api import batch
 from elastic_pm_dyn.fleet.items import Inputs, discover
+from elastic_pm_dyn.fleet.pool import LocalPool
 from elastic_pm_dyn.fleet.runners import deterministic, run_item
 from elastic_pm_dyn.fleet.study import study_items
 from elastic_pm_dyn.observer.testing.recordings import RecordingSpec, generate, write_bag
@@ -56,9 +57,16 @@ def one_by_one(bags, tmp_path_factory) -> Path:
 
 
 @pytest.fixture(scope="module")
-def pooled(bags, tmp_path_factory):
+def pool():
+    """Two warm workers for every batch of the module (each new pool pays the start-up again)."""
+    with LocalPool(2) as p:
+        yield p
+
+
+@pytest.fixture(scope="module")
+def pooled(bags, pool, tmp_path_factory):
     out = tmp_path_factory.mktemp("pool")
-    return batch("observe", [bags], out, model=MODEL, options=OPTIONS, jobs=2, progress=False), out
+    return batch("observe", [bags], out, model=MODEL, options=OPTIONS, engine=pool, progress=False), out
 
 
 def _figures(path: Path) -> dict:
@@ -108,15 +116,15 @@ def test_parquet_holds_the_csv_table(pooled) -> None:
                 assert value == float(c[name])
 
 
-def test_rerun_skips_complete_items_and_tries_the_failed_one_again(pooled, bags) -> None:
+def test_rerun_skips_complete_items_and_tries_the_failed_one_again(pooled, pool, bags) -> None:
     _, out = pooled
     before = {k: (out / "items" / f"robot{k}" / "item.json").stat().st_mtime_ns for k in range(3)}
-    res = batch("observe", [bags], out, model=MODEL, options=OPTIONS, jobs=2, progress=False)
+    res = batch("observe", [bags], out, model=MODEL, options=OPTIONS, engine=pool, progress=False)
     assert res.counts == {"items": 4, "ok": 0, "failed": 1, "skipped": 3, "missing": 0}
     assert before == {k: (out / "items" / f"robot{k}" / "item.json").stat().st_mtime_ns for k in range(3)}
 
 
-def test_resume_runs_only_what_is_missing(pooled, bags, one_by_one, tmp_path) -> None:
+def test_resume_runs_only_what_is_missing(pooled, pool, bags, one_by_one, tmp_path) -> None:
     """As after Ctrl-C: one folder never finished (its hidden temporary left), one changed option."""
     _, out = pooled
     import shutil
@@ -126,7 +134,7 @@ def test_resume_runs_only_what_is_missing(pooled, bags, one_by_one, tmp_path) ->
     (copy / "items" / ".robot1.999999.tmp").mkdir()
     (copy / "items" / ".robot1.999999.tmp" / "estimates.csv").write_text("cut")
     res = batch("observe", [bags / "robot0", bags / "robot1", bags / "robot2"], copy, model=MODEL, options=OPTIONS,
-                jobs=1, progress=False, plots_on=False)
+                engine=pool, progress=False, plots_on=False)
     assert res.counts == {"items": 3, "ok": 1, "failed": 0, "skipped": 2, "missing": 0}
     assert not (copy / "items" / ".robot1.999999.tmp").exists()
     _assert_same_as_one_by_one(copy, one_by_one)
@@ -156,11 +164,11 @@ def _study(tmp_path: Path, integrator: str = "rk4", dt: float = 2e-4, moves: str
     return path
 
 
-def test_study_grid_points_equal_their_single_runs_and_softer_springs_deflect_more(tmp_path) -> None:
+def test_study_grid_points_equal_their_single_runs_and_softer_springs_deflect_more(pool, tmp_path) -> None:
     study = _study(tmp_path, moves="[0.05]")
     items = study_items(study)
     assert [dict(it.study)["stiffness_scale"] for it in items] == [0.5, 2.0]
-    res = batch("simulate", out=tmp_path / "out", study=study, jobs=2, progress=False)
+    res = batch("simulate", out=tmp_path / "out", study=study, engine=pool, progress=False)
     assert res.counts["ok"] == 2
     for it in items:
         single = run_item(it, tmp_path / "single")
@@ -173,34 +181,54 @@ def test_study_grid_points_equal_their_single_runs_and_softer_springs_deflect_mo
     assert (tmp_path / "out" / "sensitivity.png").is_file()
 
 
-def test_a_worker_killed_mid_item_is_retried_and_no_item_runs_twice(tmp_path) -> None:
-    """SIGKILL the worker running the first point (seen by its hidden temporary folder, which
-    carries the worker's pid): every point completes, the killed one on a second attempt."""
-    study = _study(tmp_path, dt=1e-5)  # a small step: each point takes a second or so
-    out = tmp_path / "out"
+def _kill_first_point(out: Path, times: int) -> tuple[threading.Thread, list[int]]:
+    """SIGKILL the worker running the first study point, on each of its first ``times``
+    attempts (seen by the hidden temporary folder of the item, which carries the worker's pid)."""
     killed: list[int] = []
 
     def killer() -> None:
         deadline = time.monotonic() + 600
-        while not killed and time.monotonic() < deadline:
+        while len(killed) < times and time.monotonic() < deadline:
             for tmp in (out / "items").glob(".p00000.*.tmp") if (out / "items").is_dir() else ():
                 pid = int(tmp.name.split(".")[2])
-                os.kill(pid, signal.SIGKILL)
-                killed.append(pid)
-                break
-            time.sleep(0.005)
+                if pid not in killed:
+                    os.kill(pid, signal.SIGKILL)
+                    killed.append(pid)
+            time.sleep(0.002)
 
     thread = threading.Thread(target=killer, daemon=True)
     thread.start()
-    res = batch("simulate", out=out, study=study, jobs=2, progress=False, plots_on=False)
+    return thread, killed
+
+
+def test_a_worker_killed_mid_item_costs_only_that_item(pool, tmp_path) -> None:
+    """Every point completes; the killed one on a fresh worker, every other point exactly once
+    (a broken ProcessPoolExecutor ran the other worker's item again)."""
+    study = _study(tmp_path, dt=2e-5)  # a small step: each point takes a second or so
+    out = tmp_path / "out"
+    thread, killed = _kill_first_point(out, 1)
+    res = batch("simulate", out=out, study=study, engine=pool, progress=False, plots_on=False)
     thread.join(1)
     assert killed, "the item finished before it could be killed"
     assert res.counts["ok"] == 4 and res.counts["failed"] == 0
     attempts = {r["id"]: r["attempt"] for r in res.records}
-    assert attempts["p00000"] == 2 and killed[0] != res.records[0]["pid"]
-    # no item twice: every record is the first and only run of its item except the killed one
-    assert sum(a for a in attempts.values()) <= 4 + 2  # the other in-flight item may have been stopped too
-    assert not list((out / "items").glob(".*.tmp"))
+    assert attempts == {"p00000": 2, "p00001": 1, "p00002": 1, "p00003": 1}
+    assert res.records[0]["pid"] not in killed
+    assert not list((out / "items").glob(".*.tmp")) and not (out / "failed").exists()
+
+
+def test_a_worker_killed_on_every_attempt_is_one_failed_row(pool, tmp_path) -> None:
+    study = _study(tmp_path, dt=2e-5, moves="[0.05]")
+    out = tmp_path / "out"
+    thread, killed = _kill_first_point(out, 2)
+    res = batch("simulate", out=out, study=study, engine=pool, retries=1, progress=False, plots_on=False)
+    thread.join(1)
+    assert len(killed) == 2
+    assert res.counts["ok"] == 1 and res.counts["failed"] == 1
+    bad = res.records[0]
+    assert bad["id"] == "p00000" and bad["attempt"] == 2 and bad["error"].startswith("worker died (signal 9)")
+    assert res.records[1]["attempt"] == 1
+    assert json.loads((out / "failed" / "p00000.json").read_text())["error"] == bad["error"]
 
 
 def test_manifest_rows_carry_their_model_options_and_robot(bags, tmp_path) -> None:
@@ -309,13 +337,13 @@ def test_tune_and_analyze_items_are_the_single_commands(bags, tmp_path) -> None:
     assert batched["runs"] == single["runs"]
 
 
-def test_simulate_items_over_torque_tables_equal_the_simulate_command(tmp_path) -> None:
+def test_simulate_items_over_torque_tables_equal_the_simulate_command(pool, tmp_path) -> None:
     tables = tmp_path / "tables"
     tables.mkdir()
     for move in ("0.1", "0.15"):
         assert cli_main(["feedforward", "--model", str(MODEL), "--move", move, "--hold", "0.05",
                          "--out", str(tables / f"move{move}.csv")]) == 0
-    res = batch("simulate", [tables], tmp_path / "out", model=MODEL, options={"dt": 2e-4}, jobs=1, progress=False,
+    res = batch("simulate", [tables], tmp_path / "out", model=MODEL, options={"dt": 2e-4}, engine=pool, progress=False,
                 plots_on=False)
     assert res.counts["ok"] == 2
     for move, duration in (("0.1", "0.15"), ("0.15", "0.2")):
@@ -355,3 +383,13 @@ def test_study_parameters_change_the_model_and_a_payload_loads_the_branches(tmp_
         record = run_item(Item("simulate", f"m{payload}", str(MODEL), study=tuple(sorted(point.items()))), tmp_path)
         peak[payload] = record["figures"]["peak_branch_force_N"]
     assert peak[1.0] > 1.5 * peak[0.0]  # a kilogram at the tip, where the model has 0.2 kg
+
+
+def test_a_warm_up_that_fails_is_silent_and_the_item_says_why(tmp_path, capfd) -> None:
+    from elastic_pm_dyn.fleet.items import Item
+    from elastic_pm_dyn.fleet.warm import warm_up
+    item = Item("observe", "gone", str(MODEL), source=str(tmp_path / "no_such_bag"))
+    assert warm_up(item) is None
+    assert capfd.readouterr() == ("", "")
+    record = run_item(item, tmp_path / "out")
+    assert record["status"] == "failed" and "no_such_bag" in record["error"]

@@ -9,7 +9,9 @@ folders' summary figures into one results table and overview plots. Layout, bott
 - :mod:`~elastic_pm_dyn.fleet.study`: a study's grid or random sample -> simulate items
 - :mod:`~elastic_pm_dyn.fleet.store`: an item's folder, its record, complete or not
 - :mod:`~elastic_pm_dyn.fleet.runners`: run one item in a worker
-- :mod:`~elastic_pm_dyn.fleet.engines`: the local process pool and Dask distributed
+- :mod:`~elastic_pm_dyn.fleet.warm`: a worker's warm-up (the job's imports and kernels)
+- :mod:`~elastic_pm_dyn.fleet.pool`: the local pool, a supervisor of its own worker processes
+- :mod:`~elastic_pm_dyn.fleet.engines`: the local pool or Dask distributed
 - :mod:`~elastic_pm_dyn.fleet.progress`, :mod:`~elastic_pm_dyn.fleet.table`,
   :mod:`~elastic_pm_dyn.fleet.plots`: what the user watches and reads
 - :mod:`~elastic_pm_dyn.fleet.api`: ``epd.batch(...)``; :mod:`~elastic_pm_dyn.fleet.cli`: ``elastic-pm-dyn batch``

@@ -67,7 +67,8 @@ def batch(kind: str, inputs: Sequence[str | Path] = (), out: str | Path = "runs/
           model: str | Path | None = None, options: Mapping[str, object] | None = None,
           study: str | Path | None = None, jobs: int | None = None, cluster: str | None = None,
           retries: int = 2, progress: bool = True, plots_on: bool = True,
-          log: Callable[[str], None] | None = None) -> BatchResult:
+          log: Callable[[str], None] | None = None,
+          engine: engines.LocalPool | engines.DaskEngine | None = None) -> BatchResult:
     """Run ``kind`` (observe, tune, analyze, simulate) over ``inputs`` (folders, globs, bags or
     torque tables, CSV/YAML manifests) or a simulate ``study`` file, one folder per item in
     ``out/items``, then ``out/results.csv`` (+ ``.parquet``) and overview plots.
@@ -77,8 +78,9 @@ def batch(kind: str, inputs: Sequence[str | Path] = (), out: str | Path = "runs/
     manifest row's columns override them. ``jobs``: local worker processes (default: every
     core); ``cluster``: ``"local:N"`` or a Dask scheduler address instead. Complete items are
     skipped; an item that fails is a row with its one-line error; a worker killed mid-item is
-    retried ``retries`` times. On Ctrl-C the table of what is finished is written and the
-    KeyboardInterrupt goes on.
+    retried ``retries`` times. ``engine``: an engine of your own instead of ``jobs``/``cluster``
+    (``with LocalPool(4) as pool:`` keeps its warm workers for every batch in the block).
+    On Ctrl-C the table of what is finished is written and the KeyboardInterrupt goes on.
     """
     started = time.perf_counter()
     say = log or (lambda s: print(s, file=sys.stderr))
@@ -88,7 +90,7 @@ def batch(kind: str, inputs: Sequence[str | Path] = (), out: str | Path = "runs/
     items = [it for it in items_of(kind, inputs, model, options, study) if not _inside(it.source, out)]
     if not items:
         raise InputError(f"no items outside the output folder {out}")
-    runner = engines.engine(cluster, jobs)
+    runner = engine if engine is not None else engines.engine(cluster, jobs)
     if out.exists() and not out.is_dir():
         raise InputError(f"--out {out}: exists and is not a folder")
     out.mkdir(parents=True, exist_ok=True)

@@ -1,0 +1,202 @@
+"""The local engine: a supervisor of its own worker processes, one item per worker at a time.
+
+Why not ``concurrent.futures.ProcessPoolExecutor``: when one of its workers dies the whole
+pool breaks and every item in flight fails with it, so the others' items had to be run
+again. Here the supervisor knows which item each worker holds (it hands a worker its next
+item only when the worker has returned the last one), so a worker that dies costs only its
+own item: that item goes to a fresh worker, at most ``retries`` more times, then it is a
+failed row "worker died (signal N)"; every other item runs once.
+
+Each worker is started once per batch (``spawn``: no fork of a process with threads and
+numba state) and warms up before it takes items (:func:`~elastic_pm_dyn.fleet.warm.warm_up`:
+the imports and the compiled kernels of the batch's job), so an item's cost is its work.
+Workers talk to the supervisor over one pipe each: ``"ready"`` once warm, then one record
+per item received.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import multiprocessing
+import os
+import shutil
+import signal
+from collections import deque
+from collections.abc import Callable
+from multiprocessing.connection import Connection, wait
+from pathlib import Path
+
+from elastic_pm_dyn.errors import ElasticPmDynError
+from elastic_pm_dyn.fleet import store
+from elastic_pm_dyn.fleet.items import Item
+from elastic_pm_dyn.fleet.runners import run_item
+from elastic_pm_dyn.fleet.warm import warm_up
+
+OnRecord = Callable[[dict], None]
+READY = "ready"
+
+
+class WorkersDieError(ElasticPmDynError):
+    """Worker processes die before they take an item (no memory, a broken install)."""
+
+
+def _serve(conn: Connection, warm: Item | None) -> None:
+    """A worker's life: warm up, say ready, then run each item it is sent until ``None``."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the batch's: it stops the workers
+    if warm is not None:
+        warm_up(warm)
+    conn.send(READY)
+    while (job := conn.recv()) is not None:
+        item, out, attempt = job
+        conn.send(run_item(item, out, attempt))
+
+
+def death(exitcode: int | None) -> str:
+    """Why a worker process ended, for the failed row: "worker died (signal 9)"."""
+    if exitcode is not None and exitcode < 0:
+        return f"worker died (signal {-exitcode})"
+    return f"worker died (exit status {exitcode})"
+
+
+class _Worker:
+    def __init__(self, context, warm: Item | None):
+        self.conn, child = context.Pipe()
+        self.proc = context.Process(target=_serve, args=(child, warm), daemon=True, name="epd-batch-worker")
+        self.proc.start()
+        child.close()
+        self.ready = False
+        self.job: tuple[Item, int] | None = None  # the item it runs and its attempt number
+
+    def take(self, item: Item, out: Path, attempt: int) -> None:
+        self.job = (item, attempt)
+        self.conn.send((item, str(out), attempt))
+
+    def receive(self) -> tuple[str, object]:
+        """("message", m) if the worker sent something, ("dead", exitcode) if it is gone."""
+        try:
+            if self.conn.poll():
+                return "message", self.conn.recv()
+        except (EOFError, OSError):
+            pass
+        if self.proc.is_alive():
+            return "none", None
+        self.proc.join()
+        return "dead", self.proc.exitcode
+
+    def stop(self, now: bool) -> None:
+        if not now and self.proc.is_alive():
+            with contextlib.suppress(OSError, ValueError):
+                self.conn.send(None)
+            self.proc.join(10)
+        if self.proc.is_alive():
+            self.proc.terminate()
+            self.proc.join(5)
+        if self.proc.is_alive():
+            self.proc.kill()
+            self.proc.join()
+        self.conn.close()
+
+
+def _remove_temporaries(out: Path, pid: int | None) -> None:
+    """The half-written folder a dead worker left (atomic_dir names it after the pid)."""
+    folder = out / "items"
+    if pid is None or not folder.is_dir():
+        return
+    for p in folder.glob(f".*.{pid}.tmp"):
+        shutil.rmtree(p, ignore_errors=True)
+
+
+class LocalPool:
+    """``workers`` processes on this machine (default: every core); ``warm``: warm each new
+    worker up with the first item of the batch that starts it. The workers live for one
+    batch, or, used as a context manager (``with LocalPool(4) as pool: epd.batch(...,
+    engine=pool)``), for every batch run in the block."""
+
+    def __init__(self, workers: int | None = None, warm: bool = True):
+        self.workers = workers or os.cpu_count() or 1
+        self.warm = warm
+        self.name = f"local pool, {self.workers} process(es)"
+        self._crew: list[_Worker] = []
+        self._kept = False
+
+    def __enter__(self) -> LocalPool:
+        self._kept = True
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._kept = False
+        self.close(now=exc[0] is not None)
+
+    def close(self, now: bool = False) -> None:
+        """Stop the workers (``now``: without waiting for them to finish)."""
+        for w in self._crew:
+            w.stop(now)
+        self._crew = []
+
+    def run(self, items: list[Item], out: Path, on_record: OnRecord, retries: int = 2) -> None:
+        """Run ``items``; ``on_record`` gets each item's record once."""
+        try:
+            self._run(items, out, on_record, retries)
+        except BaseException:  # Ctrl-C or our own fault: stop the workers now; finished items stay in place
+            self.close(now=True)
+            store.sweep(out)  # the stopped items' half-written folders (every worker is gone)
+            raise
+        if not self._kept:
+            self.close()
+
+    def _run(self, items: list[Item], out: Path, on_record: OnRecord, retries: int) -> None:
+        context = multiprocessing.get_context("spawn")  # no fork of a process with threads and numba state
+        sample = items[0] if self.warm and items else None
+        queue = deque(items)
+        attempts = dict.fromkeys((it.id for it in items), 0)
+        left = len(items)
+        start_deaths = 0
+        crew = self._crew
+        crew += [_Worker(context, sample) for _ in range(min(self.workers, len(items)) - len(crew))]
+        while left:
+            for w in crew:
+                if w.ready and w.job is None and queue:
+                    it = queue.popleft()
+                    attempts[it.id] += 1
+                    w.take(it, out, attempts[it.id])
+            wait([c for w in crew for c in (w.conn, w.proc.sentinel)], timeout=1.0)
+            for k, w in enumerate(crew):
+                what, value = w.receive()
+                if what == "message" and value == READY:
+                    w.ready = True
+                elif what == "message":
+                    w.job = None
+                    left -= 1
+                    on_record(value)
+                elif what == "dead":
+                    if w.job is None:  # died warming up or between items: it had nothing of ours
+                        start_deaths += 1
+                        if start_deaths > len(crew) * (retries + 1):
+                            raise WorkersDieError(f"batch workers keep dying before they run an item "
+                                                  f"({death(value)}): out of memory?")
+                    else:
+                        item, attempt = w.job
+                        _remove_temporaries(out, w.proc.pid)
+                        record = store.complete(out, item)  # it finished but died before it said so
+                        if record is None and attempt <= retries:
+                            queue.appendleft(item)  # the next free worker takes it first
+                        else:
+                            left -= 1
+                            if record is None:
+                                record = killed_record(item, attempt, death(value))
+                                store.write_failure(out, record)
+                            on_record(record)
+                    w.stop(now=True)
+                    busy = sum(x.job is not None for x in crew if x is not w)
+                    crew[k] = _Worker(context, sample) if left > busy else _Idle()
+            crew[:] = [w for w in crew if not isinstance(w, _Idle)]
+
+
+class _Idle:
+    """A dead worker's slot when no item is left for a replacement."""
+
+
+def killed_record(item: Item, attempts: int, reason: str) -> dict:
+    return {"id": item.id, "kind": item.kind, "key": item.key, "attempt": attempts, "status": "failed",
+            "error": f"{reason}, {attempts} time(s) running it (killed, or out of memory)",
+            "wall_s": None, "figures": {}, "item": item.row()}
