@@ -145,7 +145,8 @@ class Plant:
         """:meth:`Simulator.advance` of ``HeldPlusSmooth(held, disturbance)`` (one quadratic per step
         through its values at the step's start, middle and end) with the disturbance evaluated at
         all the period's stage times in one vectorised pass and the steps in one compiled call
-        (sim/batch.py): 0.25 instead of 0.85 ms per 1 ms period on the five-bar at dt = 1e-4 s."""
+        (sim/batch.py): 0.25 instead of 0.85 ms per 1 ms period on the five-bar at dt = 1e-4 s
+        (measured 2026-11-27 on the 2-core dev machine; bench/benchmarks/bench_plant.py)."""
         o, sim = self.options, self._sim
         n_steps = max(1, int(np.ceil((t1 - t0) / o.dt - 1e-9)))
         h = (t1 - t0) / n_steps
