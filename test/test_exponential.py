@@ -326,3 +326,34 @@ def test_plant_with_etd2_equals_offline_simulate(triglide) -> None:
         sim.advance(q, qd, ConstantTorque(tau), k * 1e-3, k * 1e-3 + 1e-3)  # the plant's period bounds
     np.testing.assert_array_equal(plant.q, q)
     np.testing.assert_array_equal(plant.qd, qd)
+
+
+def test_the_integrator_table_reaches_each_kernel(five_bar) -> None:
+    """Simulator.fixed_steps goes through sim/integrators.py's one dispatch: each name of its
+    table steps exactly as its kernel called directly, and the comparison schemes are others."""
+    mech, _ = five_bar
+    tau = np.array([0.4, -0.3])
+    ends = {}
+    for name, scheme in (("etd2", exponential.AVERAGED), ("etd2rk", exponential.ETD2RK),
+                         ("impulse", exponential.IMPULSE), ("rk4", None)):
+        sim = Simulator(mech, SimulationOptions(integrator=name, dt=5e-4))
+        q, qd = initial_state(mech), np.zeros(mech.n)
+        head, tail = kernel_args(mech, tau, 5e-4, 20)
+        assert sim.fixed_steps(q, qd, tail[0], 5e-4, 20) == kernels.OK
+        q2, qd2 = initial_state(mech), np.zeros(mech.n)
+        if scheme is None:
+            status = kernels.rk4_steps_flat(0, *mech.arrays, q2, qd2, *tail[:8], *tail[9:])  # no phase step
+        else:
+            status = exponential.exponential_steps_flat(scheme, *head[1:], q2, qd2, *tail)
+        assert status == kernels.OK
+        np.testing.assert_array_equal(q, q2)
+        np.testing.assert_array_equal(qd, qd2)
+        ends[name] = q
+    assert not np.array_equal(ends["etd2"], ends["etd2rk"]) and not np.array_equal(ends["etd2"], ends["impulse"])
+
+
+def test_the_comparison_schemes_are_not_offered_on_the_command_line() -> None:
+    from elastic_pm_dyn.sim.simulator import INTEGRATORS
+    assert set(INTEGRATORS) == {"rk4", "etd2", "dop853"}
+    with pytest.raises(InputError, match="unknown integrator"):
+        SimulationOptions(integrator="etd3").validate()
