@@ -9,6 +9,7 @@ import numpy as np
 from numba import njit
 
 from elastic_pm_dyn.dynamics.kernels import (
+    ScddWork,
     chain_size_max,
     lagrange_dalembert,
     multipliers,
@@ -18,6 +19,7 @@ from elastic_pm_dyn.dynamics.kernels import (
     scdd_one_pass,
     scdd_platform,
     scdd_platform_into,
+    scdd_work,
 )
 from elastic_pm_dyn.kinematics.kernels import all_closure_rows, point_buffers, tree_terms, tree_terms_into
 from elastic_pm_dyn.model.arrays import ModelArrays
@@ -63,15 +65,7 @@ class Workspace(NamedTuple):
     jv: np.ndarray  # (n, 3) the sweep's Jacobian columns of a body's centre: linear velocity
     jw: np.ndarray  # (n, 3) and angular velocity
     fr: np.ndarray  # (n, 18) the sweep's stored frames (subtrees and kept bodies)
-    x: np.ndarray  # (n,) SCDD's unconstrained tree accelerations M^-1 (tau - h)
-    Y: np.ndarray  # (n, m) SCDD's constraint responses M^-1 A^T
-    S: np.ndarray  # (m, m) SCDD's cut-force Schur complement A M^-1 A^T (LU-factored in place)
-    L: np.ndarray  # (nmax, nmax) one chain's mass-matrix Cholesky factor (nmax: the largest chain)
-    dinv: np.ndarray  # (nmax,) its reciprocal diagonal
-    XY: np.ndarray  # (nmax, 1 + m) one chain's right-hand sides and solutions
-    piv: np.ndarray  # (m,) int: S's LU pivots
-    r: np.ndarray  # (m,) SCDD's closure right-hand side, then the cut forces
-    tmh: np.ndarray  # (n,) tau - h
+    sw: ScddWork  # the serial-chain SCDD's work arrays (dynamics.kernels.ScddWork)
     bm: np.ndarray  # (m,) A qd for Baumgarte's terms
     pc: np.ndarray  # (n_points,) int: each point's chain (-1: the base), for the platform SCDD
     pw: tuple  # the platform SCDD's work arrays (dynamics.kernels.platform_workspace)
@@ -82,13 +76,11 @@ def workspace(ma):
     """The :class:`Workspace` of :func:`accelerations_into` for the model ``ma`` (allocate once, reuse)."""
     n = ma.jf.shape[0]
     m = ma.p_index.shape[0]
-    nmax = chain_size_max(ma.chain_start)
     J, a_pt, p_pt = point_buffers(ma.points, n)
     return Workspace(np.empty((n, n)), np.empty(n), J, a_pt, p_pt,
                      np.empty((m, n)), np.empty(m), np.empty(m),
                      np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 18)),
-                     np.empty(n), np.empty((n, m)), np.empty((m, m)), np.empty((nmax, nmax)), np.empty(nmax),
-                     np.empty((nmax, 1 + m)), np.empty(m, dtype=np.int64), np.empty(m), np.empty(n), np.empty(m),
+                     scdd_work(n, m, chain_size_max(ma.chain_start)), np.empty(m),
                      _point_chains(ma.ji, ma.point_body),
                      platform_workspace(ma.chain_start, ma.closure_pairs, ma.closure_axes.shape[0], ma.hub, n))
 
@@ -132,8 +124,7 @@ def accelerations_into(form, ma, q, qd, tau, baumgarte_alpha, baumgarte_beta, qd
     gap = _closure_terms(ma, q, qd, ws.J, ws.a_pt, ws.p_pt, ws.A, ws.gamma, ws.res, baumgarte_alpha, baumgarte_beta,
                          ws.bm)
     if form in (SCDD, SCDD_STACKED) and not (form == SCDD and ma.hub >= 0):
-        cond = scdd_into(ws.M, ws.h, ws.A, ws.gamma, tau, ma.chain_start, qdd, lam, ws.x, ws.Y, ws.S, ws.L, ws.dinv,
-                         ws.XY, ws.piv, ws.r, ws.tmh)
+        cond = scdd_into(ws.M, ws.h, ws.A, ws.gamma, tau, ma.chain_start, qdd, lam, ws.sw)
         return cond, gap
     if form == SCDD:  # with a platform hub
         return scdd_platform_into(ws.M, ws.h, ws.A, ws.gamma, tau, ma.chain_start, ws.pc, ma.closure_pairs,

@@ -21,6 +21,8 @@ differ in how they eliminate the constraint:
 Each returns a scale-free conditioning indicator (pivot ratio) of the matrix it inverts.
 """
 
+from typing import NamedTuple
+
 import numpy as np
 from numba import njit
 
@@ -99,21 +101,39 @@ def chain_responses_into(M, A, chain_start, tau_minus_h, x, Y, S, L, dinv, XY):
     return True
 
 
-@njit(cache=True, inline="always")
-def scdd(M, h, A, gamma, tau, chain_start, qdd, lam):
-    """Exact SCDD (eqs 33-41, loop solved via the Schur complement). Returns pivot ratio."""
-    n = M.shape[0]
-    m = A.shape[0]
-    nmax = chain_size_max(chain_start)
-    return scdd_into(M, h, A, gamma, tau, chain_start, qdd, lam, np.empty(n), np.empty((n, m)), np.empty((m, m)),
-                     np.empty((nmax, nmax)), np.empty(nmax), np.empty((nmax, 1 + m)), np.empty(m, dtype=np.int64),
-                     np.empty(m), np.empty(n))
+class ScddWork(NamedTuple):
+    """The work arrays of :func:`scdd_into` (n tree coordinates, m closure rows, nmax joints
+    in the largest chain), made by :func:`scdd_work`."""
+
+    x: np.ndarray  # (n,) unconstrained tree accelerations M^-1 (tau - h)
+    Y: np.ndarray  # (n, m) constraint responses M^-1 A^T
+    S: np.ndarray  # (m, m) cut-force Schur complement A M^-1 A^T, LU-factored in place
+    L: np.ndarray  # (nmax, nmax) one chain's mass-matrix Cholesky factor
+    dinv: np.ndarray  # (nmax,) its reciprocal diagonal
+    XY: np.ndarray  # (nmax, 1 + m) one chain's right-hand sides [tau - h, A^T], then solutions
+    piv: np.ndarray  # (m,) int: S's pivots
+    r: np.ndarray  # (m,) the closure's right-hand side gamma - A x, then the cut forces
+    tmh: np.ndarray  # (n,) tau - h
 
 
 @njit(cache=True)
-def scdd_into(M, h, A, gamma, tau, chain_start, qdd, lam, x, Y, S, L, dinv, XY, piv, r, tmh):
-    """:func:`scdd` on work arrays: x, tmh (n), Y (n x m), S (m x m), piv, r (m) and the
-    per-chain L, dinv, XY of :func:`chain_responses_into` (no allocation)."""
+def scdd_work(n, m, nmax):
+    """The :class:`ScddWork` of a tree of n coordinates, m closure rows and chains of at most nmax joints."""
+    return ScddWork(np.empty(n), np.empty((n, m)), np.empty((m, m)), np.empty((nmax, nmax)), np.empty(nmax),
+                    np.empty((nmax, 1 + m)), np.empty(m, dtype=np.int64), np.empty(m), np.empty(n))
+
+
+@njit(cache=True, inline="always")
+def scdd(M, h, A, gamma, tau, chain_start, qdd, lam):
+    """Exact SCDD (eqs 33-41, loop solved via the Schur complement). Returns pivot ratio."""
+    return scdd_into(M, h, A, gamma, tau, chain_start, qdd, lam,
+                     scdd_work(M.shape[0], A.shape[0], chain_size_max(chain_start)))
+
+
+@njit(cache=True)
+def scdd_into(M, h, A, gamma, tau, chain_start, qdd, lam, sw):
+    """:func:`scdd` on the :class:`ScddWork` ``sw`` (no allocation)."""
+    x, Y, S, L, dinv, XY, piv, r, tmh = sw
     n = M.shape[0]
     m = A.shape[0]
     for i in range(n):
