@@ -9,6 +9,7 @@ import numpy as np
 from numba import njit
 
 from elastic_pm_dyn.dynamics.kernels import (
+    PlatformWork,
     ScddWork,
     chain_size_max,
     lagrange_dalembert,
@@ -68,7 +69,7 @@ class Workspace(NamedTuple):
     sw: ScddWork  # the serial-chain SCDD's work arrays (dynamics.kernels.ScddWork)
     bm: np.ndarray  # (m,) A qd for Baumgarte's terms
     pc: np.ndarray  # (n_points,) int: each point's chain (-1: the base), for the platform SCDD
-    pw: tuple  # the platform SCDD's work arrays (dynamics.kernels.platform_workspace)
+    pw: PlatformWork  # the platform SCDD's work arrays (dynamics.kernels.PlatformWork)
 
 
 @njit(cache=True)

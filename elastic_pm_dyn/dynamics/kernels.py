@@ -321,9 +321,28 @@ def scdd_platform(M, h, A, gamma, tau, chain_start, point_chain, closure_pairs, 
                               platform_workspace(chain_start, closure_pairs, n_comp, hub, M.shape[0]))
 
 
+class PlatformWork(NamedTuple):
+    """The work arrays of :func:`scdd_platform_into` (c rows per closure pair, n_H platform
+    coordinates, nmax joints in the largest chain), made by :func:`platform_workspace`."""
+
+    L: np.ndarray  # (nmax, nmax) one leg's mass-matrix Cholesky factor
+    N: np.ndarray  # (n_H, n_H) the platform's reduced mass matrix M_H + sum B_i^T Lambda_i B_i, factored
+    R: np.ndarray  # (n_H, 1) its right-hand side, then the platform accelerations xdd
+    XY: np.ndarray  # (n, 1 + c) each leg's [x_i, Y_i] = M_i^-1 [tau_i - h_i, A_i^T] in its rows
+    Lam: np.ndarray  # (n_pairs, c, c) each pair's end-point inertia Lambda_i = (A_i Y_i)^-1
+    g: np.ndarray  # (n_pairs, c) gamma_k - A_i x_i
+    Li: np.ndarray  # (c, c) A_i Y_i, Cholesky-factored
+    LB: np.ndarray  # (c, n_H) Lambda_i B_i
+    Lg: np.ndarray  # (c,) Lambda_i g_i, then g_i + B_i xdd
+    lk: np.ndarray  # (c,) the pair's cut force lambda_i
+    dinv: np.ndarray  # (max(nmax, n_H),) reciprocal diagonal of L or N
+    dinv_c: np.ndarray  # (c,) reciprocal diagonal of Li
+    in_pair: np.ndarray  # (n_chains,) bool: the chain is the hub or a leg of a closure pair
+
+
 @njit(cache=True)
 def platform_workspace(chain_start, closure_pairs, n_comp, hub, n):
-    """Work arrays of :func:`scdd_platform_into` (allocate once, reuse every evaluation)."""
+    """The :class:`PlatformWork` of :func:`scdd_platform_into` (allocate once, reuse every evaluation)."""
     c = n_comp
     n_ch = chain_start.shape[0] - 1
     n_pairs = closure_pairs.shape[0]
@@ -331,14 +350,14 @@ def platform_workspace(chain_start, closure_pairs, n_comp, hub, n):
     nmax = 0
     for ch in range(n_ch):
         nmax = max(nmax, chain_start[ch + 1] - chain_start[ch])
-    return (np.empty((nmax, nmax)), np.empty((nh, nh)), np.empty((nh, 1)), np.empty((n, 1 + c)),
-            np.empty((n_pairs, c, c)), np.empty((n_pairs, c)), np.empty((c, c)), np.empty((c, nh)), np.empty(c),
-            np.empty(c), np.empty(max(nmax, nh)), np.empty(c), np.empty(n_ch, dtype=np.bool_))
+    return PlatformWork(np.empty((nmax, nmax)), np.empty((nh, nh)), np.empty((nh, 1)), np.empty((n, 1 + c)),
+                        np.empty((n_pairs, c, c)), np.empty((n_pairs, c)), np.empty((c, c)), np.empty((c, nh)),
+                        np.empty(c), np.empty(c), np.empty(max(nmax, nh)), np.empty(c), np.empty(n_ch, dtype=np.bool_))
 
 
 @njit(cache=True)
 def scdd_platform_into(M, h, A, gamma, tau, chain_start, point_chain, closure_pairs, n_comp, hub, qdd, lam, pw):
-    """:func:`scdd_platform` on the work arrays ``pw`` of :func:`platform_workspace`."""
+    """:func:`scdd_platform` on the :class:`PlatformWork` ``pw``."""
     L, N, R, XY, Lam, g, Li, LB, Lg, lk, dinv, dinv_c, in_pair = pw
     c = n_comp
     n_ch = chain_start.shape[0] - 1
