@@ -342,7 +342,7 @@ def test_the_integrator_table_reaches_each_kernel(five_bar) -> None:
         assert sim.fixed_steps(q, qd, tail[0], 5e-4, 20) == kernels.OK
         q2, qd2 = initial_state(mech), np.zeros(mech.n)
         if scheme is None:
-            status = kernels.rk4_steps_flat(0, *mech.arrays, q2, qd2, *tail[:8], *tail[9:])  # no phase step
+            status = kernels.rk4_steps(0, mech.arrays, q2, qd2, *tail[:8], *tail[9:])  # no phase step
         else:
             status = exponential.exponential_steps_flat(scheme, *head[1:], q2, qd2, *tail)
         assert status == kernels.OK

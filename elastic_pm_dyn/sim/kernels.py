@@ -22,7 +22,6 @@ from numba import njit
 from elastic_pm_dyn.dynamics.evaluate import LDA, accelerations_into, workspace
 from elastic_pm_dyn.dynamics.kernels import chain_size_max
 from elastic_pm_dyn.kinematics.kernels import all_closure_rows, point_buffers, tree_terms, tree_terms_into
-from elastic_pm_dyn.model.arrays import ModelArrays
 from elastic_pm_dyn.small_linalg import cholesky_recip, cholesky_solve_rows, lu_factor, lu_solve, matvec
 
 STAB_BAUMGARTE = 1
@@ -474,15 +473,3 @@ def _diverged(ma, qs, vs, tau, a, b, qdd_prev, acc, lam, ws, form, info):
     info[1] = np.max(np.abs(acc))
     info[2] = g
     return DIVERGED
-
-
-@njit(cache=True)
-def rk4_steps_flat(form, jf, ji, chain_start, points, point_body, gravity, closure_pairs, closure_axes,
-                   hub, ae_index, p_index, couplings, q, qd, tau_coef, dt, n_steps, stab, alpha, beta, tol,
-                   singular_tol, qdd_prev, lam, info):
-    """:func:`rk4_steps` with the model as separate arrays (``*mech.arrays``): the cheap
-    entry point from Python (see ``accelerations_flat``)."""
-    ma = ModelArrays(jf, ji, chain_start, points, point_body, gravity, closure_pairs, closure_axes,
-                     hub, ae_index, p_index, couplings)
-    return rk4_steps(form, ma, q, qd, tau_coef, dt, n_steps, stab, alpha, beta, tol, singular_tol,
-                     qdd_prev, lam, info)
