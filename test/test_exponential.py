@@ -101,10 +101,8 @@ def undamped_deflected(mech: Mechanism, force: float) -> tuple[Mechanism, np.nda
 
 
 def energy_drift(mech: Mechanism, q0: np.ndarray, e0: float, e_modes: float, integrator: str, dt: float,
-                 horizon: float, scheme: int | None = None) -> float:
+                 horizon: float) -> float:
     sim = Simulator(mech, SimulationOptions(integrator=integrator, dt=dt, sample=0.01))
-    if scheme is not None:
-        sim.scheme = scheme
     r = sim.run(ConstantTorque(np.zeros(len(mech.active))), horizon, q0)
     e = np.array([sum(mech.energy(r.q[k], r.qd[k])) for k in range(len(r.t))])
     return float(np.abs(e - e0).max() / e_modes)
@@ -178,7 +176,7 @@ def test_unresolved_arm_modes_gain_no_energy(dt: float, horizon: float) -> None:
     mech = Mechanism(load_model(CONFIG / "hexa.yaml", 4))
     undamped, q0, e0, e_modes = undamped_deflected(mech, 1.38)  # twice the manoeuvre's peak branch force
     averaged = energy_drift(undamped, q0, e0, e_modes, "etd2", dt, horizon)
-    sampled = energy_drift(undamped, q0, e0, e_modes, "etd2", dt, horizon, exponential.ETD2RK)
+    sampled = energy_drift(undamped, q0, e0, e_modes, "etd2rk", dt, horizon)
     print(f"Hexa n_ek = 4, undamped, {dt:g} s: energy drift over {horizon:g} s ETD2 {averaged:.3g}, "
           f"ETD2RK {sampled:.3g} of the deflection's energy")
     assert averaged < 5e-3
@@ -328,3 +326,34 @@ def test_plant_with_etd2_equals_offline_simulate(triglide) -> None:
         sim.advance(q, qd, ConstantTorque(tau), k * 1e-3, k * 1e-3 + 1e-3)  # the plant's period bounds
     np.testing.assert_array_equal(plant.q, q)
     np.testing.assert_array_equal(plant.qd, qd)
+
+
+def test_the_integrator_table_reaches_each_kernel(five_bar) -> None:
+    """Simulator.fixed_steps goes through sim/integrators.py's one dispatch: each name of its
+    table steps exactly as its kernel called directly, and the comparison schemes are others."""
+    mech, _ = five_bar
+    tau = np.array([0.4, -0.3])
+    ends = {}
+    for name, scheme in (("etd2", exponential.AVERAGED), ("etd2rk", exponential.ETD2RK),
+                         ("impulse", exponential.IMPULSE), ("rk4", None)):
+        sim = Simulator(mech, SimulationOptions(integrator=name, dt=5e-4))
+        q, qd = initial_state(mech), np.zeros(mech.n)
+        head, tail = kernel_args(mech, tau, 5e-4, 20)
+        assert sim.fixed_steps(q, qd, tail[0], 5e-4, 20) == kernels.OK
+        q2, qd2 = initial_state(mech), np.zeros(mech.n)
+        if scheme is None:
+            status = kernels.rk4_steps(0, mech.arrays, q2, qd2, *tail[:8], *tail[9:])  # no phase step
+        else:
+            status = exponential.exponential_steps_flat(scheme, *head[1:], q2, qd2, *tail)
+        assert status == kernels.OK
+        np.testing.assert_array_equal(q, q2)
+        np.testing.assert_array_equal(qd, qd2)
+        ends[name] = q
+    assert not np.array_equal(ends["etd2"], ends["etd2rk"]) and not np.array_equal(ends["etd2"], ends["impulse"])
+
+
+def test_the_comparison_schemes_are_not_offered_on_the_command_line() -> None:
+    from elastic_pm_dyn.sim.simulator import INTEGRATORS
+    assert set(INTEGRATORS) == {"rk4", "etd2", "dop853"}
+    with pytest.raises(InputError, match="unknown integrator"):
+        SimulationOptions(integrator="etd3").validate()

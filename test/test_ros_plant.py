@@ -239,7 +239,7 @@ def test_singular_configuration_stops_and_reset_recovers(ros: RosHarness) -> Non
     ros.wait_until(lambda: len(driver.states) == 4, 5.0, "the answer while stopped")
     assert driver.states[3][0] == driver.states[1][0]
 
-    plant.plant.options.singular_tol = 1e-8
+    plant.plant.options.singular_tol = SimulationOptions().singular_tol
     response = ros.call(reset, Trigger.Request())
     assert response.success, response.message
     ros.wait_until(lambda: len(driver.states) == 5, 5.0, "the reset state")

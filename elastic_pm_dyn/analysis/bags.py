@@ -19,7 +19,7 @@ Memory, per topic of row width w (2 + fields x columns; a six-joint JointState: 
 at most ``max_samples`` x w x 8 bytes for the overview, ``window_samples`` x w x 8 for
 the full-rate window and 2 x 5 x ``max_samples`` x 8 bytes of stamps for exact timing
 statistics (beyond that, histograms). Defaults: about 60 MB for a six-joint JointState
-topic, whatever the length of the bag; decoding runs at ~30-40 us per message.
+topic, whatever the length of the bag.
 """
 
 from __future__ import annotations

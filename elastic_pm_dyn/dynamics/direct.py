@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from elastic_pm_dyn.dynamics.evaluate import FORMULATION_CODES, SCDD_ONE_PASS, accelerations_flat
+from elastic_pm_dyn.dynamics.evaluate import FORMULATION_CODES, SCDD_ONE_PASS, SINGULAR_TOL, accelerations_flat
 from elastic_pm_dyn.errors import InputError, SingularConfigurationError
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 
@@ -21,7 +21,7 @@ class Dynamics:
     it returned).
     """
 
-    def __init__(self, mech: Mechanism, formulation: str = "scdd", singular_tol: float = 1e-9):
+    def __init__(self, mech: Mechanism, formulation: str = "scdd", singular_tol: float = SINGULAR_TOL):
         if formulation not in FORMULATION_CODES:
             raise InputError(f"unknown formulation {formulation!r} (expected one of: {', '.join(FORMULATIONS)})")
         self.mech = mech

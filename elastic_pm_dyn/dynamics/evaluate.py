@@ -3,10 +3,14 @@
 The formulation is an integer so that integrators can be compiled once for all of them.
 """
 
+from typing import NamedTuple
+
 import numpy as np
 from numba import njit
 
 from elastic_pm_dyn.dynamics.kernels import (
+    PlatformWork,
+    ScddWork,
     chain_size_max,
     lagrange_dalembert,
     multipliers,
@@ -16,6 +20,7 @@ from elastic_pm_dyn.dynamics.kernels import (
     scdd_one_pass,
     scdd_platform,
     scdd_platform_into,
+    scdd_work,
 )
 from elastic_pm_dyn.kinematics.kernels import all_closure_rows, point_buffers, tree_terms, tree_terms_into
 from elastic_pm_dyn.model.arrays import ModelArrays
@@ -30,21 +35,55 @@ SCDD_STACKED = 4  # SCDD without the platform reduction (all cut forces stacked)
 FORMULATION_CODES = {"scdd": SCDD, "lda": LDA, "multipliers": MULTIPLIERS, "scdd_one_pass": SCDD_ONE_PASS,
                      "scdd_stacked": SCDD_STACKED}
 
+# The conditioning (:func:`accelerations`' pivot ratio, smallest over largest pivot, about the
+# inverse of the condition number) below which an evaluation counts as singular: for the direct
+# dynamics, the simulator and the observer alike. A ratio r costs a solve about eps / r of
+# relative accuracy (eps = 2.2e-16): at 1e-8 the accelerations still keep about 8 digits, far
+# below it they are round-off, and since the ratio falls about in proportion to the distance to
+# a singular configuration, the stop comes close to it, not on the way. L-D'A's Newton on q_p
+# stops at its square root (sim/kernels.py rk4_steps).
+SINGULAR_TOL = 1e-8
+
+
+class Workspace(NamedTuple):
+    """The work arrays of :func:`accelerations_into` for one model, made once by
+    :func:`workspace` and reused by every evaluation (as Pinocchio's ``model.createData()``).
+
+    The order is part of the interface: compiled callers that predate the names read
+    ``ws[0]`` (M), ``ws[2]`` (J), ``ws[3]`` (a_pt) and ``ws[5]`` (A).
+    """
+
+    M: np.ndarray  # (n, n) tree mass matrix at the last evaluation
+    h: np.ndarray  # (n,) tree bias forces (Coriolis, gravity, springs, dampers)
+    J: np.ndarray  # (n_points, 3 or 6, n) point Jacobians (6 rows with point frames)
+    a_pt: np.ndarray  # (n_points, 3 or 6) point accelerations at qdd = 0
+    p_pt: np.ndarray  # (n_points, 3 or 12) point positions (and frame orientations) in the world
+    A: np.ndarray  # (m, n) closure Jacobian dh/dq at the last evaluation
+    gamma: np.ndarray  # (m,) closure right-hand side A qdd = gamma (with Baumgarte's terms)
+    res: np.ndarray  # (m,) closure residual h(q)
+    wz: np.ndarray  # (n, 3) the tree sweep's joint axes in the world
+    wo: np.ndarray  # (n, 3) the tree sweep's joint origins in the world
+    jv: np.ndarray  # (n, 3) the sweep's Jacobian columns of a body's centre: linear velocity
+    jw: np.ndarray  # (n, 3) and angular velocity
+    fr: np.ndarray  # (n, 18) the sweep's stored frames (subtrees and kept bodies)
+    sw: ScddWork  # the serial-chain SCDD's work arrays (dynamics.kernels.ScddWork)
+    bm: np.ndarray  # (m,) A qd for Baumgarte's terms
+    pc: np.ndarray  # (n_points,) int: each point's chain (-1: the base), for the platform SCDD
+    pw: PlatformWork  # the platform SCDD's work arrays (dynamics.kernels.PlatformWork)
+
 
 @njit(cache=True)
 def workspace(ma):
-    """Work arrays of :func:`accelerations_into` for the model ``ma`` (allocate once, reuse)."""
+    """The :class:`Workspace` of :func:`accelerations_into` for the model ``ma`` (allocate once, reuse)."""
     n = ma.jf.shape[0]
     m = ma.p_index.shape[0]
-    nmax = chain_size_max(ma.chain_start)
     J, a_pt, p_pt = point_buffers(ma.points, n)
-    return (np.empty((n, n)), np.empty(n), J, a_pt, p_pt,
-            np.empty((m, n)), np.empty(m), np.empty(m),
-            np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 18)),
-            np.empty(n), np.empty((n, m)), np.empty((m, m)), np.empty((nmax, nmax)), np.empty(nmax),
-            np.empty((nmax, 1 + m)), np.empty(m, dtype=np.int64), np.empty(m), np.empty(n), np.empty(m),
-            _point_chains(ma.ji, ma.point_body),
-            platform_workspace(ma.chain_start, ma.closure_pairs, ma.closure_axes.shape[0], ma.hub, n))
+    return Workspace(np.empty((n, n)), np.empty(n), J, a_pt, p_pt,
+                     np.empty((m, n)), np.empty(m), np.empty(m),
+                     np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 18)),
+                     scdd_work(n, m, chain_size_max(ma.chain_start)), np.empty(m),
+                     _point_chains(ma.ji, ma.point_body),
+                     platform_workspace(ma.chain_start, ma.closure_pairs, ma.closure_axes.shape[0], ma.hub, n))
 
 
 @njit(cache=True)
@@ -61,7 +100,8 @@ def accelerations(form, ma, q, qd, tau, baumgarte_alpha, baumgarte_beta, qdd_pre
     rigid machine's parallel singularities, which only the formulations inverting dh/dq_p
     cannot.
     """
-    # One-off calls allocate only what they use: cheaper than a whole workspace (~0.6 us).
+    # One-off calls allocate only what they use: cheaper than a whole workspace (~0.6 us,
+    # measured 2026-11-22 on the 2-core dev machine).
     n = q.shape[0]
     m = ma.p_index.shape[0]
     M, h = np.empty((n, n)), np.empty(n)
@@ -76,22 +116,21 @@ def accelerations(form, ma, q, qd, tau, baumgarte_alpha, baumgarte_beta, qdd_pre
 
 @njit(cache=True)
 def accelerations_into(form, ma, q, qd, tau, baumgarte_alpha, baumgarte_beta, qdd_prev, qdd, lam, ws):
-    """:func:`accelerations` on the work arrays ``ws`` of :func:`workspace`: SCDD on a
-    serial-chain closure or on a platform allocates nothing (allocation was a third of an
-    evaluation on the five-bar, 17 arrays of the platform SCDD's per call). The tree terms
-    (M, h, J, a_pt, p_pt = ws[:5]) and the closure rows (A, gamma, res = ws[5:8]) of (q, qd)
-    stay in ``ws`` for the caller."""
-    M, h, J, a_pt, p_pt, A, gamma, res, wz, wo, jv, jw, fr, x, Y, S, L, dinv, XY, piv, r, tmh, bm, pc, pw = ws
-    tree_terms_into(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_body, ma.gravity, q, qd, M, h, J, a_pt,
-                    p_pt, wz, wo, jv, jw, fr)
-    gap = _closure_terms(ma, q, qd, J, a_pt, p_pt, A, gamma, res, baumgarte_alpha, baumgarte_beta, bm)
+    """:func:`accelerations` on the :class:`Workspace` ``ws``: SCDD on a serial-chain closure
+    or on a platform allocates nothing (allocation was a third of an evaluation on the
+    five-bar, 17 arrays of the platform SCDD's per call). The tree terms (ws.M, h, J, a_pt,
+    p_pt) and the closure rows (ws.A, gamma, res) of (q, qd) stay in ``ws`` for the caller."""
+    tree_terms_into(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_body, ma.gravity, q, qd, ws.M, ws.h, ws.J,
+                    ws.a_pt, ws.p_pt, ws.wz, ws.wo, ws.jv, ws.jw, ws.fr)
+    gap = _closure_terms(ma, q, qd, ws.J, ws.a_pt, ws.p_pt, ws.A, ws.gamma, ws.res, baumgarte_alpha, baumgarte_beta,
+                         ws.bm)
     if form in (SCDD, SCDD_STACKED) and not (form == SCDD and ma.hub >= 0):
-        cond = scdd_into(M, h, A, gamma, tau, ma.chain_start, qdd, lam, x, Y, S, L, dinv, XY, piv, r, tmh)
+        cond = scdd_into(ws.M, ws.h, ws.A, ws.gamma, tau, ma.chain_start, qdd, lam, ws.sw)
         return cond, gap
     if form == SCDD:  # with a platform hub
-        return scdd_platform_into(M, h, A, gamma, tau, ma.chain_start, pc, ma.closure_pairs,
-                                  ma.closure_axes.shape[0], ma.hub, qdd, lam, pw), gap
-    return _other_formulations(form, ma, M, h, A, gamma, tau, qdd_prev, qdd, lam), gap
+        return scdd_platform_into(ws.M, ws.h, ws.A, ws.gamma, tau, ma.chain_start, ws.pc, ma.closure_pairs,
+                                  ma.closure_axes.shape[0], ma.hub, qdd, lam, ws.pw), gap
+    return _other_formulations(form, ma, ws.M, ws.h, ws.A, ws.gamma, tau, qdd_prev, qdd, lam), gap
 
 
 @njit(cache=True, inline="always")
@@ -136,7 +175,8 @@ def accelerations_flat(form, jf, ji, chain_start, points, point_body, gravity, c
     """:func:`accelerations` with the model as separate arrays (``*mech.arrays``).
 
     The entry point for calls from Python: numba types plain arrays on a fast path, a
-    namedtuple argument on a slow one (about 1.7 us per call, a third of an evaluation).
+    namedtuple argument on a slow one (about 1.7 us per call, a third of an evaluation,
+    measured 2026-11-22 on the 2-core dev machine).
     """
     ma = ModelArrays(jf, ji, chain_start, points, point_body, gravity, closure_pairs, closure_axes,
                      hub, ae_index, p_index, couplings)

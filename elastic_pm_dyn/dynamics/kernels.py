@@ -21,6 +21,8 @@ differ in how they eliminate the constraint:
 Each returns a scale-free conditioning indicator (pivot ratio) of the matrix it inverts.
 """
 
+from typing import NamedTuple
+
 import numpy as np
 from numba import njit
 
@@ -99,21 +101,39 @@ def chain_responses_into(M, A, chain_start, tau_minus_h, x, Y, S, L, dinv, XY):
     return True
 
 
-@njit(cache=True, inline="always")
-def scdd(M, h, A, gamma, tau, chain_start, qdd, lam):
-    """Exact SCDD (eqs 33-41, loop solved via the Schur complement). Returns pivot ratio."""
-    n = M.shape[0]
-    m = A.shape[0]
-    nmax = chain_size_max(chain_start)
-    return scdd_into(M, h, A, gamma, tau, chain_start, qdd, lam, np.empty(n), np.empty((n, m)), np.empty((m, m)),
-                     np.empty((nmax, nmax)), np.empty(nmax), np.empty((nmax, 1 + m)), np.empty(m, dtype=np.int64),
-                     np.empty(m), np.empty(n))
+class ScddWork(NamedTuple):
+    """The work arrays of :func:`scdd_into` (n tree coordinates, m closure rows, nmax joints
+    in the largest chain), made by :func:`scdd_work`."""
+
+    x: np.ndarray  # (n,) unconstrained tree accelerations M^-1 (tau - h)
+    Y: np.ndarray  # (n, m) constraint responses M^-1 A^T
+    S: np.ndarray  # (m, m) cut-force Schur complement A M^-1 A^T, LU-factored in place
+    L: np.ndarray  # (nmax, nmax) one chain's mass-matrix Cholesky factor
+    dinv: np.ndarray  # (nmax,) its reciprocal diagonal
+    XY: np.ndarray  # (nmax, 1 + m) one chain's right-hand sides [tau - h, A^T], then solutions
+    piv: np.ndarray  # (m,) int: S's pivots
+    r: np.ndarray  # (m,) the closure's right-hand side gamma - A x, then the cut forces
+    tmh: np.ndarray  # (n,) tau - h
 
 
 @njit(cache=True)
-def scdd_into(M, h, A, gamma, tau, chain_start, qdd, lam, x, Y, S, L, dinv, XY, piv, r, tmh):
-    """:func:`scdd` on work arrays: x, tmh (n), Y (n x m), S (m x m), piv, r (m) and the
-    per-chain L, dinv, XY of :func:`chain_responses_into` (no allocation)."""
+def scdd_work(n, m, nmax):
+    """The :class:`ScddWork` of a tree of n coordinates, m closure rows and chains of at most nmax joints."""
+    return ScddWork(np.empty(n), np.empty((n, m)), np.empty((m, m)), np.empty((nmax, nmax)), np.empty(nmax),
+                    np.empty((nmax, 1 + m)), np.empty(m, dtype=np.int64), np.empty(m), np.empty(n))
+
+
+@njit(cache=True, inline="always")
+def scdd(M, h, A, gamma, tau, chain_start, qdd, lam):
+    """Exact SCDD (eqs 33-41, loop solved via the Schur complement). Returns pivot ratio."""
+    return scdd_into(M, h, A, gamma, tau, chain_start, qdd, lam,
+                     scdd_work(M.shape[0], A.shape[0], chain_size_max(chain_start)))
+
+
+@njit(cache=True)
+def scdd_into(M, h, A, gamma, tau, chain_start, qdd, lam, sw):
+    """:func:`scdd` on the :class:`ScddWork` ``sw`` (no allocation)."""
+    x, Y, S, L, dinv, XY, piv, r, tmh = sw
     n = M.shape[0]
     m = A.shape[0]
     for i in range(n):
@@ -301,9 +321,28 @@ def scdd_platform(M, h, A, gamma, tau, chain_start, point_chain, closure_pairs, 
                               platform_workspace(chain_start, closure_pairs, n_comp, hub, M.shape[0]))
 
 
+class PlatformWork(NamedTuple):
+    """The work arrays of :func:`scdd_platform_into` (c rows per closure pair, n_H platform
+    coordinates, nmax joints in the largest chain), made by :func:`platform_workspace`."""
+
+    L: np.ndarray  # (nmax, nmax) one leg's mass-matrix Cholesky factor
+    N: np.ndarray  # (n_H, n_H) the platform's reduced mass matrix M_H + sum B_i^T Lambda_i B_i, factored
+    R: np.ndarray  # (n_H, 1) its right-hand side, then the platform accelerations xdd
+    XY: np.ndarray  # (n, 1 + c) each leg's [x_i, Y_i] = M_i^-1 [tau_i - h_i, A_i^T] in its rows
+    Lam: np.ndarray  # (n_pairs, c, c) each pair's end-point inertia Lambda_i = (A_i Y_i)^-1
+    g: np.ndarray  # (n_pairs, c) gamma_k - A_i x_i
+    Li: np.ndarray  # (c, c) A_i Y_i, Cholesky-factored
+    LB: np.ndarray  # (c, n_H) Lambda_i B_i
+    Lg: np.ndarray  # (c,) Lambda_i g_i, then g_i + B_i xdd
+    lk: np.ndarray  # (c,) the pair's cut force lambda_i
+    dinv: np.ndarray  # (max(nmax, n_H),) reciprocal diagonal of L or N
+    dinv_c: np.ndarray  # (c,) reciprocal diagonal of Li
+    in_pair: np.ndarray  # (n_chains,) bool: the chain is the hub or a leg of a closure pair
+
+
 @njit(cache=True)
 def platform_workspace(chain_start, closure_pairs, n_comp, hub, n):
-    """Work arrays of :func:`scdd_platform_into` (allocate once, reuse every evaluation)."""
+    """The :class:`PlatformWork` of :func:`scdd_platform_into` (allocate once, reuse every evaluation)."""
     c = n_comp
     n_ch = chain_start.shape[0] - 1
     n_pairs = closure_pairs.shape[0]
@@ -311,14 +350,14 @@ def platform_workspace(chain_start, closure_pairs, n_comp, hub, n):
     nmax = 0
     for ch in range(n_ch):
         nmax = max(nmax, chain_start[ch + 1] - chain_start[ch])
-    return (np.empty((nmax, nmax)), np.empty((nh, nh)), np.empty((nh, 1)), np.empty((n, 1 + c)),
-            np.empty((n_pairs, c, c)), np.empty((n_pairs, c)), np.empty((c, c)), np.empty((c, nh)), np.empty(c),
-            np.empty(c), np.empty(max(nmax, nh)), np.empty(c), np.empty(n_ch, dtype=np.bool_))
+    return PlatformWork(np.empty((nmax, nmax)), np.empty((nh, nh)), np.empty((nh, 1)), np.empty((n, 1 + c)),
+                        np.empty((n_pairs, c, c)), np.empty((n_pairs, c)), np.empty((c, c)), np.empty((c, nh)),
+                        np.empty(c), np.empty(c), np.empty(max(nmax, nh)), np.empty(c), np.empty(n_ch, dtype=np.bool_))
 
 
 @njit(cache=True)
 def scdd_platform_into(M, h, A, gamma, tau, chain_start, point_chain, closure_pairs, n_comp, hub, qdd, lam, pw):
-    """:func:`scdd_platform` on the work arrays ``pw`` of :func:`platform_workspace`."""
+    """:func:`scdd_platform` on the :class:`PlatformWork` ``pw``."""
     L, N, R, XY, Lam, g, Li, LB, Lg, lk, dinv, dinv_c, in_pair = pw
     c = n_comp
     n_ch = chain_start.shape[0] - 1

@@ -15,7 +15,8 @@ class ModelArrays(NamedTuple):
     """Everything the kernels need, as contiguous arrays (see :mod:`layout`).
 
     As few arrays as will do: each one more costs every call from Python its unboxing
-    (about 0.15 us, bench/benchmarks/bench_dynamics.py's ``ours.kernel.*``).
+    (about 0.15 us measured 2026-11-23 on the 2-core dev machine; bench/benchmarks/bench_dynamics.py's
+    ``ours.kernel.*`` measure it).
     """
 
     jf: np.ndarray  # (n_t, JF_WIDTH) float

@@ -260,7 +260,7 @@ def events(text: str) -> Iterator[yaml.Event]:
     Raises ``yaml.YAMLError`` for malformed YAML.
     """
     try:
-        from yaml._yaml import CParser  # ~5x faster than the pure-Python parser
+        from yaml._yaml import CParser  # libyaml: several times faster than the pure-Python parser
         parser: Any = CParser(text)
     except ImportError:  # PyYAML built without libyaml
         parser = yaml.SafeLoader(text)

@@ -2,8 +2,9 @@
 returning to Python in between.
 
 An offline run at 1 ms torque pieces and 1 ms output made one compiled call per piece from
-Python (about 15 us of Python around a few steps of ETD2, and a fresh set of work arrays per
-call) and kept a Python tuple per sample. Here a chunk of pieces is one call: the torque
+Python (about 15 us of Python around a few steps of ETD2, measured 2026-11-25 on the 2-core dev
+machine, and a fresh set of work arrays per call) and kept a Python tuple per sample. Here a
+chunk of pieces is one call: the torque
 polynomials of the chunk come in one array, the work arrays are allocated once per chunk, and
 the state is written into preallocated output rows after the pieces that end on a sample.
 Each piece is integrated exactly as one ``Simulator.fixed_steps`` call would (same steps,
@@ -14,20 +15,19 @@ import numpy as np
 from numba import njit
 
 from elastic_pm_dyn.model.arrays import ModelArrays
-from elastic_pm_dyn.sim.exponential import etd2_workspace, exponential_steps_ws
-from elastic_pm_dyn.sim.kernels import OK, rk4_steps
-
-RK4 = 0
-ETD2 = 1
+from elastic_pm_dyn.sim.exponential import etd2_workspace
+from elastic_pm_dyn.sim.integrators import fixed_steps
+from elastic_pm_dyn.sim.kernels import OK
 
 
 @njit(cache=True)
-def run_pieces(method, scheme, form, ma, active, q, qd, coefs, hs, steps, record, q_out, qd_out, row, stab, alpha,
-               beta, tol, singular_tol, phase_step, qdd_prev, lam, info):
+def run_pieces(method, scheme, form, ma, active, q, qd, coefs, hs, steps, record, q_out, qd_out, row, settings,
+               qdd_prev, lam, info):
     """Integrate the pieces k = 0 .. len(hs) - 1 in turn: ``steps[k]`` steps of ``hs[k]`` under
     the torque polynomial ``coefs[k]`` (3, n_a: the active joints' columns of the tree
-    polynomial, time from the piece's start). After each piece with ``record[k]`` the state goes
-    to row ``row`` of q_out, qd_out and row advances.
+    polynomial, time from the piece's start), by :func:`elastic_pm_dyn.sim.integrators.fixed_steps`
+    (``method``, ``scheme``, ``settings``: its StepSettings). After each piece with ``record[k]``
+    the state goes to row ``row`` of q_out, qd_out and row advances.
 
     Returns (status, pieces done, next row): on a status other than OK, piece ``pieces done``
     failed as :func:`elastic_pm_dyn.sim.kernels.rk4_steps` describes (info as it leaves it)
@@ -40,12 +40,8 @@ def run_pieces(method, scheme, form, ma, active, q, qd, coefs, hs, steps, record
         for r in range(3):
             for j in range(active.shape[0]):
                 tau_coef[r, active[j]] = coefs[k, r, j]
-        if method == ETD2:
-            status = exponential_steps_ws(scheme, form, ma, q, qd, tau_coef, hs[k], steps[k], stab, alpha, beta,
-                                          tol, singular_tol, phase_step, qdd_prev, lam, info, ew)
-        else:
-            status = rk4_steps(form, ma, q, qd, tau_coef, hs[k], steps[k], stab, alpha, beta, tol, singular_tol,
-                               qdd_prev, lam, info)
+        status = fixed_steps(method, scheme, form, ma, q, qd, tau_coef, hs[k], steps[k], settings, qdd_prev, lam,
+                             info, ew)
         if status != OK:
             return status, k, row
         if record[k]:
@@ -58,9 +54,9 @@ def run_pieces(method, scheme, form, ma, active, q, qd, coefs, hs, steps, record
 @njit(cache=True)
 def run_pieces_flat(method, scheme, form, jf, ji, chain_start, points, point_body, gravity, closure_pairs,
                     closure_axes, hub, ae_index, p_index, couplings, active, q, qd, coefs, hs, steps, record, q_out,
-                    qd_out, row, stab, alpha, beta, tol, singular_tol, phase_step, qdd_prev, lam, info):
+                    qd_out, row, settings, qdd_prev, lam, info):
     """:func:`run_pieces` with the model as separate arrays (``*mech.arrays``)."""
     ma = ModelArrays(jf, ji, chain_start, points, point_body, gravity, closure_pairs, closure_axes,
                      hub, ae_index, p_index, couplings)
-    return run_pieces(method, scheme, form, ma, active, q, qd, coefs, hs, steps, record, q_out, qd_out, row, stab,
-                      alpha, beta, tol, singular_tol, phase_step, qdd_prev, lam, info)
+    return run_pieces(method, scheme, form, ma, active, q, qd, coefs, hs, steps, record, q_out, qd_out, row, settings,
+                      qdd_prev, lam, info)

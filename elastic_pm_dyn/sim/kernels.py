@@ -14,13 +14,14 @@ the call's start: constant for a zero-order hold, linear for interpolated tables
 quadratic through the three RK4 stage times for an arbitrary function.
 """
 
+from typing import NamedTuple
+
 import numpy as np
 from numba import njit
 
 from elastic_pm_dyn.dynamics.evaluate import LDA, accelerations_into, workspace
 from elastic_pm_dyn.dynamics.kernels import chain_size_max
 from elastic_pm_dyn.kinematics.kernels import all_closure_rows, point_buffers, tree_terms, tree_terms_into
-from elastic_pm_dyn.model.arrays import ModelArrays
 from elastic_pm_dyn.small_linalg import cholesky_recip, cholesky_solve_rows, lu_factor, lu_solve, matvec
 
 STAB_BAUMGARTE = 1
@@ -97,19 +98,49 @@ def partition(ma, q, qd, tol, max_iter):
     return gap, ratio
 
 
+class ProjectionWorkspace(NamedTuple):
+    """The work arrays of :func:`project_into` and :func:`project_springs` for one model, made
+    once by :func:`projection_workspace` and reused every step."""
+
+    M: np.ndarray  # (n, n) tree mass matrix at zero velocity
+    h: np.ndarray  # (n,) tree bias forces (computed with M, not used)
+    J: np.ndarray  # (n_points, 3 or 6, n) point Jacobians
+    a_pt: np.ndarray  # (n_points, 3 or 6) point accelerations (not used)
+    p_pt: np.ndarray  # (n_points, 3 or 12) point positions (and frames) in the world
+    A: np.ndarray  # (m, n) closure Jacobian at the last evaluation
+    gamma: np.ndarray  # (m,) closure right-hand side (not used)
+    res: np.ndarray  # (m,) closure residual h(q), the Newton step's right-hand side
+    wz: np.ndarray  # (n, 3) the tree sweep's joint axes in the world
+    wo: np.ndarray  # (n, 3) the tree sweep's joint origins
+    jv: np.ndarray  # (n, 3) the sweep's body-centre Jacobian columns: linear
+    jw: np.ndarray  # (n, 3) and angular
+    fr: np.ndarray  # (n, 18) the sweep's stored frames
+    Y: np.ndarray  # (n, m) M^-1 A^T in each chain's closure rows
+    zero: np.ndarray  # (n,) zeros: the velocity of the closure evaluations
+    S: np.ndarray  # (m, m) A M^-1 A^T, LU-factored in place
+    piv: np.ndarray  # (m,) int: S's pivots
+    L: np.ndarray  # (nmax, nmax) one chain's mass-matrix Cholesky factor
+    dinv: np.ndarray  # (nmax,) its reciprocal diagonal
+    XY: np.ndarray  # (nmax, m) one chain's M_c^-1 A_c^T
+    rows: np.ndarray  # (n_chains, m) int: the closure rows each chain takes part in
+    n_rows: np.ndarray  # (n_chains,) int: how many
+    v: np.ndarray  # (m,) A qd, the velocity correction's right-hand side
+
+
 @njit(cache=True)
 def projection_workspace(ma):
-    """Work arrays of :func:`project_into` (allocate once, reuse every step)."""
+    """The :class:`ProjectionWorkspace` of the model ``ma`` (allocate once, reuse every step)."""
     n = ma.jf.shape[0]
     m = ma.p_index.shape[0]
     n_ch = ma.chain_start.shape[0] - 1
     nmax = chain_size_max(ma.chain_start)
     J, a_pt, p_pt = point_buffers(ma.points, n)
-    return (np.empty((n, n)), np.empty(n), J, a_pt, p_pt, np.empty((m, n)), np.empty(m), np.empty(m),
-            np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 18)),
-            np.empty((n, m)), np.zeros(n), np.empty((m, m)), np.empty(m, dtype=np.int64), np.empty((nmax, nmax)),
-            np.empty(nmax), np.empty((nmax, m)), np.empty((n_ch, m), dtype=np.int64), np.empty(n_ch, dtype=np.int64),
-            np.empty(m))
+    return ProjectionWorkspace(
+        np.empty((n, n)), np.empty(n), J, a_pt, p_pt, np.empty((m, n)), np.empty(m), np.empty(m),
+        np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 18)),
+        np.empty((n, m)), np.zeros(n), np.empty((m, m)), np.empty(m, dtype=np.int64), np.empty((nmax, nmax)),
+        np.empty(nmax), np.empty((nmax, m)), np.empty((n_ch, m), dtype=np.int64), np.empty(n_ch, dtype=np.int64),
+        np.empty(m))
 
 
 @njit(cache=True)
@@ -181,18 +212,17 @@ def _chain_responses_sparse(M, A, chain_start, Y, S, L, dinv, XY, rows, n_rows):
 
 @njit(cache=True, inline="always")
 def _closure_at(ma, q, pws, inertia=True):
-    """Closure residual (pws' res) and Jacobian (pws' A) at q, with the tree terms M, h at
+    """Closure residual (pws.res) and Jacobian (pws.A) at q, with the tree terms M, h at
     zero velocity or (inertia False) the kinematics alone; returns |h(q)|."""
-    M, h, J, a_pt, p_pt, A, gamma, res, wz, wo, jv, jw, fr = pws[:13]
-    zero = pws[14]
     if inertia:
-        tree_terms_into(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_body, ma.gravity, q, zero, M, h, J, a_pt,
-                        p_pt, wz, wo, jv, jw, fr)
+        tree_terms_into(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_body, ma.gravity, q, pws.zero, pws.M,
+                        pws.h, pws.J, pws.a_pt, pws.p_pt, pws.wz, pws.wo, pws.jv, pws.jw, pws.fr)
     else:
-        tree_terms_into(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_body, ma.gravity, q, zero, M[:0, :0],
-                        h[:0], J, a_pt, p_pt, wz, wo, jv, jw, fr)
-    all_closure_rows(ma.closure_pairs, ma.closure_axes, ma.points, ma.couplings, q, J, a_pt, p_pt, A, gamma, res)
-    return np.sqrt(np.sum(res * res))
+        tree_terms_into(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_body, ma.gravity, q, pws.zero,
+                        pws.M[:0, :0], pws.h[:0], pws.J, pws.a_pt, pws.p_pt, pws.wz, pws.wo, pws.jv, pws.jw, pws.fr)
+    all_closure_rows(ma.closure_pairs, ma.closure_axes, ma.points, ma.couplings, q, pws.J, pws.a_pt, pws.p_pt,
+                     pws.A, pws.gamma, pws.res)
+    return np.sqrt(np.sum(pws.res * pws.res))
 
 
 @njit(cache=True, inline="always")
@@ -208,10 +238,10 @@ def _correct(chain_start, Y, S, piv, rows, n_rows, r, x):
 
 @njit(cache=True)
 def project_into(ma, q, qd, tol, max_iter, pws):
-    """:func:`project` on the work arrays ``pws`` of :func:`projection_workspace`: allocates
-    nothing, and solves each chain only in its own closure rows (bit-identical)."""
-    M, A, res, Y = pws[0], pws[5], pws[7], pws[13]
-    S, piv, L, dinv, XY, rows, n_rows, v = pws[15:]
+    """:func:`project` on the :class:`ProjectionWorkspace` ``pws``: allocates nothing, and
+    solves each chain only in its own closure rows (bit-identical)."""
+    M, A, res, Y = pws.M, pws.A, pws.res, pws.Y
+    S, piv, L, dinv, XY, rows, n_rows, v = pws.S, pws.piv, pws.L, pws.dinv, pws.XY, pws.rows, pws.n_rows, pws.v
     m = ma.p_index.shape[0]
     if m == 0:
         return 0.0
@@ -252,7 +282,7 @@ def project_springs(ma, q, qd, tol, max_iter, pws, fast, sk, G, Y0, S0, piv0, ro
     what is left goes with the next step's. Velocities: the mass metric (the kinetic energy's
     own) twice, with the closure rows of the last evaluation.
     """
-    A, res, v = pws[5], pws[7], pws[22]
+    A, res, v = pws.A, pws.res, pws.v
     Z, zinv, g, dq = sw
     n = q.shape[0]
     nf = fast.shape[0]
@@ -443,15 +473,3 @@ def _diverged(ma, qs, vs, tau, a, b, qdd_prev, acc, lam, ws, form, info):
     info[1] = np.max(np.abs(acc))
     info[2] = g
     return DIVERGED
-
-
-@njit(cache=True)
-def rk4_steps_flat(form, jf, ji, chain_start, points, point_body, gravity, closure_pairs, closure_axes,
-                   hub, ae_index, p_index, couplings, q, qd, tau_coef, dt, n_steps, stab, alpha, beta, tol,
-                   singular_tol, qdd_prev, lam, info):
-    """:func:`rk4_steps` with the model as separate arrays (``*mech.arrays``): the cheap
-    entry point from Python (see ``accelerations_flat``)."""
-    ma = ModelArrays(jf, ji, chain_start, points, point_body, gravity, closure_pairs, closure_axes,
-                     hub, ae_index, p_index, couplings)
-    return rk4_steps(form, ma, q, qd, tau_coef, dt, n_steps, stab, alpha, beta, tol, singular_tol,
-                     qdd_prev, lam, info)

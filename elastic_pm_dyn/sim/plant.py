@@ -145,7 +145,8 @@ class Plant:
         """:meth:`Simulator.advance` of ``HeldPlusSmooth(held, disturbance)`` (one quadratic per step
         through its values at the step's start, middle and end) with the disturbance evaluated at
         all the period's stage times in one vectorised pass and the steps in one compiled call
-        (sim/batch.py): 0.25 instead of 0.85 ms per 1 ms period on the five-bar at dt = 1e-4 s."""
+        (sim/batch.py): 0.25 instead of 0.85 ms per 1 ms period on the five-bar at dt = 1e-4 s
+        (measured 2026-11-27 on the 2-core dev machine; bench/benchmarks/bench_plant.py)."""
         o, sim = self.options, self._sim
         n_steps = max(1, int(np.ceil((t1 - t0) / o.dt - 1e-9)))
         h = (t1 - t0) / n_steps
@@ -153,12 +154,10 @@ class Plant:
         f = held + self.disturbance.on_grid(t0, 0.5 * h, 2 * n_steps + 1)  # each step's start, middle, end
         f0, f1, f2 = f[0:-1:2], f[1::2], f[2::2]
         coefs = np.stack([f0, (4 * f1 - 3 * f0 - f2) / h, 2 * (f0 - 2 * f1 + f2) / h ** 2], axis=1)
-        method = batch.ETD2 if o.integrator == "etd2" else batch.RK4
         status, done, _ = batch.run_pieces_flat(
-            method, sim.scheme, sim.code, *sim._args, self._active, q, qd, coefs, np.full(n_steps, h),
+            *sim.method, sim.code, *sim._args, self._active, q, qd, coefs, np.full(n_steps, h),
             np.ones(n_steps, dtype=np.int64), np.zeros(n_steps, dtype=bool), self._no_rows, self._no_rows, 0,
-            sim.stab, o.baumgarte_alpha, o.baumgarte_beta, o.closure_tol, o.singular_tol, o.phase_step,
-            sim.qdd_prev, sim.lam, sim.info)
+            o.step_settings(), sim.qdd_prev, sim.lam, sim.info)
         if status != kernels.OK:
             raise integration_error(status, o.formulation, starts[min(done, n_steps - 1)] + sim.info[0] * h, sim.info)
 

@@ -9,19 +9,20 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from elastic_pm_dyn.dynamics.evaluate import FORMULATION_CODES, LDA, accelerations_flat
+from elastic_pm_dyn.dynamics.evaluate import FORMULATION_CODES, LDA, SINGULAR_TOL, accelerations_flat
 from elastic_pm_dyn.errors import InputError, RunInterrupted, SingularConfigurationError
 from elastic_pm_dyn.kinematics.assembly import initial_state
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
-from elastic_pm_dyn.sim import batch, exponential, kernels
+from elastic_pm_dyn.sim import batch, exponential, integrators, kernels
 from elastic_pm_dyn.sim.result import SimulationResult
 from elastic_pm_dyn.sim.stopped import integration_error
 from elastic_pm_dyn.sim.torque import TorqueSource
 
-INTEGRATORS = ("rk4", "dop853", "etd2")
-# Fixed-step compiled methods: RK4 on everything, or the exponential ETD2 whose springs are
-# integrated on sub-steps of a frozen linear system (sim/exponential.py); both take dt.
-FIXED_STEP = ("rk4", "etd2")
+INTEGRATORS = ("rk4", "dop853", "etd2")  # offered to users (the command line's choices)
+# Fixed-step compiled methods (sim/integrators.py): RK4 on everything, or the exponential ETD2
+# whose springs are integrated on sub-steps of a frozen linear system (sim/exponential.py);
+# both take dt. Also ETD2's variants of the comparison bench.
+FIXED_STEP = integrators.FIXED_STEP
 STABILIZATIONS = {"none": 0, "baumgarte": kernels.STAB_BAUMGARTE, "projection": kernels.STAB_PROJECTION,
                   "both": kernels.STAB_BAUMGARTE | kernels.STAB_PROJECTION}
 
@@ -42,7 +43,7 @@ INTERVALS_PER_BLOCK = 2**16
 class SimulationOptions:
     formulation: str = "scdd"
     integrator: str = "rk4"
-    dt: float = 1e-4  # RK4 step [s]; shortened so steps end on samples and torque steps
+    dt: float = 1e-4  # [s] RK4 / ETD2 step; shortened so steps end on samples and torque steps
     rtol: float = 1e-10  # adaptive integrator
     atol: float = 1e-12
     stabilization: str = "projection"  # none | baumgarte | projection | both
@@ -50,18 +51,18 @@ class SimulationOptions:
     baumgarte_beta: float = 200.0
     sample: float = 1e-3  # output interval [s]
     closure_tol: float = 1e-14  # [m] Newton / projection target
-    singular_tol: float = 1e-8  # conditioning below which the run stops
+    singular_tol: float = SINGULAR_TOL  # conditioning below which the run stops
     phase_step: float = exponential.DEFAULT_PHASE_STEP  # etd2 sub-step [rad of the fastest spring mode]
 
     def validate(self) -> None:
         if self.formulation not in FORMULATION_CODES:
             raise InputError(f"unknown formulation {self.formulation!r} "
                              f"(expected one of: {', '.join(FORMULATION_CODES)})")
-        if self.integrator not in INTEGRATORS:
+        if self.integrator not in INTEGRATORS and self.integrator not in FIXED_STEP:
             raise InputError(f"unknown integrator {self.integrator!r} (expected one of: {', '.join(INTEGRATORS)})")
-        if self.integrator == "etd2" and self.formulation == "lda":
-            raise InputError("integrator etd2 needs a tree formulation (scdd, multipliers, scdd_one_pass, "
-                             "scdd_stacked); L-D'A integrates q_ae: use rk4 or dop853 with it")
+        if FIXED_STEP.get(self.integrator, (None,))[0] == integrators.ETD2 and self.formulation == "lda":
+            raise InputError(f"integrator {self.integrator} needs a tree formulation (scdd, multipliers, "
+                             "scdd_one_pass, scdd_stacked); L-D'A integrates q_ae: use rk4 or dop853 with it")
         if self.stabilization not in STABILIZATIONS:
             raise InputError(f"unknown stabilization {self.stabilization!r} "
                              f"(expected one of: {', '.join(STABILIZATIONS)})")
@@ -69,6 +70,13 @@ class SimulationOptions:
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
                 raise InputError(f"{name} must be a positive number, got {value!r}")
+
+    def step_settings(self) -> integrators.StepSettings:
+        """The settings of the compiled fixed-step kernels (read at every call: a plant's
+        options may change between periods)."""
+        stab = STABILIZATIONS[self.stabilization]
+        return integrators.StepSettings(stab, float(self.baumgarte_alpha), float(self.baumgarte_beta),
+                                        float(self.closure_tol), float(self.singular_tol), float(self.phase_step))
 
 
 class Simulator:
@@ -86,7 +94,8 @@ class Simulator:
         self._coef = np.zeros((3, mech.n))
         self.info = np.zeros(3)
         self._args = (*mech.arrays,)
-        self.scheme = exponential.AVERAGED  # etd2; ETD2RK and the impulse splitting: the comparison bench
+        # (method, exponential scheme) of a fixed-step integrator (sim/integrators.py)
+        self.method = FIXED_STEP.get(self.options.integrator, (integrators.RK4, exponential.AVERAGED))
 
     # ------------------------------------------------------------------ stepping
     def advance(self, q: np.ndarray, qd: np.ndarray, torque: TorqueSource, t0: float, t1: float) -> None:
@@ -113,14 +122,8 @@ class Simulator:
 
     def fixed_steps(self, q: np.ndarray, qd: np.ndarray, coef: np.ndarray, h: float, steps: int) -> int:
         """``steps`` compiled steps of h of the fixed-step integrator; the kernel's status."""
-        o = self.options
-        if o.integrator == "etd2":
-            return exponential.exponential_steps_flat(
-                self.scheme, self.code, *self._args, q, qd, coef, h, steps, self.stab, o.baumgarte_alpha,
-                o.baumgarte_beta, o.closure_tol, o.singular_tol, o.phase_step, self.qdd_prev, self.lam, self.info)
-        return kernels.rk4_steps_flat(self.code, *self._args, q, qd, coef, h, steps, self.stab,
-                                      o.baumgarte_alpha, o.baumgarte_beta, o.closure_tol, o.singular_tol,
-                                      self.qdd_prev, self.lam, self.info)
+        return integrators.fixed_steps_flat(*self.method, self.code, *self._args, q, qd, coef, h, steps,
+                                            self.options.step_settings(), self.qdd_prev, self.lam, self.info)
 
     def _advance_adaptive(self, q: np.ndarray, qd: np.ndarray, torque: TorqueSource, t0: float, t1: float) -> None:
         o, mech, n = self.options, self.mech, self.mech.n
@@ -257,8 +260,8 @@ class Simulator:
         t_out = np.concatenate([grid[:1], grid[1:][is_out[1:]]])
         q_out, qd_out = np.empty((rows, mech.n)), np.empty((rows, mech.n))
         q_out[0], qd_out[0] = q, qd
-        method = batch.ETD2 if o.integrator == "etd2" else batch.RK4
         active = np.asarray(mech.active, dtype=np.int64)
+        settings = o.step_settings()
         row = 1
 
         def result(n_rows: int) -> SimulationResult:
@@ -277,9 +280,8 @@ class Simulator:
                 for c0, c1 in itertools.pairwise(np.unique(np.concatenate([[0], ends, [len(hs)]]))):
                     coefs = torque.coefficients_many(starts[c0:c1], steps[c0:c1] * hs[c0:c1])
                     status, done, row = batch.run_pieces_flat(
-                        method, self.scheme, self.code, *self._args, active, q, qd, coefs, hs[c0:c1], steps[c0:c1],
-                        record[c0:c1], q_out, qd_out, row, self.stab, o.baumgarte_alpha, o.baumgarte_beta,
-                        o.closure_tol, o.singular_tol, o.phase_step, self.qdd_prev, self.lam, self.info)
+                        *self.method, self.code, *self._args, active, q, qd, coefs, hs[c0:c1], steps[c0:c1],
+                        record[c0:c1], q_out, qd_out, row, settings, self.qdd_prev, self.lam, self.info)
                     if status != kernels.OK:  # a singular configuration or a blow-up, told apart
                         p = c0 + done
                         err = integration_error(status, o.formulation, starts[p] + self.info[0] * hs[p], self.info)

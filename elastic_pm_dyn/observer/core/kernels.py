@@ -34,7 +34,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from elastic_pm_dyn.dynamics.evaluate import SCDD, accelerations, accelerations_into, workspace
+from elastic_pm_dyn.dynamics.evaluate import SCDD, SINGULAR_TOL, accelerations, accelerations_into, workspace
 from elastic_pm_dyn.dynamics.kernels import passive_map
 from elastic_pm_dyn.kinematics.kernels import point_buffers, unit_axis
 from elastic_pm_dyn.model.layout import JF_STIFFNESS
@@ -51,7 +51,6 @@ from elastic_pm_dyn.small_linalg import cholesky, cholesky_solve
 
 RK4, ETD2 = 0, 1  # Process.method[0]: the mean's integrator
 DIFFERENCES, SPRINGS = 0, 1  # Process.method[1]: the linearisation and discretisation
-SINGULAR_TOL = 1e-8  # conditioning below which an evaluation counts as singular
 CLOSURE_TOL = 1e-14  # [m] partitioning target after a prediction or a correction
 PERTURBED_TOL = 1e-10  # [m] accepted gap of a first-order perturbed pose (see linearize)
 COVARIANCE_LOST = 10  # predict_checked: the prediction went through but P is no longer positive definite
