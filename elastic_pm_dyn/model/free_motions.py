@@ -453,3 +453,87 @@ def repeated_rows(model: Model) -> tuple[list[int], int] | None:
         if rank_at(moved)[0] == m:
             return None
     return sorted(int(i) for i in piv[rank:]), rank
+
+
+_ALL_ROWS = 0b111111  # a weld's three position and three turn rows (bits as Closure.projected)
+
+
+def _every_row(model: Model) -> list[tuple[int, np.ndarray, int]]:
+    """Every pair as (pair index, frame F, mask) in :attr:`Closure.projected`'s terms, in pair
+    order: a plain point pair along its point a's body axes (F = I, three rows), a plain weld
+    along its weld frame's (six rows), a reduced or projected pair as it already is."""
+    c = model.closure
+    welded = set(c.welds)
+    reduced = dict(c.reduced)
+    projected = {k: (F, mask) for k, F, mask in c.projected}
+    out = []
+    for k, pair in enumerate(c.pairs):
+        if k in projected:
+            F, mask = projected[k]
+            out.append((k, np.asarray(F, dtype=float), mask))
+        elif k in reduced:
+            out.append((k, np.asarray(reduced[k], dtype=float), 0b011))
+        else:
+            out.append((k, np.eye(3), _ALL_ROWS if pair in welded else 0b111))
+    return out
+
+
+def _row_bits(entries: list[tuple[int, np.ndarray, int]]) -> list[tuple[int, int]]:
+    """(pair index, bit) of each row of ``entries`` as projected pairs, in closure_terms' order."""
+    return [(k, b) for k, _, mask in entries for b in [0, 1, 2, 3, 4, 5] if mask & (1 << b)]
+
+
+def drop_repeated_rows(model: Model) -> Model:
+    """``model`` with the closure rows that repeat rows of other loops left out (a body closed
+    twice, loops sharing joints): every pair's rows in its own frame (point a's body, a weld's
+    frame, as :attr:`Closure.projected`), taken in file order and kept where they add rank in
+    the passive joints at an assembled pose (from the file's start pose); the rest confirmed
+    to repeat the kept ones at two poses the other joints reach from it. The kept rows then fix
+    the same motion, exactly as all of them. The same model where nothing repeats, where it is
+    not confirmed, or where a coupling row would go (the rank check then refuses the file)."""
+    c = model.closure
+    if c is None or c.hub >= 0 or tuple(c.components) != (0, 1, 2) or not c.pairs:
+        return model
+    passive = [i for i, j in enumerate(model.joints) if j.role == PASSIVE]
+    q = _assembled(model, passive)
+    if q is None:
+        return model
+    every = _every_row(model)
+    probe = replace(model, closure=replace(c, reduced=(), projected=tuple((k, _rows(F), m) for k, F, m in every)))
+    bits = _row_bits(every)
+
+    def rows_at(x: np.ndarray) -> np.ndarray:
+        return closure_terms(probe, x)[1][:, passive]
+
+    J = rows_at(q)
+    if _pivoted_rank(J.T)[0] == J.shape[0]:
+        return model
+    scale = max(float(np.abs(J).max()), 1e-300)
+    kept: list[int] = []
+    for i in range(J.shape[0]):  # in file order: a later loop's rows repeat an earlier one's
+        trial = kept + [i]
+        sv = np.linalg.svd(J[trial], compute_uv=False)  # min(rows, joints) values
+        if len(sv) == len(trial) and sv[-1] > RANK_TOL * scale * np.sqrt(len(trial)):
+            kept = trial
+    if any(i >= len(bits) for i in range(J.shape[0]) if i not in kept):
+        return model  # a coupling row repeats: not a loop's row to drop
+    confirmed = 0
+    for moved in _nearby_poses(model, q, passive, 4):
+        Jm = rows_at(moved)
+        r_all = _pivoted_rank(Jm.T)[0]
+        if r_all != len(kept) or _pivoted_rank(Jm[kept].T)[0] != len(kept):
+            return model
+        confirmed += 1
+        if confirmed == 2:
+            break
+    if not confirmed:
+        return model
+    dropped: dict[int, int] = {}
+    for i, (k, b) in enumerate(bits):
+        if i not in kept:
+            dropped[k] = dropped.get(k, 0) | (1 << b)
+    reduced = tuple((k, F) for k, F in c.reduced if k not in dropped)
+    projected = [(k, F, m) for k, F, m in c.projected if k not in dropped]
+    projected += [(k, _rows(F), mask & ~dropped[k]) for k, F, mask in every if k in dropped]
+    repeated = tuple(sorted(dropped.items()))
+    return replace(model, closure=replace(c, reduced=reduced, projected=tuple(projected), repeated=repeated))

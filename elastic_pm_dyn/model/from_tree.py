@@ -31,7 +31,13 @@ from elastic_pm_dyn.model.description import (
     Model,
     matrix_to_rpy,
 )
-from elastic_pm_dyn.model.free_motions import closes_from_start, drop_still_rows, free_passive_motions, repeated_rows
+from elastic_pm_dyn.model.free_motions import (
+    closes_from_start,
+    drop_repeated_rows,
+    drop_still_rows,
+    free_passive_motions,
+    repeated_rows,
+)
 from elastic_pm_dyn.model.kinematic_tree import (
     BALL,
     CARDAN,
@@ -95,6 +101,8 @@ def build_model(tree: KinematicTree, sidecar: Sidecar | None = None) -> Model:
                   end_effector_mass=ee_mass, initial=initial, branches=branches, source=tree.file, planar=planar,
                   fixed_points=fixed)
     model, independent = drop_still_rows(model)
+    if not independent:
+        model = drop_repeated_rows(model)  # before the free spins: their rank needs independent rows
     model = free_passive_motions(model)  # after: a still row would hide a free spin from the rank
     _check_counts(tree, model, sidecar, closures)
     _check_tendon_motors(tree, model)
