@@ -537,3 +537,27 @@ def drop_repeated_rows(model: Model) -> Model:
     projected += [(k, _rows(F), mask & ~dropped[k]) for k, F, mask in every if k in dropped]
     repeated = tuple(sorted(dropped.items()))
     return replace(model, closure=replace(c, reduced=reduced, projected=tuple(projected), repeated=repeated))
+
+
+def missed_loops(model: Model) -> list[tuple[int, float]] | None:
+    """Where no closed pose is found with the passive joints alone: the loops that still miss
+    when every joint may move (motors and springs too, least squares from the file's start
+    pose), as (pair index, largest residual [m, rad]), worst first; [] when they all close so
+    (the motors' start values are the problem, not the loops); None without a closure."""
+    c = model.closure
+    if c is None or c.size == 0:
+        return None
+    every = list(range(len(model.joints)))
+    q = _assembled(model, every)
+    if q is not None:
+        return []
+    q0 = np.array([model.initial.guess.get(j.name, j.rest) for j in model.joints], dtype=float)
+    with np.errstate(all="ignore"):
+        sol = scipy.optimize.least_squares(lambda x: closure_terms(model, x)[0], q0,
+                                           jac=lambda x: closure_terms(model, x)[1], method="trf",
+                                           xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=100 * len(every))
+    r = np.abs(closure_terms(model, sol.x)[0])
+    worst: dict[int, float] = {}
+    for row, k in enumerate(c.row_pairs()):
+        worst[k] = max(worst.get(k, 0.0), float(r[row]))
+    return sorted(((k, v) for k, v in worst.items() if v > 1e-6), key=lambda kv: -kv[1])

@@ -36,6 +36,7 @@ from elastic_pm_dyn.model.free_motions import (
     drop_repeated_rows,
     drop_still_rows,
     free_passive_motions,
+    missed_loops,
     repeated_rows,
 )
 from elastic_pm_dyn.model.kinematic_tree import (
@@ -539,6 +540,14 @@ def _check_counts(tree: KinematicTree, model: Model, sidecar: Sidecar | None, cl
         unclosed = m > 0 and idx and closes_from_start(model, idx) is None
         hint = "; no closed pose was found from the file's start pose (motors where it puts them), so rows that " \
             "hold by themselves and free spins could not be looked for: give initial_state.guess" if unclosed else ""
+        missed = missed_loops(model) if unclosed else None
+        if missed:  # over-constrained and inconsistent: no pose of any joints closes these
+            names = [f"{closures[k].where.element} (line {closures[k].where.line})"
+                     if k < len(closures) and closures[k].where.line else f"closure {k + 1}" for k, _ in missed[:4]]
+            worst = ", ".join(f"{n} by {v:.3g}" for n, (_, v) in zip(names, missed, strict=False))
+            raise where.error(f"the closures cannot all hold: with every joint free (motors too) the nearest pose "
+                              f"still misses {worst}{', ...' if len(missed) > 4 else ''} (m, rad; a 6-D weld "
+                              "where the loop only meets at a point?)")
         raise where.error(f"the closures give {m} equations but the legs have {n_passive} passive joints "
                           f"({', '.join(passive[:8])}{', ...' if len(passive) > 8 else ''}): every joint that is "
                           f"neither a motor nor elastic must be fixed by the closures{hint}")
