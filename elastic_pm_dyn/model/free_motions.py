@@ -561,3 +561,31 @@ def missed_loops(model: Model) -> list[tuple[int, float]] | None:
     for row, k in enumerate(c.row_pairs()):
         worst[k] = max(worst.get(k, 0.0), float(r[row]))
     return sorted(((k, v) for k, v in worst.items() if v > 1e-6), key=lambda kv: -kv[1])
+
+
+def loose_joints(model: Model) -> list[str]:
+    """Passive joints that still move, at an assembled pose with the motors and springs held,
+    otherwise than as a rod spinning on its balls (which moves no joint's origin): the bodies
+    of a machine short of a motor. [] where none does or no pose closes."""
+    passive = [i for i, j in enumerate(model.joints) if j.role == PASSIVE]
+    if not passive or model.closure is None:
+        return []
+    q = _assembled(model, passive)
+    if q is None:
+        return []
+    Jp = closure_terms(model, q)[1][:, passive]
+    null = scipy.linalg.null_space(Jp, rcond=RANK_TOL)
+    if null.shape[1] == 0:
+        return []
+    p_joint, axes, _, _ = _forward(model, q)
+    parents = model.parents()
+    scale = 1e-9 * max(1.0, float(np.abs(Jp).max()))
+    out = []
+    for k in range(len(axes)):
+        par = parents[k]
+        if par < 0 or model.joints[par].name in out:
+            continue
+        V = _velocity_rows(model, p_joint, axes, p_joint[k], par)[:3][:, passive] @ null
+        if float(np.abs(V).max()) > scale:
+            out.append(model.joints[par].name)
+    return out

@@ -36,6 +36,7 @@ from elastic_pm_dyn.model.free_motions import (
     drop_repeated_rows,
     drop_still_rows,
     free_passive_motions,
+    loose_joints,
     missed_loops,
     repeated_rows,
 )
@@ -548,6 +549,12 @@ def _check_counts(tree: KinematicTree, model: Model, sidecar: Sidecar | None, cl
             raise where.error(f"the closures cannot all hold: with every joint free (motors too) the nearest pose "
                               f"still misses {worst}{', ...' if len(missed) > 4 else ''} (m, rad; a 6-D weld "
                               "where the loop only meets at a point?)")
+        loose = loose_joints(model) if n_passive > m and not unclosed else []
+        if loose:  # first in the line: the cause
+            raise where.error(f"under-actuated: the closures give {m} equations but the legs have {n_passive} "
+                              f"passive joints, and with the motors held {', '.join(loose[:4])}"
+                              f"{', ...' if len(loose) > 4 else ''} still move: a motor missing, or a loop written "
+                              "as a point where the machine welds it")
         raise where.error(f"the closures give {m} equations but the legs have {n_passive} passive joints "
                           f"({', '.join(passive[:8])}{', ...' if len(passive) > 8 else ''}): every joint that is "
                           f"neither a motor nor elastic must be fixed by the closures{hint}")
