@@ -30,14 +30,23 @@ def _write(tmp_path: Path, text: str) -> Path:
     return path
 
 
-def test_a_body_closed_twice_is_reduced_and_matches_mujoco(tmp_path):
+# the same knee welded twice (the second weld written rocker to rocker_top): its three rows that
+# do not hold by themselves (the two positions across the hinges, the turn about them) repeat the
+# first weld's
+WELDED_TWICE = CLOSED_TWICE.replace('<connect body1="rocker_top" body2="rocker" anchor="-0.03 0.02 0.01"/>',
+                                    '<weld body1="rocker" body2="rocker_top"/>')
+
+
+@pytest.mark.parametrize(("text", "repeated"), [(CLOSED_TWICE, 0b011), (WELDED_TWICE, 0b100011)],
+                         ids=["weld-and-connect", "two-welds"])
+def test_a_body_closed_twice_is_reduced_and_matches_mujoco(tmp_path, text, repeated):
     from elastic_pm_dyn.sim.simulator import SimulationOptions, Simulator
     from elastic_pm_dyn.sim.torque import ConstantTorque
-    path = _write(tmp_path, CLOSED_TWICE)
+    path = _write(tmp_path, text)
     mech = Mechanism(load_model(path))
     closure = mech.model.closure
-    # the connect (pair 3): its row along the hinges holds by itself, the two across repeat the weld's
-    assert len(closure.pairs) == 3 and dict(closure.repeated) == {2: 0b011}
+    # pair 3's rows that do not hold by themselves all repeat the first weld's
+    assert len(closure.pairs) == 3 and dict(closure.repeated) == {2: repeated}
     assert mech.m == 6 and len(mech.passive) == 6  # 6 + 6 + 3 rows in the file, 6 kept
     q0 = initial_state(mech)
     run = Simulator(mech, SimulationOptions(integrator="dop853", rtol=1e-10, atol=1e-12, sample=SAMPLE)) \
@@ -46,7 +55,8 @@ def test_a_body_closed_twice_is_reduced_and_matches_mujoco(tmp_path):
     peer = _mujoco_run(path, mech.joint_names, q0, len(run.t))
     roll = mech.joint_names.index("roll")
     err = float(np.abs(peer - run.q).max())
-    print(f"\nknee closed twice against MuJoCo (tightened): roll moved {abs(run.q[-1, roll] - q0[roll]):.3g} rad, "
+    print(f"\nknee closed twice ({bin(repeated)} repeated) against MuJoCo (tightened): roll moved "
+          f"{abs(run.q[-1, roll] - q0[roll]):.3g} rad, "
           f"max |q - q_mujoco| {err:.2e} rad")
     assert abs(run.q[-1, roll] - q0[roll]) > 0.05
     assert err < 1e-6
