@@ -268,7 +268,8 @@ def cmd_check(args: argparse.Namespace) -> int:
 
 
 def _dropped_rows(model) -> list[str]:
-    """One line per closure row dropped because it holds by itself (Closure.reduced)."""
+    """One line per closure pair with rows dropped: rows that hold by themselves (Closure.reduced,
+    Closure.projected) and rows that repeat other loops' (Closure.repeated)."""
     closure = model.closure
     if closure is None:
         return []
@@ -284,12 +285,31 @@ def _dropped_rows(model) -> list[str]:
         out.append(f"  dropped  row {n} of closure {k + 1} ({on(a)} = {on(b)}; the direction in the frame of the "
                    f"first): it holds by itself, every joint moving both points alike along it (a loop of hinges "
                    "parallel to it, closed by a 3-D point); the two rows across it are kept")
+    repeated = dict(closure.repeated)
+    welded = set(closure.welds)
     for k, frame, mask in closure.projected:
         a, b = closure.pairs[k]
         F = np.asarray(frame)
         n = np.round(F[:, 2], 6).tolist()
-        pos = [i for i in range(3) if not mask & (1 << i)]
-        turn = [i for i in range(3) if not mask & (8 << i)]
+        again = repeated.get(k, 0)
+        if again:
+            what = [f"position along {np.round(F[:, i], 6).tolist()}" for i in range(3) if again & (1 << i)] + \
+                [f"turn about {np.round(F[:, i], 6).tolist()}" for i in range(3) if again & (8 << i)]
+            frame_of = "the weld's frame" if (a, b) in welded else "the frame of the first"
+            out.append(f"  dropped  {len(what)} rows of closure {k + 1} ({on(a)} = {on(b)}; directions in {frame_of}): "
+                       f"{', '.join(what)}: they repeat rows of the other closures (a body closed twice, loops "
+                       f"sharing joints); {bin(mask).count('1')} rows kept")
+        if (a, b) not in welded:
+            for i in [i for i in range(3) if ~mask & ~again & (1 << i)]:  # a reduced pair's row
+                out.append(f"  dropped  row {np.round(F[:, i], 6).tolist()} of closure {k + 1} ({on(a)} = {on(b)}; "
+                           "the direction in the frame of the first): it holds by itself, every joint moving both "
+                           "points alike along it")
+            continue
+        still = ~mask & ~again & 0b111111
+        if not still:
+            continue
+        pos = [i for i in range(3) if still & (1 << i)]
+        turn = [i for i in range(3) if still & (8 << i)]
         what = [f"position along {np.round(F[:, i], 6).tolist()}" for i in pos] + \
             [f"turn about {np.round(F[:, i], 6).tolist()}" for i in turn]
         out.append(f"  dropped  {len(pos) + len(turn)} rows of weld {k + 1} ({on(a)} = {on(b)}; directions in the "

@@ -144,6 +144,10 @@ class Closure:
     frame is given in the frame of the body carrying its point a, a weld's in the weld's frame
     of point a (``weld_rotations``' R_a). Their rows come after the reduced pairs'.
 
+    ``repeated`` names, per pair, the rows of ``projected``'s frame left out because they repeat
+    rows of other loops (a body closed twice, loops sharing joints): found independent of the
+    others' at the assembled pose and near it, so the kept rows fix the same motion.
+
     ``couplings`` are linear relations between joint coordinates, one row each after all the
     others: sum of coefficient times q over (joint name, coefficient) = constant (an MJCF
     ``<joint>`` or fixed-tendon equality with a linear polycoef, a URDF ``<mimic>``). Exact
@@ -161,6 +165,9 @@ class Closure:
     reduced: tuple[tuple[int, tuple[tuple[float, float, float], ...]], ...] = ()
     couplings: tuple[tuple[tuple[tuple[str, float], ...], float], ...] = ()
     projected: tuple[tuple[int, tuple[tuple[float, float, float], ...], int], ...] = ()
+    # (pair index, mask of its rows left out of ``projected`` because they repeat other loops'
+    # rows, bits as ``projected``'s): for ``check`` to say why, the rows themselves are gone
+    repeated: tuple[tuple[int, int], ...] = ()
 
     @property
     def weld_components(self) -> tuple[int, ...]:

@@ -453,3 +453,139 @@ def repeated_rows(model: Model) -> tuple[list[int], int] | None:
         if rank_at(moved)[0] == m:
             return None
     return sorted(int(i) for i in piv[rank:]), rank
+
+
+_ALL_ROWS = 0b111111  # a weld's three position and three turn rows (bits as Closure.projected)
+
+
+def _every_row(model: Model) -> list[tuple[int, np.ndarray, int]]:
+    """Every pair as (pair index, frame F, mask) in :attr:`Closure.projected`'s terms, in pair
+    order: a plain point pair along its point a's body axes (F = I, three rows), a plain weld
+    along its weld frame's (six rows), a reduced or projected pair as it already is."""
+    c = model.closure
+    welded = set(c.welds)
+    reduced = dict(c.reduced)
+    projected = {k: (F, mask) for k, F, mask in c.projected}
+    out = []
+    for k, pair in enumerate(c.pairs):
+        if k in projected:
+            F, mask = projected[k]
+            out.append((k, np.asarray(F, dtype=float), mask))
+        elif k in reduced:
+            out.append((k, np.asarray(reduced[k], dtype=float), 0b011))
+        else:
+            out.append((k, np.eye(3), _ALL_ROWS if pair in welded else 0b111))
+    return out
+
+
+def _row_bits(entries: list[tuple[int, np.ndarray, int]]) -> list[tuple[int, int]]:
+    """(pair index, bit) of each row of ``entries`` as projected pairs, in closure_terms' order."""
+    return [(k, b) for k, _, mask in entries for b in [0, 1, 2, 3, 4, 5] if mask & (1 << b)]
+
+
+def drop_repeated_rows(model: Model) -> Model:
+    """``model`` with the closure rows that repeat rows of other loops left out (a body closed
+    twice, loops sharing joints): every pair's rows in its own frame (point a's body, a weld's
+    frame, as :attr:`Closure.projected`), taken in file order and kept where they add rank in
+    the passive joints at an assembled pose (from the file's start pose); the rest confirmed
+    to repeat the kept ones at two poses the other joints reach from it. The kept rows then fix
+    the same motion, exactly as all of them. The same model where nothing repeats, where it is
+    not confirmed, or where a coupling row would go (the rank check then refuses the file)."""
+    c = model.closure
+    if c is None or c.hub >= 0 or tuple(c.components) != (0, 1, 2) or not c.pairs:
+        return model
+    passive = [i for i, j in enumerate(model.joints) if j.role == PASSIVE]
+    q = _assembled(model, passive)
+    if q is None:
+        return model
+    every = _every_row(model)
+    probe = replace(model, closure=replace(c, reduced=(), projected=tuple((k, _rows(F), m) for k, F, m in every)))
+    bits = _row_bits(every)
+
+    def rows_at(x: np.ndarray) -> np.ndarray:
+        return closure_terms(probe, x)[1][:, passive]
+
+    J = rows_at(q)
+    if _pivoted_rank(J.T)[0] == J.shape[0]:
+        return model
+    scale = max(float(np.abs(J).max()), 1e-300)
+    kept: list[int] = []
+    for i in range(J.shape[0]):  # in file order: a later loop's rows repeat an earlier one's
+        trial = kept + [i]
+        sv = np.linalg.svd(J[trial], compute_uv=False)  # min(rows, joints) values
+        if len(sv) == len(trial) and sv[-1] > RANK_TOL * scale * np.sqrt(len(trial)):
+            kept = trial
+    if any(i >= len(bits) for i in range(J.shape[0]) if i not in kept):
+        return model  # a coupling row repeats: not a loop's row to drop
+    confirmed = 0
+    for moved in _nearby_poses(model, q, passive, 4):
+        Jm = rows_at(moved)
+        r_all = _pivoted_rank(Jm.T)[0]
+        if r_all != len(kept) or _pivoted_rank(Jm[kept].T)[0] != len(kept):
+            return model
+        confirmed += 1
+        if confirmed == 2:
+            break
+    if not confirmed:
+        return model
+    dropped: dict[int, int] = {}
+    for i, (k, b) in enumerate(bits):
+        if i not in kept:
+            dropped[k] = dropped.get(k, 0) | (1 << b)
+    reduced = tuple((k, F) for k, F in c.reduced if k not in dropped)
+    projected = [(k, F, m) for k, F, m in c.projected if k not in dropped]
+    projected += [(k, _rows(F), mask & ~dropped[k]) for k, F, mask in every if k in dropped]
+    repeated = tuple(sorted(dropped.items()))
+    return replace(model, closure=replace(c, reduced=reduced, projected=tuple(projected), repeated=repeated))
+
+
+def missed_loops(model: Model) -> list[tuple[int, float]] | None:
+    """Where no closed pose is found with the passive joints alone: the loops that still miss
+    when every joint may move (motors and springs too, least squares from the file's start
+    pose), as (pair index, largest residual [m, rad]), worst first; [] when they all close so
+    (the motors' start values are the problem, not the loops); None without a closure."""
+    c = model.closure
+    if c is None or c.size == 0:
+        return None
+    every = list(range(len(model.joints)))
+    q = _assembled(model, every)
+    if q is not None:
+        return []
+    q0 = np.array([model.initial.guess.get(j.name, j.rest) for j in model.joints], dtype=float)
+    with np.errstate(all="ignore"):
+        sol = scipy.optimize.least_squares(lambda x: closure_terms(model, x)[0], q0,
+                                           jac=lambda x: closure_terms(model, x)[1], method="trf",
+                                           xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=100 * len(every))
+    r = np.abs(closure_terms(model, sol.x)[0])
+    worst: dict[int, float] = {}
+    for row, k in enumerate(c.row_pairs()):
+        worst[k] = max(worst.get(k, 0.0), float(r[row]))
+    return sorted(((k, v) for k, v in worst.items() if v > 1e-6), key=lambda kv: -kv[1])
+
+
+def loose_joints(model: Model) -> list[str]:
+    """Passive joints that still move, at an assembled pose with the motors and springs held,
+    otherwise than as a rod spinning on its balls (which moves no joint's origin): the bodies
+    of a machine short of a motor. [] where none does or no pose closes."""
+    passive = [i for i, j in enumerate(model.joints) if j.role == PASSIVE]
+    if not passive or model.closure is None:
+        return []
+    q = _assembled(model, passive)
+    if q is None:
+        return []
+    Jp = closure_terms(model, q)[1][:, passive]
+    null = scipy.linalg.null_space(Jp, rcond=RANK_TOL)
+    if null.shape[1] == 0:
+        return []
+    p_joint, axes, _, _ = _forward(model, q)
+    parents = model.parents()
+    scale = 1e-9 * max(1.0, float(np.abs(Jp).max()))
+    out = []
+    for k in range(len(axes)):
+        par = parents[k]
+        if par < 0 or model.joints[par].name in out:
+            continue
+        V = _velocity_rows(model, p_joint, axes, p_joint[k], par)[:3][:, passive] @ null
+        if float(np.abs(V).max()) > scale:
+            out.append(model.joints[par].name)
+    return out

@@ -31,7 +31,15 @@ from elastic_pm_dyn.model.description import (
     Model,
     matrix_to_rpy,
 )
-from elastic_pm_dyn.model.free_motions import closes_from_start, drop_still_rows, free_passive_motions, repeated_rows
+from elastic_pm_dyn.model.free_motions import (
+    closes_from_start,
+    drop_repeated_rows,
+    drop_still_rows,
+    free_passive_motions,
+    loose_joints,
+    missed_loops,
+    repeated_rows,
+)
 from elastic_pm_dyn.model.kinematic_tree import (
     BALL,
     CARDAN,
@@ -95,6 +103,8 @@ def build_model(tree: KinematicTree, sidecar: Sidecar | None = None) -> Model:
                   end_effector_mass=ee_mass, initial=initial, branches=branches, source=tree.file, planar=planar,
                   fixed_points=fixed)
     model, independent = drop_still_rows(model)
+    if not independent:
+        model = drop_repeated_rows(model)  # before the free spins: their rank needs independent rows
     model = free_passive_motions(model)  # after: a still row would hide a free spin from the rank
     _check_counts(tree, model, sidecar, closures)
     _check_tendon_motors(tree, model)
@@ -531,6 +541,20 @@ def _check_counts(tree: KinematicTree, model: Model, sidecar: Sidecar | None, cl
         unclosed = m > 0 and idx and closes_from_start(model, idx) is None
         hint = "; no closed pose was found from the file's start pose (motors where it puts them), so rows that " \
             "hold by themselves and free spins could not be looked for: give initial_state.guess" if unclosed else ""
+        missed = missed_loops(model) if unclosed else None
+        if missed:  # over-constrained and inconsistent: no pose of any joints closes these
+            names = [f"{closures[k].where.element} (line {closures[k].where.line})"
+                     if k < len(closures) and closures[k].where.line else f"closure {k + 1}" for k, _ in missed[:4]]
+            worst = ", ".join(f"{n} by {v:.3g}" for n, (_, v) in zip(names, missed, strict=False))
+            raise where.error(f"the closures cannot all hold: with every joint free (motors too) the nearest pose "
+                              f"still misses {worst}{', ...' if len(missed) > 4 else ''} (m, rad; a 6-D weld "
+                              "where the loop only meets at a point?)")
+        loose = loose_joints(model) if n_passive > m and not unclosed else []
+        if loose:  # first in the line: the cause
+            raise where.error(f"under-actuated: the closures give {m} equations but the legs have {n_passive} "
+                              f"passive joints, and with the motors held {', '.join(loose[:4])}"
+                              f"{', ...' if len(loose) > 4 else ''} still move: a motor missing, or a loop written "
+                              "as a point where the machine welds it")
         raise where.error(f"the closures give {m} equations but the legs have {n_passive} passive joints "
                           f"({', '.join(passive[:8])}{', ...' if len(passive) > 8 else ''}): every joint that is "
                           f"neither a motor nor elastic must be fixed by the closures{hint}")
