@@ -1,4 +1,4 @@
-"""The compiled CSV writer (sim/csv_text.py) against Python's own '%.17g' and np.savetxt.
+"""The compiled CSV writer (elastic_pm_dyn/csv_text.py) against Python's own '%.17g' and np.savetxt.
 
 Python's formatting of doubles (David Gay's correctly rounded dtoa) is the independent
 reference: every number must come out as the same text, so a CSV written by ``simulate``
@@ -11,8 +11,8 @@ import io
 
 import numpy as np
 
-from elastic_pm_dyn.sim import csv_text
-from elastic_pm_dyn.sim.csv_text import format_float, table_bytes, table_text, write_table
+from elastic_pm_dyn import csv_text
+from elastic_pm_dyn.csv_text import format_float, table_bytes, table_text, write_table
 
 EDGES = [0.0, -0.0, 1.0, -1.0, 0.1, 0.5, 2.5, 1e-5, 1e-4, 9.9999999999999995e-5, 1e16, 1e17, 9.999999999999999e16,
          123456789012345678.0, 5e-324, 2.2250738585072014e-308, 2.2250738585072009e-308, 1.7976931348623157e308,

@@ -89,3 +89,29 @@ def test_first_use_of_a_name_loads_only_its_module() -> None:
     assert "numba" not in loaded and "scipy" not in loaded
     loaded = _modules_after("import elastic_pm_dyn as epd\nepd.Mechanism")
     assert "elastic_pm_dyn.kinematics.mechanism" in loaded and "elastic_pm_dyn.sim.simulator" not in loaded
+
+
+def test_observe_and_analyze_take_the_robot_and_config_in_the_same_forms(tmp_path: Path) -> None:
+    """A model file, a Model or a Mechanism; a config file, an ObserverConfig or None: the same results."""
+    pytest.importorskip("rosbags")
+    from elastic_pm_dyn.observer.drivers.bag_input import recording_to_bag
+    from elastic_pm_dyn.observer.testing.scenarios import manoeuvre_recording
+
+    repo = Path(__file__).resolve().parents[1]
+    model_file, config_file = repo / "config" / "five_bar.yaml", repo / "config" / "observer.yaml"
+    model = epd.load_model(model_file)
+    mech = epd.Mechanism(model)
+    recording_to_bag(manoeuvre_recording(mech, seed=5, duration=0.03), tmp_path / "bag")
+    quiet = {"log": lambda line: None}
+    by_objects = epd.observe(mech, epd.load_observer_config(config_file), tmp_path / "bag", tmp_path / "a", **quiet)
+    by_files = epd.observe(model_file, config_file, tmp_path / "bag", tmp_path / "b", **quiet)
+    by_model = epd.observe(model, None, tmp_path / "bag", tmp_path / "c", **quiet)
+    assert (tmp_path / "a" / "estimates.csv").read_bytes() == (tmp_path / "b" / "estimates.csv").read_bytes()
+    assert by_objects.summary["rows"] == by_files.summary["rows"] == by_model.summary["rows"] > 0
+    bags = [tmp_path / "a" / "estimates"]
+    from_file = epd.analyze(bags, model_file, tmp_path / "r1", plots_on=False)
+    from_mech = epd.analyze(bags, mech, tmp_path / "r2", plots_on=False)
+    assert from_file["runs"]["estimates"]  # the same figures, NaN where a figure has no data
+    assert json.dumps(from_file["runs"], sort_keys=True) == json.dumps(from_mech["runs"], sort_keys=True)
+    with pytest.raises(epd.ModelError, match="missing.yaml"):
+        epd.observe(tmp_path / "missing.yaml", None, tmp_path / "bag", None, **quiet)

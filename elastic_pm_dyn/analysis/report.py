@@ -18,6 +18,8 @@ import numpy as np
 
 from elastic_pm_dyn.analysis import metrics, plots
 from elastic_pm_dyn.analysis.run_data import ModelInfo, RunData
+from elastic_pm_dyn.kinematics.mechanism import Mechanism
+from elastic_pm_dyn.model.description import Model
 from elastic_pm_dyn.output_files import write_text
 
 # Plot file names by figure; paper-figures uses the paper's numbering.
@@ -472,11 +474,12 @@ def markdown(summary: Mapping) -> str:
 
 
 # ------------------------------------------------------------------------------ analyze
-def analyze(bags: Sequence[str | Path], model: str | Path, out: str | Path,
+def analyze(bags: Sequence[str | Path], model: str | Path | Model | Mechanism, out: str | Path,
             topics: Mapping[str, str | None] | None = None, hold_start: float | None = None,
             labels: Sequence[str] | None = None, plots_on: bool = True, max_samples: int | None = None,
             window_samples: int | None = None) -> dict:
-    """``elastic-pm-dyn analyze``: one or more bags -> plots, summary.json, summary.md in ``out``."""
+    """``elastic-pm-dyn analyze``: one or more bags -> plots, summary.json, summary.md in ``out``.
+    ``model``: a model file, a loaded Model or a Mechanism (as ``epd.observe`` takes it)."""
     from elastic_pm_dyn.analysis import bags as bagmod
     from elastic_pm_dyn.analysis.run_data import run_from_bag
 

@@ -21,9 +21,8 @@ import numpy as np
 
 from elastic_pm_dyn.analysis.bags import BagData, TopicSeries
 from elastic_pm_dyn.analysis.streams import hold_start as find_hold_start
-from elastic_pm_dyn.kinematics.mechanism import Mechanism
+from elastic_pm_dyn.kinematics.mechanism import Mechanism, as_mechanism
 from elastic_pm_dyn.model.description import Model
-from elastic_pm_dyn.model.loader import load_model
 
 if TYPE_CHECKING:
     from elastic_pm_dyn.sim.result import SimulationResult
@@ -39,9 +38,11 @@ class ModelInfo:
     rigid: Mechanism
 
     @classmethod
-    def load(cls, path: str | Path) -> ModelInfo:
-        model = load_model(path)
-        return cls(Path(path), model, Mechanism(model), Mechanism(model.locked()))
+    def load(cls, model: str | Path | Model | Mechanism) -> ModelInfo:
+        """From a model file, a loaded :class:`Model` or a :class:`Mechanism`."""
+        mech = as_mechanism(model)
+        path = Path(model) if isinstance(model, (str, Path)) else Path(mech.model.name)
+        return cls(path, mech.model, mech, Mechanism(mech.model.locked()))
 
     @property
     def branches(self) -> list[str]:

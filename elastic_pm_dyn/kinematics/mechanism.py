@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -226,3 +227,16 @@ class Mechanism:
         """F = K u + D du/dt for each named branch, tension positive [N]."""
         j = self.branch_joints
         return self.stiffness[j] * (np.asarray(q)[j] - self.rest[j]) + self.damping[j] * np.asarray(qd)[j]
+
+
+def as_mechanism(model: Mechanism | Model | str | Path) -> Mechanism:
+    """The mechanism of ``model``: a model file (YAML, URDF, MJCF), a loaded :class:`Model`, or
+    a :class:`Mechanism` (returned as it is). The public functions that take a robot
+    (``epd.observe``, ``epd.analyze``) take it in any of these forms."""
+    if isinstance(model, Mechanism):
+        return model
+    if isinstance(model, Model):
+        return Mechanism(model)
+    from elastic_pm_dyn.model.loader import load_model  # the loader only where a file is given
+
+    return Mechanism(load_model(model))

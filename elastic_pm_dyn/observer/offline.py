@@ -31,8 +31,9 @@ import time
 from pathlib import Path
 
 from elastic_pm_dyn.errors import InputError
-from elastic_pm_dyn.kinematics.mechanism import Mechanism
-from elastic_pm_dyn.observer.config import ObserverConfig
+from elastic_pm_dyn.kinematics.mechanism import Mechanism, as_mechanism
+from elastic_pm_dyn.model.description import Model
+from elastic_pm_dyn.observer.config import ObserverConfig, load_config
 from elastic_pm_dyn.observer.drivers import event_filter, results
 from elastic_pm_dyn.observer.drivers.bag_input import Topics, read_events
 from elastic_pm_dyn.observer.drivers.bag_output import write_outputs
@@ -41,7 +42,8 @@ from elastic_pm_dyn.observer.drivers.results import OfflineResult
 from elastic_pm_dyn.observer.tuning.smoother import SMOOTHERS, smooth
 
 
-def observe_bag(mech: Mechanism, cfg: ObserverConfig, bag: str | Path, out: str | Path | None = None,
+def observe_bag(mech: Mechanism | Model | str | Path, cfg: ObserverConfig | str | Path | None, bag: str | Path,
+                out: str | Path | None = None,
                 topics: Topics | None = None, order: str = "stamp", storage: str = "mcap",
                 write_estimates_bag: bool = True, log=print, pipeline: bool = True,
                 smoother: str | None = None) -> OfflineResult:
@@ -55,7 +57,13 @@ def observe_bag(mech: Mechanism, cfg: ObserverConfig, bag: str | Path, out: str 
 
     ``smoother``: None, or "rts" to smooth the filter's rows (module docstring; the pass then
     runs one stage after the other); the result's ``rows`` are then the smoothed ones and its
-    ``filtered`` the filter's."""
+    ``filtered`` the filter's.
+
+    ``mech``: a model file, a loaded Model or a Mechanism (as ``epd.analyze`` takes it); ``cfg``: an
+    :class:`ObserverConfig`, a parameter YAML file, or None for the defaults."""
+    mech = as_mechanism(mech)
+    if not isinstance(cfg, ObserverConfig):
+        cfg = load_config(cfg)
     if smoother is not None and smoother not in SMOOTHERS:
         raise InputError(f"unknown smoother {smoother!r} (expected one of {', '.join(SMOOTHERS)})")
     topics = topics or Topics.from_config(cfg)

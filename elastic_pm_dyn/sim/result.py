@@ -7,9 +7,9 @@ from pathlib import Path
 
 import numpy as np
 
+from elastic_pm_dyn.csv_text import write_table
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.output_files import atomic_file
-from elastic_pm_dyn.sim.csv_text import write_table
 
 
 @dataclass
