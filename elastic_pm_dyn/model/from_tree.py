@@ -539,8 +539,10 @@ def _check_counts(tree: KinematicTree, model: Model, sidecar: Sidecar | None, cl
         # rows that hold by themselves and free spins are found at a closed pose: none found, say so
         idx = [i for i, j in enumerate(model.joints) if j.role == PASSIVE]
         unclosed = m > 0 and idx and closes_from_start(model, idx) is None
-        hint = "; no closed pose was found from the file's start pose (motors where it puts them), so rows that " \
-            "hold by themselves and free spins could not be looked for: give initial_state.guess" if unclosed else ""
+        # the fix first in the line: the joint list after it may be cut at the line's length
+        hint = "no closed pose was found from the file's start pose (motors where it puts them): give " \
+            "initial_state.guess (joint angles near a closed pose), without which rows that hold by themselves " \
+            "and free spins cannot be looked for; " if unclosed else ""
         missed = missed_loops(model) if unclosed else None
         if missed:  # over-constrained and inconsistent: no pose of any joints closes these
             names = [f"{closures[k].where.element} (line {closures[k].where.line})"
@@ -555,6 +557,6 @@ def _check_counts(tree: KinematicTree, model: Model, sidecar: Sidecar | None, cl
                               f"passive joints, and with the motors held {', '.join(loose[:4])}"
                               f"{', ...' if len(loose) > 4 else ''} still move: a motor missing, or a loop written "
                               "as a point where the machine welds it")
-        raise where.error(f"the closures give {m} equations but the legs have {n_passive} passive joints "
+        raise where.error(f"{hint}the closures give {m} equations but the legs have {n_passive} passive joints "
                           f"({', '.join(passive[:8])}{', ...' if len(passive) > 8 else ''}): every joint that is "
-                          f"neither a motor nor elastic must be fixed by the closures{hint}")
+                          "neither a motor nor elastic must be fixed by the closures")
