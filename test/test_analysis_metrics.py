@@ -45,16 +45,16 @@ def damped_record(
 def test_residual_vibration_resolved(zeta: float, f_hint: float | None) -> None:
     t, x, f_d = damped_record(10_000.0, zeta)
     r = residual_vibration(t, x, T_HOLD, f_hint=f_hint)
-    assert abs(r["f_d"] - f_d) < 1.0
-    assert abs(r["f_n"] - F_N) < 1.0
-    assert abs(r["zeta"] / zeta - 1.0) < 0.05
-    assert abs(r["amplitude"] / AMP - 1.0) < 0.05
-    assert abs(r["offset"] - OFFSET) < 0.05
-    assert r["residual_rms"] == pytest.approx(
+    assert abs(r.f_d - f_d) < 1.0
+    assert abs(r.f_n - F_N) < 1.0
+    assert abs(r.zeta / zeta - 1.0) < 0.05
+    assert abs(r.amplitude / AMP - 1.0) < 0.05
+    assert abs(r.offset - OFFSET) < 0.05
+    assert r.residual_rms == pytest.approx(
         0.01 * AMP, rel=0.1
     )  # just the noise is left
-    assert not r["aliased"] and r["f_alias"] is None
-    assert r["warnings"] == []
+    assert not r.aliased and r.f_alias is None
+    assert r.warnings == []
 
 
 @pytest.mark.parametrize(
@@ -64,20 +64,20 @@ def test_residual_vibration_aliased(zeta: float, f_tol: float, zeta_tol: float) 
     # At 1 kHz a 0.05 decay is gone after ~20 samples: looser bounds, still flagged right.
     t, x, f_d = damped_record(1_000.0, zeta)
     r = residual_vibration(t, x, T_HOLD, f_hint=F_N)
-    assert r["aliased"]
-    assert abs(r["f_alias"] - alias_frequency(f_d, 1_000.0)) < f_tol
-    assert abs(r["f_alias"] - 448.0) < f_tol + 1.0
-    assert abs(r["f_d"] - f_d) < f_tol  # unfolded with the hint
-    assert abs(r["zeta"] / zeta - 1.0) < zeta_tol
-    assert any("alias" in w for w in r["warnings"])
+    assert r.aliased
+    assert abs(r.f_alias - alias_frequency(f_d, 1_000.0)) < f_tol
+    assert abs(r.f_alias - 448.0) < f_tol + 1.0
+    assert abs(r.f_d - f_d) < f_tol  # unfolded with the hint
+    assert abs(r.zeta / zeta - 1.0) < zeta_tol
+    assert any("alias" in w for w in r.warnings)
 
 
 def test_residual_vibration_aliased_without_hint_warns_near_nyquist() -> None:
     t, x, f_d = damped_record(1_000.0, 0.01)
     r = residual_vibration(t, x, T_HOLD)
-    assert not r["aliased"]
-    assert abs(r["f_apparent"] - alias_frequency(f_d, 1_000.0)) < 1.0
-    assert any("Nyquist" in w for w in r["warnings"])
+    assert not r.aliased
+    assert abs(r.f_apparent - alias_frequency(f_d, 1_000.0)) < 1.0
+    assert any("Nyquist" in w for w in r.warnings)
 
 
 def test_residual_vibration_needs_samples() -> None:
@@ -221,3 +221,15 @@ def test_stream_stats_degenerate_and_unordered() -> None:
 def test_rms() -> None:
     assert rms([3.0, -3.0, 3.0, -3.0]) == pytest.approx(3.0)
     np.testing.assert_allclose(rms([[3.0, 4.0], [3.0, 4.0]], axis=0), [3.0, 4.0])
+
+
+def test_residual_vibration_is_a_typed_result_with_the_same_fields_in_json() -> None:
+    import json
+
+    t, x, _ = damped_record(10_000.0, 0.01)
+    r = residual_vibration(t, x, T_HOLD)
+    d = r.as_dict()
+    assert d["f_d"] == r.f_d and d["zeta"] == r.zeta and d["warnings"] == r.warnings
+    assert set(d) == {"f_d", "f_apparent", "f_alias", "f_n", "zeta", "sigma", "amplitude", "phase", "offset",
+                      "residual_rms", "fs", "nyquist", "aliased", "n_samples", "seed", "success", "warnings"}
+    assert json.loads(json.dumps(d)) == d

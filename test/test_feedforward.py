@@ -38,8 +38,8 @@ def test_elastic_model_vibrates_at_the_spring_mode_under_sampled_feedforward(fiv
     times, tau, _ = line_torques(five_bar.model, LINE, 1000.0)
     r = Simulator(five_bar, SimulationOptions(sample=1e-4)).run(TorqueTable(times, tau), LINE.duration)
     vib = residual_vibration(r.t, r.branch_forces[:, 0], LINE.move)
-    assert 500 < vib["f_d"] < 600
-    assert vib["amplitude"] > 1e-3  # N: visible, and ...
+    assert 500 < vib.f_d < 600
+    assert vib.amplitude > 1e-3  # N: visible, and ...
     assert np.abs(r.branch_forces).max() < 10.0  # ... small against the quasi-static force
 
 

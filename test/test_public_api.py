@@ -113,5 +113,5 @@ def test_observe_and_analyze_take_the_robot_and_config_in_the_same_forms(tmp_pat
     from_mech = epd.analyze(bags, mech, tmp_path / "r2", plots_on=False)
     assert from_file["runs"]["estimates"]  # the same figures, NaN where a figure has no data
     assert json.dumps(from_file["runs"], sort_keys=True) == json.dumps(from_mech["runs"], sort_keys=True)
-    with pytest.raises(epd.ModelError, match="missing.yaml"):
+    with pytest.raises(epd.ModelError, match=r"missing\.yaml"):
         epd.observe(tmp_path / "missing.yaml", None, tmp_path / "bag", None, **quiet)

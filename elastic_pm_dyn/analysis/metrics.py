@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import itertools
 import math
+from dataclasses import asdict, dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -287,13 +288,40 @@ def _unfold(f_apparent: float, fs: float, f_hint: float) -> float:
     return float(min(cands, key=lambda c: abs(c - f_hint)))
 
 
+@dataclass(frozen=True)
+class DampedSinusoid:
+    """A fitted residual vibration ``x = A exp(-sigma tau) cos(2 pi f_d tau + phi) + c``
+    (:func:`residual_vibration`); :meth:`as_dict` gives the same fields for JSON."""
+
+    f_d: float  # damped frequency [Hz] (unfolded if aliased)
+    f_apparent: float  # the frequency the samples show [Hz]
+    f_alias: float | None  # = f_apparent when aliased, else None
+    f_n: float  # natural frequency sqrt(f_d^2 + (sigma / 2 pi)^2) [Hz]
+    zeta: float  # damping ratio sigma / (2 pi f_n)
+    sigma: float  # decay rate [1/s]
+    amplitude: float  # A at t_start
+    phase: float  # phi [rad]
+    offset: float  # c, the static part
+    residual_rms: float  # of the fit
+    fs: float  # sample rate [Hz]
+    nyquist: float  # [Hz]
+    aliased: bool
+    n_samples: int
+    seed: dict  # the initial estimates: f, sigma, amplitude, offset
+    success: bool  # the least-squares fit converged
+    warnings: list[str]
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
 def residual_vibration(
     t: ArrayLike,
     x: ArrayLike,
     t_start: float,
     f_hint: float | None = None,
     t_end: float | None = None,
-) -> dict:
+) -> DampedSinusoid:
     """Fit a single damped sinusoid to ``x`` in the hold phase from ``t_start`` [s].
 
     Model: ``x = A exp(-sigma tau) cos(2 pi f tau + phi) + c`` with
@@ -311,14 +339,7 @@ def residual_vibration(
     aliasing cannot be detected from the samples alone; a warning is given
     when the apparent frequency is within 20 % of Nyquist.
 
-    Returns a dict with
-    ``f_d`` damped frequency [Hz] (unfolded if aliased), ``f_apparent`` the
-    frequency seen in the samples, ``f_alias`` (= f_apparent when aliased, else
-    None), ``f_n`` = sqrt(f_d^2 + (sigma/2pi)^2), ``zeta`` = sigma/(2 pi f_n),
-    ``sigma`` decay rate [1/s], ``amplitude`` A, ``phase`` phi [rad],
-    ``offset`` c, ``residual_rms``, ``fs``, ``nyquist``, ``aliased``,
-    ``n_samples``, ``seed`` (the initial estimates), ``success`` and
-    ``warnings`` (list of str).
+    Returns a :class:`DampedSinusoid` (its fields say what each number is).
     """
     t = np.asarray(t, dtype=float)
     x = np.asarray(x, dtype=float)
@@ -423,25 +444,11 @@ def residual_vibration(
             f"fit residual RMS {res_rms:.3g} exceeds 20 % of the amplitude {amp:.3g}: "
             "not a single damped sinusoid (several modes, a transient, or mostly noise)"
         )
-    return {
-        "f_d": f_d,
-        "f_apparent": f_apparent,
-        "f_alias": f_apparent if aliased else None,
-        "f_n": f_n,
-        "zeta": zeta,
-        "sigma": sigma,
-        "amplitude": amp,
-        "phase": phase,
-        "offset": offset,
-        "residual_rms": res_rms,
-        "fs": fs,
-        "nyquist": nyq,
-        "aliased": aliased,
-        "n_samples": len(tau),
-        "seed": seed,
-        "success": bool(fit.success),
-        "warnings": warnings,
-    }
+    return DampedSinusoid(
+        f_d=f_d, f_apparent=f_apparent, f_alias=f_apparent if aliased else None, f_n=f_n, zeta=zeta,
+        sigma=sigma, amplitude=amp, phase=phase, offset=offset, residual_rms=float(res_rms), fs=float(fs),
+        nyquist=float(nyq), aliased=bool(aliased), n_samples=len(tau), seed=seed, success=bool(fit.success),
+        warnings=warnings)
 
 
 def stream_stats(stamps: ArrayLike) -> dict:

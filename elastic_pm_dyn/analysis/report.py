@@ -80,11 +80,11 @@ def vibration_metrics(run: RunData, natural_hz: Sequence[float]) -> dict:
         except ValueError as err:
             out[b] = {"note": str(err)}
             continue
-        nearest = min(natural_hz, key=lambda fn: abs(fn - v["f_d"])) if len(natural_hz) else None
-        out[b] = {"f_d_hz": v["f_d"], "f_n_hz": v["f_n"], "zeta": v["zeta"], "amplitude_N": v["amplitude"],
-                  "decay_rate_1_s": v["sigma"], "offset_N": v["offset"], "f_apparent_hz": v["f_apparent"],
-                  "aliased": v["aliased"], "sample_rate_hz": v["fs"], "samples": v["n_samples"],
-                  "residual_rms_N": v["residual_rms"], "model_f_n_hz": nearest, "warnings": v["warnings"]}
+        nearest = min(natural_hz, key=lambda fn: abs(fn - v.f_d)) if len(natural_hz) else None
+        out[b] = {"f_d_hz": v.f_d, "f_n_hz": v.f_n, "zeta": v.zeta, "amplitude_N": v.amplitude,
+                  "decay_rate_1_s": v.sigma, "offset_N": v.offset, "f_apparent_hz": v.f_apparent,
+                  "aliased": v.aliased, "sample_rate_hz": v.fs, "samples": v.n_samples,
+                  "residual_rms_N": v.residual_rms, "model_f_n_hz": nearest, "warnings": v.warnings}
     return out
 
 
