@@ -116,6 +116,55 @@ def wait_for_subscribers(topics: list[str], domain_id: int, timeout: float, watc
             os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = old_range
 
 
+def wait_for_recording(topics: list[str], domain_id: int, timeout: float, watch: list[NodeProcess]) -> None:
+    """Block until a recorder's /diagnostics say it has received a message on every topic.
+
+    A subscriber in the ROS graph is not yet a reader the publisher serves: a CI run had the
+    recorder shown on the plant's topics and given nothing (issue #29); the recorder subscribes
+    a topic that stays silent anew, and this waits for that too. Raises if a watched process
+    dies or time runs out."""
+    import rclpy
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.executors import SingleThreadedExecutor
+
+    from elastic_pm_dyn.ros.qos import DIAGNOSTICS_QOS
+
+    received: dict[str, int] = {}
+
+    def take(msg: DiagnosticArray) -> None:
+        for status in msg.status:
+            if status.name.endswith(": recorder"):
+                for kv in status.values:
+                    topic, _, key = kv.key.rpartition(" ")
+                    if key == "received" and kv.value.isdigit():
+                        received[topic] = max(received.get(topic, 0), int(kv.value))
+
+    old_range = os.environ.get("ROS_AUTOMATIC_DISCOVERY_RANGE")
+    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"  # read by rcl at init
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=domain_id)
+    try:
+        node = rclpy.create_node("elastic_pm_dyn_orchestrator_recording", context=context)
+        node.create_subscription(DiagnosticArray, "/diagnostics", take, DIAGNOSTICS_QOS)
+        executor = SingleThreadedExecutor(context=context)
+        executor.add_node(node)
+        deadline = time.monotonic() + timeout
+        while missing := [t for t in topics if not received.get(t)]:
+            if time.monotonic() > deadline:
+                raise NodeProcessError(f"the recorder received nothing on {', '.join(missing)} within {timeout:g} s")
+            for p in watch:
+                p.check_running()
+            executor.spin_once(timeout_sec=0.1)
+        executor.remove_node(node)
+        node.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=context)
+        if old_range is None:
+            os.environ.pop("ROS_AUTOMATIC_DISCOVERY_RANGE", None)
+        else:
+            os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = old_range
+
+
 def wait_for_exit(target: NodeProcess, others: list[NodeProcess], timeout: float) -> int:
     """Wait until ``target`` ends; raise if it takes too long or one of ``others`` dies first."""
     deadline = time.monotonic() + timeout
