@@ -14,11 +14,14 @@ import contextlib
 import importlib
 import sys
 
+from elastic_pm_dyn import interrupts
+
 EXIT_INTERRUPTED = 130
 
 
 def run(program: str, target: str, argv: list[str] | None = None) -> int:
     """Import ``target`` ('module:function') and call it with ``argv``; Ctrl-C -> 130 and one line."""
+    interrupts.install()  # a Ctrl-C that a finalizer swallows during the imports still counts
     try:
         module, func = target.split(":")
         return importlib.import_module(module).__dict__[func](argv)

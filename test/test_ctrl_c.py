@@ -87,3 +87,25 @@ def test_finalizers_of_objects_an_interrupt_left_half_built_print_nothing(tmp_pa
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=HANG_GUARD)
     assert proc.returncode == 130, proc.stderr
     assert proc.stderr.strip().splitlines() == ["prog: interrupted (Ctrl-C)"], proc.stderr
+
+
+def test_a_ctrl_c_that_a_finalizer_swallows_while_a_node_starts_still_stops_it(tmp_path: Path) -> None:
+    """Seen in CI: the SIGINT landed inside llvmlite's __del__ during numba's first compile; Python
+    printed it as an ignored exception and the node started anyway, to run until killed."""
+    pytest.importorskip("rclpy")
+    (tmp_path / "swallowing.py").write_text(
+        "import os, signal\n"
+        "from elastic_pm_dyn.ros.node_main import ManagedNode, run_node\n"
+        "class Finalized:\n"
+        "    def __del__(self):\n"
+        "        os.kill(os.getpid(), signal.SIGINT)  # handled here, inside the finalizer\n"
+        "def factory():\n"
+        "    Finalized()  # dropped at once: its __del__ runs now\n"
+        "    return ManagedNode('swallowing')\n"
+        "def main(argv):\n"
+        "    return run_node('prog', factory, argv)\n")
+    code = "import sys; from elastic_pm_dyn.entry import run; sys.exit(run('prog', 'swallowing:main', []))"
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path), os.environ.get("PYTHONPATH", "")])}
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=HANG_GUARD)
+    assert proc.returncode == 130, proc.stderr
+    assert proc.stderr.strip().splitlines() == ["prog: interrupted (Ctrl-C)"], proc.stderr

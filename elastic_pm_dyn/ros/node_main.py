@@ -21,6 +21,7 @@ from rclpy.impl.implementation_singleton import rclpy_implementation
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
+from elastic_pm_dyn import interrupts
 from elastic_pm_dyn.errors import ElasticPmDynError
 
 EXIT_START_FAILED = 2
@@ -58,6 +59,9 @@ def run_node(program: str, factory: Callable[[], ManagedNode], args: list[str] |
         except ElasticPmDynError as err:
             print(f"{program}: error: {err}", file=sys.stderr)
             return EXIT_START_FAILED
+        if interrupts.requested():  # a Ctrl-C during start-up that a finalizer swallowed
+            node.destroy_node()
+            raise KeyboardInterrupt
         previous = {sig: signal.signal(sig, request_stop) for sig in (signal.SIGINT, signal.SIGTERM)}
         executor = SingleThreadedExecutor()
         executor.add_node(node)

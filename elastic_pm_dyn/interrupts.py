@@ -1,0 +1,42 @@
+"""A Ctrl-C that Python swallowed still counts.
+
+A SIGINT raises KeyboardInterrupt wherever the main thread is; when that is inside a
+finalizer (``__del__``: llvmlite's run during numba's first compile), Python prints it as
+"Exception ignored ... Traceback" and goes on, so a program interrupted while it starts
+would start anyway (seen in CI). :func:`install` (the console scripts' entry point calls it
+first) counts every SIGINT and keeps those tracebacks quiet; code that ends a start-up asks
+:func:`requested`.
+"""
+
+from __future__ import annotations
+
+import signal
+import sys
+from typing import Any
+
+_received = 0
+_default_hook = sys.unraisablehook
+
+
+def _on_sigint(_signum: int, _frame: object) -> None:
+    global _received
+    _received += 1
+    raise KeyboardInterrupt
+
+
+def _quiet(unraisable: Any) -> None:
+    if not isinstance(unraisable.exc_value, KeyboardInterrupt):
+        _default_hook(unraisable)
+
+
+def install() -> None:
+    """Count SIGINTs (unless SIGINT is ignored, as in a background job) and keep a
+    KeyboardInterrupt swallowed by a finalizer from printing a traceback."""
+    if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+        signal.signal(signal.SIGINT, _on_sigint)
+    sys.unraisablehook = _quiet
+
+
+def requested() -> bool:
+    """Has a SIGINT come since :func:`install` (even one a finalizer swallowed)?"""
+    return _received > 0
