@@ -7,12 +7,15 @@ SIGTERM, then SIGKILL after deadlines).
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import subprocess
 import sys
 import time
+from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
 
 from elastic_pm_dyn.errors import ElasticPmDynError
 
@@ -86,13 +89,12 @@ class NodeProcess:
         return lines[-1].strip() if lines else "(no output)"
 
 
-def wait_for_subscribers(topics: list[str], domain_id: int, timeout: float, watch: list[NodeProcess]) -> None:
-    """Block until the ROS graph shows a subscriber on every topic (e.g. the recorder is recording).
-
-    Discovery of a new process takes from 0 to a few seconds, so a start order alone
-    does not say who already listens. Raises if a watched process dies or time runs out.
-    """
+@contextlib.contextmanager
+def _orchestrator(domain_id: int) -> Iterator[tuple[Any, Any]]:
+    """(node, executor) of this process on the nodes' private domain, discovering on loopback
+    as they do; everything shut down on the way out."""
     import rclpy  # the graph view of this process; nothing else here needs ROS
+    from rclpy.executors import SingleThreadedExecutor
 
     old_range = os.environ.get("ROS_AUTOMATIC_DISCOVERY_RANGE")
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"  # read by rcl at init
@@ -100,13 +102,10 @@ def wait_for_subscribers(topics: list[str], domain_id: int, timeout: float, watc
     rclpy.init(context=context, domain_id=domain_id)
     try:
         node = rclpy.create_node("elastic_pm_dyn_orchestrator", context=context)
-        deadline = time.monotonic() + timeout
-        while missing := [t for t in topics if not node.count_subscribers(t)]:
-            if time.monotonic() > deadline:
-                raise NodeProcessError(f"no subscriber on {', '.join(missing)} within {timeout:g} s")
-            for p in watch:
-                p.check_running()
-            time.sleep(0.05)
+        executor = SingleThreadedExecutor(context=context)
+        executor.add_node(node)
+        yield node, executor
+        executor.remove_node(node)
         node.destroy_node()
     finally:
         rclpy.try_shutdown(context=context)
@@ -116,6 +115,30 @@ def wait_for_subscribers(topics: list[str], domain_id: int, timeout: float, watc
             os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = old_range
 
 
+def _wait_until_none_missing(missing: Callable[[], list[str]], what: str, timeout: float,
+                             watch: list[NodeProcess], pause: Callable[[], object]) -> None:
+    """Call ``pause`` until ``missing()`` is empty; raise "<what> <missing> within <timeout> s" when
+    time runs out, or the watched process's error if one dies first."""
+    deadline = time.monotonic() + timeout
+    while left := missing():
+        if time.monotonic() > deadline:
+            raise NodeProcessError(f"{what} {', '.join(left)} within {timeout:g} s")
+        for p in watch:
+            p.check_running()
+        pause()
+
+
+def wait_for_subscribers(topics: list[str], domain_id: int, timeout: float, watch: list[NodeProcess]) -> None:
+    """Block until the ROS graph shows a subscriber on every topic (e.g. the recorder is recording).
+
+    Discovery of a new process takes from 0 to a few seconds, so a start order alone
+    does not say who already listens. Raises if a watched process dies or time runs out.
+    """
+    with _orchestrator(domain_id) as (node, _):
+        _wait_until_none_missing(lambda: [t for t in topics if not node.count_subscribers(t)],
+                                 "no subscriber on", timeout, watch, lambda: time.sleep(0.05))
+
+
 def wait_for_recording(topics: list[str], domain_id: int, timeout: float, watch: list[NodeProcess]) -> None:
     """Block until a recorder's /diagnostics say it has received a message on every topic.
 
@@ -123,9 +146,7 @@ def wait_for_recording(topics: list[str], domain_id: int, timeout: float, watch:
     recorder shown on the plant's topics and given nothing (issue #29); the recorder subscribes
     a topic that stays silent anew, and this waits for that too. Raises if a watched process
     dies or time runs out."""
-    import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
-    from rclpy.executors import SingleThreadedExecutor
 
     from elastic_pm_dyn.ros.qos import DIAGNOSTICS_QOS
 
@@ -139,30 +160,11 @@ def wait_for_recording(topics: list[str], domain_id: int, timeout: float, watch:
                     if key == "received" and kv.value.isdigit():
                         received[topic] = max(received.get(topic, 0), int(kv.value))
 
-    old_range = os.environ.get("ROS_AUTOMATIC_DISCOVERY_RANGE")
-    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"  # read by rcl at init
-    context = rclpy.Context()
-    rclpy.init(context=context, domain_id=domain_id)
-    try:
-        node = rclpy.create_node("elastic_pm_dyn_orchestrator_recording", context=context)
+    with _orchestrator(domain_id) as (node, executor):
         node.create_subscription(DiagnosticArray, "/diagnostics", take, DIAGNOSTICS_QOS)
-        executor = SingleThreadedExecutor(context=context)
-        executor.add_node(node)
-        deadline = time.monotonic() + timeout
-        while missing := [t for t in topics if not received.get(t)]:
-            if time.monotonic() > deadline:
-                raise NodeProcessError(f"the recorder received nothing on {', '.join(missing)} within {timeout:g} s")
-            for p in watch:
-                p.check_running()
-            executor.spin_once(timeout_sec=0.1)
-        executor.remove_node(node)
-        node.destroy_node()
-    finally:
-        rclpy.try_shutdown(context=context)
-        if old_range is None:
-            os.environ.pop("ROS_AUTOMATIC_DISCOVERY_RANGE", None)
-        else:
-            os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = old_range
+        _wait_until_none_missing(lambda: [t for t in topics if not received.get(t)],
+                                 "the recorder received nothing on", timeout, watch,
+                                 lambda: executor.spin_once(timeout_sec=0.1))
 
 
 def wait_for_exit(target: NodeProcess, others: list[NodeProcess], timeout: float) -> int:
