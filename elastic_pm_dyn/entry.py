@@ -26,17 +26,10 @@ def run(program: str, target: str, argv: list[str] | None = None) -> int:
         module, func = target.split(":")
         return importlib.import_module(module).__dict__[func](argv)
     except KeyboardInterrupt:
-        # Objects a Ctrl-C left half-built (llvmlite's, in an interrupted numba compile) can fail in
-        # their finalizers at exit, which Python prints as "Exception ignored ... Traceback" after
-        # our line; the program is ending on the user's request, so that noise is dropped.
-        sys.unraisablehook = _ignore_unraisable
+        interrupts.ending()  # no finalizer's traceback after our one line
         with contextlib.suppress(KeyboardInterrupt):  # a second Ctrl-C while saying so
             print(f"{program}: interrupted (Ctrl-C)", file=sys.stderr)
         return EXIT_INTERRUPTED
-
-
-def _ignore_unraisable(_unraisable: object) -> None:
-    pass
 
 
 def cli(argv: list[str] | None = None) -> int:

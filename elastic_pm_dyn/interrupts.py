@@ -5,7 +5,7 @@ finalizer (``__del__``: llvmlite's run during numba's first compile), Python pri
 "Exception ignored ... Traceback" and goes on, so a program interrupted while it starts
 would start anyway (seen in CI). :func:`install` (the console scripts' entry point calls it
 first) counts every SIGINT and keeps those tracebacks quiet; code that ends a start-up asks
-:func:`requested`.
+:func:`requested`; :func:`ending` quiets every finalizer once the program ends on a Ctrl-C.
 """
 
 from __future__ import annotations
@@ -15,6 +15,7 @@ import sys
 from typing import Any
 
 _received = 0
+_ending = False  # the program ends on a Ctrl-C: no finalizer's error is worth a traceback then
 _default_hook = sys.unraisablehook
 
 
@@ -25,7 +26,7 @@ def _on_sigint(_signum: int, _frame: object) -> None:
 
 
 def _quiet(unraisable: Any) -> None:
-    if not isinstance(unraisable.exc_value, KeyboardInterrupt):
+    if not (_ending or isinstance(unraisable.exc_value, KeyboardInterrupt)):
         _default_hook(unraisable)
 
 
@@ -40,3 +41,11 @@ def install() -> None:
 def requested() -> bool:
     """Has a SIGINT come since :func:`install` (even one a finalizer swallowed)?"""
     return _received > 0
+
+
+def ending() -> None:
+    """The program ends on a Ctrl-C: objects the interrupt left half-built (llvmlite's, in an
+    interrupted numba compile) may fail in their finalizers at exit; print none of that."""
+    global _ending
+    _ending = True
+    sys.unraisablehook = _quiet

@@ -71,6 +71,13 @@ def test_the_cli_interrupted_while_it_starts(module: str, tmp_path: Path) -> Non
     assert "interrupted" in err.strip().splitlines()[-1]
 
 
+def _run_entry(target: str, tmp_path: Path) -> subprocess.CompletedProcess:
+    """``entry.run("prog", target)`` in a process of its own, with the modules in ``tmp_path`` importable."""
+    code = f"import sys; from elastic_pm_dyn.entry import run; sys.exit(run('prog', {target!r}, []))"
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path), os.environ.get("PYTHONPATH", "")])}
+    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=HANG_GUARD)
+
+
 def test_finalizers_of_objects_an_interrupt_left_half_built_print_nothing(tmp_path: Path) -> None:
     """An interrupted numba compile leaves llvmlite objects whose finalizers fail at exit (seen in CI:
     "Exception ignored ... AttributeError: '_GlobalsIterator' object ..." after our line)."""
@@ -82,9 +89,7 @@ def test_finalizers_of_objects_an_interrupt_left_half_built_print_nothing(tmp_pa
         "def main(argv):\n"
         "    keep.append(HalfBuilt())\n"
         "    raise KeyboardInterrupt\n")
-    code = "import sys; from elastic_pm_dyn.entry import run; sys.exit(run('prog', 'halfbuilt:main', []))"
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path), os.environ.get("PYTHONPATH", "")])}
-    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=HANG_GUARD)
+    proc = _run_entry("halfbuilt:main", tmp_path)
     assert proc.returncode == 130, proc.stderr
     assert proc.stderr.strip().splitlines() == ["prog: interrupted (Ctrl-C)"], proc.stderr
 
@@ -104,8 +109,6 @@ def test_a_ctrl_c_that_a_finalizer_swallows_while_a_node_starts_still_stops_it(t
         "    return ManagedNode('swallowing')\n"
         "def main(argv):\n"
         "    return run_node('prog', factory, argv)\n")
-    code = "import sys; from elastic_pm_dyn.entry import run; sys.exit(run('prog', 'swallowing:main', []))"
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path), os.environ.get("PYTHONPATH", "")])}
-    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=HANG_GUARD)
+    proc = _run_entry("swallowing:main", tmp_path)
     assert proc.returncode == 130, proc.stderr
     assert proc.stderr.strip().splitlines() == ["prog: interrupted (Ctrl-C)"], proc.stderr
