@@ -41,7 +41,7 @@ class ModelInfo:
     def load(cls, model: str | Path | Model | Mechanism) -> ModelInfo:
         """From a model file, a loaded :class:`Model` or a :class:`Mechanism`."""
         mech = as_mechanism(model)
-        path = Path(model) if isinstance(model, (str, Path)) else Path(mech.model.name)
+        path = Path(model) if isinstance(model, (str, Path)) else Path(mech.model.source)  # the file it came from
         return cls(path, mech.model, mech, Mechanism(mech.model.locked()))
 
     @property
