@@ -105,12 +105,55 @@ def test_a_matched_but_silent_topic_is_reported(tmp_path: Path, monkeypatch: pyt
                        for d in diags)
         h.wait_until(reported, 60.0, "the silent topic in /diagnostics")
         assert any("/quiet" in w and "no message" in w for w in warnings), warnings
-        pub.publish(String(data="now"))
-        h.wait_until(lambda: diags and diags[-1].status[0].level == DiagnosticStatus.OK, 60.0, "OK again")
+        assert rec.losses()["/quiet"]["resubscribed"] >= 1 and rec.participants
+
+        def speaks_and_is_ok() -> bool:  # volatile: published until the new reader matched
+            pub.publish(String(data="now"))
+            return bool(diags) and diags[-1].status[0].level == DiagnosticStatus.OK
+        h.wait_until(speaks_and_is_ok, 60.0, "OK again")
         rec.close()
     finally:
         h.close()
-    assert _counts(tmp_path / "bag") == {"/quiet": 1}
+    assert _counts(tmp_path / "bag")["/quiet"] >= 1
+
+
+def test_a_topic_subscribed_anew_records_through_a_second_participant(tmp_path: Path) -> None:
+    """The remedy for a reader that is never served: the new subscription lives in a DDS
+    participant of its own, and what it takes goes into the same bag as before."""
+    require("rclpy")
+    from rclpy.parameter import Parameter
+    from std_msgs.msg import String
+
+    from elastic_pm_dyn.bags.reader import open_bag
+    from elastic_pm_dyn.ros import recorder as recorder_module
+
+    h = RosHarness(domain_id(74))
+    try:
+        node = h.node("numbered_publisher")
+        pub = node.create_publisher(String, "/numbered", 1000)
+        sent = [0]
+
+        def send() -> None:
+            sent[0] += 1
+            pub.publish(String(data=str(sent[0])))
+        node.create_timer(0.005, send)
+        rec = h.add(recorder_module.RecorderNode(context=h.context, parameter_overrides=[
+            Parameter("output", value=str(tmp_path / "bag")), Parameter("topics", value=["/numbered"])]))
+        h.wait_until(lambda: rec.count("/numbered") >= 20, 60.0, "messages through the first participant")
+        state = rec.topics["/numbered"]
+        rec._resubscribe("/numbered", state)
+        assert state.node is rec.participants[0].node and state.node is not rec
+        assert state.node.context is not rec.context  # a participant of its own
+        before = state.losses.received
+        h.wait_until(lambda: state.losses.received >= before + 20, 60.0, "messages through the second participant")
+        rec.close()
+        assert not rec.participants[0].context.ok()
+    finally:
+        h.close()
+    with open_bag(tmp_path / "bag") as bag:
+        numbers = [int(bag.deserialize(raw, c.msgtype).data) for c, _, raw in bag.messages(bag.connections)]
+    assert numbers == sorted(set(numbers))  # in order, none twice
+    assert len(numbers) >= before + 20  # the second participant's messages are in the bag too
 
 
 class _Spy:

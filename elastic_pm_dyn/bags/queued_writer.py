@@ -52,8 +52,10 @@ class QueuedWriter:
         self.dropped: Counter[int] = Counter()  # connection id -> messages not written (queue full, write error)
         self.written: Counter[int] = Counter()  # connection id -> messages handed to the writer
         self._queue: queue.SimpleQueue[Any] = queue.SimpleQueue()
-        # Each counter has one writing thread, so no lock is needed: queued = put - taken.
+        # queued = put - taken. The writer thread alone counts taken bytes; put bytes and drops
+        # are counted under a lock (put may come from several threads, drops also from the writer).
         self._put_bytes = 0
+        self._put_lock = threading.Lock()
         self._taken_bytes = 0
         self.writer: BagWriter | None = None
         started = _Call(lambda _: make())
@@ -79,11 +81,13 @@ class QueuedWriter:
         return self.call(lambda w: w.add_connection(topic, msgtype))
 
     def put(self, conn: Any, t_ns: int, raw: bytes | memoryview) -> bool:
-        """Queue one message (raw CDR received at ``t_ns``); False if it was dropped."""
-        if self.error is not None or self._put_bytes - self._taken_bytes > self.max_queued_bytes:
-            self.dropped[conn.id] += 1
-            return False
-        self._put_bytes += len(raw)
+        """Queue one message (raw CDR received at ``t_ns``); False if it was dropped. Safe to call
+        from several threads (a recorder's second participant spins in its own)."""
+        with self._put_lock:
+            if self.error is not None or self._put_bytes - self._taken_bytes > self.max_queued_bytes:
+                self.dropped[conn.id] += 1
+                return False
+            self._put_bytes += len(raw)
         self._queue.put((conn, t_ns, raw))
         return True
 
@@ -125,17 +129,16 @@ class QueuedWriter:
 
     def _write(self, w: BagWriter, conn: Any, t_ns: int, raw: bytes | memoryview) -> bool:
         self._taken_bytes += len(raw)
-        if self.error is not None:
+        if self.error is None:
+            try:
+                flushed = w.write(conn, t_ns, raw)
+                self.written[conn.id] += 1
+                return flushed
+            except BagError as err:
+                self.error = err
+        with self._put_lock:
             self.dropped[conn.id] += 1
-            return False
-        try:
-            flushed = w.write(conn, t_ns, raw)
-        except BagError as err:
-            self.error = err
-            self.dropped[conn.id] += 1
-            return False
-        self.written[conn.id] += 1
-        return flushed
+        return False
 
     @staticmethod
     def _do(c: _Call, w: BagWriter | None) -> None:

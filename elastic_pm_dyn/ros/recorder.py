@@ -61,6 +61,7 @@ from elastic_pm_dyn.ros.losses import TopicLosses
 from elastic_pm_dyn.ros.node_main import ManagedNode, run_node
 from elastic_pm_dyn.ros.params import Param, ParameterError, read_parameters, reject_unknown
 from elastic_pm_dyn.ros.qos import DIAGNOSTICS_QOS
+from elastic_pm_dyn.ros.second_participant import SecondParticipant
 
 DEMO_TOPICS = ["/joint_states", "/branch_forces", "/ee_pose", "/torque_command", "/reference_joint_states"]
 DEMO_TYPES = ["/joint_states sensor_msgs/msg/JointState", "/branch_forces elastic_pm_dyn_msgs/msg/BranchForces",
@@ -103,6 +104,7 @@ class _Topic:
         self.matched = 0  # publishers matched (the matched event; the graph's count until it fires)
         self.early = False  # subscribed before any publisher showed: its QoS is still a guess
         self.subscription: Any = None
+        self.node: Any = None  # the node whose participant holds the subscription
         self.msg_class: type | None = None
         self.arrive_reported = False
         self.resubscribed = 0  # times the subscription was made anew because it stayed silent
@@ -134,6 +136,7 @@ class RecorderNode(ManagedNode):
         self.on_disk: set[str] = set()  # topics whose first message is in the file (logged once)
         self.skipped: set[str] = set()  # topics whose type cannot be recorded (warned once)
         self.lost_events_supported = True
+        self.participants: list[SecondParticipant] = []  # made for silent topics (_resubscribe)
         self.write_error_reported = False
         for topic, msgtype in _topic_types(p["topic_types"]).items():
             if topic in self.wanted:
@@ -187,7 +190,10 @@ class RecorderNode(ManagedNode):
             depth=subscription_depth(self.rate_hint, self.max_lag, []), reliability=ReliabilityPolicy.RELIABLE,
             durability=DurabilityPolicy.TRANSIENT_LOCAL) if early else None)
 
-    def _create_subscription(self, topic: str, state: _Topic, qos: QoSProfile | None = None) -> None:
+    def _create_subscription(self, topic: str, state: _Topic, qos: QoSProfile | None = None,
+                             node: Any = None) -> None:
+        """Subscribe ``topic`` (``qos``, else the publishers' QoS) in ``node``'s participant (else this node's)."""
+        node = node or self
         state.matched = self.count_publishers(topic)
         state.subscribed_at = time.monotonic()
         qos = qos or self._qos(topic)
@@ -207,7 +213,7 @@ class RecorderNode(ManagedNode):
 
         if self.lost_events_supported:
             try:
-                state.subscription = self.create_subscription(
+                state.subscription = node.create_subscription(
                     state.msg_class, topic, take, qos, raw=True,
                     event_callbacks=SubscriptionEventCallbacks(message_lost=lost, matched=matched))
             except UnsupportedEventTypeError:  # an RMW without them: sequence gaps remain
@@ -215,8 +221,10 @@ class RecorderNode(ManagedNode):
                 self.get_logger().warning("this RMW reports no message-lost events: losses are counted "
                                           "from sequence gaps only")
         if not self.lost_events_supported:
-            state.subscription = self.create_subscription(state.msg_class, topic, take, qos, raw=True)
-        self.get_logger().info(f"subscribed to {topic} [{conn.msgtype}], depth {qos.depth}")
+            state.subscription = node.create_subscription(state.msg_class, topic, take, qos, raw=True)
+        state.node = node
+        where = "" if node is self else f" through a new DDS participant ({node.get_name()})"
+        self.get_logger().info(f"subscribed to {topic} [{conn.msgtype}], depth {qos.depth}{where}")
 
     def _settle(self, topic: str, s: _Topic, offered_types: list[str]) -> None:
         """A topic subscribed at start-up, now that publishers show: its transient-local reader
@@ -230,17 +238,24 @@ class RecorderNode(ManagedNode):
         wanted, current = self._qos(topic), s.subscription.qos_profile
         if s.losses.received == 0 and (wanted.durability, wanted.reliability) != (current.durability,
                                                                                  current.reliability):
-            self.destroy_subscription(s.subscription)
+            s.node.destroy_subscription(s.subscription)
             s.losses.gaps.last = None
-            self._create_subscription(topic, s, wanted)
+            self._create_subscription(topic, s, wanted, s.node)
 
     def _resubscribe(self, topic: str, state: _Topic) -> None:
-        """A new reader for a topic that is matched but silent: a reader the publisher's side
-        never serves (seen after a killed recorder, issue #29) is replaced by one it matches anew."""
-        self.destroy_subscription(state.subscription)
+        """A new reader for a topic that is matched but silent, in a new DDS participant: Fast DDS
+        can leave a reader that its writer never serves, and then every new reader of the same
+        participant too, while other participants' readers are served (issue #29; see
+        :mod:`~elastic_pm_dyn.ros.second_participant`). The k-th new subscription of any topic is
+        made in the k-th extra participant, so at most :data:`MAX_RESUBSCRIBE` are ever made."""
+        state.node.destroy_subscription(state.subscription)
         state.resubscribed += 1
         state.losses.gaps.last = None  # the new reader starts from the publisher's current sequence
-        self._create_subscription(topic, state)
+        while len(self.participants) < state.resubscribed:
+            self.participants.append(SecondParticipant(
+                self.context.get_domain_id(), f"{self.get_name()}_{len(self.participants) + 1}"))
+        self._create_subscription(self.resolve_topic_name(topic), state, None,
+                                  self.participants[state.resubscribed - 1].node)
 
     def _qos(self, topic: str) -> QoSProfile:
         offered = [info.qos_profile for info in self.get_publishers_info_by_topic(topic)]
@@ -320,6 +335,8 @@ class RecorderNode(ManagedNode):
         self.pub_diagnostics.publish(diag)
 
     def close(self) -> None:
+        for participant in self.participants:  # no message may come after the writer closed
+            participant.close()
         losses = self.losses()
         try:
             self.writer.call(lambda w: w.set_custom_data(LOSSES_KEY, json.dumps(losses, sort_keys=True)))
