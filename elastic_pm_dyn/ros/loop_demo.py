@@ -51,7 +51,14 @@ from elastic_pm_dyn.observer.testing.evaluation import OpenLoop, offline_run, qu
 from elastic_pm_dyn.observer.testing.scenarios import Noise, Recording
 from elastic_pm_dyn.ros.demo import fresh_bag
 from elastic_pm_dyn.ros.params import share_path
-from elastic_pm_dyn.ros.processes import NodeProcess, NodeProcessError, private_domain_id, ros_env, wait_for_exit
+from elastic_pm_dyn.ros.processes import (
+    NodeProcess,
+    NodeProcessError,
+    private_domain_id,
+    ros_env,
+    wait_for_exit,
+    wait_for_recording,
+)
 from elastic_pm_dyn.sim.simulator import SimulationOptions, Simulator
 from elastic_pm_dyn.sim.torque import TorqueTable
 
@@ -288,7 +295,10 @@ def _run_nodes(out: Path, bag: Path, mech: Mechanism, opts: LoopOptions) -> None
               f"logs in {logs}")
         with Kicker(domain_id, opts.topics(), pace_on_observer=opts.pace_on_observer) as kick:
             kick.wait_for_graph(opts.timeout, procs)
-            print("  every node subscribed")
+            # A subscriber in the graph is not yet a reader the plant serves (issue #29): the
+            # loop starts once the recorder has the plant's start state.
+            wait_for_recording([opts.topics()["truth"]], domain_id, opts.timeout, procs)
+            print("  every node subscribed, the recorder receiving")
             how = kick.start_loop(opts.timeout, procs)
             print(f"  loop running ({how})")
             kick.watch(controller, procs[:3], opts.timeout, logs)
