@@ -15,6 +15,9 @@ from elastic_pm_dyn.model.description import Model
 from elastic_pm_dyn.model.loader import load_model
 
 CONFIG = Path(__file__).resolve().parent.parent / "config"
+# Every call of a pinned kernel checks its argument types against the pinned ones (the nodes
+# the tests start inherit it): a pinned call with other types would read its arguments wrongly.
+os.environ.setdefault("ELASTIC_PM_DYN_CHECK_PINNED", "1")
 
 
 @pytest.fixture(scope="session")

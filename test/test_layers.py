@@ -20,7 +20,7 @@ ROOT = Path(__file__).resolve().parent.parent / PACKAGE
 
 # Bottom to top. The package's own __init__ (the public face) is "<public>".
 LAYERS: list[set[str]] = [
-    {"errors", "small_linalg", "_numba_cache", "text_file", "interrupts"},
+    {"errors", "small_linalg", "_numba_cache", "text_file", "interrupts", "pinned_kernels"},
     {"output_files", "csv_text"},
     {"bags", "model"},
     {"kinematics"},

@@ -103,6 +103,7 @@ from elastic_pm_dyn.observer.core import disturbance, kernels, period
 from elastic_pm_dyn.observer.core.observer_model import ObserverModel
 from elastic_pm_dyn.observer.core.sensors import Sample
 from elastic_pm_dyn.observer.schedule import consistency
+from elastic_pm_dyn.pinned_kernels import KernelPins
 
 OK, WARN, ERROR = 0, 1, 2  # diagnostic levels (as diagnostic_msgs/DiagnosticStatus)
 TIMING_MODES = {"before_command": 0, "after_command": 1, "auto": 2}  # period.run_periods' codes
@@ -301,6 +302,7 @@ class Observer:
         n, nx = self.mech.n, self.nx
         # the compiled steps' work arrays and snapshot (period.step_work, period.snapshot_buffers)
         self._work = (np.zeros((3, n)), tuple(a.copy() for a in self._state()), np.zeros(n))
+        self._pin = KernelPins()  # the kernels called per message, without numba's type dispatch
         na = len(self.mech.active)
         self._save = (tuple(a.copy() for a in self._state()), (np.zeros(na), np.zeros(na)), np.zeros(4), np.zeros(9))
         self._row = np.empty(4)
@@ -475,8 +477,8 @@ class Observer:
             self._activate_due()  # nothing to predict (what period.advance does then)
             return
         cmd, ctl = self._kernel_control(0, np.inf)
-        status = period.advance(self.mech.arrays, self.model.fixed, self._proc, self._state(), cmd, ctl, self._timing,
-                                float(t_to), self._work[0][2])
+        status = self._pin(period.advance)(self.mech.arrays, self.model.fixed, self._proc, self._state(), cmd, ctl,
+                                           self._timing, float(t_to), self._work[0][2])
         self._take_control(cmd, ctl)
         if status != 0 and status != kernels.COVARIANCE_LOST:
             self._fail(f"prediction failed at t = {self.t:.6f} s: "
@@ -615,8 +617,8 @@ class Observer:
                 # positions of state joints only: one compiled call (the same numbers as below)
                 idx, H, var, js, wrap, _ = fast
                 gate = self.gate(len(idx))
-                nis, status, logdet = kernels.encoder_correct(self.mech.arrays, self._state(), (H, var, js, wrap),
-                                                              np.asarray(position, dtype=float)[idx], gate)
+                nis, status, logdet = self._pin(kernels.encoder_correct)(
+                    self.mech.arrays, self._state(), (H, var, js, wrap), np.asarray(position, dtype=float)[idx], gate)
                 if status >= 0:
                     out.append(self._after("encoders", t, nis, status, len(idx), gate, [], logdet))
                     fast = True
@@ -767,8 +769,9 @@ class Observer:
         if self._deferred is not None:
             _, meas, prior, tau_before = self._deferred
             self._deferred = None
-            kernels.imu_innovations(self.mech.arrays, self.model.fixed, self._proc, prior, self._imu, tau_before,
-                                    self._tree_tau(self._torque_at(self.t)), meas, self.gate(len(meas)), self.evidence)
+            self._pin(kernels.imu_innovations)(self.mech.arrays, self.model.fixed, self._proc, prior, self._imu,
+                                               tau_before, self._tree_tau(self._torque_at(self.t)), meas,
+                                               self.gate(len(meas)), self.evidence)
         if self._held is not None:
             t, acc = self._held
             self._held = None
@@ -790,7 +793,7 @@ class Observer:
             return self._correct(imu.sample(acc, a, self.Hpt), t)
         gate = self.gate(len(meas))
         if self.imu_mode == 2 and not defer:
-            nis, status, logdet = kernels.imu_correct_auto(self.mech.arrays, self.model.fixed, self._proc,
+            nis, status, logdet = self._pin(kernels.imu_correct_auto)(self.mech.arrays, self.model.fixed, self._proc,
                                                            self._state(), self._imu, tau_before, tau_after, after,
                                                            meas, gate, self.evidence)
         else:
@@ -800,8 +803,9 @@ class Observer:
                 prior = (self.q.copy(), self.qd.copy(), self.z.copy(), self.P.copy(), self.Phi, self.Qd,
                          self.Hpt.copy(), self.info)
                 self._deferred = (t, meas.copy(), prior, tau_before)
-            nis, status, logdet = kernels.imu_correct(self.mech.arrays, self.model.fixed, self._proc, self._state(),
-                                                      self._imu, tau_after if after else tau_before, meas, gate)
+            nis, status, logdet = self._pin(kernels.imu_correct)(
+                self.mech.arrays, self.model.fixed, self._proc, self._state(), self._imu,
+                tau_after if after else tau_before, meas, gate)
         return self._after("imu", t, nis, status, len(meas), gate, [], logdet)
 
     # ------------------------------------------------------------------ sample timing (auto)
@@ -900,10 +904,11 @@ class Observer:
         dof_e = len(plan[0]) if has_enc else 0
         cmd, ctl = self._kernel_control(0, self._t_decide)
         row = self._row
-        r = period.sample_step(self.mech.arrays, self.model.fixed, self._proc, self._state(), cmd, ctl, self._timing,
-                               self.evidence, enc, self.gate(dof_e) if has_enc else np.inf, self._imu_bundle,
-                               self.gate(len(meas)) if has_imu else np.inf, float(t), has_enc, enc_m, has_imu, meas,
-                               self._work, self._save, row)
+        r = self._pin(period.sample_step)(self.mech.arrays, self.model.fixed, self._proc, self._state(), cmd, ctl,
+                                          self._timing, self.evidence, enc,
+                                          self.gate(dof_e) if has_enc else np.inf, self._imu_bundle,
+                                          self.gate(len(meas)) if has_imu else np.inf, float(t), has_enc, enc_m,
+                                          has_imu, meas, self._work, self._save, row)
         if r == 0:
             return None
         self._take_control(cmd, ctl)
@@ -936,10 +941,10 @@ class Observer:
             waiting, work = period.DEFERRED, (work[0], prior, tau_before)
         cmd, ctl = self._kernel_control(1, self._t_decide)
         row = self._row
-        done = period.command_step(self.mech.arrays, self.model.fixed, self._proc, self._state(), cmd, ctl,
-                                   self._timing, self.evidence, self._imu_bundle,
-                                   self.gate(len(meas)) if len(meas) else np.inf, float(t), tau, waiting, meas, work,
-                                   self._save, row)
+        done = self._pin(period.command_step)(self.mech.arrays, self.model.fixed, self._proc, self._state(), cmd, ctl,
+                                              self._timing, self.evidence, self._imu_bundle,
+                                              self.gate(len(meas)) if len(meas) else np.inf, float(t), tau, waiting,
+                                              meas, work, self._save, row)
         if not done:
             return False
         self._take_control(cmd, ctl)
@@ -978,8 +983,8 @@ class Observer:
             st.last_reason = "NaN: " + ", ".join(s.dropped)
             return UpdateResult(s.sensor, t, False, reason="nan", dropped=s.dropped)
         gate = self.gate(s.r.size)
-        nis, status, logdet = kernels.correct(self.mech.arrays, self._state(), np.ascontiguousarray(s.H), s.R, s.r,
-                                              gate)
+        nis, status, logdet = self._pin(kernels.correct)(self.mech.arrays, self._state(), np.ascontiguousarray(s.H),
+                                                         s.R, s.r, gate)
         return self._after(s.sensor, t, nis, status, s.r.size, gate, s.dropped, logdet)
 
     def _after(self, sensor: str, t: float, nis: float, status: int, dof: int, gate: float,
@@ -1065,7 +1070,8 @@ class Observer:
         """:meth:`estimate` as one float array (layout: :meth:`flat_layout`), in one compiled call."""
         self.flat_layout()
         out = np.empty(self._flat_width)
-        kernels.estimate_flat(self.mech.arrays, self.model.fixed, self._proc, self._state(), self.tau_last, self.t, out)
+        self._pin(kernels.estimate_flat)(self.mech.arrays, self.model.fixed, self._proc, self._state(), self.tau_last,
+                                         self.t, out)
         return out
 
     def unpack_estimate(self, flat: np.ndarray, initialised: bool | None = None) -> Estimate:

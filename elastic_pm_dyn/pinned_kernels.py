@@ -1,0 +1,71 @@
+"""Compiled kernels called from Python at the cost of converting the arguments, without numba's type dispatch.
+
+For every call from Python, numba looks up the compiled version of a kernel by the types of
+its arguments, so it runs ``typeof`` over every array of every bundle passed. With the
+observer's ten bundles that costs 11 of the 14 us a call takes before any work
+(``bench/studies/observer_period_costs.py``), and a live period makes five such calls.
+:class:`PinnedKernel` makes its first call through numba's dispatcher and keeps the compiled
+version that call used; later calls go straight to that version's entry point, which only
+converts the arguments.
+
+The entry point converts each argument to the types of its version without checking them, so
+a pinned kernel must get arguments of the same types on every call. The observer satisfies
+this: it builds its bundles once with fixed dtypes, and its per-call arguments are floats,
+booleans and float64 vectors. With ``ELASTIC_PM_DYN_CHECK_PINNED=1`` (the test suite sets it),
+every call's types are compared with the pinned ones and a difference raises ``TypeError``.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable
+from typing import Any
+
+CHECK_ENV = "ELASTIC_PM_DYN_CHECK_PINNED"
+
+
+class PinnedKernel:
+    """``kernel`` (a numba dispatcher) pinned to the argument types of its first call."""
+
+    __slots__ = ("check", "entry", "kernel", "types")
+
+    def __init__(self, kernel: Any):
+        self.kernel = kernel
+        self.entry: Callable[..., Any] | None = None
+        self.types: tuple | None = None
+        self.check = os.environ.get(CHECK_ENV) == "1"
+
+    def __call__(self, *args: Any) -> Any:
+        entry = self.entry
+        if entry is None:
+            return self._first(args)
+        if self.check and self.types is not None:
+            types = tuple(self.kernel.typeof_pyval(a) for a in args)
+            if types != self.types:
+                raise TypeError(f"{self.kernel.__name__}: pinned to {self.types}, called with {types}")
+        return entry(*args)
+
+    def _first(self, args: tuple) -> Any:
+        result = self.kernel(*args)  # compiles or loads the version for these types
+        types = tuple(self.kernel.typeof_pyval(a) for a in args)
+        overload = self.kernel.overloads.get(types)
+        if overload is None:  # a type numba converts on dispatch: the dispatcher stays in use
+            self.entry = self.kernel
+        else:
+            self.types, self.entry = types, overload.entry_point
+        return result
+
+
+class KernelPins:
+    """One :class:`PinnedKernel` per kernel, for one owner whose argument types never change."""
+
+    __slots__ = ("_pins",)
+
+    def __init__(self) -> None:
+        self._pins: dict[Any, PinnedKernel] = {}
+
+    def __call__(self, kernel: Any) -> PinnedKernel:
+        pin = self._pins.get(kernel)
+        if pin is None:
+            pin = self._pins[kernel] = PinnedKernel(kernel)
+        return pin

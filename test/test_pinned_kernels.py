@@ -1,0 +1,64 @@
+"""Kernels called through their pinned entry point: the same results, and other types refused under the check."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from numba import njit
+
+from elastic_pm_dyn.pinned_kernels import CHECK_ENV, KernelPins, PinnedKernel
+
+
+@njit(cache=False)
+def _weighted(x, pair, flag):
+    s = 0.0
+    for i in range(x.shape[0]):
+        s += x[i] * pair[0][i % pair[0].shape[0]]
+    return s * pair[1] + (1.0 if flag else 0.0)
+
+
+def test_a_pinned_kernel_gives_what_the_dispatcher_gives_and_uses_the_entry_point() -> None:
+    pin = PinnedKernel(_weighted)
+    x, w = np.arange(5.0), np.array([0.5, 2.0])
+    first = pin(x, (w, 3), True)
+    assert pin.entry is not None and pin.entry is not _weighted  # pinned after the first call
+    for k in range(3):
+        xs = x + k
+        assert pin(xs, (w, 3), k % 2 == 0) == _weighted(xs, (w, 3), k % 2 == 0)
+    assert first == _weighted(x, (w, 3), True)
+
+
+def test_other_types_raise_under_the_check_and_would_be_misread_without_it(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv(CHECK_ENV, "1")
+    pin = PinnedKernel(_weighted)
+    w = np.array([0.5, 2.0])
+    pin(np.arange(5.0), (w, 3), True)
+    with pytest.raises(TypeError, match="pinned to"):
+        pin(np.arange(5), (w, 3), True)  # int64 where float64 was pinned
+    with pytest.raises(TypeError, match="pinned to"):
+        pin(np.arange(5.0), (w, 3.0), True)  # a float where an int was pinned
+    monkeypatch.setenv(CHECK_ENV, "0")
+    unchecked = PinnedKernel(_weighted)
+    unchecked(np.arange(5.0), (w, 3), True)
+    # why the check exists: the entry point reads an int64 array's bytes as float64
+    assert unchecked(np.arange(5), (w, 3), True) != _weighted(np.arange(5), (w, 3), True)
+
+
+def test_pins_are_one_per_kernel() -> None:
+    pins = KernelPins()
+    assert pins(_weighted) is pins(_weighted)
+
+
+def test_the_observer_calls_its_per_period_kernels_pinned(five_bar) -> None:
+    """The live path's kernels are pinned (so the suite's type check is live on them)."""
+    from elastic_pm_dyn.observer import Observer, ObserverConfig
+    from elastic_pm_dyn.observer.core import kernels, period
+    from elastic_pm_dyn.observer.testing.evaluation import feed
+    from elastic_pm_dyn.observer.testing.scenarios import chirp_recording
+
+    rec = chirp_recording(five_bar, duration=0.02)
+    obs = Observer(five_bar, ObserverConfig.from_parameters({"sensors": ["encoders", "imu"]}))
+    feed(obs, rec, ("encoders", "imu"))
+    pinned = {k.__name__ for k, p in obs._pin._pins.items() if p.entry is not None and p.entry is not k}
+    assert {period.advance.__name__, kernels.encoder_correct.__name__, kernels.estimate_flat.__name__} <= pinned
+    assert pinned & {kernels.imu_correct.__name__, kernels.imu_correct_auto.__name__}
