@@ -107,10 +107,14 @@ def test_a_matched_but_silent_topic_is_reported(tmp_path: Path, monkeypatch: pyt
         assert any("/quiet" in w and "no message" in w for w in warnings), warnings
         assert rec.losses()["/quiet"]["resubscribed"] >= 1 and rec.participants
 
-        def speaks_and_is_ok() -> bool:  # volatile: published until the new reader matched
+        def heard() -> bool:  # volatile: published until the new reader has matched and taken one
             pub.publish(String(data="now"))
-            return bool(diags) and diags[-1].status[0].level == DiagnosticStatus.OK
-        h.wait_until(speaks_and_is_ok, 60.0, "OK again")
+            return rec.losses()["/quiet"]["received"] > 0
+        h.wait_until(heard, 60.0, "a message through the new subscription")
+        h.wait_until(lambda: diags[-1].status[0].level == DiagnosticStatus.OK
+                     and "/quiet received" in {kv.key for kv in diags[-1].status[0].values}
+                     and {kv.key: kv.value for kv in diags[-1].status[0].values}["/quiet received"] != "0",
+                     60.0, "OK again, with the message counted")
         rec.close()
     finally:
         h.close()
