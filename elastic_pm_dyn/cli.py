@@ -287,6 +287,8 @@ def _dropped_rows(model) -> list[str]:
                    "parallel to it, closed by a 3-D point); the two rows across it are kept")
     repeated = dict(closure.repeated)
     welded = set(closure.welds)
+    # a planar machine's pairs have rows in the plane alone (frame columns 0, 1; a weld's turn about 2)
+    rows = 0b100011 if tuple(closure.components) == (0, 1) else 0b111111
     for k, frame, mask in closure.projected:
         a, b = closure.pairs[k]
         F = np.asarray(frame)
@@ -300,12 +302,12 @@ def _dropped_rows(model) -> list[str]:
                        f"{', '.join(what)}: they repeat rows of the other closures (a body closed twice, loops "
                        f"sharing joints); {bin(mask).count('1')} rows kept")
         if (a, b) not in welded:
-            for i in [i for i in range(3) if ~mask & ~again & (1 << i)]:  # a reduced pair's row
+            for i in [i for i in range(3) if rows & ~mask & ~again & (1 << i)]:  # a reduced pair's row
                 out.append(f"  dropped  row {np.round(F[:, i], 6).tolist()} of closure {k + 1} ({on(a)} = {on(b)}; "
                            "the direction in the frame of the first): it holds by itself, every joint moving both "
                            "points alike along it")
             continue
-        still = ~mask & ~again & 0b111111
+        still = rows & ~mask & ~again
         if not still:
             continue
         pos = [i for i in range(3) if still & (1 << i)]
