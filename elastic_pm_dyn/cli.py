@@ -298,9 +298,10 @@ def _dropped_rows(model) -> list[str]:
             what = [f"position along {np.round(F[:, i], 6).tolist()}" for i in range(3) if again & (1 << i)] + \
                 [f"turn about {np.round(F[:, i], 6).tolist()}" for i in range(3) if again & (8 << i)]
             frame_of = "the weld's frame" if (a, b) in welded else "the frame of the first"
-            out.append(f"  dropped  {len(what)} rows of closure {k + 1} ({on(a)} = {on(b)}; directions in {frame_of}): "
-                       f"{', '.join(what)}: they repeat rows of the other closures (a body closed twice, loops "
-                       f"sharing joints); {bin(mask).count('1')} rows kept")
+            kept = bin(mask).count("1")
+            out.append(f"  dropped  {_rows_text(len(what))} of closure {k + 1} ({on(a)} = {on(b)}; directions in "
+                       f"{frame_of}): {', '.join(what)}: {'they repeat rows' if len(what) > 1 else 'it repeats rows'} "
+                       f"of the other closures (a body closed twice, loops sharing joints); {_rows_text(kept)} kept")
         if (a, b) not in welded:
             for i in [i for i in range(3) if rows & ~mask & ~again & (1 << i)]:  # a reduced pair's row
                 out.append(f"  dropped  row {np.round(F[:, i], 6).tolist()} of closure {k + 1} ({on(a)} = {on(b)}; "
@@ -318,6 +319,10 @@ def _dropped_rows(model) -> list[str]:
                    f"weld's frame): {', '.join(what)}: they hold by themselves (a loop of hinges parallel to {n}, "
                    f"closed by a 6-D weld); {bin(mask).count('1')} rows kept")
     return out
+
+
+def _rows_text(n: int) -> str:
+    return f"{n} row" if n == 1 else f"{n} rows"
 
 
 def _print_integrator_steps(mech, q: np.ndarray, rk4_limit: float) -> None:
