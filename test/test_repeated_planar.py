@@ -70,6 +70,53 @@ PARALLELOGRAM = """<mujoco model="triple_crank_parallelogram">
 </mujoco>
 """
 
+# The coupler cut in two, its far half hung on the third crank and welded back (a planar weld: two
+# rows in the plane and the turn), its near half closed by the second crank: 5 rows, 4 passive
+# joints. Weld first, the second crank's length repeats; weld last, the weld's turn does.
+WELDED = """<mujoco model="welded_parallelogram">
+  <compiler angle="radian"/>
+  <option gravity="0 0 -9.81"/>
+  <worldbody>
+    <body name="crank1">
+      <joint name="crank1" type="hinge" axis="0 1 0"/>
+      <inertial pos="0 0 -0.1" mass="0.4" diaginertia="2e-3 2e-3 1e-4"/>
+      <body name="coupler" pos="0 0 -0.2">
+        <joint name="coupler" type="hinge" axis="0 1 0"/>
+        <inertial pos="0.2 0 0.02" mass="0.4" diaginertia="1e-4 1e-2 1e-2"/>
+        <site name="coupler_b" pos="0.3 0 0"/>
+      </body>
+    </body>
+    <body name="crank2" pos="0.3 0 0">
+      <joint name="crank2" type="hinge" axis="0 1 0"/>
+      <inertial pos="0 0 -0.1" mass="0.3" diaginertia="1.5e-3 1.5e-3 1e-4"/>
+      <site name="crank2_tip" pos="0 0 -0.2"/>
+    </body>
+    <body name="crank3" pos="0.6 0 0">
+      <joint name="crank3" type="hinge" axis="0 1 0"/>
+      <inertial pos="0 0 -0.1" mass="0.2" diaginertia="1e-3 1e-3 1e-4"/>
+      <body name="coupler2" pos="0 0 -0.2">
+        <joint name="coupler2" type="hinge" axis="0 1 0"/>
+        <inertial pos="-0.1 0 0" mass="0.2" diaginertia="1e-4 5e-3 5e-3"/>
+      </body>
+    </body>
+  </worldbody>
+  <equality>
+    <weld body1="coupler2" body2="coupler" relpose="-0.6 0 0 1 0 0 0"/>
+    <connect site1="crank2_tip" site2="coupler_b"/>
+  </equality>
+  <actuator>
+    <motor name="crank1" joint="crank1"/>
+  </actuator>
+  <keyframe>
+    <key name="start" qpos="0.6 -0.6 0.6 0.6 -0.6"/>
+  </keyframe>
+</mujoco>
+"""
+WELD = '    <weld body1="coupler2" body2="coupler" relpose="-0.6 0 0 1 0 0 0"/>\n'
+CONNECT = '    <connect site1="crank2_tip" site2="coupler_b"/>\n'
+WELDED_LAST = WELDED.replace(WELD + CONNECT, CONNECT + WELD)
+
+
 # The same linkage in the x-y plane with the coupler a platform every crank meets (type: platform).
 PLATFORM = """name: parallelogram_platform
 planar: true
@@ -286,13 +333,36 @@ def test_platform_with_a_repeating_leg_is_reduced_and_matches_mujoco(tmp_path):
     assert err < 1e-6
 
 
+@pytest.mark.parametrize(("text", "repeated", "kept"), [(WELDED, 0b001, 0b010), (WELDED_LAST, 0b100000, 0b000011)],
+                         ids=["weld-first", "weld-last"])
+def test_planar_weld_beside_a_repeating_crank_is_reduced_and_matches_mujoco(tmp_path, text, repeated, kept):
+    assert WELDED_LAST != WELDED
+    path = _write(tmp_path, text)
+    mech = Mechanism(load_model(path))
+    closure = mech.model.closure
+    assert mech.m == 4 and len(mech.passive) == 4  # 5 rows in the file
+    assert dict(closure.repeated) == {1: repeated}
+    assert [mask for _, _, mask in closure.projected] == [kept]
+    run, found = _physics(mech)
+    err = float(np.abs(_mujoco_run(path, mech.joint_names, run.q[0], len(run.t)) - run.q).max())
+    print(f"\nplanar weld + crank, {bin(repeated)} dropped: moved {found['moved']:.3g} rad, every row's residual "
+          f"{found['residual']:.2e}, energy drift {found['energy']:.2e}, accelerations vs all rows "
+          f"{found['accelerations']:.2e}, max |q - q_mujoco| {err:.2e} rad")
+    assert found["moved"] > 0.1
+    assert found["residual"] < 1e-9
+    assert found["energy"] < 1e-7
+    assert found["accelerations"] < 1e-6
+    assert err < 1e-6
+
+
 @pytest.mark.parametrize(("text", "name", "closure"), [(PARALLELOGRAM, "robot.xml", 2),
                                                        (PLATFORM, "parallelogram.yaml", 3)], ids=["mjcf", "platform"])
 def test_check_says_which_planar_row_repeats(tmp_path, capsys, text, name, closure):
     assert main(["check", str(_write(tmp_path, text, name))]) == 0
     dropped = [line for line in capsys.readouterr().out.splitlines() if line.strip().startswith("dropped")]
     assert len(dropped) == 1, dropped  # no out-of-plane row reported: a planar pair has none
-    assert f"dropped  1 row of closure {closure} " in dropped[0] and "it repeats rows of the other closures" in dropped[0]
+    assert f"dropped  1 row of closure {closure} " in dropped[0], dropped
+    assert "it repeats rows of the other closures" in dropped[0], dropped
     assert "1 row kept" in dropped[0], dropped
 
 
