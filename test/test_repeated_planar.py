@@ -241,11 +241,9 @@ UNDER_ACTUATED = PARALLELOGRAM.replace("  </worldbody>", FOUR_BAR, 1) \
 
 
 def _unreduced(model):
-    """The model with every row of the file: the rows dropped as repeated put back."""
-    c = model.closure
-    again = dict(c.repeated)
-    return replace(model, closure=replace(c, projected=tuple(p for p in c.projected if p[0] not in again),
-                                          repeated=()))
+    """The model with every row of the file put back (none of these machines projects a pair
+    but to drop rows)."""
+    return replace(model, closure=replace(model.closure, projected=(), repeated=()))
 
 
 def _reference_accelerations(mech: Mechanism, full, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
@@ -312,20 +310,32 @@ def test_planar_parallelogram_closed_three_times_is_reduced_and_matches_mujoco(t
     assert err < 1e-6
 
 
-def test_platform_with_a_repeating_leg_is_reduced_and_matches_mujoco(tmp_path):
-    path = _write(tmp_path, PLATFORM, "parallelogram.yaml")
+# The platform written spatial (closing in x, y and z): the three z rows hold by themselves (zero
+# in every joint), the third crank's length repeats; 9 rows in the file, 5 kept.
+PLATFORM_SPATIAL = PLATFORM.replace("planar: true", "planar: false").replace("components: [x, y]",
+                                                                            "components: [x, y, z]")
+
+
+@pytest.mark.parametrize(("text", "rows"), [(PLATFORM, 0b011), (PLATFORM_SPATIAL, 0b111)], ids=["planar", "spatial"])
+def test_platform_with_a_repeating_leg_is_reduced_and_matches_mujoco(tmp_path, text, rows):
+    assert PLATFORM_SPATIAL != PLATFORM
+    path = _write(tmp_path, text, "parallelogram.yaml")
     mech = Mechanism(load_model(path))
     closure = mech.model.closure
     assert closure.hub == 3  # still a platform machine: its end effector the platform's point
     assert mech.arrays.hub == -1  # solved by the general SCDD: the platform one takes whole pairs
-    assert mech.m == 5 and len(mech.passive) == 5  # 6 rows in the file
-    assert dict(closure.repeated) == {2: 0b010}  # the third crank's row along itself
+    assert mech.m == 5 and len(mech.passive) == 5
+    assert dict(closure.repeated) == {2: 0b010}  # the third crank's row along itself (in its body: y)
+    # every row dropped is the third crank's length or (spatial) one along the hinges, body z
+    dropped = {k: rows & ~mask for k, _, mask in closure.projected}
+    assert dropped == ({2: 0b010} if rows == 0b011 else {0: 0b100, 1: 0b100, 2: 0b110}), dropped
     run, found = _physics(mech)
     peer = _mujoco_run(_write(tmp_path, PLATFORM_MJCF), mech.joint_names, run.q[0], len(run.t))
     err = float(np.abs(peer - run.q).max())
-    print(f"\nplatform parallelogram, third leg reduced: moved {found['moved']:.3g}, every row's residual "
-          f"{found['residual']:.2e}, energy drift {found['energy']:.2e} of the kinetic, accelerations vs all rows "
-          f"(pseudo-inverse) {found['accelerations']:.2e}, max |q - q_mujoco| {err:.2e} (rad, m)")
+    print(f"\nplatform parallelogram ({bin(rows)} rows a pair), third leg reduced: moved {found['moved']:.3g}, "
+          f"every row's residual {found['residual']:.2e}, energy drift {found['energy']:.2e} of the kinetic, "
+          f"accelerations vs all rows (pseudo-inverse) {found['accelerations']:.2e}, max |q - q_mujoco| {err:.2e} "
+          "(rad, m)")
     assert found["moved"] > 0.1
     assert found["residual"] < 1e-9
     assert found["energy"] < 1e-7
@@ -364,6 +374,17 @@ def test_check_says_which_planar_row_repeats(tmp_path, capsys, text, name, closu
     assert f"dropped  1 row of closure {closure} " in dropped[0], dropped
     assert "it repeats rows of the other closures" in dropped[0], dropped
     assert "1 row kept" in dropped[0], dropped
+
+
+def test_check_tells_rows_that_hold_by_themselves_from_repeats(tmp_path, capsys):
+    """The spatial platform: its z rows are zero in every joint (they hold by themselves), the
+    third crank's length repeats the others; check says which is which."""
+    assert main(["check", str(_write(tmp_path, PLATFORM_SPATIAL, "parallelogram.yaml"))]) == 0
+    dropped = [line for line in capsys.readouterr().out.splitlines() if line.strip().startswith("dropped")]
+    still = [line for line in dropped if "holds by itself" in line]
+    again = [line for line in dropped if "repeats rows of the other closures" in line]
+    assert len(still) == 3 and all("row [0.0, 0.0, 1.0]" in line for line in still), dropped
+    assert len(again) == 1 and "closure 3 " in again[0] and "position along [0.0, 1.0, 0.0]" in again[0], dropped
 
 
 def test_under_actuated_planar_loop_is_refused_in_one_line_naming_it(tmp_path):

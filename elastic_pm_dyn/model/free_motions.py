@@ -542,6 +542,9 @@ def drop_repeated_rows(model: Model) -> Model:
     if any(i >= len(bits) for i in range(J.shape[0]) if i not in kept):
         return model  # a coupling row repeats: not a loop's row to drop
     confirmed = 0
+    # rows zero in every joint hold by themselves (a spatial closure of a machine that moves in a
+    # plane, as a model YAML writes it); the others repeat other rows. Both go; check names each.
+    still = set(range(J.shape[0])) - set(kept)
     for moved in itertools.chain([q], _nearby_poses(model, q, passive, 4)):
         # repeated in the passive joints and in all of them: a row that only the motors' columns
         # tell apart from the kept ones would hold the motors (a locked loop), not repeat
@@ -550,19 +553,24 @@ def drop_repeated_rows(model: Model) -> Model:
         if _pivoted_rank(Jm.T)[0] != len(kept) or _pivoted_rank(Jm[kept].T)[0] != len(kept) \
                 or _pivoted_rank(Jt.T)[0] != _pivoted_rank(Jt[kept].T)[0]:
             return model
+        tol = RANK_TOL * max(float(np.abs(Jt).max()), 1e-300)
+        still = {i for i in still if float(np.abs(Jt[i]).max()) <= tol}
         confirmed += moved is not q
         if confirmed == 2:
             break
     if not confirmed:
         return model
     dropped: dict[int, int] = {}
+    again: dict[int, int] = {}
     for i, (k, b) in enumerate(bits):
         if i not in kept:
             dropped[k] = dropped.get(k, 0) | (1 << b)
+            if i not in still:
+                again[k] = again.get(k, 0) | (1 << b)
     reduced = tuple((k, F) for k, F in c.reduced if k not in dropped)
     projected = [(k, F, m) for k, F, m in c.projected if k not in dropped]
     projected += [(k, _rows(F), mask & ~dropped[k]) for k, F, mask in every if k in dropped]
-    repeated = tuple(sorted(dropped.items()))
+    repeated = tuple(sorted(again.items()))
     return replace(model, closure=replace(c, reduced=reduced, projected=tuple(projected), repeated=repeated))
 
 
