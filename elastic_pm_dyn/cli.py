@@ -287,6 +287,8 @@ def _dropped_rows(model) -> list[str]:
                    "parallel to it, closed by a 3-D point); the two rows across it are kept")
     repeated = dict(closure.repeated)
     welded = set(closure.welds)
+    # a planar machine's pairs have rows in the plane alone (frame columns 0, 1; a weld's turn about 2)
+    rows = 0b100011 if tuple(closure.components) == (0, 1) else 0b111111
     for k, frame, mask in closure.projected:
         a, b = closure.pairs[k]
         F = np.asarray(frame)
@@ -296,16 +298,17 @@ def _dropped_rows(model) -> list[str]:
             what = [f"position along {np.round(F[:, i], 6).tolist()}" for i in range(3) if again & (1 << i)] + \
                 [f"turn about {np.round(F[:, i], 6).tolist()}" for i in range(3) if again & (8 << i)]
             frame_of = "the weld's frame" if (a, b) in welded else "the frame of the first"
-            out.append(f"  dropped  {len(what)} rows of closure {k + 1} ({on(a)} = {on(b)}; directions in {frame_of}): "
-                       f"{', '.join(what)}: they repeat rows of the other closures (a body closed twice, loops "
-                       f"sharing joints); {bin(mask).count('1')} rows kept")
+            kept = bin(mask).count("1")
+            out.append(f"  dropped  {_rows_text(len(what))} of closure {k + 1} ({on(a)} = {on(b)}; directions in "
+                       f"{frame_of}): {', '.join(what)}: {'they repeat rows' if len(what) > 1 else 'it repeats rows'} "
+                       f"of the other closures (a body closed twice, loops sharing joints); {_rows_text(kept)} kept")
         if (a, b) not in welded:
-            for i in [i for i in range(3) if ~mask & ~again & (1 << i)]:  # a reduced pair's row
+            for i in [i for i in range(3) if rows & ~mask & ~again & (1 << i)]:  # a reduced pair's row
                 out.append(f"  dropped  row {np.round(F[:, i], 6).tolist()} of closure {k + 1} ({on(a)} = {on(b)}; "
                            "the direction in the frame of the first): it holds by itself, every joint moving both "
                            "points alike along it")
             continue
-        still = ~mask & ~again & 0b111111
+        still = rows & ~mask & ~again
         if not still:
             continue
         pos = [i for i in range(3) if still & (1 << i)]
@@ -316,6 +319,10 @@ def _dropped_rows(model) -> list[str]:
                    f"weld's frame): {', '.join(what)}: they hold by themselves (a loop of hinges parallel to {n}, "
                    f"closed by a 6-D weld); {bin(mask).count('1')} rows kept")
     return out
+
+
+def _rows_text(n: int) -> str:
+    return f"{n} row" if n == 1 else f"{n} rows"
 
 
 def _print_integrator_steps(mech, q: np.ndarray, rk4_limit: float) -> None:

@@ -31,7 +31,7 @@ class ModelArrays(NamedTuple):
     # 2 for a pair projected on the first two directions of point a's frame (Closure.reduced)
     closure_axes: np.ndarray  # (c, 3) float: world direction of each pair's rows (the identity's x, y[, z]
     # rows unless planar off x-y); c == 2: planar, welds turn about closure_axes[0] x closure_axes[1]
-    hub: int  # platform chain onto which SCDD reduces, -1 for none
+    hub: int  # platform chain onto which SCDD reduces, -1 for none (or rows reduced: the general SCDD)
     ae_index: np.ndarray  # (n_ae,) int: tree indices of q_ae = [q_a, q_e]
     p_index: np.ndarray  # (n_p,) int: tree indices of q_p
     couplings: np.ndarray  # (n_c, n_t + 1) float: linear coupling rows C q = c (coefficients, then c): the last
@@ -86,14 +86,15 @@ def pack(model: Model) -> ModelArrays:
         serial = parents[s:e] == [-1, *range(s, e - 1)]
         ji[s:e, L.JI_SUBTREE] = int(framed or not serial or ji[s:e, L.JI_KEEP].any())
     if closure is not None:
-        if closure.reduced and closure.hub >= 0:
-            raise ValueError("a closure pair projected on a body's directions with a platform hub")
         reduced = set(closure.reduced_pairs)
         masks = {k: mask for k, _, mask in closure.projected}
         pairs = np.array([(a, b, 2 if k in reduced else 3 + masks[k] if k in masks else int((a, b) in closure.welds))
                           for k, (a, b) in enumerate(closure.pairs)], dtype=np.int64)
         cl_axes = np.ascontiguousarray(closure.axes, dtype=float)
-        hub = closure.hub
+        # the platform SCDD takes every leg's pair whole (c rows each, its own cut-force block): a
+        # platform whose rows were reduced (a leg repeating another's) takes the general SCDD, exact
+        # on any independent rows; the model keeps its hub (the platform is still the end effector)
+        hub = closure.hub if not (closure.reduced or closure.projected) else -1
     else:
         pairs = np.zeros((0, 3), dtype=np.int64)
         cl_axes = np.zeros((0, 3))

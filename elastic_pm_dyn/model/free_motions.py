@@ -12,6 +12,7 @@ column pivoting (the best-conditioned set); the others are the free ones.
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import replace
 
 import numpy as np
@@ -458,14 +459,26 @@ def repeated_rows(model: Model) -> tuple[list[int], int] | None:
 _ALL_ROWS = 0b111111  # a weld's three position and three turn rows (bits as Closure.projected)
 
 
-def _every_row(model: Model) -> list[tuple[int, np.ndarray, int]]:
+_PLANAR_ROWS = 0b100011  # on a planar machine: the two positions in the plane, the turn about its normal
+
+
+def _every_row(model: Model, q: np.ndarray) -> list[tuple[int, np.ndarray, int]]:
     """Every pair as (pair index, frame F, mask) in :attr:`Closure.projected`'s terms, in pair
     order: a plain point pair along its point a's body axes (F = I, three rows), a plain weld
-    along its weld frame's (six rows), a reduced or projected pair as it already is."""
+    along its weld frame's (six rows), a reduced or projected pair as it already is. On a
+    planar machine a pair's rows are its two in the plane (and a weld's turn about the normal):
+    F's third column the plane's normal in the frame of point a (its body's, a weld's frame),
+    which its bodies, all turning about that normal, never tilt; found at q."""
     c = model.closure
     welded = set(c.welds)
     reduced = dict(c.reduced)
     projected = {k: (F, mask) for k, F, mask in c.projected}
+    planar = tuple(c.components) == (0, 1)
+    if planar:
+        normal = np.asarray(c.basis, dtype=float)[2]
+        R_body = _forward(model, q)[2]
+        bodies = model.point_bodies()
+        turns = dict(zip(c.welds, c.weld_rotations, strict=True))
     out = []
     for k, pair in enumerate(c.pairs):
         if k in projected:
@@ -473,6 +486,14 @@ def _every_row(model: Model) -> list[tuple[int, np.ndarray, int]]:
             out.append((k, np.asarray(F, dtype=float), mask))
         elif k in reduced:
             out.append((k, np.asarray(reduced[k], dtype=float), 0b011))
+        elif planar:
+            a = pair[0]
+            R = R_body[bodies[a]] if bodies[a] >= 0 else np.eye(3)
+            if pair in welded:
+                R = R @ np.asarray(turns[pair][0], dtype=float)
+            n = R.T @ normal
+            n = np.where(np.abs(n) < SNAP, 0.0, n)
+            out.append((k, _across(n / np.linalg.norm(n)), _PLANAR_ROWS if pair in welded else 0b011))
         else:
             out.append((k, np.eye(3), _ALL_ROWS if pair in welded else 0b111))
     return out
@@ -490,15 +511,18 @@ def drop_repeated_rows(model: Model) -> Model:
     the passive joints at an assembled pose (from the file's start pose); the rest confirmed
     to repeat the kept ones at two poses the other joints reach from it. The kept rows then fix
     the same motion, exactly as all of them. The same model where nothing repeats, where it is
-    not confirmed, or where a coupling row would go (the rank check then refuses the file)."""
+    not confirmed, or where a coupling row would go (the rank check then refuses the file).
+    A planar machine's pairs keep their rows in the plane (a parallelogram's third crank: two
+    rows where one is new); a platform's legs as any loop (the platform SCDD then gives way to
+    the general one, :func:`elastic_pm_dyn.model.arrays.pack`)."""
     c = model.closure
-    if c is None or c.hub >= 0 or tuple(c.components) != (0, 1, 2) or not c.pairs:
+    if c is None or not c.pairs:
         return model
     passive = [i for i, j in enumerate(model.joints) if j.role == PASSIVE]
     q = _assembled(model, passive)
     if q is None:
         return model
-    every = _every_row(model)
+    every = _every_row(model, q)
     probe = replace(model, closure=replace(c, reduced=(), projected=tuple((k, _rows(F), m) for k, F, m in every)))
     bits = _row_bits(every)
 
@@ -518,24 +542,35 @@ def drop_repeated_rows(model: Model) -> Model:
     if any(i >= len(bits) for i in range(J.shape[0]) if i not in kept):
         return model  # a coupling row repeats: not a loop's row to drop
     confirmed = 0
-    for moved in _nearby_poses(model, q, passive, 4):
+    # rows zero in every joint hold by themselves (a spatial closure of a machine that moves in a
+    # plane, as a model YAML writes it); the others repeat other rows. Both go; check names each.
+    still = set(range(J.shape[0])) - set(kept)
+    for moved in itertools.chain([q], _nearby_poses(model, q, passive, 4)):
+        # repeated in the passive joints and in all of them: a row that only the motors' columns
+        # tell apart from the kept ones would hold the motors (a locked loop), not repeat
         Jm = rows_at(moved)
-        r_all = _pivoted_rank(Jm.T)[0]
-        if r_all != len(kept) or _pivoted_rank(Jm[kept].T)[0] != len(kept):
+        Jt = closure_terms(probe, moved)[1]
+        if _pivoted_rank(Jm.T)[0] != len(kept) or _pivoted_rank(Jm[kept].T)[0] != len(kept) \
+                or _pivoted_rank(Jt.T)[0] != _pivoted_rank(Jt[kept].T)[0]:
             return model
-        confirmed += 1
+        tol = RANK_TOL * max(float(np.abs(Jt).max()), 1e-300)
+        still = {i for i in still if float(np.abs(Jt[i]).max()) <= tol}
+        confirmed += moved is not q
         if confirmed == 2:
             break
     if not confirmed:
         return model
     dropped: dict[int, int] = {}
+    again: dict[int, int] = {}
     for i, (k, b) in enumerate(bits):
         if i not in kept:
             dropped[k] = dropped.get(k, 0) | (1 << b)
+            if i not in still:
+                again[k] = again.get(k, 0) | (1 << b)
     reduced = tuple((k, F) for k, F in c.reduced if k not in dropped)
     projected = [(k, F, m) for k, F, m in c.projected if k not in dropped]
     projected += [(k, _rows(F), mask & ~dropped[k]) for k, F, mask in every if k in dropped]
-    repeated = tuple(sorted(dropped.items()))
+    repeated = tuple(sorted(again.items()))
     return replace(model, closure=replace(c, reduced=reduced, projected=tuple(projected), repeated=repeated))
 
 
@@ -588,4 +623,21 @@ def loose_joints(model: Model) -> list[str]:
         V = _velocity_rows(model, p_joint, axes, p_joint[k], par)[:3][:, passive] @ null
         if float(np.abs(V).max()) > scale:
             out.append(model.joints[par].name)
+    return out
+
+
+def loops_of(model: Model, names: list[str]) -> list[int]:
+    """Indices into the closure's pairs of the loops through any joint named in ``names``: a
+    pair's loop is the joints above one of its points and not above the other."""
+    c = model.closure
+    if c is None:
+        return []
+    parents = model.parents()
+    bodies = model.point_bodies()
+    wanted = {model.joint_names.index(n) for n in names if n in model.joint_names}
+    out = []
+    for k, (a, b) in enumerate(c.pairs):
+        above = [set(_ancestors(parents, bodies[i])) if bodies[i] >= 0 else set() for i in (a, b)]
+        if wanted & (above[0] ^ above[1]):
+            out.append(k)
     return out

@@ -36,6 +36,7 @@ from elastic_pm_dyn.model.free_motions import (
     drop_repeated_rows,
     drop_still_rows,
     free_passive_motions,
+    loops_of,
     loose_joints,
     missed_loops,
     repeated_rows,
@@ -553,10 +554,16 @@ def _check_counts(tree: KinematicTree, model: Model, sidecar: Sidecar | None, cl
                               "where the loop only meets at a point?)")
         loose = loose_joints(model) if n_passive > m and not unclosed else []
         if loose:  # first in the line: the cause
+            # the loops those joints are on, by element and line (the file's own loop first)
+            loops = [k for k in loops_of(model, loose) if k < len(closures)]
+            if loops and sidecar is None:
+                where = closures[loops[0]].where
+            named = [f"{closures[k].where.element} (line {closures[k].where.line})" for k in loops[:3]]
+            on = f" (on {', '.join(named)}{', ...' if len(loops) > 3 else ''})" if loops else ""
             raise where.error(f"under-actuated: the closures give {m} equations but the legs have {n_passive} "
                               f"passive joints, and with the motors held {', '.join(loose[:4])}"
-                              f"{', ...' if len(loose) > 4 else ''} still move: a motor missing, or a loop written "
-                              "as a point where the machine welds it")
+                              f"{', ...' if len(loose) > 4 else ''}{on} still move: a motor missing, or a loop "
+                              "written as a point where the machine welds it")
         raise where.error(f"{hint}the closures give {m} equations but the legs have {n_passive} passive joints "
                           f"({', '.join(passive[:8])}{', ...' if len(passive) > 8 else ''}): every joint that is "
                           "neither a motor nor elastic must be fixed by the closures")

@@ -22,6 +22,7 @@ from elastic_pm_dyn.model.description import (
     Joint,
     Model,
 )
+from elastic_pm_dyn.model.free_motions import drop_repeated_rows
 from elastic_pm_dyn.model.yaml_reader import YamlReader, kind_of, name_list, parse_branches, parse_initial, shortened
 from elastic_pm_dyn.model.yaml_source import KeyPath, YamlSource, format_path
 
@@ -144,6 +145,10 @@ def parse_model(src: YamlSource, elastic_dof_per_chain: int | None = None) -> Mo
     model = Model(name=name, chains=tuple(chains), closure=closure, gravity=gravity,
                   end_effector_mass=ee_mass, initial=initial, branches=branches,
                   source=src.file, planar=planar)
+    if closure is not None and len(model.indices(PASSIVE)) < closure.size:
+        # more rows than passive joints: some may repeat others' (a platform leg, a crank of a
+        # parallelogram closed twice); those are dropped exactly, the counts then judge the rest
+        model = drop_repeated_rows(model)
     _check_counts(r, model)
     return model
 
