@@ -109,7 +109,7 @@ def test_metrics_against_injected_truth(run, summary):
     for n, peak in zip(run.motor_names, truth["peak_torque"], strict=True):
         assert m.torques.peak_Nm[n] == pytest.approx(peak, rel=1e-12)
     assert m.command_age["reported_by_plant"]["max"] == 0.001
-    assert m.streams["branch_forces"]["rate_hz"] == pytest.approx(5000.0)
+    assert m.streams["branch_forces"].rate_hz == pytest.approx(5000.0)
     assert m.warnings == []
     assert len(s.model_natural_hz) == 2
 
@@ -149,7 +149,7 @@ def test_two_bags_side_by_side(run, other, summary):
     assert 0.93 < comp.series_difference["branch_force_left_max_abs_N"] < 1.0
     assert comp.series_difference["end_effector_max_distance_m"] == pytest.approx(
         np.linalg.norm(np.array([0.0, 3e-4]) - run.truth["offset"]), rel=1e-6)
-    assert s.runs["L-D'A"].bag["storage"] == "sqlite3"
+    assert s.runs["L-D'A"].bag.storage == "sqlite3"
 
 
 def test_topics_found_by_type_and_words_or_given(run, bag_dir):

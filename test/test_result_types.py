@@ -15,6 +15,7 @@ from bag_factory import MODEL, run_messages, synthetic_run, write_bag
 from elastic_pm_dyn.analysis.report import analyze
 from elastic_pm_dyn.analysis.report_types import (
     AnalysisReport,
+    BagInfo,
     BranchForces,
     Comparison,
     Gap,
@@ -22,6 +23,7 @@ from elastic_pm_dyn.analysis.report_types import (
     Note,
     PathMetrics,
     RunMetrics,
+    StreamStats,
     TimeZero,
     Torques,
     VibrationFit,
@@ -62,7 +64,10 @@ def test_analysis_report_attributes_are_typed(analysed) -> None:
     assert isinstance(m.path, PathMetrics) and isinstance(m.branch_forces, BranchForces)
     assert isinstance(m.gap, Gap) and isinstance(m.torques, Torques)
     assert all(isinstance(v, VibrationFit) for v in m.vibration.values()) and set(m.vibration) == {"left", "right"}
-    assert isinstance(m.bag, dict) and isinstance(m.streams["branch_forces"], dict)
+    assert isinstance(m.bag, BagInfo) and m.bag.storage == "mcap" and m.bag.path.endswith("a")
+    forces = m.streams["branch_forces"]
+    assert isinstance(forces, StreamStats) and forces.messages == len(run.t_force)
+    assert forces.rate_hz == pytest.approx(5000.0) and m.streams["joint_states"].gaps == 0
     # the injected truth, through the attributes
     assert m.path.max_error_m == pytest.approx(np.linalg.norm(run.truth["offset"]), rel=1e-6)
     assert m.hold_phase.start_s == pytest.approx(run.truth["hold_start"], abs=1e-9)

@@ -7,12 +7,13 @@ Each class has the JSON keys as its fields (``from`` is ``source``: a Python key
 here when absent (``bag``, ``branch_forces``, ``gap``, ``torques``, ``diagnostics``,
 ``comparison``, ``plots``); ``path`` and ``command_age`` are always there.
 
-Typed: the report, each run's metrics and their sections with a fixed shape. Dicts on purpose:
-``bag`` (the bag's topics and roles: keyed by the bag's own names), ``streams`` (role -> the
-timing numbers of one topic), ``command_age`` (from stamps and/or as the plant reported it,
-or a note), ``diagnostics`` (keyed by the plant's diagnostic names), the per-branch and
-per-motor maps, the comparison's differences (keyed by metric path) and ``extra`` (what a
-caller of ``write_report`` adds, e.g. paper-figures' manoeuvre).
+Typed: the report, each run's metrics and their sections with a fixed shape (bag, streams,
+path, branch forces, vibration fits, gap, torques). Dicts on purpose, as their keys are the
+data's own names or their shape varies: the per-branch, per-motor, per-topic and per-role
+maps (typed values where they have a shape), ``command_age`` (from stamps and/or as the
+plant reported it, or a note), ``diagnostics`` (keyed by the plant's diagnostic names), the
+comparison's differences (keyed by metric path) and ``extra`` (what a caller of
+``write_report`` adds, e.g. paper-figures' manoeuvre).
 """
 
 from __future__ import annotations
@@ -153,6 +154,45 @@ class Torques:
         return asdict(self)
 
 
+@dataclass(frozen=True)
+class BagInfo:
+    """The bag a run came from."""
+
+    path: str
+    storage: str  # "mcap" or "sqlite3"
+    duration_s: float | None
+    topics: dict[str, dict]  # topic -> {"type", "messages"}
+    roles: dict[str, str]  # role (joint_states, branch_forces, ...) -> the topic analysed for it
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class StreamStats:
+    """Timing of one analysed topic (header stamps, or receive times without a header) [s, Hz]."""
+
+    topic: str
+    type: str  # the message type
+    messages: int
+    stamps: str  # "header" or "receive"
+    rate_hz: float | None  # 1 / median period
+    period_median_s: float | None
+    period_p99_s: float | None
+    period_max_s: float | None
+    gaps: int | None  # periods above twice the median
+    longest_gap_s: float | None
+    out_of_order: int | None  # stamps earlier than their predecessor
+    exact: bool | None  # False: timing from a histogram (long bags)
+    receive_rate_hz: float | None  # the same by receive time
+    receive_gaps: int | None
+    receive_period_p99_s: float | None
+    decimated_by: int  # stride of the samples kept (1: all)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
 _RUN_OPTIONAL = ("bag", "branch_forces", "gap", "torques", "diagnostics")
 
 
@@ -166,9 +206,9 @@ class RunMetrics:
     path: PathMetrics | Note | None  # None: no end effector or no reference
     vibration: dict[str, VibrationFit | Note]  # per branch; empty without a hold phase
     command_age: dict  # "from_stamps" and/or "reported_by_plant" (empty: no commands)
-    streams: dict[str, dict]  # role -> topic, messages, rate, gaps, periods of one stream
+    streams: dict[str, StreamStats]  # by role
     warnings: list[str]
-    bag: dict | None = None  # path, storage, duration, topics, roles (None: not from a bag)
+    bag: BagInfo | None = None  # None: not from a bag
     branch_forces: BranchForces | None = None
     gap: Gap | None = None
     torques: Torques | None = None
@@ -178,9 +218,10 @@ class RunMetrics:
         def part(x: Any) -> Any:
             return x.to_dict() if hasattr(x, "to_dict") else x
         d = {"label": self.label, "time_zero": self.time_zero.to_dict(), "hold_phase": self.hold_phase.to_dict(),
-             "bag": self.bag, "path": part(self.path), "branch_forces": part(self.branch_forces),
+             "bag": part(self.bag), "path": part(self.path), "branch_forces": part(self.branch_forces),
              "vibration": {b: v.to_dict() for b, v in self.vibration.items()}, "gap": part(self.gap),
-             "torques": part(self.torques), "command_age": self.command_age, "streams": self.streams,
+             "torques": part(self.torques), "command_age": self.command_age,
+             "streams": {role: x.to_dict() for role, x in self.streams.items()},
              "diagnostics": self.diagnostics, "warnings": self.warnings}
         return _without_none(d, _RUN_OPTIONAL)
 
@@ -192,6 +233,9 @@ class RunMetrics:
         path = d["path"]
         kw["path"] = None if path is None else Note(**path) if "note" in path else PathMetrics(**path)
         kw["vibration"] = {b: Note(**v) if "note" in v else VibrationFit(**v) for b, v in d["vibration"].items()}
+        kw["streams"] = {role: StreamStats(**x) for role, x in d["streams"].items()}
+        if d.get("bag") is not None:
+            kw["bag"] = BagInfo(**d["bag"])
         if d.get("branch_forces") is not None:
             kw["branch_forces"] = BranchForces(**d["branch_forces"])
         if d.get("gap") is not None:
