@@ -2,10 +2,11 @@
 
 :class:`Rows` (one per distinct stamp once the filter runs) fill up while the filter runs
 (:mod:`~elastic_pm_dyn.observer.drivers.event_filter`); :func:`summary` and :func:`finish` make
-``summary.json``; :func:`csv_header` and :func:`write_csv` the CSV: ``t`` (seconds since
-the time origin, the first stamp, exact to the nanosecond), ``stamp_ns`` (the header stamp,
-an integer), every tree joint, ``<joint>_vel``, ``F_<branch>``, the standard deviation of
-each (``<column>_std``), ``ee_x``, ``ee_y`` (``ee_z`` if spatial; + std), the disturbance
+the :class:`ObserveSummary` (``summary.json`` as an object, :meth:`ObserveSummary.to_dict` its
+content); :func:`csv_header` and :func:`write_csv` the CSV: ``t`` (seconds since the time
+origin, the first stamp, exact to the nanosecond), ``stamp_ns`` (the header stamp, an
+integer), every tree joint, ``<joint>_vel``, ``F_<branch>``, the standard deviation of each
+(``<column>_std``), ``ee_x``, ``ee_y`` (``ee_z`` if spatial; + std), the disturbance
 estimates ``d_<joint>`` (+ std) and the NIS of each sensor at that stamp.
 """
 
