@@ -159,7 +159,7 @@ def summary(bag: str | Path, topics: Any, counts: dict, order: str, events: list
     findings = obs.nis_findings()  # a sensor far off, with its likely cause
     level, message = obs.health()
     return ObserveSummary(
-        bag=str(bag), topics=topics.__dict__, messages=counts, order=order,
+        bag=str(bag), topics=dict(vars(topics)), messages=counts, order=order,
         time_origin_ns=int(stream.origin_ns or 0),
         rows=len(rows.t), fault=fault, health=(level, message),
         bad_commands=stream.bad_commands,
