@@ -3,7 +3,8 @@
 ``epd.analyze`` reads one or more rosbag2 recordings of the machine (the plant node's or a
 robot's: joint states, branch forces, torque commands, the reference motion, found by name
 or message type), evaluates them against the model, and writes plots, summary.json and
-summary.md. This script prints the main numbers of each run from the returned summary.
+summary.md. This script prints the main numbers of each run from the returned report
+(an ``AnalysisReport``: summary.json as objects, ``report.runs[label].path.max_error_m``).
 With several bags the first is the baseline the others are compared with.
 
 Run:
@@ -20,28 +21,30 @@ import argparse
 from pathlib import Path
 
 import elastic_pm_dyn as epd
+from elastic_pm_dyn.analysis.report_types import PathMetrics, RunMetrics, VibrationFit
 
 CONFIG = Path(__file__).resolve().parents[1] / "config"
 
 
-def show(label: str, run: dict) -> None:
+def show(label: str, run: RunMetrics) -> None:
     print(f"{label}:")
-    path = run.get("path") or {}
-    if "max_error_m" in path:
-        print(f"  end effector vs reference: max {path['max_error_m'] * 1e6:.1f} um, off the path "
-              f"{path['max_path_deviation_m'] * 1e6:.1f} um, final {path['final_position_error_m'] * 1e6:.1f} um")
-    for name, peak in run.get("branch_forces", {}).get("peak_N", {}).items():
+    path = run.path  # None without a reference, a Note when there was nothing to compare
+    if isinstance(path, PathMetrics) and path.max_error_m is not None:
+        print(f"  end effector vs reference: max {path.max_error_m * 1e6:.1f} um, off the path "
+              f"{path.max_path_deviation_m * 1e6:.1f} um, final {path.final_position_error_m * 1e6:.1f} um")
+    for name, peak in (run.branch_forces.peak_N if run.branch_forces else {}).items():
         print(f"  branch {name}: peak force {peak:.3f} N")
-    for name, fit in run.get("vibration", {}).items():
-        if "f_d_hz" in fit:
-            print(f"  branch {name}: rings at {fit['f_d_hz']:.1f} Hz after the stop, damping ratio {fit['zeta']:.4f}, "
-                  f"amplitude {fit['amplitude_N']:.3f} N (model: {fit['model_f_n_hz']:.1f} Hz)")
-    if "gap" in run:
-        print(f"  closure gap: max {run['gap']['max_m']:.3g} m")
-    for name, peak in run.get("torques", {}).get("peak_Nm", {}).items():
+    for name, fit in run.vibration.items():
+        if isinstance(fit, VibrationFit) and fit.f_d_hz is not None:
+            model = "-" if fit.model_f_n_hz is None else f"{fit.model_f_n_hz:.1f}"
+            print(f"  branch {name}: rings at {fit.f_d_hz:.1f} Hz after the stop, damping ratio {fit.zeta:.4f}, "
+                  f"amplitude {fit.amplitude_N:.3f} N (model: {model} Hz)")
+    if run.gap is not None:
+        print(f"  closure gap: max {run.gap.max_m:.3g} m")
+    for name, peak in (run.torques.peak_Nm if run.torques else {}).items():
         if peak is not None:
             print(f"  motor {name}: peak torque {peak:.3f} N m")
-    for warning in run["warnings"]:
+    for warning in run.warnings:
         print(f"  note: {warning}")
 
 
@@ -53,14 +56,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=Path("analyze_bag_out"), help="output directory")
     args = parser.parse_args(argv)
 
-    summary = epd.analyze(args.bags, args.model, args.out, hold_start=args.hold_start)
-    print(f"model natural frequencies: {', '.join(f'{f:.1f}' for f in summary['model_natural_hz'])} Hz")
-    for label, run in summary["runs"].items():
+    report = epd.analyze(args.bags, args.model, args.out, hold_start=args.hold_start)
+    print(f"model natural frequencies: {', '.join(f'{f:.1f}' for f in report.model_natural_hz)} Hz")
+    for label, run in report.runs.items():
         show(label, run)
-    for c in summary.get("comparison", []):  # time series of each other run minus the baseline
-        diffs = ", ".join(f"{k} {v:.3g}" for k, v in c["series_difference"].items() if "max" in k)
-        print(f"{c['other']} - {c['baseline']}: {diffs}")
-    print(f"plots: {', '.join(summary.get('plots', {}).values())}; summary.json and summary.md in {args.out}")
+    for c in report.comparison or []:  # time series of each other run minus the baseline
+        diffs = ", ".join(f"{k} {v:.3g}" for k, v in c.series_difference.items() if "max" in k)
+        print(f"{c.other} - {c.baseline}: {diffs}")
+    print(f"plots: {', '.join((report.plots or {}).values())}; summary.json and summary.md in {args.out}")
     return 0
 
 

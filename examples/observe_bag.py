@@ -66,14 +66,14 @@ def main(argv: list[str] | None = None) -> int:
 
     remove_bag(args.out / "estimates")
     result = epd.observe(mech, config, bag, args.out, log=lambda line: None)
-    s = result.summary
-    print(f"{s['rows']} estimates over {s['duration_s']:.3f} s of {bag} ({s['speed_factor']:.3g}x real time), "
+    s = result.summary  # summary.json as an ObserveSummary
+    print(f"{s.rows} estimates over {s.duration_s:.3f} s of {bag} ({s.speed_factor:.3g}x real time), "
           f"sensors {', '.join(config.sensors)}")
     for sensor in config.sensors:
-        st = s["sensors"][sensor]
-        print(f"  {sensor}: {st['accepted']} accepted, {st['rejected']} gated out, mean NIS {st['mean_nis']:.2f}")
-    if s["fault"]:
-        print(f"the filter stopped: {s['fault']}")
+        st = s.sensors[sensor]
+        print(f"  {sensor}: {st.accepted} accepted, {st.rejected} gated out, mean NIS {st.mean_nis:.2f}")
+    if s.fault:
+        print(f"the filter stopped: {s.fault}")
         return 1
 
     estimates = result.rows.est

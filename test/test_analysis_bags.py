@@ -88,41 +88,41 @@ def test_single_storage_file_and_typestore_for_mixed_definitions(run, bag_dir):
 # ------------------------------------------------------------------------- metrics
 def test_metrics_against_injected_truth(run, summary):
     s, _ = summary
-    m = s["runs"]["SCDD"]
+    m = s.runs["SCDD"]
     truth = run.truth
-    assert m["hold_phase"]["start_s"] == pytest.approx(truth["hold_start"], abs=1e-9)
+    assert m.hold_phase.start_s == pytest.approx(truth["hold_start"], abs=1e-9)
     off = np.linalg.norm(truth["offset"])
-    assert m["path"]["max_error_m"] == pytest.approx(off, rel=1e-6)
-    assert m["path"]["final_position_error_m"] == pytest.approx(off, rel=1e-6)
-    np.testing.assert_allclose(m["path"]["final_error_vector_m"], truth["offset"], atol=1e-9)
+    assert m.path.max_error_m == pytest.approx(off, rel=1e-6)
+    assert m.path.final_position_error_m == pytest.approx(off, rel=1e-6)
+    np.testing.assert_allclose(m.path.final_error_vector_m, truth["offset"], atol=1e-9)
     for b, peak in zip(run.branch_names, truth["peak_force"], strict=True):
-        assert m["branch_forces"]["peak_N"][b] == pytest.approx(peak, rel=1e-12)
-    v = m["vibration"]["left"]
-    assert abs(v["f_d_hz"] - truth["f_d"]) < 1.0
-    assert v["zeta"] == pytest.approx(truth["zeta"], rel=0.05)
-    assert v["amplitude_N"] == pytest.approx(truth["amplitude"], rel=0.02)
-    assert not v["aliased"]
-    assert m["vibration"]["right"]["amplitude_N"] == pytest.approx(0.5 * truth["amplitude"], rel=0.02)
-    assert m["gap"]["max_m"] == pytest.approx(truth["gap_max"], rel=1e-6)
-    assert 0.10 <= m["gap"]["t_max_s"] < 0.12
-    assert m["gap"]["final_m"] < 1e-12
+        assert m.branch_forces.peak_N[b] == pytest.approx(peak, rel=1e-12)
+    v = m.vibration["left"]
+    assert abs(v.f_d_hz - truth["f_d"]) < 1.0
+    assert v.zeta == pytest.approx(truth["zeta"], rel=0.05)
+    assert v.amplitude_N == pytest.approx(truth["amplitude"], rel=0.02)
+    assert not v.aliased
+    assert m.vibration["right"].amplitude_N == pytest.approx(0.5 * truth["amplitude"], rel=0.02)
+    assert m.gap.max_m == pytest.approx(truth["gap_max"], rel=1e-6)
+    assert 0.10 <= m.gap.t_max_s < 0.12
+    assert m.gap.final_m < 1e-12
     for n, peak in zip(run.motor_names, truth["peak_torque"], strict=True):
-        assert m["torques"]["peak_Nm"][n] == pytest.approx(peak, rel=1e-12)
-    assert m["command_age"]["reported_by_plant"]["max"] == 0.001
-    assert m["streams"]["branch_forces"]["rate_hz"] == pytest.approx(5000.0)
-    assert m["warnings"] == []
-    assert len(s["model_natural_hz"]) == 2
+        assert m.torques.peak_Nm[n] == pytest.approx(peak, rel=1e-12)
+    assert m.command_age["reported_by_plant"]["max"] == 0.001
+    assert m.streams["branch_forces"].rate_hz == pytest.approx(5000.0)
+    assert m.warnings == []
+    assert len(s.model_natural_hz) == 2
 
 
 def test_report_files_and_plots(summary):
     s, out = summary
-    assert json.loads((out / "summary.json").read_text()) == s
+    assert json.loads((out / "summary.json").read_text()) == s.to_dict()
     md = (out / "summary.md").read_text()
     assert "| residual vibration left: frequency [Hz] | 552 | 552 | " in md
     assert "| L-D'A - SCDD |" in md
     for name in ("path", "branch_forces", "gap", "torques", "tracking_error", "spectrum", "force_difference",
                  "path_difference"):
-        png = out / s["plots"][name]
+        png = out / s.plots[name]
         assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 10_000
 
 
@@ -130,26 +130,26 @@ def test_aliasing_at_the_control_rate_is_detected_and_unfolded(bag_dir):
     """Branch forces sampled at 1 kHz: the 552 Hz mode shows at 448 Hz; the model's modes unfold it."""
     slow = synthetic_run(force_rate=1000.0)
     s = analyze([_bag(bag_dir, "forces_1khz", slow)], MODEL, bag_dir / "out_1khz", plots_on=False)
-    m = s["runs"]["forces_1khz"]
-    v = m["vibration"]["left"]
-    assert v["aliased"] and abs(v["f_apparent_hz"] - 448.0) < 1.0
-    assert abs(v["f_d_hz"] - 552.0) < 1.0
-    assert any("Nyquist" in w and "aliased" in w for w in m["warnings"])
+    m = s.runs["forces_1khz"]
+    v = m.vibration["left"]
+    assert v.aliased and abs(v.f_apparent_hz - 448.0) < 1.0
+    assert abs(v.f_d_hz - 552.0) < 1.0
+    assert any("Nyquist" in w and "aliased" in w for w in m.warnings)
 
 
 def test_two_bags_side_by_side(run, other, summary):
     s, _ = summary
-    comp = s["comparison"][0]
-    assert (comp["baseline"], comp["other"]) == ("SCDD", "L-D'A")
-    d = comp["metric_difference"]
+    comp = s.comparison[0]
+    assert (comp.baseline, comp.other) == ("SCDD", "L-D'A")
+    d = comp.metric_difference
     assert d["path.max_error_m"] == pytest.approx(3e-4 - np.linalg.norm(run.truth["offset"]), rel=1e-6)
     assert d["vibration.left.amplitude_N"] == pytest.approx(-1.0, abs=0.02)
     # Same motion, force oscillation halved: the difference of the series is an oscillation of 1 N
     # (its largest sample: cos(0.3) at the hold start, then decaying).
-    assert 0.93 < comp["series_difference"]["branch_force_left_max_abs_N"] < 1.0
-    assert comp["series_difference"]["end_effector_max_distance_m"] == pytest.approx(
+    assert 0.93 < comp.series_difference["branch_force_left_max_abs_N"] < 1.0
+    assert comp.series_difference["end_effector_max_distance_m"] == pytest.approx(
         np.linalg.norm(np.array([0.0, 3e-4]) - run.truth["offset"]), rel=1e-6)
-    assert s["runs"]["L-D'A"]["bag"]["storage"] == "sqlite3"
+    assert s.runs["L-D'A"].bag.storage == "sqlite3"
 
 
 def test_topics_found_by_type_and_words_or_given(run, bag_dir):
@@ -168,25 +168,25 @@ def test_topics_found_by_type_and_words_or_given(run, bag_dir):
     assert data.roles["reference"] == "/robot/joint_states"
     with pytest.raises(BagError, match="/legs is elastic_pm_dyn_msgs/msg/BranchForces"):
         read_bag(path, {"joint_states": "/legs"})
-    s = analyze([path], MODEL, bag_dir / "out_renamed", plots_on=False)["runs"]["renamed"]
+    s = analyze([path], MODEL, bag_dir / "out_renamed", plots_on=False).runs["renamed"]
     # Unnamed Float64MultiArray columns are the model's motors; times moved onto the header clock.
-    assert s["torques"]["peak_Nm"]["left_motor"] == pytest.approx(run.truth["peak_torque"][0], rel=1e-12)
-    assert any("/effort_cmd: stamped on another clock" in w for w in s["warnings"])
+    assert s.torques.peak_Nm["left_motor"] == pytest.approx(run.truth["peak_torque"][0], rel=1e-12)
+    assert any("/effort_cmd: stamped on another clock" in w for w in s.warnings)
 
 
 def test_missing_topics_are_reported_and_the_rest_analyzed(run, bag_dir):
     path = bag_dir / "partial"
     write_bag(path, run_messages(run, make_typestore(), topics={"/joint_states", "/torque_command"}), "sqlite3")
-    s = analyze([path], MODEL, bag_dir / "out_partial", plots_on=False)["runs"]["partial"]
-    w = " | ".join(s["warnings"])
+    s = analyze([path], MODEL, bag_dir / "out_partial", plots_on=False).runs["partial"]
+    w = " | ".join(s.warnings)
     assert "branch_forces: no topic of type elastic_pm_dyn_msgs/msg/BranchForces" in w
     assert "reference: no topic" in w and "hold phase not found" in w
-    assert s["path"] is None and s["vibration"] == {}
-    assert s["branch_forces"]["source"].startswith("joint states")  # F = c u + d du/dt of the states
-    assert s["gap"]["max_m"] == pytest.approx(run.truth["gap_max"], rel=1e-6)
+    assert s.path is None and s.vibration == {}
+    assert s.branch_forces.source.startswith("joint states")  # F = c u + d du/dt of the states
+    assert s.gap.max_m == pytest.approx(run.truth["gap_max"], rel=1e-6)
     # The hold phase can be given instead (then the forces from the states are fitted).
-    s = analyze([path], MODEL, bag_dir / "out_partial2", hold_start=0.2, plots_on=False)["runs"]["partial"]
-    assert s["hold_phase"] == {"start_s": 0.2, "from": "--hold-start"}
+    s = analyze([path], MODEL, bag_dir / "out_partial2", hold_start=0.2, plots_on=False).runs["partial"]
+    assert s.hold_phase.to_dict() == {"start_s": 0.2, "from": "--hold-start"}
 
 
 # ------------------------------------------------------------------- bounded memory
@@ -204,11 +204,11 @@ def test_large_bag_is_decimated_with_a_full_rate_window(run, bag_dir):
     assert not bf.timing["exact"] and bf.timing["count"] == len(run.t_force) and bf.timing["gaps"] == 0
     assert bf.timing["rate"] == pytest.approx(5000.0, rel=0.01)
     s = analyze([path], MODEL, bag_dir / "out_decimated", plots_on=False, max_samples=200,
-                window_samples=800)["runs"]["ref_mcap"]
-    assert abs(s["vibration"]["left"]["f_d_hz"] - 552.0) < 1.0
-    assert s["vibration"]["left"]["zeta"] == pytest.approx(0.012, rel=0.05)
-    assert s["branch_forces"]["peak_N"]["left"] == pytest.approx(run.truth["peak_force"][0], rel=1e-12)
-    assert any("decimated by 16" in w for w in s["warnings"])
+                window_samples=800).runs["ref_mcap"]
+    assert abs(s.vibration["left"].f_d_hz - 552.0) < 1.0
+    assert s.vibration["left"].zeta == pytest.approx(0.012, rel=0.05)
+    assert s.branch_forces.peak_N["left"] == pytest.approx(run.truth["peak_force"][0], rel=1e-12)
+    assert any("decimated by 16" in w for w in s.warnings)
 
 
 def test_sample_buffer_window_and_timer_stay_bounded():

@@ -83,17 +83,17 @@ def test_recorder_bag_is_analyzed(tmp_path):
     finally:
         h.close()
 
-    s = analyze([bag], MODEL, tmp_path / "out", plots_on=False)["runs"]["bag"]
+    s = analyze([bag], MODEL, tmp_path / "out", plots_on=False).runs["bag"]
     truth = run.truth
-    assert s["bag"]["storage"] == "mcap"
-    assert {k: v["messages"] for k, v in s["bag"]["topics"].items()} == {
+    assert s.bag.storage == "mcap"
+    assert {k: v["messages"] for k, v in s.bag.topics.items()} == {
         "/joint_states": 501, "/branch_forces": 1001, "/torque_command": 501, "/reference_joint_states": 501,
         "/ee_pose": 501}
-    assert s["hold_phase"]["start_s"] == pytest.approx(0.2, abs=1e-9)
-    assert s["path"]["max_error_m"] == pytest.approx(np.linalg.norm(truth["offset"]), rel=1e-6)
-    assert s["gap"]["max_m"] == pytest.approx(truth["gap_max"], rel=1e-6)
-    assert s["branch_forces"]["peak_N"]["left"] == pytest.approx(truth["peak_force"][0], rel=1e-12)
-    v = s["vibration"]["left"]
-    assert abs(v["f_d_hz"] - truth["f_d"]) < 1.0 and v["zeta"] == pytest.approx(truth["zeta"], rel=0.05)
-    assert s["streams"]["joint_states"]["rate_hz"] == pytest.approx(1000.0)  # header stamps, not arrival
-    assert s["streams"]["joint_states"]["gaps"] == 0
+    assert s.hold_phase.start_s == pytest.approx(0.2, abs=1e-9)
+    assert s.path.max_error_m == pytest.approx(np.linalg.norm(truth["offset"]), rel=1e-6)
+    assert s.gap.max_m == pytest.approx(truth["gap_max"], rel=1e-6)
+    assert s.branch_forces.peak_N["left"] == pytest.approx(truth["peak_force"][0], rel=1e-12)
+    v = s.vibration["left"]
+    assert abs(v.f_d_hz - truth["f_d"]) < 1.0 and v.zeta == pytest.approx(truth["zeta"], rel=0.05)
+    assert s.streams["joint_states"].rate_hz == pytest.approx(1000.0)  # header stamps, not arrival
+    assert s.streams["joint_states"].gaps == 0

@@ -121,7 +121,7 @@ def test_epoch_stamps_keep_the_time_axis(five_bar, recordings, tmp_path, pipelin
     assert len(epoch.rows.t) == len(rec.t)
     assert estimates_equal(zero.rows.est, epoch.rows.est) <= 1e-12
     assert epoch.rows.t == [int(ns) for ns in rec.stamp_ns]
-    assert epoch.summary["time_origin_ns"] == T0_NS and zero.summary["time_origin_ns"] == 0
+    assert epoch.summary.time_origin_ns == T0_NS and zero.summary.time_origin_ns == 0
     # estimates.csv: t since the first stamp (exact), stamp_ns the header stamp (exact).
     header, rows = _csv(out1 / "estimates.csv")
     assert header[:2] == ["t", "stamp_ns"] and _csv(out0 / "estimates.csv")[0] == header
@@ -224,8 +224,8 @@ def test_bad_names_in_summary_cli_and_live_diagnostics(five_bar, recordings, tmp
     run = filter_all(five_bar, _cfg(), _events(rec, {20: ([a, a], rec.encoder[20]), 21: ([b], [0.0])}), "stamp",
                      log=lambda s: None)
     s = summary(tmp_path, Topics.from_config(_cfg()), {}, "stamp", _events(rec), run, 0.0)
-    assert s["joint_states_rejected"] == {"duplicate": 1, "missing": 1, "unknown": 0}
-    assert "missing" in s["last_joint_state_problem"] and s["sensors"]["encoders"]["future"] == 0
+    assert s.joint_states_rejected == {"duplicate": 1, "missing": 1, "unknown": 0}
+    assert "missing" in s.last_joint_state_problem and s.sensors["encoders"].future == 0
     # The live node: one line naming the reason per message, counts in the diagnostics.
     session = ObserverSession(five_bar, _cfg())
     for k in range(10):

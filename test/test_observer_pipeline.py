@@ -125,7 +125,7 @@ def test_pipeline_equals_sequential(five_bar, rec, tmp_path, monkeypatch, chunk,
     _same(seq, pipe, tmp_path / "seq", tmp_path / "pipe")
     assert not (tmp_path / "pipe" / observe_pipeline._STAGE).exists()
     assert len(starts) == 1  # the sequential run's: no start-over
-    assert sum(feeds) == sum(seq.summary["messages"].values())
+    assert sum(feeds) == sum(seq.summary.messages.values())
     assert len(feeds) > (5 if chunk < 2000 else 0)
 
 

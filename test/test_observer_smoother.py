@@ -184,7 +184,7 @@ def test_smoothed_beats_filtered_on_recordings(five_bar, tmp_path, spec) -> None
     rec = generate(five_bar, spec)
     bag = write_bag(rec, tmp_path / "bag", use=("encoders", "imu"))
     res = observe_bag(five_bar, _cfg(), bag, tmp_path / "out", log=lambda s: None, smoother="rts")
-    assert res.summary["smoother"] == "rts" and res.summary["smoothing"]["segments"] == 1
+    assert res.summary.smoother == "rts" and res.summary.smoothing["segments"] == 1
     filtered, smoothed = res.filtered, res.rows
     assert filtered is not None and smoothed.t == filtered.t
     sf = score(rec, offline_run(rec, filtered), settle=0.05)

@@ -274,7 +274,7 @@ def test_observe_learns_the_timing_of_a_bag(five_bar, tmp_path, delay, order) ->
         errors[cd] = (np.sqrt(np.mean((F - rec.F)[keep] ** 2)), res)
     err, res = errors[delay * 1e-3]
     assert res.observer.sample_timing() == "after_command"
-    assert res.summary["sensors"]["encoders"]["rejected"] == 0 and not res.summary["fault"]
+    assert res.summary.sensors["encoders"].rejected == 0 and not res.summary.fault
     assert err < 0.5 * ol_err, (err, ol_err)
     if delay:
         assert errors[0.0][0] > ol_err  # the command delay left out: worse than the open loop

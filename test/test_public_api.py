@@ -107,11 +107,12 @@ def test_observe_and_analyze_take_the_robot_and_config_in_the_same_forms(tmp_pat
     by_files = epd.observe(model_file, config_file, tmp_path / "bag", tmp_path / "b", **quiet)
     by_model = epd.observe(model, None, tmp_path / "bag", tmp_path / "c", **quiet)
     assert (tmp_path / "a" / "estimates.csv").read_bytes() == (tmp_path / "b" / "estimates.csv").read_bytes()
-    assert by_objects.summary["rows"] == by_files.summary["rows"] == by_model.summary["rows"] > 0
+    assert by_objects.summary.rows == by_files.summary.rows == by_model.summary.rows > 0
     bags = [tmp_path / "a" / "estimates"]
     from_file = epd.analyze(bags, model_file, tmp_path / "r1", plots_on=False)
     from_mech = epd.analyze(bags, mech, tmp_path / "r2", plots_on=False)
-    assert from_file["runs"]["estimates"]  # the same figures, NaN where a figure has no data
-    assert json.dumps(from_file["runs"], sort_keys=True) == json.dumps(from_mech["runs"], sort_keys=True)
+    assert from_file.runs["estimates"]  # the same figures, NaN where a figure has no data
+    runs = [json.dumps(r.to_dict()["runs"], sort_keys=True) for r in (from_file, from_mech)]
+    assert runs[0] == runs[1]
     with pytest.raises(epd.ModelError, match=r"missing\.yaml"):
         epd.observe(tmp_path / "missing.yaml", None, tmp_path / "bag", None, **quiet)

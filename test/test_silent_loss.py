@@ -66,4 +66,4 @@ def test_infinite_efforts_are_named_in_the_summary(tmp_path: Path) -> None:
     left, right = run.motor_names
     assert f"{left} 5 of" in warning[0] and f"{right} {len(tau)} of {len(tau)}" in warning[0]
     assert m["torques"]["peak_Nm"][right] is None and np.isfinite(m["torques"]["peak_Nm"][left])
-    assert summary["runs"][label]["warnings"] == m["warnings"]
+    assert summary.runs[label].warnings == m["warnings"]

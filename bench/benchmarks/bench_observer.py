@@ -124,15 +124,15 @@ def offline_speed(mech, seconds: float, repeats: int) -> dict:
             for pipeline in (False, True):
                 out = Path(tmp) / f"out{r}{pipeline:d}"
                 s = observe_bag(mech, cfg, bag, out, log=lambda s: None, pipeline=pipeline).summary
-                if bests[pipeline] is None or s["wall_total_s"] < bests[pipeline]["wall_total_s"]:
+                if bests[pipeline] is None or s.wall_total_s < bests[pipeline].wall_total_s:
                     bests[pipeline] = s
         best, seq = bests[True], bests[False]
-        res = {k: best[k] for k in ("duration_s", "wall_read_s", "wall_filter_s", "wall_write_s", "wall_total_s",
-                                    "speed_factor", "rows")}
-        res["filter_speed_factor"] = best["duration_s"] / best["wall_filter_s"]
-        res["sequential"] = {k: seq[k] for k in ("wall_read_s", "wall_filter_s", "wall_write_s", "wall_total_s",
-                                                 "speed_factor")}
-        res["sequential"]["filter_speed_factor"] = seq["duration_s"] / seq["wall_filter_s"]
+        res = {k: getattr(best, k) for k in ("duration_s", "wall_read_s", "wall_filter_s", "wall_write_s",
+                                             "wall_total_s", "speed_factor", "rows")}
+        res["filter_speed_factor"] = best.duration_s / best.wall_filter_s
+        res["sequential"] = {k: getattr(seq, k) for k in ("wall_read_s", "wall_filter_s", "wall_write_s",
+                                                          "wall_total_s", "speed_factor")}
+        res["sequential"]["filter_speed_factor"] = seq.duration_s / seq.wall_filter_s
         # The command as a user runs it (new process: imports and numba cache loading included).
         t0 = time.perf_counter()
         cmd = [sys.executable, "-c", CLI,
@@ -165,15 +165,15 @@ def smoother_cost(mech, seconds: float, repeats: int) -> dict:
         for r in range(repeats):
             plain = observe_bag(mech, cfg, bag, Path(tmp) / f"plain{r}", log=lambda s: None, pipeline=False).summary
             s = observe_bag(mech, cfg, bag, Path(tmp) / f"rts{r}", log=lambda s: None, smoother="rts").summary
-            if best is None or s["wall_total_s"] < best["smoothed"]["wall_total_s"]:
+            if best is None or s.wall_total_s < best["smoothed"].wall_total_s:
                 best = {"plain": plain, "smoothed": s}
     p, s = best["plain"], best["smoothed"]
-    sm = s["smoothing"]
-    return {"duration_s": s["duration_s"], "rows": s["rows"], "wall_filter_s": s["wall_filter_s"],
+    sm = s.smoothing
+    return {"duration_s": s.duration_s, "rows": s.rows, "wall_filter_s": s.wall_filter_s,
             "wall_replay_s": sm["wall_replay_s"], "wall_smooth_s": sm["wall_smooth_s"],
-            "wall_total_s": s["wall_total_s"], "wall_total_without_s": p["wall_total_s"],
-            "speed_factor": s["speed_factor"], "speed_factor_without": p["speed_factor"],
-            "smooth_us_per_row": 1e6 * sm["wall_smooth_s"] / max(s["rows"], 1),
+            "wall_total_s": s.wall_total_s, "wall_total_without_s": p.wall_total_s,
+            "speed_factor": s.speed_factor, "speed_factor_without": p.speed_factor,
+            "smooth_us_per_row": 1e6 * sm["wall_smooth_s"] / max(s.rows, 1),
             "branch_force_std_ratio_mean": sm["branch_force_std_ratio_mean"]}
 
 
@@ -193,8 +193,8 @@ def smoother_accuracy(mech, specs: list[RecordingSpec]) -> list[dict]:
                          "F_ratio_smoothed": s["F_ratio"], "smoothed_over_filtered": s["F_ratio"] / f["F_ratio"],
                          "motor_filtered": f["motor_rmse_over_noise"], "motor_smoothed": s["motor_rmse_over_noise"],
                          "nees_in_band_filtered": f["nees_in_band"], "nees_in_band_smoothed": s["nees_in_band"],
-                         "std_ratio": res.summary["smoothing"]["branch_force_std_ratio_mean"],
-                         "fault": res.summary["fault"]})
+                         "std_ratio": res.summary.smoothing["branch_force_std_ratio_mean"],
+                         "fault": res.summary.fault})
             print(f"{spec.name}: F err / elastic {f['F_ratio']:.3f} -> {s['F_ratio']:.3f}", flush=True)
     return rows
 

@@ -77,9 +77,9 @@ def offline(mech: Mechanism, rec, params: dict, tmp: Path, tag: str, repeats: in
     cfg = ObserverConfig.from_parameters({"sensors": SENSORS, **params})
     # the best of `repeats` passes: the first compiles or loads the kernels (once per process)
     s = min((observe_bag(mech, cfg, bag, tmp / f"{tag}_out_{len(list(tmp.iterdir()))}", log=lambda s: None).summary
-             for _ in range(repeats)), key=lambda s: s["wall_filter_s"])
-    return {"filter_rtf": s["duration_s"] / s["wall_filter_s"], "total_rtf": s["speed_factor"],
-            "wall_filter_s": s["wall_filter_s"], "wall_total_s": s["wall_total_s"]}
+             for _ in range(repeats)), key=lambda s: s.wall_filter_s)
+    return {"filter_rtf": s.duration_s / s.wall_filter_s, "total_rtf": s.speed_factor,
+            "wall_filter_s": s.wall_filter_s, "wall_total_s": s.wall_total_s}
 
 
 def markdown(result: dict) -> str:

@@ -70,7 +70,7 @@ def main() -> int:
             s = score(rec, offline_run(rec, res.rows), ol, F_qs, settle=0.05)
             scores[name] = {"vs_open_loop": s["F_ratio"] / s["F_ratio_open_loop"], "nees_in_band": s["nees_in_band"],
                             "gated": {k: v.rejected for k, v in res.observer.stats.items()},
-                            "observe_wall_s": res.summary["wall_total_s"]}
+                            "observe_wall_s": res.summary.wall_total_s}
     result = {"when": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
               "machine": f"{platform.processor() or platform.machine()} ({os.cpu_count()} cores)",
               "load": " ".join(f"{x:.2f}" for x in os.getloadavg()), "recording": spec.name,

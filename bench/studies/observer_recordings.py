@@ -145,7 +145,7 @@ def one_recording(mech, spec: RecordingSpec, storage: str, tmp: Path, tune: bool
             sm = observe_bag(mech, cfg, bag, None, log=lambda s: None, write_estimates_bag=False, smoother="rts")
             ss = score(rec, offline_run(rec, sm.rows), ol, F_qs, settle=SETTLE)
             smoothed = {"vs_open_loop": ss["F_ratio"] / ss["F_ratio_open_loop"], "nees_in_band": ss["nees_in_band"]}
-        timing = res.summary["sample_timing"]["in_use"] if "imu" in sensors else None
+        timing = res.summary.sample_timing["in_use"] if "imu" in sensors else None
         nis = np.array(res.rows.nis, dtype=float)
         stamps = np.asarray(res.rows.t, dtype=np.int64)
         late = stamps >= rec.stamp_ns[keep][0]
@@ -167,8 +167,8 @@ def one_recording(mech, spec: RecordingSpec, storage: str, tmp: Path, tune: bool
             "F_ratio_open_loop_stamped": s_stamped["F_ratio_open_loop"],
             "vs_open_loop": s["F_ratio"] / s["F_ratio_open_loop"], "elastic_rms_N": s["elastic_rms_N"],
             "motor_rmse_over_noise": s["motor_rmse_over_noise"], "nees_in_band": s["nees_in_band"],
-            "nees_mean": s["nees_mean"], "sensors_nis": per_sensor, "fault": res.summary["fault"],
-            "health": res.summary["health"], "csv_t_distinct": csv_distinct_t(out), "default": default,
+            "nees_mean": s["nees_mean"], "sensors_nis": per_sensor, "fault": res.summary.fault,
+            "health": list(res.summary.health), "csv_t_distinct": csv_distinct_t(out), "default": default,
             "smoothed": smoothed, "sample_timing": timing})
     return rows
 

@@ -8,7 +8,8 @@ the figures of the seed paper (path, branch forces, closure gap) and a few more
 Bags: ``bags`` finds the analysed topics of a rosbag2 (read through :mod:`elastic_pm_dyn.bags`)
 by role and type and streams them with bounded memory (``streams``); ``run_data`` turns topics into model
 quantities (forward kinematics, closure gap, hold phase); ``report`` assembles metrics,
-``summary.json``/``summary.md`` and the plots for one run or several side by side;
+``summary.json``/``summary.md`` and the plots for one run or several side by side (``report_types``:
+the report as typed objects, what ``analyze`` returns);
 ``export`` writes one CSV per topic; ``paper`` reproduces the paper's Figs. 2-4; ``cli``
 adds ``analyze``, ``export`` and ``paper-figures`` to ``elastic-pm-dyn``.
 """

@@ -13,6 +13,7 @@ import math
 import sys
 from pathlib import Path
 
+from elastic_pm_dyn.analysis.report_types import AnalysisReport, PathMetrics, VibrationFit
 from elastic_pm_dyn.errors import InputError
 
 ROLE_OPTIONS = {  # option -> role of bags.ROLES
@@ -60,27 +61,27 @@ def cmd_analyze(args: argparse.Namespace) -> int:
         raise InputError(f"--hold-start must be a finite time >= 0 [s], got {args.hold_start!r}")
     topics = {role: getattr(args, role) for role in ROLE_OPTIONS.values()}
     out = _out_dir(args.out)
-    summary = analyze(args.bags, args.model, out, topics=topics, hold_start=args.hold_start, labels=args.labels,
-                      plots_on=not args.no_plots, max_samples=args.max_samples, window_samples=args.window_samples)
-    _print_summary(summary)
+    report = analyze(args.bags, args.model, out, topics=topics, hold_start=args.hold_start, labels=args.labels,
+                     plots_on=not args.no_plots, max_samples=args.max_samples, window_samples=args.window_samples)
+    _print_summary(report)
     print(f"summary.json, summary.md{' and plots' if not args.no_plots else ''} in {out}")
     return 0
 
 
-def _print_summary(summary: dict) -> None:
-    for label, m in summary["runs"].items():
-        path, gap, vib = m.get("path") or {}, m.get("gap") or {}, m.get("vibration") or {}
+def _print_summary(report: AnalysisReport) -> None:
+    for label, m in report.runs.items():
         parts = []
-        if "max_error_m" in path:
-            parts.append(f"max EE error {path['max_error_m'] * 1e6:.4g} um, "
-                         f"final {path['final_position_error_m'] * 1e6:.4g} um")
-        for b, v in vib.items():
-            if v.get("f_d_hz") is not None:
-                parts.append(f"{b}: {v['f_d_hz']:.1f} Hz, zeta {v['zeta']:.3g}, {v['amplitude_N']:.3g} N")
-        if gap.get("max_m") is not None:
-            parts.append(f"max gap {gap['max_m']:.3g} m")
+        if isinstance(m.path, PathMetrics) and m.path.max_error_m is not None:
+            final = m.path.final_position_error_m
+            parts.append(f"max EE error {m.path.max_error_m * 1e6:.4g} um, "
+                         f"final {'-' if final is None else format(final * 1e6, '.4g')} um")
+        for b, v in m.vibration.items():
+            if isinstance(v, VibrationFit) and v.f_d_hz is not None:
+                parts.append(f"{b}: {v.f_d_hz:.1f} Hz, zeta {v.zeta:.3g}, {v.amplitude_N:.3g} N")
+        if m.gap is not None and m.gap.max_m is not None:
+            parts.append(f"max gap {m.gap.max_m:.3g} m")
         print(f"{label}: " + ("; ".join(parts) or "no metrics"))
-        for w in m.get("warnings", []):
+        for w in m.warnings:
             print(f"  warning: {w}")
 
 

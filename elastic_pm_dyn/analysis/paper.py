@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from elastic_pm_dyn.analysis.report import PLOT_NAMES, clean, write_report
+from elastic_pm_dyn.analysis.report_types import AnalysisReport
 from elastic_pm_dyn.analysis.run_data import ModelInfo, RunData, run_from_simulation
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.model.description import Model
@@ -66,30 +67,30 @@ def paper_figures(out: Path, model_path: Path, line: QuinticLine = REFERENCE_MAN
                            "hold_s": line.hold, "control_rate_hz": 1.0 / (times[1] - times[0]),
                            "output_sample_s": sample},
              "formulations": {k: {"formulation": f, "stabilization": s} for k, (f, s) in runs.items()}}
-    summary = write_report(out, data, info, names=PAPER_NAMES, extra=extra)
-    figures = _figure_numbers(summary, data, results)
+    report = write_report(out, data, info, names=PAPER_NAMES, extra=extra)
+    figures = _figure_numbers(report, data, results)
     (out / "paper_figures.json").write_text(json.dumps(clean(figures), indent=2))
     _write_series(out, data)
     return figures
 
 
-def _figure_numbers(summary: dict, data: list[RunData], results: dict) -> dict:
-    runs = summary["runs"]
+def _figure_numbers(report: AnalysisReport, data: list[RunData], results: dict) -> dict:
+    runs = report.runs
 
-    def pick(section: str, keys: tuple[str, ...]) -> dict:
-        return {label: {k: (m.get(section) or {}).get(k) for k in keys} for label, m in runs.items()}
+    def pick(section: str, keys: tuple[str, ...]) -> dict:  # None where a run lacks the section or key
+        return {label: {k: getattr(getattr(m, section), k, None) for k in keys} for label, m in runs.items()}
 
     figures = {
-        "model": summary["model"], "model_natural_hz": summary["model_natural_hz"],
-        "manoeuvre": summary["manoeuvre"], "formulations": summary["formulations"],
+        "model": report.model, "model_natural_hz": report.model_natural_hz,
+        "manoeuvre": report.extra["manoeuvre"], "formulations": report.extra["formulations"],
         "fig2_path": {"file": PAPER_NAMES["path"], "data": "fig2_path.csv",
                       "runs": pick("path", ("max_path_deviation_m", "max_error_m", "rms_error_m",
                                             "final_position_error_m"))},
         "fig3_branch_forces": {"file": PAPER_NAMES["branch_forces"], "data": "fig3_branch_forces.csv",
-                               "runs": {label: {"peak_N": (m.get("branch_forces") or {}).get("peak_N"),
-                                                "residual_vibration": {b: {k: v.get(k) for k in (
+                               "runs": {label: {"peak_N": getattr(m.branch_forces, "peak_N", None),
+                                                "residual_vibration": {b: {k: getattr(v, k, None) for k in (
                                                     "f_d_hz", "zeta", "amplitude_N", "model_f_n_hz")}
-                                                    for b, v in (m.get("vibration") or {}).items()}}
+                                                    for b, v in m.vibration.items()}}
                                         for label, m in runs.items()}},
         "fig4_gap": {"file": PAPER_NAMES["gap"], "data": "fig4_gap.csv",
                      "runs": pick("gap", ("max_m", "t_max_s", "at_hold_start_m", "final_m"))},

@@ -4,7 +4,8 @@
 branch-force peaks, residual vibration of the hold phase, closure gap, torques, stream
 timing, command age); :func:`write_report` writes them for one run or several (the
 first is the baseline of the differences) with the plots of :mod:`plots`.
-:func:`analyze` is ``elastic-pm-dyn analyze``: bags in, report out.
+:func:`analyze` is ``elastic-pm-dyn analyze``: bags in, report out (an
+:class:`~elastic_pm_dyn.analysis.report_types.AnalysisReport`, summary.json as objects).
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from elastic_pm_dyn.analysis import metrics, plots
+from elastic_pm_dyn.analysis.report_types import AnalysisReport
 from elastic_pm_dyn.analysis.run_data import ModelInfo, RunData
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.model.description import Model
@@ -345,8 +347,9 @@ def non_finite(x: object, path: str = "") -> list[str]:
 
 
 def write_report(out: Path, runs: Sequence[RunData], info: ModelInfo, plots_on: bool = True,
-                 names: Mapping[str, str] = PLOT_NAMES, extra: Mapping | None = None) -> dict:
-    """summary.json, summary.md and (``plots_on``) the plots of ``runs`` in ``out``."""
+                 names: Mapping[str, str] = PLOT_NAMES, extra: Mapping | None = None) -> AnalysisReport:
+    """summary.json, summary.md and (``plots_on``) the plots of ``runs`` in ``out``; ``extra``: more
+    top-level keys of summary.json (the report's ``extra``). Returns what summary.json holds."""
     out.mkdir(parents=True, exist_ok=True)
     q_hold = _hold_pose(runs[0])
     natural = info.natural_hz(q_hold)
@@ -368,10 +371,11 @@ def write_report(out: Path, runs: Sequence[RunData], info: ModelInfo, plots_on: 
         if bad:
             shown = ", ".join(bad[:6]) + (f" and {len(bad) - 6} more" if len(bad) > 6 else "")
             run_summary["warnings"].append(f"not finite, null in summary.json: {shown} (NaN or Inf in the bag?)")
-    summary = clean(summary)
-    write_text(out / "summary.json", json.dumps(summary, indent=2))
-    write_text(out / "summary.md", markdown(summary))
-    return summary
+    report = AnalysisReport.from_dict(clean(summary))
+    content = report.to_dict()
+    write_text(out / "summary.json", json.dumps(content, indent=2))
+    write_text(out / "summary.md", markdown(content))
+    return report
 
 
 def _hold_pose(run: RunData) -> np.ndarray | None:
@@ -477,9 +481,10 @@ def markdown(summary: Mapping) -> str:
 def analyze(bags: Sequence[str | Path], model: str | Path | Model | Mechanism, out: str | Path,
             topics: Mapping[str, str | None] | None = None, hold_start: float | None = None,
             labels: Sequence[str] | None = None, plots_on: bool = True, max_samples: int | None = None,
-            window_samples: int | None = None) -> dict:
+            window_samples: int | None = None) -> AnalysisReport:
     """``elastic-pm-dyn analyze``: one or more bags -> plots, summary.json, summary.md in ``out``.
-    ``model``: a model file, a loaded Model or a Mechanism (as ``epd.observe`` takes it)."""
+    ``model``: a model file, a loaded Model or a Mechanism (as ``epd.observe`` takes it).
+    Returns the :class:`~elastic_pm_dyn.analysis.report_types.AnalysisReport` (summary.json as objects)."""
     from elastic_pm_dyn.analysis import bags as bagmod
     from elastic_pm_dyn.analysis.run_data import run_from_bag
 

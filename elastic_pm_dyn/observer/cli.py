@@ -124,25 +124,25 @@ def cmd_observe(args: argparse.Namespace) -> int:
     res = observe_bag(mech, cfg, args.bag, args.out, Topics.from_config(cfg), args.order, args.storage,
                       not args.no_bag, log=lambda s: print(s, file=sys.stderr), smoother=args.smoother)
     s = res.summary
-    sens = ", ".join(f"{k} {v['accepted']} ok/{v['rejected']} gated/{v['late']} late"
-                     + (f"/{v['future']} future" if v["future"] else "")
-                     for k, v in s["sensors"].items() if k in cfg.sensors)
-    print(f"{s['rows']} estimates over {s['duration_s']:.3f} s -> {args.out}  ({sens}; "
-          f"{s['speed_factor']:.1f}x real time)")
-    if s.get("smoothing"):
-        sm = s["smoothing"]
+    sens = ", ".join(f"{k} {v.accepted} ok/{v.rejected} gated/{v.late} late"
+                     + (f"/{v.future} future" if v.future else "")
+                     for k, v in s.sensors.items() if k in cfg.sensors)
+    print(f"{s.rows} estimates over {s.duration_s:.3f} s -> {args.out}  ({sens}; "
+          f"{s.speed_factor:.1f}x real time)")
+    if s.smoothing:
+        sm = s.smoothing
         print(f"rts smoother: {sm['segments']} segment(s), branch-force std x{sm['branch_force_std_ratio_mean']:.3f} "
               f"of the filter's on average ({sm['wall_smooth_s']:.2f} s); the filter's estimates in filtered.csv")
-    names = {reason: n for reason, n in s["joint_states_rejected"].items() if n}
+    names = {reason: n for reason, n in s.joint_states_rejected.items() if n}
     if names:
         print("elastic-pm-dyn: warning: joint states not used: "
               + ", ".join(f"{n} with {reason} names" for reason, n in names.items())
-              + f" (last: {s['last_joint_state_problem']})", file=sys.stderr)
-    level, message = s["health"]
+              + f" (last: {s.last_joint_state_problem})", file=sys.stderr)
+    level, message = s.health
     if level:
         print(f"elastic-pm-dyn: warning: observer health: {message}", file=sys.stderr)
-    if s["fault"]:
-        print(f"elastic-pm-dyn: error: {s['fault']} (estimates up to the fault written)", file=sys.stderr)
+    if s.fault:
+        print(f"elastic-pm-dyn: error: {s.fault} (estimates up to the fault written)", file=sys.stderr)
         return 1
     return 0
 

@@ -76,16 +76,16 @@ def observe_bag(mech: Mechanism | Model | str | Path, cfg: ObserverConfig | str 
     wall_read = time.perf_counter() - wall0
     run = event_filter.filter_all(mech, cfg, events, order, log)
     summary = results.summary(bag, topics, counts, order, events, run, wall_read)
-    summary["smoother"] = smoother
+    summary.smoother = smoother
     rows, filtered = run.rows, None
     if smoother is not None:
         smoothed = smooth(mech, cfg, run.obs, events, order, run.rows)
         rows, filtered = smoothed.rows, run.rows
-        summary["smoothing"] = smoothed.stats
+        summary.smoothing = smoothed.stats
     if out is not None:
         out = Path(out)
         out.mkdir(parents=True, exist_ok=True)
         wall2 = time.perf_counter()
         write_outputs(out, run.obs, rows, write_estimates_bag, storage, filtered)
-        summary["wall_write_s"] = time.perf_counter() - wall2
+        summary.wall_write_s = time.perf_counter() - wall2
     return results.finish(summary, out, wall0, rows, run.obs, filtered)

@@ -294,11 +294,11 @@ def _observe_pipelined(mech: Mechanism, cfg: ObserverConfig, bag: Path, out, top
                     if write_estimates_bag:
                         os.rename(stage / "estimates", out / "estimates")
                 shutil.rmtree(stage)
-                summary["wall_write_s"] = writer.busy + time.perf_counter() - wall2
+                summary.wall_write_s = writer.busy + time.perf_counter() - wall2
             else:
                 out.mkdir(parents=True, exist_ok=True)
                 write_outputs(out, obs, rows, write_estimates_bag, storage)
-                summary["wall_write_s"] = time.perf_counter() - wall2
+                summary.wall_write_s = time.perf_counter() - wall2
     except BaseException:
         writer = state["writer"]
         if writer is not None:
