@@ -18,11 +18,16 @@ from elastic_pm_dyn import interrupts
 
 EXIT_INTERRUPTED = 130
 
+# From here every SIGINT counts (one that a finalizer swallows during the imports too); until
+# run()'s guard is up it is only counted, then raised there.
+interrupts.install()
+
 
 def run(program: str, target: str, argv: list[str] | None = None) -> int:
     """Import ``target`` ('module:function') and call it with ``argv``; Ctrl-C -> 130 and one line."""
-    interrupts.install()  # a Ctrl-C that a finalizer swallows during the imports still counts
+    interrupts.install()  # again: a caller may have changed the handler since the import
     try:
+        interrupts.arm()
         module, func = target.split(":")
         return importlib.import_module(module).__dict__[func](argv)
     except KeyboardInterrupt:

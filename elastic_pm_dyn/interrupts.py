@@ -3,9 +3,11 @@
 A SIGINT raises KeyboardInterrupt wherever the main thread is; when that is inside a
 finalizer (``__del__``: llvmlite's run during numba's first compile), Python prints it as
 "Exception ignored ... Traceback" and goes on, so a program interrupted while it starts
-would start anyway (seen in CI). :func:`install` (the console scripts' entry point calls it
-first) counts every SIGINT and keeps those tracebacks quiet; code that ends a start-up asks
-:func:`requested`; :func:`ending` quiets every finalizer once the program ends on a Ctrl-C.
+would start anyway (seen in CI). :func:`install` (run when the console scripts' entry module
+is imported) counts every SIGINT and keeps those tracebacks quiet; until :func:`arm` (the
+entry point's guard is up) a SIGINT is only counted, so one that lands between the import and
+the guard (seen in CI, on a loaded machine) is not a traceback either; code that ends a start-up
+asks :func:`requested`; :func:`ending` quiets every finalizer once the program ends on a Ctrl-C.
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ import sys
 from typing import Any
 
 _received = 0
+_armed = False  # a SIGINT raises KeyboardInterrupt (else it is only counted: no guard is up yet)
 _ending = False  # the program ends on a Ctrl-C: no finalizer's error is worth a traceback then
 _default_hook = sys.unraisablehook
 
@@ -22,7 +25,8 @@ _default_hook = sys.unraisablehook
 def _on_sigint(_signum: int, _frame: object) -> None:
     global _received
     _received += 1
-    raise KeyboardInterrupt
+    if _armed:
+        raise KeyboardInterrupt
 
 
 def _quiet(unraisable: Any) -> None:
@@ -36,6 +40,14 @@ def install() -> None:
     if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
         signal.signal(signal.SIGINT, _on_sigint)
     sys.unraisablehook = _quiet
+
+
+def arm() -> None:
+    """From now on a SIGINT raises KeyboardInterrupt; one counted before raises it here."""
+    global _armed
+    _armed = True
+    if _received:
+        raise KeyboardInterrupt
 
 
 def requested() -> bool:

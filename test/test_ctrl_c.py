@@ -112,3 +112,17 @@ def test_a_ctrl_c_that_a_finalizer_swallows_while_a_node_starts_still_stops_it(t
     proc = _run_entry("swallowing:main", tmp_path)
     assert proc.returncode == 130, proc.stderr
     assert proc.stderr.strip().splitlines() == ["prog: interrupted (Ctrl-C)"], proc.stderr
+
+
+def test_a_ctrl_c_between_the_entry_import_and_its_guard_is_one_line(tmp_path: Path) -> None:
+    """The console script's own lines run between ``import elastic_pm_dyn.entry`` and ``run``'s
+    guard (CI, loaded machine: the SIGINT landed there and printed a traceback)."""
+    code = ("import os, signal, sys\n"
+            "from elastic_pm_dyn.entry import run\n"
+            "os.kill(os.getpid(), signal.SIGINT)  # as if it came right after the import\n"
+            "sys.argv[0] = sys.argv[0]\n"
+            "sys.exit(run('prog', 'json:loads', '1'))\n")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=HANG_GUARD)
+    assert "Traceback" not in proc.stderr, proc.stderr
+    assert proc.returncode == 130, proc.stderr
+    assert proc.stderr.strip().splitlines()[-1] == "prog: interrupted (Ctrl-C)"
