@@ -42,7 +42,7 @@ def test_recorder_bag_is_analyzed(tmp_path):
         return JointState(header=header(t), name=names, position=[float(x) for x in pos],
                           velocity=[float(x) for x in vel], effort=[float(x) for x in eff])
 
-    h = RosHarness(domain_id(71))
+    h = RosHarness(domain_id(2))
     try:
         recorder = h.add(RecorderNode(context=h.context, parameter_overrides=[
             Parameter("output", value=str(bag)), Parameter("storage", value="mcap"),

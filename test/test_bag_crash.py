@@ -43,7 +43,7 @@ def test_sigkilled_recorder_keeps_all_but_the_last_second(storage: str, tmp_path
 
     from elastic_pm_dyn.ros.processes import NodeProcess, ros_env
 
-    domain = domain_id(29)
+    domain = domain_id(5)
     bag = tmp_path / "bag"
     recorder = NodeProcess("recorder", "elastic_pm_dyn.ros.recorder",
                            ["-p", f"output:={bag}", "-p", f"storage:={storage}", "-p", "topics:=[/joint_states]"],

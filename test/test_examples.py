@@ -102,7 +102,7 @@ def test_analyze_bag(observed: tuple[Path, str], tmp_path: Path) -> None:
 
 def test_ros_controller(tmp_path: Path) -> None:
     require("rclpy")
-    text = run_example("ros_controller.py", "--periods", "150", "--domain-id", domain_id(97), "--timeout", "60",
+    text = run_example("ros_controller.py", "--periods", "150", "--domain-id", domain_id(14), "--timeout", "60",
                        "--out", tmp_path / "out", cwd=tmp_path, timeout=120.0)
     assert "150 periods of 1 ms in lockstep" in text
     assert number_after(text, "motor angle error: max") < 5.0  # [mrad]
@@ -113,7 +113,7 @@ def test_ros_controller(tmp_path: Path) -> None:
 
 def test_lockstep_defaults(tmp_path: Path) -> None:
     require("rclpy")
-    text = run_example("lockstep_defaults.py", "--periods", "50", "--domain-id", domain_id(93), "--timeout", "60",
+    text = run_example("lockstep_defaults.py", "--periods", "50", "--domain-id", domain_id(11), "--timeout", "60",
                        "--out", tmp_path / "out", cwd=tmp_path, timeout=120.0)
     assert "50 lockstep periods driven with default QoS; last state at t = 0.050 s" in text
     log = (tmp_path / "out" / "logs" / "plant.log").read_text()
@@ -122,7 +122,7 @@ def test_lockstep_defaults(tmp_path: Path) -> None:
 
 def test_two_plants(tmp_path: Path) -> None:
     require("rclpy")
-    text = run_example("two_plants.py", "--domain-id", domain_id(89), "--timeout", "60", "--out", tmp_path / "out",
+    text = run_example("two_plants.py", "--domain-id", domain_id(8), "--timeout", "60", "--out", tmp_path / "out",
                        cwd=tmp_path, timeout=120.0)
     for ns in ("r1", "r2"):
         lines = [line for line in text.splitlines() if line.startswith(f"/{ns}/clock:")]

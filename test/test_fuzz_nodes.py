@@ -44,7 +44,7 @@ def plant() -> Any:
     from rclpy.parameter import Parameter
 
     from elastic_pm_dyn.ros.plant_node import PlantNode
-    h = RosHarness(domain_id(71))
+    h = RosHarness(domain_id(17))
     node = h.add(PlantNode(context=h.context, parameter_overrides=[Parameter("sync_mode", value="lockstep")]))
     published: list[tuple[np.ndarray, float]] = []
     publish = node._publish_state

@@ -222,7 +222,7 @@ def test_plant_process_answers_nan_within_a_period_and_recovers(tmp_path: Path) 
     from elastic_pm_dyn.bags.msgtypes import stamp_ns
     from elastic_pm_dyn.ros.processes import NodeProcess, ros_env
     from elastic_pm_dyn.ros.qos import COMMAND_QOS, STATE_QOS
-    domain = domain_id(59)
+    domain = domain_id(29)
     plant = NodeProcess("plant", "elastic_pm_dyn.ros.plant_node", ["-p", "sync_mode:=lockstep"],
                         ros_env(domain), tmp_path)
     h = RosHarness(domain)
@@ -280,7 +280,7 @@ def test_observer_services_answer_every_request_and_warnings_are_per_kind(capfd:
 
     from elastic_pm_dyn.ros.messages import stamp
     from elastic_pm_dyn.ros.observer_node import ObserverNode
-    h = RosHarness(domain_id(29))
+    h = RosHarness(domain_id(26))
     try:
         node = h.add(ObserverNode(context=h.context,
                                   parameter_overrides=[Parameter("observer.sensors", value=["encoders"])]))

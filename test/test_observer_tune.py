@@ -137,7 +137,7 @@ def test_live_node_reads_the_tuned_file(tmp_path) -> None:
     params.update({"process.disturbance_stddev": 0.3, "imu.stddev": [0.005], "command_delay": 1e-3,
                    "process.disturbance_bandwidth": [0.2, 66.7]})
     out = tuning.write_parameters(params, tmp_path / "tuned.yaml", base)
-    h = RosHarness(domain_id(61), args=["test", "--ros-args", "--params-file", str(out)])
+    h = RosHarness(domain_id(32), args=["test", "--ros-args", "--params-file", str(out)])
     try:
         node = h.add(PlantNode(context=h.context))
         assert node.get_parameter("mode").value == "observer"

@@ -278,7 +278,7 @@ def test_held_disturbance_acts_as_a_commanded_torque(mech: Mechanism) -> None:
 # ----------------------------------------------------------------------------------- ROS
 @pytest.fixture
 def ros():
-    h = RosHarness(domain_id(47))
+    h = RosHarness(domain_id(35))
     yield h
     h.close()
 

@@ -125,7 +125,7 @@ def test_lockstep_node_publishes_the_expected_messages() -> None:
     n = 40
     rng = np.random.default_rng(3)
     torques = 0.05 * rng.uniform(-1.0, 1.0, (n, 2))  # active order: left_motor, right_motor
-    h = RosHarness(domain_id(83))
+    h = RosHarness(domain_id(38))
     try:
         node = h.add(PlantNode(context=h.context, parameter_overrides=[
             Parameter("sync_mode", value="lockstep"), Parameter("publish_rate", value=1000.0)]))

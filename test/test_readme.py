@@ -61,7 +61,7 @@ def test_snippet_runs(page: Path, k: int, workdir: Path) -> None:
     require("rclpy")
     from elastic_pm_dyn.ros.processes import NodeProcess, ros_env
 
-    env = ros_env(domain_id(89))
+    env = ros_env(domain_id(41))
     plant = NodeProcess("plant", "elastic_pm_dyn.ros.plant_node", ["-p", "sync_mode:=lockstep"], env,
                         workdir / "logs")
     try:

@@ -46,7 +46,7 @@ def test_every_restarted_recorder_records(tmp_path: Path) -> None:
     require("rclpy")
     from elastic_pm_dyn.ros.processes import NodeProcess, ros_env
 
-    env = ros_env(domain_id(71))
+    env = ros_env(domain_id(44))
     topics = "topics:=[" + ",".join(TOPICS) + "]"
     plant = NodeProcess("plant", "elastic_pm_dyn.ros.plant_node", ["-p", "sync_mode:=realtime"], env, tmp_path / "logs")
     recorders = []
@@ -88,7 +88,7 @@ def test_a_matched_but_silent_topic_is_reported(tmp_path: Path, monkeypatch: pyt
 
     monkeypatch.setattr(recorder_module, "SILENT_AFTER", 0.5)
     monkeypatch.setattr(recorder_module, "REPORT_PERIOD", 0.2)
-    h = RosHarness(domain_id(73))
+    h = RosHarness(domain_id(47))
     try:
         node = h.node("quiet_publisher")
         pub = node.create_publisher(String, "/quiet", 10)
@@ -131,7 +131,7 @@ def test_a_topic_subscribed_anew_records_through_a_second_participant(tmp_path: 
     from elastic_pm_dyn.bags.reader import open_bag
     from elastic_pm_dyn.ros import recorder as recorder_module
 
-    h = RosHarness(domain_id(74))
+    h = RosHarness(domain_id(50))
     try:
         node = h.node("numbered_publisher")
         pub = node.create_publisher(String, "/numbered", 1000)

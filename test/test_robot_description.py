@@ -32,7 +32,7 @@ FIVE_BAR = REPO / "config" / "five_bar.yaml"
 URDF_FIVE_BAR = REPO / "test" / "robots" / "five_bar_urdf" / "robot.urdf"
 MJCF_FIVE_BAR = REPO / "test" / "robots" / "five_bar.xml"
 LAUNCH_FILE = REPO / "launch" / "rviz.launch.py"
-DOMAIN = domain_id(67)
+DOMAIN = domain_id(53)
 
 
 def _joint_names(urdf: str) -> set[str]:
@@ -95,7 +95,7 @@ def test_a_late_subscriber_gets_the_urdf_of_a_plant_process(tmp_path: Path) -> N
 # ------------------------------------------------------------------ in this process
 @pytest.fixture
 def ros():
-    h = RosHarness(domain_id(68))
+    h = RosHarness(domain_id(56))
     yield h
     h.close()
 

@@ -103,7 +103,7 @@ def test_bad_goal_is_one_line(model_file: Path, msg: Any, words: str) -> None:
 
 @pytest.fixture
 def ros():
-    h = RosHarness(domain_id(61))
+    h = RosHarness(domain_id(59))
     yield h
     h.close()
 

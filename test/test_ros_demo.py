@@ -14,7 +14,7 @@ from elastic_pm_dyn.bags.msgtypes import BRANCH_FORCES
 
 def _demo(out: Path, *extra: str) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "elastic_pm_dyn", "ros-demo", "--out", str(out),
-                           "--domain-id", str(domain_id(83)), "--timeout", "90", *extra],
+                           "--domain-id", str(domain_id(62)), "--timeout", "90", *extra],
                           capture_output=True, text=True, timeout=150)
 
 

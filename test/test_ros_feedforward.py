@@ -28,7 +28,7 @@ REFERENCE_LINE = REFERENCE_MANOEUVRE.line
 
 @pytest.fixture
 def ros():
-    h = RosHarness(domain_id(37))
+    h = RosHarness(domain_id(65))
     yield h
     h.close()
 

@@ -18,7 +18,7 @@ TAU = [0.01, -0.02]
 
 @pytest.fixture
 def ros():
-    h = RosHarness(domain_id(61))
+    h = RosHarness(domain_id(68))
     yield h
     h.close()
 

@@ -52,7 +52,7 @@ def test_closed_loop_five_bar_lockstep(tmp_path: Path) -> None:
     from elastic_pm_dyn.ros.loop_demo import LoopOptions, run_loop_demo
     out = tmp_path / "loop"
     opts = LoopOptions(REPO / "config" / "five_bar.yaml", duration=0.25, seed=3, timeout=300.0,
-                       domain_id=domain_id(61))
+                       domain_id=domain_id(71))
     s = run_loop_demo(out, opts)
     n = s["loop_periods"]
     assert n == 250

@@ -30,7 +30,7 @@ from elastic_pm_dyn.observer.testing.scenarios import manoeuvre_recording
 CONFIG = Path(__file__).resolve().parents[1] / "config"
 PARAMS_FILE = CONFIG / "plant_observer.yaml"
 SENSORS = ["encoders", "imu", "branch_forces"]
-DOMAIN = domain_id(37)
+DOMAIN = domain_id(74)
 
 
 @pytest.fixture(scope="module")

@@ -35,7 +35,7 @@ CONFIG = REPO / "config"
 NODE_FILE = CONFIG / "observer_node.yaml"
 PLANT_FILE = CONFIG / "plant_observer.yaml"
 SENSORS = ["encoders", "imu", "branch_forces"]
-DOMAIN = domain_id(41)
+DOMAIN = domain_id(77)
 SAMPLES = 130  # past the accelerometer timing's first choice (0.1 s)
 OUTPUTS = ("js", "bf", "pose", "std")
 

@@ -13,7 +13,7 @@ import yaml
 from ros_harness import RosHarness, domain_id, require
 
 CONFIG = Path(__file__).resolve().parents[1] / "config"
-DOMAIN = domain_id(23)
+DOMAIN = domain_id(80)
 
 
 def _flatten(tree: dict, prefix: str = "") -> dict[str, Any]:

@@ -41,7 +41,7 @@ def reference() -> dict[str, Any]:
 
 @pytest.fixture
 def ros():
-    h = RosHarness(domain_id(11))
+    h = RosHarness(domain_id(83))
     yield h
     h.close()
 

@@ -29,7 +29,7 @@ def test_recorded_branch_forces_deserialize_with_rosbags(storage: str, tmp_path:
     from elastic_pm_dyn.ros.recorder import RecorderNode
 
     bag = tmp_path / "bag"
-    h = RosHarness(domain_id(53))
+    h = RosHarness(domain_id(86))
     try:
         plant = h.add(PlantNode(context=h.context, parameter_overrides=[Parameter("sync_mode", value="lockstep")]))
         recorder = h.add(RecorderNode(context=h.context, parameter_overrides=[

@@ -23,7 +23,7 @@ def test_first_messages_of_a_run_are_in_the_bag(tmp_path: Path) -> None:
     from elastic_pm_dyn.ros.recorder import DEMO_TYPES, RecorderNode
 
     bag = tmp_path / "bag"
-    h = RosHarness(domain_id(61))
+    h = RosHarness(domain_id(89))
     try:
         recorder = h.add(RecorderNode(context=h.context, parameter_overrides=[
             Parameter("output", value=str(bag)), Parameter("topics", value=["/joint_states", "/torque_command"]),
@@ -62,7 +62,7 @@ def test_fast_plant_with_a_state_triggered_feedforward_every_command_is_in_the_b
     from elastic_pm_dyn.ros.plant_node import PlantNode
     from elastic_pm_dyn.ros.recorder import DEMO_TYPES, RecorderNode
 
-    h = RosHarness(domain_id(63))
+    h = RosHarness(domain_id(92))
     try:
         recorder = h.add(RecorderNode(context=h.context, parameter_overrides=[
             Parameter("output", value=str(tmp_path / "bag")), Parameter("topics", value=["/torque_command"]),

@@ -26,7 +26,7 @@ TAU = [0.01, -0.02]  # left_motor, right_motor
 
 @pytest.fixture
 def ros():
-    h = RosHarness(domain_id(37))
+    h = RosHarness(domain_id(95))
     yield h
     h.close()
 
