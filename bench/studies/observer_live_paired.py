@@ -1,7 +1,10 @@
 """One live observer period: the Python per message (the default) against one compiled step per
-message (``Observer.steps_compiled``), paired.
+message (``Observer.steps_compiled``), paired; with ``--dispatch``, the kernels called through
+their pinned entry points (the default, ``elastic_pm_dyn/pinned_kernels.py``) against the same
+calls through numba's dispatcher.
 
     .venv/bin/python bench/studies/observer_live_paired.py [five_bar | triglide:2 | hexa:2] [--duration 0.3]
+    .venv/bin/python bench/studies/observer_live_paired.py hexa:2 --dispatch
 
 Two observers of the same configuration (encoders + accelerometer) are fed the same chirp
 recording as bench/benchmarks/bench_observer_loop.py makes (its seeds), period by period, alternating which
@@ -32,6 +35,8 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("machine", nargs="?", default="five_bar")
     ap.add_argument("--duration", type=float, default=0.3)
+    ap.add_argument("--dispatch", action="store_true",
+                    help="pinned entry points (A) against numba's dispatcher (B), both per message in Python")
     a = ap.parse_args()
     name, mech = machine(a.machine)
     rec = recording(name, mech, a.duration)
@@ -39,7 +44,11 @@ def main() -> int:
     streams = {}
     for compiled in (True, False):
         obs = Observer(mech, cfg)
-        obs.steps_compiled = compiled
+        if a.dispatch:
+            if not compiled:
+                obs._pin = lambda kernel: kernel  # every call through numba's dispatcher
+        else:
+            obs.steps_compiled = compiled
         streams[compiled] = ObserverStream(obs)
     times: dict[bool, list[float]] = {True: [], False: []}
     names = rec.active_names
@@ -54,8 +63,9 @@ def main() -> int:
             times[compiled].append(time.perf_counter() - t0)
     c, p = np.array(times[True][5:]) * 1e6, np.array(times[False][5:]) * 1e6  # the first compile
     same = np.array_equal(streams[True].obs.estimate_flat(), streams[False].obs.estimate_flat())
-    print(f"{a.machine}: Python median {np.median(p):.0f} us (p99 {np.percentile(p, 99):.0f}); compiled step per "
-          f"message {np.median(c):.0f} us (p99 {np.percentile(c, 99):.0f}); ratio of medians "
+    what_a, what_b = ("pinned", "dispatcher") if a.dispatch else ("compiled step per message", "Python")
+    print(f"{a.machine}: {what_b} median {np.median(p):.0f} us (p99 {np.percentile(p, 99):.0f}); {what_a} "
+          f"{np.median(c):.0f} us (p99 {np.percentile(c, 99):.0f}); ratio of medians "
           f"{np.median(c) / np.median(p):.2f}, median of paired ratios {np.median(c / p):.2f}; same estimate: {same}")
     return 0 if same else 1
 

@@ -176,7 +176,7 @@ def study(spec: str) -> dict:
     save = snapshot_buffers(state, cmd, obs.evidence, ctl)
     restore = per_call(_restores, state)
     parts = {
-        f"predict 1 ms ({n_sub} ETD2 steps)": per_call(_predict, ma, fixed, proc, state, tree_b, False, 1e-3, n_sub),
+        "predict 1 ms (the rule's ETD2 steps)": per_call(_predict, ma, fixed, proc, state, tree_b, False, 1e-3, n_sub),
         "predict 1 ms (1 ETD2 step)": per_call(_predict, ma, fixed, proc, state, tree_b, False, 1e-3, 1),
         "predict 1 ms with a new linearisation": per_call(_predict, ma, fixed, proc, state, tree_b, True, 1e-3, n_sub,
                                                           n=60),
@@ -208,10 +208,12 @@ def study(spec: str) -> dict:
 
 def markdown(results: list[dict]) -> str:
     names = [r["machine"] for r in results]
-    lines = ["| compiled part | " + " | ".join(names) + " |", "|---|" + "---:|" * len(names)]
+    lines = ["| compiled part [us] | " + " | ".join(names) + " |", "|---|" + "---:|" * len(names),
+             "| (state size n_x; ETD2 steps per 1 ms) | " + " | ".join(f"{r['nx']}; {r['etd2_steps']}" for r in results)
+             + " |"]
     for key in results[0]["parts_us"]:
         lines.append(f"| {key} | " + " | ".join(f"{r['parts_us'][key]:.1f}" for r in results) + " |")
-    lines += ["", "| a call from Python | " + " | ".join(names) + " |", "|---|" + "---:|" * len(names)]
+    lines += ["", "| a call from Python [us] | " + " | ".join(names) + " |", "|---|" + "---:|" * len(names)]
     for key in results[0]["boundary_us"]:
         lines.append(f"| {key} | " + " | ".join(f"{r['boundary_us'][key]:.2f}" for r in results) + " |")
     return "\n".join(lines) + "\n"
