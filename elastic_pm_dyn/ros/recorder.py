@@ -192,8 +192,10 @@ class RecorderNode(ManagedNode):
 
     def _create_subscription(self, topic: str, state: _Topic, qos: QoSProfile | None = None,
                              node: Any = None) -> None:
-        """Subscribe ``topic`` (``qos``, else the publishers' QoS) in ``node``'s participant (else this node's)."""
+        """Subscribe ``topic`` (``qos``, else the publishers' QoS) in ``node``'s participant (else this node's).
+        Another participant's node has none of this node's remappings: it gets the resolved name."""
         node = node or self
+        name = topic if node is self else self.resolve_topic_name(topic)
         state.matched = self.count_publishers(topic)
         state.subscribed_at = time.monotonic()
         qos = qos or self._qos(topic)
@@ -214,14 +216,14 @@ class RecorderNode(ManagedNode):
         if self.lost_events_supported:
             try:
                 state.subscription = node.create_subscription(
-                    state.msg_class, topic, take, qos, raw=True,
+                    state.msg_class, name, take, qos, raw=True,
                     event_callbacks=SubscriptionEventCallbacks(message_lost=lost, matched=matched))
             except UnsupportedEventTypeError:  # an RMW without them: sequence gaps remain
                 self.lost_events_supported = False
                 self.get_logger().warning("this RMW reports no message-lost events: losses are counted "
                                           "from sequence gaps only")
         if not self.lost_events_supported:
-            state.subscription = node.create_subscription(state.msg_class, topic, take, qos, raw=True)
+            state.subscription = node.create_subscription(state.msg_class, name, take, qos, raw=True)
         state.node = node
         where = "" if node is self else f" through a new DDS participant ({node.get_name()})"
         self.get_logger().info(f"subscribed to {topic} [{conn.msgtype}], depth {qos.depth}{where}")
@@ -254,8 +256,7 @@ class RecorderNode(ManagedNode):
         while len(self.participants) < state.resubscribed:
             self.participants.append(SecondParticipant(
                 self.context.get_domain_id(), f"{self.get_name()}_{len(self.participants) + 1}"))
-        self._create_subscription(self.resolve_topic_name(topic), state, None,
-                                  self.participants[state.resubscribed - 1].node)
+        self._create_subscription(topic, state, None, self.participants[state.resubscribed - 1].node)
 
     def _qos(self, topic: str) -> QoSProfile:
         offered = [info.qos_profile for info in self.get_publishers_info_by_topic(topic)]
