@@ -36,7 +36,6 @@ from elastic_pm_dyn.ros.processes import (
     ros_env,
     wait_for_exit,
     wait_for_recording,
-    wait_for_subscribers,
 )
 from elastic_pm_dyn.sim.simulator import SimulationOptions, Simulator
 from elastic_pm_dyn.sim.torque import TorqueTable
@@ -106,11 +105,10 @@ def _run_nodes(out: Path, bag: Path, model_path: Path, sync: str, storage: str, 
         procs.append(NodeProcess("plant", "elastic_pm_dyn.ros.plant_node", plant_args, env, logs))
         procs.append(NodeProcess("recorder", "elastic_pm_dyn.ros.recorder", rec_args, env, logs))
         print(f"  plant ({sync}) and recorder started on ROS domain {domain_id}; logs in {logs}")
-        # The manoeuvre starts once the recorder records the plant (it then also waits for
-        # the feedforward's topics: wait_for_subscribers = 2 on torque_command): subscribed in
-        # the graph, then messages received (the plant publishes its start state until the
-        # first command; a subscription in the graph alone once recorded nothing, issue #29).
-        wait_for_subscribers(PLANT_TOPICS, domain_id, timeout, procs)
+        # The manoeuvre starts once the recorder has received the plant's messages (it then also
+        # waits for the feedforward's topics: wait_for_subscribers = 2 on torque_command). The
+        # plant publishes its start state until the first command; a subscription in the graph
+        # alone once recorded nothing (issue #29), so the graph is not what is waited for.
         wait_for_recording(PLANT_TOPICS, domain_id, timeout, procs)
         ff = NodeProcess("feedforward", "elastic_pm_dyn.ros.feedforward_node", ff_args, env, logs)
         procs.append(ff)

@@ -13,7 +13,7 @@ import signal
 import subprocess
 import sys
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -115,30 +115,6 @@ def _orchestrator(domain_id: int) -> Iterator[tuple[Any, Any]]:
             os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = old_range
 
 
-def _wait_until_none_missing(missing: Callable[[], list[str]], what: str, timeout: float,
-                             watch: list[NodeProcess], pause: Callable[[], object]) -> None:
-    """Call ``pause`` until ``missing()`` is empty; raise "<what> <missing> within <timeout> s" when
-    time runs out, or the watched process's error if one dies first."""
-    deadline = time.monotonic() + timeout
-    while left := missing():
-        if time.monotonic() > deadline:
-            raise NodeProcessError(f"{what} {', '.join(left)} within {timeout:g} s")
-        for p in watch:
-            p.check_running()
-        pause()
-
-
-def wait_for_subscribers(topics: list[str], domain_id: int, timeout: float, watch: list[NodeProcess]) -> None:
-    """Block until the ROS graph shows a subscriber on every topic (e.g. the recorder is recording).
-
-    Discovery of a new process takes from 0 to a few seconds, so a start order alone
-    does not say who already listens. Raises if a watched process dies or time runs out.
-    """
-    with _orchestrator(domain_id) as (node, _):
-        _wait_until_none_missing(lambda: [t for t in topics if not node.count_subscribers(t)],
-                                 "no subscriber on", timeout, watch, lambda: time.sleep(0.05))
-
-
 def wait_for_recording(topics: list[str], domain_id: int, timeout: float, watch: list[NodeProcess]) -> None:
     """Block until a recorder's /diagnostics say it has received a message on every topic.
 
@@ -162,9 +138,13 @@ def wait_for_recording(topics: list[str], domain_id: int, timeout: float, watch:
 
     with _orchestrator(domain_id) as (node, executor):
         node.create_subscription(DiagnosticArray, "/diagnostics", take, DIAGNOSTICS_QOS)
-        _wait_until_none_missing(lambda: [t for t in topics if not received.get(t)],
-                                 "the recorder received nothing on", timeout, watch,
-                                 lambda: executor.spin_once(timeout_sec=0.1))
+        deadline = time.monotonic() + timeout
+        while missing := [t for t in topics if not received.get(t)]:
+            if time.monotonic() > deadline:
+                raise NodeProcessError(f"the recorder received nothing on {', '.join(missing)} within {timeout:g} s")
+            for p in watch:
+                p.check_running()
+            executor.spin_once(timeout_sec=0.1)
 
 
 def wait_for_exit(target: NodeProcess, others: list[NodeProcess], timeout: float) -> int:
