@@ -25,7 +25,6 @@ interrupts.install()
 
 def run(program: str, target: str, argv: list[str] | None = None) -> int:
     """Import ``target`` ('module:function') and call it with ``argv``; Ctrl-C -> 130 and one line."""
-    interrupts.install()  # again: a caller may have changed the handler since the import
     try:
         interrupts.arm()
         module, func = target.split(":")

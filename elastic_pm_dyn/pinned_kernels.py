@@ -2,8 +2,9 @@
 
 For every call from Python, numba looks up the compiled version of a kernel by the types of
 its arguments, so it runs ``typeof`` over every array of every bundle passed. With the
-observer's ten bundles that costs 11 of the 14 us a call takes before any work
-(``bench/studies/observer_period_costs.py``), and a live period makes five such calls.
+observer's ten bundles a call takes 5.6-7.1 us before any work through the dispatcher and
+2.4-4.4 us through the entry point (``bench/studies/observer_period_costs.py``, quiet), and a
+live period makes five such calls.
 :class:`PinnedKernel` makes its first call through numba's dispatcher and keeps the compiled
 version that call used; later calls go straight to that version's entry point, which only
 converts the arguments.

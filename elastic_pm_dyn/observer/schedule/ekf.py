@@ -793,9 +793,9 @@ class Observer:
             return self._correct(imu.sample(acc, a, self.Hpt), t)
         gate = self.gate(len(meas))
         if self.imu_mode == 2 and not defer:
-            nis, status, logdet = self._pin(kernels.imu_correct_auto)(self.mech.arrays, self.model.fixed, self._proc,
-                                                           self._state(), self._imu, tau_before, tau_after, after,
-                                                           meas, gate, self.evidence)
+            nis, status, logdet = self._pin(kernels.imu_correct_auto)(
+                self.mech.arrays, self.model.fixed, self._proc, self._state(), self._imu, tau_before, tau_after, after,
+                meas, gate, self.evidence)
         else:
             if defer:
                 self._settle()
