@@ -64,51 +64,19 @@ def _saved(state):
 
 
 @njit
-def _predict(ma, fixed, proc, state, tree, relin, T, n_sub, n):
+def _restored_calls(kernel, args, state, n):
+    """``kernel(*args)`` n times, ``state`` (among the args) restored before each call."""
     saved = _saved(state)
     for _ in range(n):
         _restore(state, saved)
-        predict_checked(ma, fixed, proc, state, tree, relin, T, n_sub)
+        kernel(*args)
     _restore(state, saved)
 
 
 @njit
-def _encoder(ma, state, enc, meas, gate, n):
-    saved = _saved(state)
+def _calls(kernel, args, n):
     for _ in range(n):
-        _restore(state, saved)
-        encoder_correct(ma, state, enc, meas, gate)
-    _restore(state, saved)
-
-
-@njit
-def _imu(ma, fixed, proc, state, imu, tree, meas, gate, n):
-    saved = _saved(state)
-    for _ in range(n):
-        _restore(state, saved)
-        imu_correct(ma, fixed, proc, state, imu, tree, meas, gate)
-    _restore(state, saved)
-
-
-@njit
-def _imu_auto(ma, fixed, proc, state, imu, tree_b, tree_a, meas, gate, evidence, n):
-    saved = _saved(state)
-    for _ in range(n):
-        _restore(state, saved)
-        imu_correct_auto(ma, fixed, proc, state, imu, tree_b, tree_a, False, meas, gate, evidence)
-    _restore(state, saved)
-
-
-@njit
-def _estimate(ma, fixed, proc, state, tau_last, out, n):
-    for _ in range(n):
-        estimate_flat(ma, fixed, proc, state, tau_last, 0.0, out)
-
-
-@njit
-def _snapshots(state, cmd, evidence, ctl, save, n):
-    for _ in range(n):
-        _snapshot(state, cmd, evidence, ctl, save)
+        kernel(*args)
 
 
 @njit
@@ -116,12 +84,6 @@ def _restores(state, n):
     saved = _saved(state)
     for _ in range(n):
         _restore(state, saved)
-
-
-@njit
-def _etd2_work(ma, n):
-    for _ in range(n):
-        etd2_workspace(ma)
 
 
 @njit
@@ -175,21 +137,26 @@ def study(spec: str) -> dict:
     cmd, ctl = obs._kernel_control(0, np.inf)
     save = snapshot_buffers(state, cmd, obs.evidence, ctl)
     restore = per_call(_restores, state)
+
+    def restored(kernel, *args, n=300):
+        return per_call(_restored_calls, kernel, args, state, n=n)
+
     parts = {
-        "predict 1 ms (the rule's ETD2 steps)": per_call(_predict, ma, fixed, proc, state, tree_b, False, 1e-3, n_sub),
-        "predict 1 ms (1 ETD2 step)": per_call(_predict, ma, fixed, proc, state, tree_b, False, 1e-3, 1),
-        "predict 1 ms with a new linearisation": per_call(_predict, ma, fixed, proc, state, tree_b, True, 1e-3, n_sub,
-                                                          n=60),
-        "encoder correction": per_call(_encoder, ma, state, enc, enc_meas, 1e9),
-        "accelerometer correction (one hypothesis)": per_call(_imu, ma, fixed, proc, state, obs._imu_bundle, tree_b,
-                                                              imu_meas, 1e9),
-        "accelerometer correction (auto: both hypotheses)": per_call(_imu_auto, ma, fixed, proc, state,
-                                                                     obs._imu_bundle, tree_b, tree_a, imu_meas, 1e9,
-                                                                     obs.evidence.copy()),
-        "estimate output": per_call(_estimate, ma, fixed, proc, state, obs.tau_last,
-                                    np.empty(obs.flat_layout()["P"].stop)),
-        "snapshot of a compiled step": per_call(_snapshots, state, cmd, obs.evidence, ctl, save),
-        "ETD2 work arrays (made in every prediction)": per_call(_etd2_work, ma),
+        "predict 1 ms (the rule's ETD2 steps)": restored(predict_checked, ma, fixed, proc, state, tree_b, False, 1e-3,
+                                                         n_sub),
+        "predict 1 ms (1 ETD2 step)": restored(predict_checked, ma, fixed, proc, state, tree_b, False, 1e-3, 1),
+        "predict 1 ms with a new linearisation": restored(predict_checked, ma, fixed, proc, state, tree_b, True, 1e-3,
+                                                          n_sub, n=60),
+        "encoder correction": restored(encoder_correct, ma, state, enc, enc_meas, 1e9),
+        "accelerometer correction (one hypothesis)": restored(imu_correct, ma, fixed, proc, state, obs._imu_bundle,
+                                                              tree_b, imu_meas, 1e9),
+        "accelerometer correction (auto: both hypotheses)": restored(imu_correct_auto, ma, fixed, proc, state,
+                                                                     obs._imu_bundle, tree_b, tree_a, False, imu_meas,
+                                                                     1e9, obs.evidence.copy()),
+        "estimate output": per_call(_calls, estimate_flat, (ma, fixed, proc, state, obs.tau_last, 0.0,
+                                                           np.empty(obs.flat_layout()["P"].stop))),
+        "snapshot of a compiled step": per_call(_calls, _snapshot, (state, cmd, obs.evidence, ctl, save)),
+        "ETD2 work arrays (made in every prediction)": per_call(_calls, etd2_workspace, (ma,)),
     }
     parts = {k: (v - restore if k.startswith(("predict", "encoder", "accelerometer")) else v) for k, v in parts.items()}
     bundles = {"mech.arrays (a NamedTuple)": ma, "mech.arrays as a plain tuple": tuple(ma), "fixed": fixed,
