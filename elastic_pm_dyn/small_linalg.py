@@ -27,6 +27,33 @@ def cholesky(A):
     return True
 
 
+# Reassociated sums let LLVM vectorise the dot products: 2.3x on a 66 x 66 matrix (the Hexa
+# observer's covariance, checked three times a period). The factor only decides yes or no, so
+# its last bits do not matter; no 'nnan'/'ninf' flags: the comparisons must see a NaN.
+@njit(cache=True, fastmath={"reassoc", "contract"})
+def positive_definite(A, floor):
+    """True if the symmetric A (overwritten by its lower Cholesky factor) has every pivot above
+    ``floor`` (a NaN fails): Cholesky row by row, contiguous dot products."""
+    n = A.shape[0]
+    for j in range(n):
+        Aj = A[j]
+        d = Aj[j]
+        for k in range(j):
+            d -= Aj[k] * Aj[k]
+        if not d > floor:
+            return False
+        d = np.sqrt(d)
+        Aj[j] = d
+        inv = 1.0 / d
+        for i in range(j + 1, n):
+            Ai = A[i]
+            s = Ai[j]
+            for k in range(j):
+                s -= Ai[k] * Aj[k]
+            Ai[j] = s * inv
+    return True
+
+
 @njit(cache=True)
 def cholesky_solve(L, b):
     """Solve (L L^T) x = b in place for a vector b."""

@@ -149,6 +149,33 @@ def test_kalman_update_matches_textbook_and_gates() -> None:
     assert kernels.covariance_ok(P0) and not kernels.covariance_ok(P0 - 100 * np.eye(n))
 
 
+
+@pytest.mark.parametrize("n", [1, 6, 18, 33, 66])
+def test_covariance_check_agrees_with_eigenvalues(n: int) -> None:
+    # The check factors with reassociated (vectorised) sums: its yes/no must still be the
+    # eigenvalues' on well-posed matrices, on barely definite and barely indefinite ones,
+    # with NaN, Inf and wildly different scales (the observer's positions vs its rates).
+    rng = np.random.default_rng(8100 + n)
+    for trial in range(40):
+        Q, _ = np.linalg.qr(rng.normal(size=(n, n)))
+        lam = rng.uniform(0.1, 10.0, n)
+        if trial % 4 == 1:
+            lam[rng.integers(n)] = -1e-6  # one eigenvalue just below zero
+        elif trial % 4 == 2:
+            lam[rng.integers(n)] = 1e-6  # one just above (1e-14 is the floor of the correlation's pivots)
+        scale = 10.0 ** rng.uniform(-8, 2, n)
+        P = (Q * lam) @ Q.T * np.outer(scale, scale)
+        P = 0.5 * (P + P.T)
+        expected = bool(np.all(lam > 0.0))
+        assert kernels.covariance_ok(P) == expected, (trial, lam.min())
+        if trial % 4 == 3:
+            i, j = rng.integers(n, size=2)
+            for bad in (np.nan, np.inf):
+                B = P.copy()
+                B[i, j] = B[j, i] = bad
+                assert not kernels.covariance_ok(B)
+
+
 # ---------------------------------------------------------------------------- observability
 def test_observability_report_per_sensor_set(five_bar) -> None:
     enc = analyse(make(five_bar, sensors=["encoders"]))

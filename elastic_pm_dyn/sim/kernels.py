@@ -68,7 +68,7 @@ def partition(ma, q, qd, tol, max_iter):
     m = ma.p_index.shape[0]
     if m == 0:
         return 0.0, 1.0
-    M, h = np.empty((n, n)), np.empty(n)
+    M, h = np.empty((0, 0)), np.empty(0)  # empty: the kinematics alone, no inertia terms
     J, a_pt, p_pt = point_buffers(ma.points, n)
     A, gamma, res = np.empty((m, n)), np.empty(m), np.empty(m)
     Ap = np.empty((m, m))

@@ -34,9 +34,9 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from elastic_pm_dyn.dynamics.evaluate import SCDD, SINGULAR_TOL, accelerations, accelerations_into, workspace
+from elastic_pm_dyn.dynamics.evaluate import SCDD, SINGULAR_TOL, accelerations_into, workspace
 from elastic_pm_dyn.dynamics.kernels import passive_map
-from elastic_pm_dyn.kinematics.kernels import point_buffers, unit_axis
+from elastic_pm_dyn.kinematics.kernels import all_closure_rows, point_buffers, tree_terms, unit_axis
 from elastic_pm_dyn.model.layout import JF_STIFFNESS
 from elastic_pm_dyn.observer.core.propagation import (
     balance,
@@ -46,8 +46,8 @@ from elastic_pm_dyn.observer.core.propagation import (
     spring_columns,
 )
 from elastic_pm_dyn.sim.exponential import AVERAGED, DEFAULT_PHASE_STEP, elastic_gains, exponential_steps
-from elastic_pm_dyn.sim.kernels import OK, STAB_PROJECTION, _closure, partition, rk4_steps
-from elastic_pm_dyn.small_linalg import cholesky, cholesky_solve
+from elastic_pm_dyn.sim.kernels import OK, STAB_PROJECTION, partition, rk4_steps
+from elastic_pm_dyn.small_linalg import cholesky, cholesky_solve, positive_definite
 
 RK4, ETD2 = 0, 1  # Process.method[0]: the mean's integrator
 DIFFERENCES, SPRINGS = 0, 1  # Process.method[1]: the linearisation and discretisation
@@ -126,27 +126,10 @@ class EncoderPlan(NamedTuple):
 
 @njit(cache=True)
 def _work(ma, n):
+    """The kinematics' arrays of :func:`_kinematics`: point Jacobians, biases, positions, closure rows."""
     m = ma.p_index.shape[0]
     J, a_pt, p_pt = point_buffers(ma.points, n)
-    return (np.empty((n, n)), np.empty(n), J, a_pt, p_pt,
-            np.empty((m, n)), np.empty(m), np.empty(m))
-
-
-@njit(cache=True)
-def evaluate(ma, q, qd, tau, point, with_point, qdd, lam, qdd_prev, a_pt_out):
-    """SCDD accelerations at (q, qd, tau) and, if with_point, the world acceleration of
-    attachment point ``point`` (J qdd + Jdot qd). Returns the conditioning."""
-    cond, _ = accelerations(np.int64(SCDD), ma, q, qd, tau, 0.0, 0.0, qdd_prev, qdd, lam)
-    if with_point:
-        n = q.shape[0]
-        M, h, J, a_pt, p_pt, A, gamma, res = _work(ma, n)
-        _closure(ma, q, qd, M, h, J, a_pt, p_pt, A, gamma, res)
-        for r in range(3):
-            s = a_pt[point, r]
-            for j in range(n):
-                s += J[point, r, j] * qdd[j]
-            a_pt_out[r] = s
-    return cond
+    return J, a_pt, p_pt, np.empty((m, n)), np.empty(m), np.empty(m)
 
 
 @njit(cache=True)
@@ -165,7 +148,9 @@ def point_from_scratch(ws, point, qdd, out):
 
 @njit(cache=True)
 def fast_evaluate(ma, q, qd, tau, point, with_point, ws, qdd, lam, a_pt_out):
-    """:func:`evaluate` on work arrays (bit-identical). Returns the conditioning."""
+    """SCDD accelerations ``qdd`` at (q, qd, tau) on the work arrays ``ws`` and, if with_point,
+    the world acceleration J qdd + Jdot qd of attachment point ``point``. Returns the
+    conditioning."""
     cond, _ = accelerations_into(np.int64(SCDD), ma, q, qd, tau, 0.0, 0.0, qdd, qdd, lam, ws)
     if with_point:
         point_from_scratch(ws, point, qdd, a_pt_out)
@@ -173,9 +158,17 @@ def fast_evaluate(ma, q, qd, tau, point, with_point, ws, qdd, lam, a_pt_out):
 
 
 @njit(cache=True)
-def passive_rows(ma, q, W):
-    """W = dq_t/dq_ae (n_t x n_ae) at q; returns the pivot ratio of dh/dq_p."""
+def _kinematics(ma, q, J, a_pt, p_pt, A, gamma, res):
+    """Point Jacobians, positions and the closure rows at (q, qd = 0): no inertia terms."""
     n = q.shape[0]
+    tree_terms(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_body, ma.gravity, q, np.zeros(n),
+               np.empty((0, 0)), np.empty(0), J, a_pt, p_pt)
+    all_closure_rows(ma.closure_pairs, ma.closure_axes, ma.points, ma.couplings, q, J, a_pt, p_pt, A, gamma, res)
+
+
+@njit(cache=True)
+def _passive_rows_from(ma, A, gamma, W):
+    """W = dq_t/dq_ae (n_t x n_ae) from the closure rows A; returns the pivot ratio of dh/dq_p."""
     nae = ma.ae_index.shape[0]
     m = ma.p_index.shape[0]
     W[:, :] = 0.0
@@ -183,8 +176,6 @@ def passive_rows(ma, q, W):
         W[ma.ae_index[j], j] = 1.0
     if m == 0:
         return 1.0
-    M, h, J, a_pt, p_pt, A, gamma, res = _work(ma, n)
-    _closure(ma, q, np.zeros(n), M, h, J, a_pt, p_pt, A, gamma, res)
     Wp = np.empty((m, nae))
     cp = np.empty(m)
     ratio = passive_map(A, gamma, ma.ae_index, ma.p_index, Wp, cp)
@@ -195,12 +186,21 @@ def passive_rows(ma, q, W):
 
 
 @njit(cache=True)
+def passive_rows(ma, q, W):
+    """W = dq_t/dq_ae (n_t x n_ae) at q; returns the pivot ratio of dh/dq_p."""
+    n = q.shape[0]
+    J, a_pt, p_pt, A, gamma, res = _work(ma, n)
+    _kinematics(ma, q, J, a_pt, p_pt, A, gamma, res)
+    return _passive_rows_from(ma, A, gamma, W)
+
+
+@njit(cache=True)
 def pose_outputs(ma, q, point, W, Jp, p):
     """W = dq_t/dq_ae, the point's Jacobian Jp (3 x n_t) and position p (3) at q."""
-    ratio = passive_rows(ma, q, W)
     n = q.shape[0]
-    M, h, J, a_pt, p_pt, A, gamma, res = _work(ma, n)
-    _closure(ma, q, np.zeros(n), M, h, J, a_pt, p_pt, A, gamma, res)
+    J, a_pt, p_pt, A, gamma, res = _work(ma, n)
+    _kinematics(ma, q, J, a_pt, p_pt, A, gamma, res)
+    ratio = _passive_rows_from(ma, A, gamma, W)
     for r in range(3):
         p[r] = p_pt[point, r]
         for j in range(n):
@@ -208,7 +208,8 @@ def pose_outputs(ma, q, point, W, Jp, p):
     return ratio
 
 
-@njit(cache=True)
+# reassociated sums: the quadratic forms below vectorise (the Hexa's 36 x 30 x 30 terms)
+@njit(cache=True, fastmath={"reassoc", "contract"})
 def outputs(ma, q, qd, P, point, ee_axes, branch_joint, stiff, damp, rest, q_std, qd_std, F, F_std, ee, ee_std):
     """Estimated outputs with standard deviations from (q, qd, P): every tree joint (through
     W), branch forces F = c (u - rest) + d du/dt, and the end-effector point's components."""
@@ -217,7 +218,13 @@ def outputs(ma, q, qd, P, point, ee_axes, branch_joint, stiff, damp, rest, q_std
     W = np.empty((n, nae))
     Jp, p = np.empty((3, n)), np.empty(3)
     pose_outputs(ma, q, point, W, Jp, p)
-    for i in range(n):
+    q_std[:] = 0.0  # rows of neither kind (none in today's models) stay zero, as their rows of W
+    qd_std[:] = 0.0
+    for a in range(nae):  # a state joint's row of W is a unit vector: its own variance
+        i = ma.ae_index[a]
+        q_std[i] = np.sqrt(max(P[a, a], 0.0))
+        qd_std[i] = np.sqrt(max(P[nae + a, nae + a], 0.0))
+    for i in ma.p_index:
         sq = 0.0
         sv = 0.0
         for a in range(nae):
@@ -648,7 +655,9 @@ def point_acceleration(ma, q, qd, tau, dist_idx, d, point, out):
         tt[dist_idx[k]] += d[k]
     qdd = np.empty(n)
     lam = np.empty(ma.p_index.shape[0])
-    return evaluate(ma, q, qd, tt, point, True, qdd, lam, np.zeros(n), out)
+    # the tree terms the accelerations leave in the workspace give the point's Jacobian and
+    # bias: no second evaluation of the kinematics
+    return fast_evaluate(ma, q, qd, tt, point, np.bool_(True), workspace(ma), qdd, lam, out)
 
 
 @njit(cache=True)
@@ -922,16 +931,4 @@ def covariance_ok(P):
             if not np.isfinite(v):
                 return False
             L[i, j] = v * d[i] * d[j]
-    for j in range(n):
-        s = L[j, j]
-        for k in range(j):
-            s -= L[j, k] * L[j, k]
-        if not s > 1e-14:
-            return False
-        L[j, j] = np.sqrt(s)
-        for i in range(j + 1, n):
-            s = L[i, j]
-            for k in range(j):
-                s -= L[i, k] * L[j, k]
-            L[i, j] = s / L[j, j]
-    return True
+    return positive_definite(L, 1e-14)
