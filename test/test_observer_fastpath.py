@@ -154,3 +154,25 @@ def test_fast_path_stops_at_a_fault(five_bar, rec) -> None:
     """A torque that blows the model up: the same fault, state, statistics and rows either way."""
     obs, rows = _compare(five_bar, {"sensors": ["encoders", "imu"]}, _events(rec, huge_cmd=(50,)))
     assert obs.fault and len(rows.t) < len(rec.stamp_ns)
+
+
+@pytest.mark.parametrize("hours", [0.0, 3.0, 24.0])
+def test_hours_into_a_run_the_linearisation_keeps_its_schedule(five_bar, rec, hours: float) -> None:
+    # The filter runs on seconds since the stream's origin. Hours into a run those seconds
+    # carry 1e-12 .. 1e-11 s of round-off, and equal 1 ms intervals came out unequal: a test of
+    # 1e-12 s relinearised a quarter to half of all periods (2-4x the cost on the Hexa). The
+    # schedule must be process.relinearize_every's, however long the run.
+    from elastic_pm_dyn.observer.drivers.stream import ObserverStream
+    every = 8
+    obs = Observer(five_bar, ObserverConfig.from_parameters({"sensors": ["encoders"],
+                                                             "process.relinearize_every": every}))
+    stream = ObserverStream(obs, origin_ns=int(rec.stamp_ns[0]) - round(hours * 3600e9))
+    names = list(rec.active_names)
+    fresh = 0  # periods that linearised anew
+    for k, ns in enumerate(rec.stamp_ns):
+        stream.on_joint_state(int(ns), names, rec.encoder[k])
+        stream.on_torque_command(int(ns), names, rec.tau_cmd[k])
+        fresh += k > 0 and obs._lin_age == 1
+    assert obs.initialised and obs.fault is None and obs.t >= hours * 3600.0
+    periods = len(rec.stamp_ns) - 1
+    assert fresh <= math.ceil(periods / every) + 1, (fresh, periods)

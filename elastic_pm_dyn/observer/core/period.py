@@ -48,6 +48,11 @@ from elastic_pm_dyn.observer.core.kernels import (
 
 # sample_step's results besides 0 (not taken): what became of an accelerometer sample
 TAKEN, HELD, DEFERRED = 1, 2, 3
+# [s] intervals closer than this are the same interval (their Phi and Qd are reused): the
+# stamps are integer nanoseconds. A tighter test (it was 1e-12 s) fails on round-off once
+# the filter time is hours long (seconds since the origin carry 1.8e-12 s of it at 3 h,
+# 1.5e-11 s at a day) and relinearised a quarter to half of all periods in long runs.
+SAME_INTERVAL = 0.5e-9
 # the control array's entries (``ctl``)
 T_NOW, LIN_AGE, LIN_T, T_COMMAND, HEAD, TAIL, T_STOP, TRIAL, AFTER = range(9)
 # the timing array's entries (``timing``)
@@ -116,7 +121,7 @@ def advance(ma, fixed, proc, state, cmd, ctl, timing, t_to, tree):
         expired = _expired(timing, t, t_command)
         _tree(active_idx, tau_hold, expired, tree)
         n_sub = max(1, int(np.ceil(T / dt - 1e-9)))
-        relin = lin_age >= every or abs(T - lin_T) > 1e-12
+        relin = lin_age >= every or abs(T - lin_T) > SAME_INTERVAL
         status = predict_checked(ma, fixed, proc, state, tree, relin, T, n_sub)
         if relin:
             lin_age, lin_T = 0.0, T
