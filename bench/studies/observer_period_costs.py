@@ -149,7 +149,7 @@ def study(spec: str) -> dict:
                                                           n_sub, n=60),
         "encoder correction": restored(encoder_correct, ma, state, enc, enc_meas, 1e9),
         "accelerometer correction (one hypothesis)": restored(imu_correct, ma, fixed, proc, state, obs._imu_bundle,
-                                                              tree_b, imu_meas, 1e9),
+                                                              tree_b, imu_meas, 1e9, np.empty(3)),
         "accelerometer correction (auto: both hypotheses)": restored(imu_correct_auto, ma, fixed, proc, state,
                                                                      obs._imu_bundle, tree_b, tree_a, False, imu_meas,
                                                                      1e9, obs.evidence.copy()),

@@ -814,16 +814,17 @@ def imu_residual(S, g, meas, a, r):
 
 
 @njit(cache=True)
-def imu_correct(ma, fixed, proc, state, imu, tau, meas, gate):
+def imu_correct(ma, fixed, proc, state, imu, tau, meas, gate, a):
     """Accelerometer correction (``imu``: :class:`ImuModel`): y = S (J qdd + Jdot qd - g) at the
-    state under tau + Lz z; H = S Hpt. Returns (NIS, status, log det S) as :func:`correct`,
-    status 4 if the model is singular."""
+    state under tau + Lz z; H = S Hpt. ``a`` (3) receives the point's acceleration at the prior
+    (a deferred sample's weighing, :func:`imu_innovations`, takes it instead of evaluating it
+    again). Returns (NIS, status, log det S) as :func:`correct`, status 4 if the model is
+    singular."""
     point = fixed[2]
     dist_idx, Lz = proc[0], proc[2]
     q, qd, z, _, _, _, Hpt, _ = state
     S, g, R = imu
     d = disturbance_torques(Lz, z)
-    a = np.empty(3)
     if not point_acceleration(ma, q, qd, tau, dist_idx, d, point, a) >= SINGULAR_TOL:
         return np.inf, 4, np.nan
     r = np.empty(S.shape[0])
@@ -863,7 +864,7 @@ def innovation_nis(P, H, R, r):
 
 
 @njit(cache=True)
-def imu_innovations(ma, fixed, proc, state, imu, tau_before, tau_after, meas, gate, evidence):
+def imu_innovations(ma, fixed, proc, state, imu, tau_before, tau_after, meas, gate, evidence, a_before, known):
     """The accelerometer sample predicted under both timing hypotheses at the same state (for
     ``imu.sample_timing: auto``): y_b under ``tau_before`` (the torque of the interval that ended
     at the sample, a(t_k-)) and y_a under ``tau_after`` (the torque acting from it on, a(t_k+));
@@ -871,7 +872,9 @@ def imu_innovations(ma, fixed, proc, state, imu, tau_before, tau_after, meas, ga
     log det(2 pi S), 1] to ``evidence``, so that the log-likelihoods of the samples so far are
     -(evidence[0 or 1] + evidence[2]) / 2: Gaussian, the NIS capped at the gate so that an
     outlier (beyond it under both) weighs nothing and a sample weighs at most gate / 2 nats for
-    one hypothesis. Returns (r_b, r_a, H, False if the model is singular there)."""
+    one hypothesis. ``known``: ``a_before`` (3) already holds the point's acceleration under
+    tau_before at this state (:func:`imu_correct`'s), else it receives it. Returns (r_b, r_a,
+    H, False if the model is singular there)."""
     point = fixed[2]
     dist_idx, Lz = proc[0], proc[2]
     q, qd, z, P, _, _, Hpt, _ = state
@@ -881,9 +884,9 @@ def imu_innovations(ma, fixed, proc, state, imu, tau_before, tau_after, meas, ga
     r_b = np.empty(nz)
     r_a = np.empty(nz)
     H = S @ Hpt
-    a_b = np.empty(3)
+    a_b = a_before
     a_a = np.empty(3)
-    if not point_acceleration(ma, q, qd, tau_before, dist_idx, d, point, a_b) >= SINGULAR_TOL:
+    if not known and not point_acceleration(ma, q, qd, tau_before, dist_idx, d, point, a_b) >= SINGULAR_TOL:
         return r_b, r_a, H, False
     same = True
     for i in range(tau_before.shape[0]):
@@ -909,7 +912,8 @@ def imu_correct_auto(ma, fixed, proc, state, imu, tau_before, tau_after, use_aft
     """:func:`imu_innovations` (the evidence), then the correction under the after hypothesis if
     ``use_after``, else the before one (the same numbers as :func:`imu_correct` with that torque).
     Returns (NIS, status, log det S) as :func:`imu_correct`."""
-    r_b, r_a, H, ok = imu_innovations(ma, fixed, proc, state, imu, tau_before, tau_after, meas, gate, evidence)
+    r_b, r_a, H, ok = imu_innovations(ma, fixed, proc, state, imu, tau_before, tau_after, meas, gate, evidence,
+                                      np.empty(3), np.bool_(False))
     if not ok:
         return np.inf, 4, np.nan
     return correct(ma, state, H, imu[2], r_a if use_after else r_b, gate)

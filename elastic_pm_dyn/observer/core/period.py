@@ -29,7 +29,8 @@ after-command hypothesis chosen)]; ``timing`` = [MAX_INTERVAL, DT (the mean's st
 (0 before, 1 after, 2 auto), NO_DELAY (0/1)], fixed for an observer's life; ``cmd`` =
 (tau_hold, tau_last (active order, in place), pend_t, pend_tau); ``work`` = (tree force
 vectors (3, n_t), the deferred sample's prior (a
-:class:`~elastic_pm_dyn.observer.core.kernels.State` of copies), its torque before (n_t)).
+:class:`~elastic_pm_dyn.observer.core.kernels.State` of copies), its torque before (n_t), the
+point's acceleration at that prior under that torque (3: its weighing does not evaluate it again)).
 """
 
 import numpy as np
@@ -192,17 +193,18 @@ def _imu(ma, fixed, proc, state, cmd, ctl, timing, evidence, imu, imu_gate, meas
     ``work``). Returns (NIS, status, log det S)."""
     active_idx = fixed[4]
     tau_hold, tau_last = cmd[0], cmd[1]
-    trees, prior, tau_before = work
+    trees, prior, tau_before, a_before = work
     tree_b, tree_a = trees[0], trees[1]
     _tree(active_idx, tau_last, np.bool_(False), tree_b)
     _tree(active_idx, tau_hold, _expired(timing, ctl[T_NOW], ctl[T_COMMAND]), tree_a)
     after = _use_after(ctl, evidence)
     if int(timing[IMU_MODE]) == 2 and not waiting:
         return imu_correct_auto(ma, fixed, proc, state, imu, tree_b, tree_a, after, meas, imu_gate, evidence)
-    if waiting:
+    if waiting:  # (then before: after would have held the sample)
         _copy_state(state, prior)
         tau_before[:] = tree_b
-    return imu_correct(ma, fixed, proc, state, imu, tree_a if after else tree_b, meas, imu_gate)
+        return imu_correct(ma, fixed, proc, state, imu, tree_b, meas, imu_gate, a_before)
+    return imu_correct(ma, fixed, proc, state, imu, tree_a if after else tree_b, meas, imu_gate, np.empty(3))
 
 
 @njit(cache=True)
@@ -296,9 +298,10 @@ def command_step(ma, fixed, proc, state, cmd, ctl, timing, evidence, imu, imu_ga
         if t_a > -np.inf:
             ctl[T_COMMAND] = t_a
         if waiting == DEFERRED:
-            trees, prior, tau_before = work
+            trees, prior, tau_before, a_before = work
             _tree(active_idx, tau_hold, _expired(timing, ctl[T_NOW], ctl[T_COMMAND]), trees[1])
-            imu_innovations(ma, fixed, proc, prior, imu, tau_before, trees[1], imu_meas, imu_gate, evidence)
+            imu_innovations(ma, fixed, proc, prior, imu, tau_before, trees[1], imu_meas, imu_gate, evidence, a_before,
+                            np.bool_(True))
         elif waiting == HELD:
             nis, st, ld = _imu(ma, fixed, proc, state, cmd, ctl, timing, evidence, imu, imu_gate, imu_meas, work,
                                np.bool_(False))
@@ -320,10 +323,11 @@ def snapshot_buffers(state, cmd, evidence, ctl):
 
 @njit(cache=True)
 def step_work(state, n):
-    """A step's ``work`` bundle: tree force vectors and the deferred sample's prior."""
+    """A step's ``work`` bundle: tree force vectors, the deferred sample's prior, its torque
+    before and its point acceleration there."""
     q, qd, z, P, Phi, Qd, Hpt, info = state
     return (np.zeros((3, n)), (q.copy(), qd.copy(), z.copy(), P.copy(), Phi.copy(), Qd.copy(), Hpt.copy(),
-                               info.copy()), np.zeros(n))
+                               info.copy()), np.zeros(n), np.zeros(3))
 
 
 @njit(cache=True, nogil=True)

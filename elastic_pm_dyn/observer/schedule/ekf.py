@@ -282,7 +282,8 @@ class Observer:
         self.timing_last: TimingDecision | None = None  # the latest choice or check
         self._pending: deque = deque()  # (time it acts from, torque) of delayed commands
         self._held: tuple[float, np.ndarray] | None = None  # an accelerometer sample waiting for its command
-        self._deferred: tuple | None = None  # (t, sample, its prior state, tau before) to weigh when its command comes
+        # (t, sample, its prior state, tau before, the point's acceleration there) to weigh when its command comes
+        self._deferred: tuple | None = None
         self.released: list[UpdateResult] = []  # held samples the last call corrected
         # False: no sample is gated (gate = inf), so that a likelihood cannot be won by gating
         # (observer.tuning.tuning sets it before the first sample)
@@ -301,7 +302,7 @@ class Observer:
         self._timing = self.fast_timing()
         n, nx = self.mech.n, self.nx
         # the compiled steps' work arrays and snapshot (period.step_work, period.snapshot_buffers)
-        self._work = (np.zeros((3, n)), tuple(a.copy() for a in self._state()), np.zeros(n))
+        self._work = (np.zeros((3, n)), tuple(a.copy() for a in self._state()), np.zeros(n), np.zeros(3))
         self._pin = KernelPins()  # the kernels called per message, without numba's type dispatch
         na = len(self.mech.active)
         self._save = (tuple(a.copy() for a in self._state()), (np.zeros(na), np.zeros(na)), np.zeros(4), np.zeros(9))
@@ -767,11 +768,11 @@ class Observer:
         """What waited for the command of its stamp: a deferred weighing (``auto``: the sample's
         prior under both hypotheses, the torque acting now as the after one) and a held sample."""
         if self._deferred is not None:
-            _, meas, prior, tau_before = self._deferred
+            _, meas, prior, tau_before, a_before = self._deferred
             self._deferred = None
             self._pin(kernels.imu_innovations)(self.mech.arrays, self.model.fixed, self._proc, prior, self._imu,
                                                tau_before, self._tree_tau(self._torque_at(self.t)), meas,
-                                               self.gate(len(meas)), self.evidence)
+                                               self.gate(len(meas)), self.evidence, a_before, True)
         if self._held is not None:
             t, acc = self._held
             self._held = None
@@ -797,15 +798,16 @@ class Observer:
                 self.mech.arrays, self.model.fixed, self._proc, self._state(), self._imu, tau_before, tau_after, after,
                 meas, gate, self.evidence)
         else:
-            if defer:
+            a = np.empty(3)  # the point's acceleration at the prior: a deferred sample's weighing takes it
+            if defer:  # (then under before: after would have held the sample)
                 self._settle()
                 # the sample's prior (the kernels' State bundle; Phi, Qd and info are not read)
                 prior = (self.q.copy(), self.qd.copy(), self.z.copy(), self.P.copy(), self.Phi, self.Qd,
                          self.Hpt.copy(), self.info)
-                self._deferred = (t, meas.copy(), prior, tau_before)
+                self._deferred = (t, meas.copy(), prior, tau_before, a)
             nis, status, logdet = self._pin(kernels.imu_correct)(
                 self.mech.arrays, self.model.fixed, self._proc, self._state(), self._imu,
-                tau_after if after else tau_before, meas, gate)
+                tau_after if after else tau_before, meas, gate, a)
         return self._after("imu", t, nis, status, len(meas), gate, [], logdet)
 
     # ------------------------------------------------------------------ sample timing (auto)
@@ -920,7 +922,7 @@ class Observer:
         elif has_imu:
             out.append(self._after("imu", t, float(row[1]), 0, len(meas), np.inf, [], float(row[3])))
             if r == period.DEFERRED:
-                self._deferred = (t, meas, self._work[1], self._work[2])
+                self._deferred = (t, meas, self._work[1], self._work[2], self._work[3])
         return out
 
     def _fast_command(self, t: float, tau: np.ndarray) -> bool:
@@ -937,8 +939,8 @@ class Observer:
             if not np.all(np.isfinite(meas)):
                 return False
         elif self._deferred is not None:
-            _, meas, prior, tau_before = self._deferred
-            waiting, work = period.DEFERRED, (work[0], prior, tau_before)
+            _, meas, prior, tau_before, a_before = self._deferred
+            waiting, work = period.DEFERRED, (work[0], prior, tau_before, a_before)
         cmd, ctl = self._kernel_control(1, self._t_decide)
         row = self._row
         done = self._pin(period.command_step)(self.mech.arrays, self.model.fixed, self._proc, self._state(), cmd, ctl,
