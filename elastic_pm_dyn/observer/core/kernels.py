@@ -208,7 +208,7 @@ def pose_outputs(ma, q, point, W, Jp, p):
     return ratio
 
 
-# reassociated sums: the quadratic forms below vectorise (the Hexa's 36 x 30 x 30 terms)
+# reassociated sums: the quadratic forms below vectorise (the Hexa's 18 passive joints x 18 x 18 terms)
 @njit(cache=True, fastmath={"reassoc", "contract"})
 def outputs(ma, q, qd, P, point, ee_axes, branch_joint, stiff, damp, rest, q_std, qd_std, F, F_std, ee, ee_std):
     """Estimated outputs with standard deviations from (q, qd, P): every tree joint (through
