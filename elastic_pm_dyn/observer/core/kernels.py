@@ -36,7 +36,7 @@ from numba import njit
 
 from elastic_pm_dyn.dynamics.evaluate import SCDD, SINGULAR_TOL, accelerations_into, workspace
 from elastic_pm_dyn.dynamics.kernels import passive_map
-from elastic_pm_dyn.kinematics.kernels import all_closure_rows, point_buffers, tree_terms, unit_axis
+from elastic_pm_dyn.kinematics.kernels import point_buffers, unit_axis
 from elastic_pm_dyn.model.layout import JF_STIFFNESS
 from elastic_pm_dyn.observer.core.propagation import (
     balance,
@@ -46,7 +46,7 @@ from elastic_pm_dyn.observer.core.propagation import (
     spring_columns,
 )
 from elastic_pm_dyn.sim.exponential import AVERAGED, DEFAULT_PHASE_STEP, elastic_gains, exponential_steps
-from elastic_pm_dyn.sim.kernels import OK, STAB_PROJECTION, partition, rk4_steps
+from elastic_pm_dyn.sim.kernels import OK, STAB_PROJECTION, _closure, partition, rk4_steps
 from elastic_pm_dyn.small_linalg import cholesky, cholesky_solve, positive_definite
 
 RK4, ETD2 = 0, 1  # Process.method[0]: the mean's integrator
@@ -159,11 +159,9 @@ def fast_evaluate(ma, q, qd, tau, point, with_point, ws, qdd, lam, a_pt_out):
 
 @njit(cache=True)
 def _kinematics(ma, q, J, a_pt, p_pt, A, gamma, res):
-    """Point Jacobians, positions and the closure rows at (q, qd = 0): no inertia terms."""
-    n = q.shape[0]
-    tree_terms(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_body, ma.gravity, q, np.zeros(n),
-               np.empty((0, 0)), np.empty(0), J, a_pt, p_pt)
-    all_closure_rows(ma.closure_pairs, ma.closure_axes, ma.points, ma.couplings, q, J, a_pt, p_pt, A, gamma, res)
+    """Point Jacobians, positions and the closure rows at (q, qd = 0): an empty M and h, so no
+    inertia terms (as ``partition`` evaluates them)."""
+    _closure(ma, q, np.zeros(q.shape[0]), np.empty((0, 0)), np.empty(0), J, a_pt, p_pt, A, gamma, res)
 
 
 @njit(cache=True)
@@ -377,9 +375,9 @@ def linearize(ma, q, qd, tau, point, with_point, eps_q, eps_v, Aq, Av, Bf, Eq, E
     qdd1 = np.empty(n)
     a1 = np.empty(3)
     W = np.empty((n, nae))
-    worst = passive_rows(ma, q, W)
     cond = fast_evaluate(ma, q, qd, tau, point, with_point, ws, qdd0, lam, a0)
-    worst = min(worst, cond)
+    # W from the closure rows that evaluation left in ws (A depends on q alone)
+    worst = min(cond, _passive_rows_from(ma, ws.A, ws.gamma, W))
     worst = min(worst, difference_columns(ma, q, qd, tau, point, with_point, eps_q, eps_v, W, ws, lam, qdd0, a0,
                                           np.zeros(nae, dtype=np.bool_), Aq, Av, Eq, Ev))
     tp = tau.copy()
@@ -413,9 +411,9 @@ def linearize_springs(ma, q, qd, tau, point, with_point, eps_q, eps_v, Aq, Av, B
     lam = np.empty(m)
     ws = workspace(ma)
     W = np.empty((n, nae))
-    worst = passive_rows(ma, q, W)
     cond = fast_evaluate(ma, q, qd, tau, point, with_point, ws, qdd0, lam, a0)
-    worst = min(worst, cond)
+    # W from the closure rows that evaluation left in ws (A depends on q alone)
+    worst = min(cond, _passive_rows_from(ma, ws.A, ws.gamma, W))
     ratio = elastic_gains(ma, ae, ws[0], ws[5], extra, G, gws)
     if ratio == 0.0:
         return 0.0
