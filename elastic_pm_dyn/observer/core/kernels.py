@@ -216,8 +216,7 @@ def outputs(ma, q, qd, P, point, ee_axes, branch_joint, stiff, damp, rest, q_std
     W = np.empty((n, nae))
     Jp, p = np.empty((3, n)), np.empty(3)
     pose_outputs(ma, q, point, W, Jp, p)
-    q_std[:] = 0.0  # rows of neither kind (none in today's models) stay zero, as their rows of W
-    qd_std[:] = 0.0
+    # every tree joint is a state joint (active, elastic) or a passive one: both loops fill them all
     for a in range(nae):  # a state joint's row of W is a unit vector: its own variance
         i = ma.ae_index[a]
         q_std[i] = np.sqrt(max(P[a, a], 0.0))
