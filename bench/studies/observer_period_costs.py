@@ -155,7 +155,10 @@ def study(spec: str) -> dict:
                                                                      1e9, obs.evidence.copy()),
         "estimate output": per_call(_calls, estimate_flat, (ma, fixed, proc, state, obs.tau_last, 0.0,
                                                            np.empty(obs.flat_layout()["P"].stop))),
-        "snapshot of a compiled step": per_call(_calls, _snapshot, (state, cmd, obs.evidence, ctl, save)),
+        "snapshot of a compiled step (with Phi, Qd: a step that may relinearise)":
+            per_call(_calls, _snapshot, (state, cmd, obs.evidence, ctl, save, np.bool_(True))),
+        "snapshot of a compiled step (without Phi, Qd)":
+            per_call(_calls, _snapshot, (state, cmd, obs.evidence, ctl, save, np.bool_(False))),
         "ETD2 work arrays (made in every prediction)": per_call(_calls, etd2_workspace, (ma,)),
     }
     parts = {k: (v - restore if k.startswith(("predict", "encoder", "accelerometer")) else v) for k, v in parts.items()}

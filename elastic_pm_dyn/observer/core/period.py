@@ -154,21 +154,26 @@ def _use_after(ctl, evidence):
 
 
 @njit(cache=True)
-def _copy_state(src, dst):
+def _copy_state(src, dst, with_linearisation):
+    """Copy a State; Phi and Qd (n_x x n_x each, the largest arrays) only ``with_linearisation``:
+    only a relinearising prediction writes them, and a step that cannot relinearise (see
+    :func:`_may_relinearise`) need not save them (on the Hexa at n_ek = 2 they were two thirds of
+    the 100 kB a snapshot copied, three snapshots a period)."""
     # a State is a tuple of arrays of different ranks: no loop over it in compiled code
     dst[0][:] = src[0]
     dst[1][:] = src[1]
     dst[2][:] = src[2]
     dst[3][:, :] = src[3]
-    dst[4][:, :] = src[4]
-    dst[5][:, :] = src[5]
+    if with_linearisation:
+        dst[4][:, :] = src[4]
+        dst[5][:, :] = src[5]
     dst[6][:, :] = src[6]
     dst[7][:] = src[7]
 
 
 @njit(cache=True)
-def _snapshot(state, cmd, evidence, ctl, save):
-    _copy_state(state, save[0])
+def _snapshot(state, cmd, evidence, ctl, save, with_linearisation):
+    _copy_state(state, save[0], with_linearisation)
     save[1][0][:] = cmd[0]
     save[1][1][:] = cmd[1]
     save[2][:] = evidence
@@ -176,12 +181,29 @@ def _snapshot(state, cmd, evidence, ctl, save):
 
 
 @njit(cache=True)
-def _restore(state, cmd, evidence, ctl, save):
-    _copy_state(save[0], state)
+def _restore(state, cmd, evidence, ctl, save, with_linearisation):
+    _copy_state(save[0], state, with_linearisation)
     cmd[0][:] = save[1][0]
     cmd[1][:] = save[1][1]
     evidence[:] = save[2]
     ctl[:] = save[3]
+
+
+@njit(cache=True)
+def _may_relinearise(cmd, ctl, timing, t_to):
+    """False only if :func:`advance` to ``t_to`` certainly keeps Phi and Qd: nothing to predict, or
+    one piece (no delayed command waiting, no timeout inside, not longer than max_interval) of the
+    linearisation's length that is not due for renewal. True otherwise (may or may not)."""
+    t, tol = ctl[T_NOW], timing[TOL]
+    if not t_to - t > tol:
+        return False
+    if ctl[LIN_AGE] >= timing[RELIN_EVERY] or int(ctl[HEAD]) < int(ctl[TAIL]):
+        return True
+    span = t_to - t
+    timeout = timing[TIMEOUT]
+    if span > timing[MAX_INTERVAL] or (timeout > 0 and t_to - ctl[T_COMMAND] >= timeout - 1e-12 - tol):
+        return True
+    return abs(span - ctl[LIN_T]) > SAME_INTERVAL
 
 
 @njit(cache=True)
@@ -201,7 +223,7 @@ def _imu(ma, fixed, proc, state, cmd, ctl, timing, evidence, imu, imu_gate, meas
     if int(timing[IMU_MODE]) == 2 and not waiting:
         return imu_correct_auto(ma, fixed, proc, state, imu, tree_b, tree_a, after, meas, imu_gate, evidence)
     if waiting:  # (then before: after would have held the sample)
-        _copy_state(state, prior)
+        _copy_state(state, prior, np.bool_(False))  # its weighing reads neither Phi nor Qd
         tau_before[:] = tree_b
         return imu_correct(ma, fixed, proc, state, imu, tree_b, meas, imu_gate, a_before)
     return imu_correct(ma, fixed, proc, state, imu, tree_a if after else tree_b, meas, imu_gate, np.empty(3))
@@ -232,7 +254,8 @@ def sample_step(ma, fixed, proc, state, cmd, ctl, timing, evidence, enc, enc_gat
         for i in range(imu_meas.shape[0]):
             if not np.isfinite(imu_meas[i]):
                 return 0
-    _snapshot(state, cmd, evidence, ctl, save)
+    lin = _may_relinearise(cmd, ctl, timing, t_to)
+    _snapshot(state, cmd, evidence, ctl, save, lin)
     nis_row[:] = np.nan
     ok = True
     if t_to - t > tol:
@@ -255,7 +278,7 @@ def sample_step(ma, fixed, proc, state, cmd, ctl, timing, evidence, enc, enc_gat
             if waiting:
                 result = DEFERRED
     if not ok:
-        _restore(state, cmd, evidence, ctl, save)
+        _restore(state, cmd, evidence, ctl, save, lin)
         return 0
     return result
 
@@ -283,7 +306,8 @@ def command_step(ma, fixed, proc, state, cmd, ctl, timing, evidence, imu, imu_ga
     for i in range(tau.shape[0]):
         if not np.isfinite(tau[i]):
             return 0
-    _snapshot(state, cmd, evidence, ctl, save)
+    lin = _may_relinearise(cmd, ctl, timing, t_to)
+    _snapshot(state, cmd, evidence, ctl, save, lin)
     nis_row[1], nis_row[3] = np.nan, np.nan
     ok = True
     if t_to - t > tol:
@@ -308,7 +332,7 @@ def command_step(ma, fixed, proc, state, cmd, ctl, timing, evidence, imu, imu_ga
             nis_row[1], nis_row[3] = nis, ld
             ok = st == 0
     if not ok:
-        _restore(state, cmd, evidence, ctl, save)
+        _restore(state, cmd, evidence, ctl, save, lin)
         return 0
     return 1
 
@@ -348,7 +372,8 @@ def run_periods(ma, fixed, proc, state, cmd, ctl, timing, evidence, enc, enc_gat
     period = snapshot_buffers(state, cmd, evidence, ctl)
     row = np.empty(4)
     for k in range(start, stop):
-        _snapshot(state, cmd, evidence, ctl, period)
+        lin = _may_relinearise(cmd, ctl, timing, ts[k])  # the period's prediction is its sample's
+        _snapshot(state, cmd, evidence, ctl, period, lin)
         # np.bool_/np.int64 constants in calls between kernels: a literal True, False or 0 would give the callee a
         # second (Literal-typed) specialisation, compiled a second time (see test_numba_cache.py)
         waiting = sample_step(ma, fixed, proc, state, cmd, ctl, timing, evidence, enc, enc_gate, imu, imu_gate,
@@ -357,7 +382,7 @@ def run_periods(ma, fixed, proc, state, cmd, ctl, timing, evidence, enc, enc_gat
             return k - start
         if command_step(ma, fixed, proc, state, cmd, ctl, timing, evidence, imu, imu_gate, ts[k], taus[k], waiting,
                         imu_meas[k], work, save, row) == 0:
-            _restore(state, cmd, evidence, ctl, period)
+            _restore(state, cmd, evidence, ctl, period, lin)
             return k - start
         if waiting == HELD:
             nis_out[k, 1], nis_out[k, 3] = row[1], row[3]

@@ -745,14 +745,17 @@ class Observer:
         late = self._sync(t, "imu")
         if late is not None:
             return late
-        # With no delay the command that starts to act at t may still come (the command of t)
-        waiting = (self.imu_mode != 0 and self._no_delay
-                   and self._newest_command() < t + self.delay - self.cfg.timing.stamp_tolerance)
+        waiting = self._waits_for_command(t)
         if waiting and self._use_after():
             self._settle()  # two samples at one stamp: the first goes now
             self._held = (t, acc)
             return None
         return self._imu_update(t, acc, defer=waiting)
+
+    def _waits_for_command(self, t: float) -> bool:
+        """With no delay the command that starts to act at sample stamp t may still come (the command of t)."""
+        return (self.imu_mode != 0 and self._no_delay
+                and self._newest_command() < t + self.delay - self.cfg.timing.stamp_tolerance)
 
     def _use_after(self) -> bool:
         """The hypothesis in use: ``auto``'s likelier so far before its first choice."""
@@ -902,6 +905,11 @@ class Observer:
         has_enc, has_imu = plan is not None, acc is not None
         enc_m = np.asarray(position, dtype=float)[plan[0]] if has_enc else self._row[:0]
         meas = acc[self.imu.axes] if has_imu else self._row[:0]
+        if (has_imu and not has_enc and not abs(t - self.t) > tol and t < self._t_decide - tol
+                and self._waits_for_command(t) and self._use_after() and np.all(np.isfinite(meas))):
+            # what sample_step would do (HELD: the command of this stamp corrects it), without a call
+            self._held = (t, acc)
+            return []
         enc = plan[1:5] if has_enc else self._empty_plan
         dof_e = len(plan[0]) if has_enc else 0
         cmd, ctl = self._kernel_control(0, self._t_decide)
