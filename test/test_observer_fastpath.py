@@ -176,3 +176,53 @@ def test_hours_into_a_run_the_linearisation_keeps_its_schedule(five_bar, rec, ho
     assert obs.initialised and obs.fault is None and obs.t >= hours * 3600.0
     periods = len(rec.stamp_ns) - 1
     assert fresh <= math.ceil(periods / every) + 1, (fresh, periods)
+
+
+def test_a_step_that_skips_saving_phi_and_qd_never_relinearises(five_bar, rec) -> None:
+    """A compiled step saves Phi and Qd for its undo only when ``period._may_relinearise`` says the
+    prediction may renew them. Its "no" must be certain: over prediction spans, linearisation ages
+    and lengths, command timeouts and delayed commands around the boundaries, ``advance`` must
+    leave Phi and Qd exactly as they were wherever it said no (and it must say no on the
+    ordinary period, or the saving is never made)."""
+    from elastic_pm_dyn.observer.core import period
+
+    obs = Observer(five_bar, ObserverConfig.from_parameters({"sensors": ["encoders"]}))
+    names = list(rec.active_names)
+    for k in range(30):  # a filter in motion, linearised along the way
+        obs.update_joint_states(rec.t[k], names, rec.encoder[k])
+        obs.command(rec.t[k], rec.tau_cmd[k])
+    ma, fixed, proc = obs.mech.arrays, obs.model.fixed, obs._proc
+    rng = np.random.default_rng(11)
+    said_no = renewed_after_no = 0
+    every = float(obs.cfg.process.relinearize_every)
+    dt = 1e-3
+    for _ in range(400):
+        state = tuple(a.copy() for a in obs._state())
+        cmd, ctl = obs._kernel_control(4, np.inf)
+        timing = obs.fast_timing()
+        t = ctl[period.T_NOW]
+        # the ordinary period (one 1 ms piece of the linearisation's length, not due), each
+        # feature changed on its own with probability 1/4
+        span, ctl[period.LIN_AGE], ctl[period.LIN_T] = dt, 1.0, dt
+        if rng.random() < 0.25:
+            span = float(rng.choice([0.0, 1e-10, 0.5 * dt, dt + 4e-10, dt + 6e-10, dt - 6e-10, 2 * dt,
+                                     timing[period.MAX_INTERVAL] + 1e-4]))
+        if rng.random() < 0.25:
+            ctl[period.LIN_AGE] = float(rng.choice([0.0, every - 1.0, every, every + 1.0]))
+        if rng.random() < 0.25:
+            ctl[period.LIN_T] = float(rng.choice([dt + 3e-10, dt + 7e-10, 0.5 * dt, 2 * dt]))
+        if rng.random() < 0.25:  # a command timeout that may end inside the span
+            timing[period.TIMEOUT] = float(rng.choice([0.2e-3, 1e-3, 1.5e-3, 5e-3]))
+            ctl[period.T_COMMAND] = t - float(rng.choice([0.0, 0.5e-3, 1e-3, 4.5e-3]))
+        if rng.random() < 0.25:  # a delayed command waiting to act
+            cmd[2][0] = t + float(rng.choice([0.2e-3, 0.5e-3, 3e-3]))
+            cmd[3][0] = obs.tau_hold
+            ctl[period.HEAD], ctl[period.TAIL] = 0.0, 1.0
+        no = not period._may_relinearise(cmd, ctl, timing, t + span)
+        phi, qd_ = state[4].copy(), state[5].copy()
+        period.advance(ma, fixed, proc, state, cmd, ctl, timing, t + span, np.zeros(five_bar.n))
+        if no:
+            said_no += 1
+            renewed_after_no += not (np.array_equal(phi, state[4]) and np.array_equal(qd_, state[5]))
+    assert renewed_after_no == 0
+    assert said_no > 80

@@ -191,19 +191,19 @@ def _restore(state, cmd, evidence, ctl, save, with_linearisation):
 
 @njit(cache=True)
 def _may_relinearise(cmd, ctl, timing, t_to):
-    """False only if :func:`advance` to ``t_to`` certainly keeps Phi and Qd: nothing to predict, or
-    one piece (no delayed command waiting, no timeout inside, not longer than max_interval) of the
-    linearisation's length that is not due for renewal. True otherwise (may or may not)."""
+    """False only if :func:`advance` to ``t_to`` certainly keeps Phi and Qd: nothing to predict,
+    or one piece (:func:`piece_end`, as ``advance`` cuts it) of the linearisation's length when
+    the linearisation is not due and no delayed command waits. True otherwise (it may)."""
     t, tol = ctl[T_NOW], timing[TOL]
     if not t_to - t > tol:
         return False
-    if ctl[LIN_AGE] >= timing[RELIN_EVERY] or int(ctl[HEAD]) < int(ctl[TAIL]):
+    head, tail = int(ctl[HEAD]), int(ctl[TAIL])
+    if ctl[LIN_AGE] >= timing[RELIN_EVERY] or head < tail:
         return True
-    span = t_to - t
-    timeout = timing[TIMEOUT]
-    if span > timing[MAX_INTERVAL] or (timeout > 0 and t_to - ctl[T_COMMAND] >= timeout - 1e-12 - tol):
-        return True
-    return abs(span - ctl[LIN_T]) > SAME_INTERVAL
+    end = piece_end(t, t_to, timing[MAX_INTERVAL], ctl[T_COMMAND], timing[TIMEOUT], cmd[2], head, tail, tol)
+    if t_to - end > tol:
+        return True  # more than one piece
+    return abs((end - t) - ctl[LIN_T]) > SAME_INTERVAL
 
 
 @njit(cache=True)
