@@ -226,6 +226,10 @@ def cmd_check(args: argparse.Namespace) -> int:
     sprung = np.array([i for i in mech.elastic if model.joints[i].stiffness > 0.0], dtype=np.int64)
     for role, idx in (("active", mech.active), ("elastic", sprung), ("passive", mech.passive)):
         print(f"  {role:8s} {len(idx)}: {', '.join(mech.joint_names[i] for i in idx) or '-'}")
+    loop_springs = [mech.joint_names[i] for i in mech.passive if model.joints[i].stiffness > 0.0]
+    if loop_springs:
+        print(f"  sprung passive {len(loop_springs)}: {', '.join(loop_springs)} (springs on joints the loops fix: "
+              "they act, the loops set the joints)")
     if len(free):
         print(f"  free     {len(free)}: {', '.join(mech.joint_names[i] for i in free)} "
               "(left free by the closures: unactuated, no spring)")
