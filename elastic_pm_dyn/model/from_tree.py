@@ -17,6 +17,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import scipy.linalg
 
+from elastic_pm_dyn.model.closed_start import motors_to_a_closed_pose
 from elastic_pm_dyn.model.closures_sidecar import Sidecar
 from elastic_pm_dyn.model.description import (
     ACTIVE,
@@ -104,6 +105,7 @@ def build_model(tree: KinematicTree, sidecar: Sidecar | None = None) -> Model:
     model = Model(name=tree.name, chains=tuple(chains), closure=closure, gravity=gravity,
                   end_effector_mass=ee_mass, initial=initial, branches=branches, source=tree.file, planar=planar,
                   fixed_points=fixed)
+    model = motors_to_a_closed_pose(model)  # every check below looks for a closed pose from the start
     model = springs_fixed_by_loops(model)  # before the rows are judged: it changes the passive joints
     model, independent = drop_still_rows(model)
     if not independent:
