@@ -226,6 +226,10 @@ def cmd_check(args: argparse.Namespace) -> int:
     sprung = np.array([i for i in mech.elastic if model.joints[i].stiffness > 0.0], dtype=np.int64)
     for role, idx in (("active", mech.active), ("elastic", sprung), ("passive", mech.passive)):
         print(f"  {role:8s} {len(idx)}: {', '.join(mech.joint_names[i] for i in idx) or '-'}")
+    loop_springs = [mech.joint_names[i] for i in mech.passive if model.joints[i].stiffness > 0.0]
+    if loop_springs:
+        print(f"  sprung passive {len(loop_springs)}: {', '.join(loop_springs)} (springs on joints the loops fix: "
+              "they act, the loops set the joints)")
     if len(free):
         print(f"  free     {len(free)}: {', '.join(mech.joint_names[i] for i in free)} "
               "(left free by the closures: unactuated, no spring)")
@@ -249,6 +253,7 @@ def cmd_check(args: argparse.Namespace) -> int:
     print("  assembly mode: " + (", ".join(f"{mech.joint_names[i]} {'positive' if np.sin(q[i]) >= 0 else 'negative'}"
                                            for i in mech.passive if model.joints[i].type == "revolute") or "-"))
     print(f"  closure residual {mech.gap(q):.3g} m")
+    _print_one_pass_factor(mech, q)
     if len(sprung):
         modes = elastic_modes(mech, q, clamp_motors=True)
         print("elastic modes at the start pose (motors clamped"
@@ -319,6 +324,18 @@ def _dropped_rows(model) -> list[str]:
                    f"weld's frame): {', '.join(what)}: they hold by themselves (a loop of hinges parallel to {n}, "
                    f"closed by a 6-D weld); {bin(mask).count('1')} rows kept")
     return out
+
+
+def _print_one_pass_factor(mech, q: np.ndarray) -> None:
+    """The paper's one-pass SCDD at the start pose: its convergence factor and what follows (dynamics/one_pass.py)."""
+    from elastic_pm_dyn.dynamics.one_pass import one_pass_convergence_factor
+    if mech.m == 0:
+        print("  --method scdd_one_pass: no closure rows, nothing to iterate (it is exact SCDD)")
+        return
+    rho = one_pass_convergence_factor(mech, q)
+    verdict = ("converges (its lag shrinks by this factor per evaluation)" if rho < 1.0
+               else "diverges: refused here, use scdd (the default)")
+    print(f"  --method scdd_one_pass: convergence factor {rho:.3g} at the start pose; it {verdict}")
 
 
 def _rows_text(n: int) -> str:

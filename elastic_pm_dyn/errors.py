@@ -58,6 +58,16 @@ class DivergedStateError(SingularConfigurationError):
     is kept, a plant keeps its last good state)."""
 
 
+class OnePassDivergenceError(SingularConfigurationError):
+    """The paper's one-pass SCDD (``scdd_one_pass``) diverges at this pose: its convergence
+    factor (``factor``, the spectral radius of its iteration, dynamics/one_pass.py) is >= 1.
+    Handled as a singular configuration: the run stops, the partial result is kept."""
+
+    def __init__(self, message: str, factor: float, time: float | None = None, residual: float | None = None):
+        self.factor = factor
+        super().__init__(message, time, residual)
+
+
 class RunInterrupted(KeyboardInterrupt):
     """Ctrl-C during a run: still a KeyboardInterrupt (the program stops), but it carries
     the samples computed so far as ``partial`` and the time of the last one as ``time``."""

@@ -425,7 +425,7 @@ def test_reduced_rows_are_the_same_machine_to_every_exact_formulation_and_rk4(tm
     """The compiled paths beyond the adaptive SCDD: L-D'A, multipliers and stacked SCDD give the
     same accelerations at a moving pose, and fixed-step RK4 (compiled, with the closure projected)
     the same motion as DOP853. (scdd_one_pass, the paper's iteration, converges only where
-    one_pass_convergence_factor < 1: 5.2 and 1.1 on these.)"""
+    one_pass_convergence_factor < 1: 5.2 and 1.1 on these, where it is refused.)"""
     mech = Mechanism(load_model(_write(tmp_path, text, name)))
     q = initial_state(mech)
     qd = mech.tree_velocity(q, np.array([0.7]))

@@ -5,8 +5,11 @@ from __future__ import annotations
 import numpy as np
 
 from elastic_pm_dyn.dynamics.evaluate import FORMULATION_CODES, SCDD_ONE_PASS, SINGULAR_TOL, accelerations_flat
+from elastic_pm_dyn.dynamics.one_pass import check_one_pass, one_pass_convergence_factor
 from elastic_pm_dyn.errors import InputError, SingularConfigurationError
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
+
+__all__ = ["FORMULATIONS", "Dynamics", "one_pass_convergence_factor"]
 
 FORMULATIONS = tuple(FORMULATION_CODES)
 
@@ -18,7 +21,8 @@ class Dynamics:
     ``scdd_stacked`` (exact, all cut forces stacked), ``lda`` (compact
     Lagrange-D'Alembert), ``multipliers`` (Lagrange equations of the first kind) or
     ``scdd_one_pass`` (the paper's variant; stateful: it remembers the last accelerations
-    it returned).
+    it returned; refused with :class:`~elastic_pm_dyn.errors.OnePassDivergenceError` at a pose
+    where its iteration diverges, dynamics/one_pass.py).
     """
 
     def __init__(self, mech: Mechanism, formulation: str = "scdd", singular_tol: float = SINGULAR_TOL):
@@ -30,6 +34,7 @@ class Dynamics:
         self.singular_tol = singular_tol
         self.qdd_prev = np.zeros(mech.n)
         self.cut_force = np.zeros(mech.m)
+        self._checked_q: np.ndarray | None = None  # the last pose the one-pass factor was checked at
 
     def tree_forces(self, tau_active: np.ndarray, ee_force: np.ndarray | None = None,
                     q: np.ndarray | None = None) -> np.ndarray:
@@ -52,6 +57,9 @@ class Dynamics:
         """
         q = np.ascontiguousarray(q, dtype=float)
         qd = np.ascontiguousarray(qd, dtype=float)
+        if self.code == SCDD_ONE_PASS and (self._checked_q is None or not np.array_equal(q, self._checked_q)):
+            check_one_pass(self.mech, q)  # before its lag can make a wrong answer
+            self._checked_q = q.copy()
         tau = self.tree_forces(tau_active, ee_force, q)
         qdd = np.empty(self.mech.n)
         lam = np.zeros(self.mech.m)
@@ -68,20 +76,3 @@ class Dynamics:
 
     def reset(self) -> None:
         self.qdd_prev[:] = 0.0
-
-
-def one_pass_convergence_factor(mech: Mechanism, q: np.ndarray) -> float:
-    """Spectral radius of the paper's calculation loop (eqs 34-39) as an iteration.
-
-    One pass maps the previous q_ae accelerations to new ones linearly:
-    qdd_ae <- G qdd_ae + const with G = [M^-1 A^T]_ae (dh/dq_p)^-T M_p W. Closed once
-    per evaluation with last step's accelerations (``scdd_one_pass``), the lag only
-    shrinks where rho(G) < 1; where rho(G) >= 1 successive evaluations amplify it and the
-    run diverges. Exact SCDD solves the loop instead and has no such limit.
-    """
-    t = mech.terms(q)
-    W, _ = mech.passive_map(t)
-    Y = np.linalg.solve(t.M, t.A.T)
-    A_p = t.A[:, mech.passive]
-    G = Y[mech.ae] @ np.linalg.solve(A_p.T, t.M[mech.passive] @ W)
-    return float(np.max(np.abs(np.linalg.eigvals(G))))

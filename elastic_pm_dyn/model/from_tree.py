@@ -17,6 +17,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import scipy.linalg
 
+from elastic_pm_dyn.model.closed_start import motors_to_a_closed_pose
 from elastic_pm_dyn.model.closures_sidecar import Sidecar
 from elastic_pm_dyn.model.description import (
     ACTIVE,
@@ -53,6 +54,7 @@ from elastic_pm_dyn.model.kinematic_tree import (
     TreeJoint,
     Where,
 )
+from elastic_pm_dyn.model.loop_springs import springs_fixed_by_loops
 from elastic_pm_dyn.model.yaml_reader import parse_branches, parse_initial
 
 DEFAULT_GRAVITY = (0.0, 0.0, -9.81)  # a URDF has none; Pinocchio's and Gazebo's default
@@ -103,6 +105,8 @@ def build_model(tree: KinematicTree, sidecar: Sidecar | None = None) -> Model:
     model = Model(name=tree.name, chains=tuple(chains), closure=closure, gravity=gravity,
                   end_effector_mass=ee_mass, initial=initial, branches=branches, source=tree.file, planar=planar,
                   fixed_points=fixed)
+    model = motors_to_a_closed_pose(model)  # every check below looks for a closed pose from the start
+    model = springs_fixed_by_loops(model)  # before the rows are judged: it changes the passive joints
     model, independent = drop_still_rows(model)
     if not independent:
         model = drop_repeated_rows(model)  # before the free spins: their rank needs independent rows
@@ -160,9 +164,12 @@ def _check_tendon_motors(tree: KinematicTree, model: Model) -> None:
                     rate[i] = X[row]
         loose = [name for name, _ in tm.terms if names.index(name) not in rate]
         if loose:
+            sprung = all(model.joints[names.index(n)].stiffness > 0.0 for n in loose) \
+                and model.joints[a].stiffness > 0.0
+            why = ("a motor spread over several sprung joints (each has its spring: not under-actuated, but a motor "
+                   "acts on one joint here)") if sprung else "one motor for several degrees of freedom (under-actuated)"
             raise tm.where.error(f"not supported yet: the actuator's tendon runs over joints {', '.join(loose)} that "
-                                 f"no <joint>/<tendon> equality ties to {tm.joint!r}: one motor for several degrees "
-                                 "of freedom (under-actuated)")
+                                 f"no <joint>/<tendon> equality ties to {tm.joint!r}: {why}")
         work = sum(coef * rate[names.index(name)] for name, coef in tm.terms)  # generalised force per unit f
         side = [names[e] for e in others if abs(work[e]) > 1e-12]
         if side:

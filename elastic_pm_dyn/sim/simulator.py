@@ -9,8 +9,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from elastic_pm_dyn.dynamics.evaluate import FORMULATION_CODES, LDA, SINGULAR_TOL, accelerations_flat
-from elastic_pm_dyn.errors import InputError, RunInterrupted, SingularConfigurationError
+from elastic_pm_dyn.dynamics.evaluate import FORMULATION_CODES, LDA, SCDD_ONE_PASS, SINGULAR_TOL, accelerations_flat
+from elastic_pm_dyn.dynamics.one_pass import check_one_pass, one_pass_convergence_factor, one_pass_refusal
+from elastic_pm_dyn.errors import InputError, OnePassDivergenceError, RunInterrupted, SingularConfigurationError
 from elastic_pm_dyn.kinematics.assembly import initial_state
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.sim import batch, exponential, integrators, kernels
@@ -104,6 +105,8 @@ class Simulator:
         Raises SingularConfigurationError (state left at the last good step).
         """
         o = self.options
+        if self.code == SCDD_ONE_PASS:  # each call (a plant's period, a run's interval) starts where it converges
+            check_one_pass(self.mech, q, f"at t = {t0:.6g} s", t0)
         n_steps = max(1, int(np.ceil((t1 - t0) / o.dt - 1e-9)))
         h = (t1 - t0) / n_steps
         if o.integrator == "dop853":
@@ -215,6 +218,8 @@ class Simulator:
         if q.shape != (mech.n,) or qd.shape != (mech.n,):
             raise InputError(f"initial state must have {mech.n} tree coordinates")
         self.qdd_prev[:] = 0.0
+        if self.code == SCDD_ONE_PASS:  # refused before anything is computed, not after
+            check_one_pass(mech, q, "at the start pose", t0)
         o = self.options
         t_end = t0 + duration
         n_out = int(np.floor(duration / o.sample + 1e-9))
@@ -279,12 +284,21 @@ class Simulator:
                 ends = np.searchsorted(np.cumsum(steps), marks, side="right")
                 for c0, c1 in itertools.pairwise(np.unique(np.concatenate([[0], ends, [len(hs)]]))):
                     coefs = torque.coefficients_many(starts[c0:c1], steps[c0:c1] * hs[c0:c1])
+                    first = row
                     status, done, row = batch.run_pieces_flat(
                         *self.method, self.code, *self._args, active, q, qd, coefs, hs[c0:c1], steps[c0:c1],
                         record[c0:c1], q_out, qd_out, row, settings, self.qdd_prev, self.lam, self.info)
+                    if self.code == SCDD_ONE_PASS:
+                        self._check_one_pass_rows(q_out, t_out, first, row, result)
                     if status != kernels.OK:  # a singular configuration or a blow-up, told apart
                         p = c0 + done
-                        err = integration_error(status, o.formulation, starts[p] + self.info[0] * hs[p], self.info)
+                        t_fail = starts[p] + self.info[0] * hs[p]
+                        err = integration_error(status, o.formulation, t_fail, self.info)
+                        if self.code == SCDD_ONE_PASS:  # a blow-up of the iteration, not of the machine?
+                            rho = one_pass_convergence_factor(mech, q)
+                            if not rho < 1.0:
+                                err = OnePassDivergenceError(one_pass_refusal(rho, f"at t = {t_fail:.6g} s"), rho,
+                                                             t_fail, float(self.info[2]))
                         err.partial = result(row)
                         raise err
         except KeyboardInterrupt:
@@ -292,6 +306,18 @@ class Simulator:
             t_last = float(partial.t[-1])
             raise RunInterrupted(f"interrupted at t = {t_last:.6g} s of {t_end:.6g} s", t_last, partial) from None
         return result(row)
+
+    def _check_one_pass_rows(self, q_out: np.ndarray, t_out: np.ndarray, first: int, last: int,
+                             result) -> None:
+        """The one-pass SCDD's convergence factor at the samples ``first:last`` a compiled chunk
+        just wrote: at the first where it is >= 1 the run stops, keeping the samples before it."""
+        for k in range(first, last):
+            rho = one_pass_convergence_factor(self.mech, q_out[k])
+            if not rho < 1.0:
+                err = OnePassDivergenceError(one_pass_refusal(rho, f"at t = {t_out[k]:.6g} s"), rho,
+                                             float(t_out[k]), self.mech.gap(q_out[k]))
+                err.partial = result(k)
+                raise err
 
     def _calls(self, grid: np.ndarray, out: np.ndarray
                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
