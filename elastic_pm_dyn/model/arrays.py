@@ -15,8 +15,7 @@ class ModelArrays(NamedTuple):
     """Everything the kernels need, as contiguous arrays (see :mod:`layout`).
 
     As few arrays as will do: each one more costs every call from Python its unboxing
-    (about 0.15 us measured 2026-11-23 on the 2-core dev machine; bench/benchmarks/bench_dynamics.py's
-    ``ours.kernel.*`` measure it).
+    (bench/benchmarks/bench_dynamics.py's ``ours.kernel.*`` rows measure a call's cost).
     """
 
     jf: np.ndarray  # (n_t, JF_WIDTH) float

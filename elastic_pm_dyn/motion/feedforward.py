@@ -21,7 +21,7 @@ METHODS = ("rigid", "elastic", "shaped")
 # [s] grid of the elastic inverse: its torques are smooth within the move (a quintic spline
 # between grid points reproduces the 1 kHz ZOH means to ~1e-6 of the springs' share, measured
 # on the five-bar: the same path deviation and residual vibration as a 1 ms grid), and the
-# solve costs a third of a 1 ms grid's (measured 2026-11-27 on the 2-core dev machine)
+# solve has half the grid points of a 1 ms grid to find
 INVERSE_GRID = 2e-3
 
 
