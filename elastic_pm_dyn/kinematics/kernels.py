@@ -117,10 +117,12 @@ def _body_loads(jf, k, m, g, R, o, w, al, ao):
 
 @njit(cache=True, inline="always")
 def _joint_elements(jf, s, e, q, qd, M, h):
-    """What acts in the joints s..e-1 themselves: rotor inertia on M's diagonal; spring,
-    damper and viscous friction forces in h."""
+    """What acts in the joints s..e-1 themselves: rotor inertia on M's diagonal (if M is not
+    empty); spring, damper and viscous friction forces in h."""
+    mass = M.shape[0] > 0
     for k in range(s, e):
-        M[k, k] += jf[k, JF_ROTOR]
+        if mass:
+            M[k, k] += jf[k, JF_ROTOR]
         h[k] += jf[k, JF_STIFFNESS] * (q[k] - jf[k, JF_REST]) + \
             (jf[k, JF_DAMPING] + jf[k, JF_FRICTION]) * qd[k]
 
@@ -155,10 +157,12 @@ def serial_chain_terms(jf, ji, s, e, points, point_body, grav, q, qd, M, h, J, a
     on its last body and have no frames (``ji[s, JI_SUBTREE] == 0``): the sweep carries one
     body's frame and rates along, every body's Jacobian has the columns s..k. The general
     sweep's parent lookups and stored frames cost such a chain 7 % (bench/benchmarks/bench_tree_sweep.py).
-    An empty M (0 x 0) asks for the kinematics alone (points, their Jacobians and bias
-    accelerations): no inertia, M and h untouched."""
+    An empty M (0 x 0) and h ask for the kinematics alone (points, their Jacobians and bias
+    accelerations): no inertia, M and h untouched; an empty M with a full h for the bias
+    forces without the mass matrix."""
     g = (grav[0], grav[1], grav[2])
-    inertia = M.shape[0] > 0
+    inertia = h.shape[0] > 0
+    mass = M.shape[0] > 0
     R = IDENTITY
     o = ZERO
     w = ZERO  # angular velocity of the current body
@@ -179,6 +183,8 @@ def serial_chain_terms(jf, ji, s, e, points, point_body, grav, q, qd, M, h, J, a
             jva = (jv[a, 0], jv[a, 1], jv[a, 2])
             jwa = (jw[a, 0], jw[a, 1], jw[a, 2])
             h[a] += v.dot(jva, f) + v.dot(jwa, t_rot)
+            if not mass:
+                continue
             Ijwa = v.mv(Ic, jwa)
             for b in range(s, a + 1):
                 val = m * v.dot(jva, (jv[b, 0], jv[b, 1], jv[b, 2])) + \
@@ -219,10 +225,12 @@ def subtree_terms(jf, ji, s, e, points, point_body, grav, q, qd, M, h, J, a_pt, 
     acceleration in a_pt and position in p_pt (n_points x 3; with 12 columns also the
     world orientation of the point's frame, row-major, ``points`` then holding its
     orientation in the body frame). wz, wo, jv, jw are (n_t, 3) and fr (n_t, 18) scratch.
-    An empty M (0 x 0) asks for the kinematics alone: no inertia, M and h untouched.
+    An empty M (0 x 0) and h ask for the kinematics alone: no inertia, M and h untouched; an
+    empty M with a full h for the bias forces without the mass matrix.
     """
     g = (grav[0], grav[1], grav[2])
-    inertia = M.shape[0] > 0
+    inertia = h.shape[0] > 0
+    mass = M.shape[0] > 0
     R = IDENTITY
     o = ZERO
     w = ZERO  # angular velocity of the current body
@@ -256,7 +264,7 @@ def subtree_terms(jf, ji, s, e, points, point_body, grav, q, qd, M, h, J, a_pt, 
         a = k
         while a >= 0:
             jva, Ijwa = _project(jv, jw, f, t_rot, Ic, h, a)
-            b = a
+            b = a if mass else -1
             while b >= 0:
                 _mass_entry(jv, jw, m, jva, Ijwa, M, a, b)
                 b = ji[b, JI_PARENT]
@@ -315,7 +323,8 @@ def tree_terms(jf, ji, chain_start, points, point_body, grav, q, qd, M, h, J, a_
 @njit(cache=True)
 def tree_terms_into(jf, ji, chain_start, points, point_body, grav, q, qd, M, h, J, a_pt, p_pt, wz, wo, jv, jw, fr):
     """:func:`tree_terms` with its work arrays given: four (n_t x 3), one (n_t x 18). With an
-    empty M (0 x 0) and h, the kinematics alone (what a closure residual needs)."""
+    empty M (0 x 0) and h, the kinematics alone (what a closure residual needs); with an empty
+    M and a full h, the bias forces without the mass matrix (what a change of velocity changes)."""
     M[:, :] = 0.0
     h[:] = 0.0
     J[:, :, :] = 0.0

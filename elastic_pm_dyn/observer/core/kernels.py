@@ -43,6 +43,7 @@ from elastic_pm_dyn.observer.core.propagation import (
     discretize_structured,
     linearization_workspace,
     one_norm,
+    rate_columns,
     spring_columns,
 )
 from elastic_pm_dyn.sim.exponential import AVERAGED, DEFAULT_PHASE_STEP, elastic_gains, exponential_steps
@@ -318,9 +319,9 @@ def estimate_flat(ma, fixed, proc, state, tau_last, t, out):
 
 @njit(cache=True)
 def difference_columns(ma, q, qd, tau, point, with_point, eps_q, eps_v, W, ws, lam, qdd0, a0, skip_position,
-                       Aq, Av, Eq, Ev):
+                       rates, Aq, Av, Eq, Ev):
     """One-sided differences from (qdd0, a0) at (q, qd): the position columns of Aq, Eq (but those
-    ``skip_position`` marks) and every rate column of Av, Ev. A position column moves q_p to first
+    ``skip_position`` marks) and, with ``rates``, every rate column of Av, Ev. A position column moves q_p to first
     order along W and takes qd_p from the closure at the perturbed pose (partitioning with a loose
     tolerance: one closure evaluation); a rate column moves qd_p along W. Returns the worst
     conditioning met."""
@@ -344,6 +345,8 @@ def difference_columns(ma, q, qd, tau, point, with_point, eps_q, eps_v, W, ws, l
                 Aq[i, j] = (qdd1[ae[i]] - qdd0[ae[i]]) / e
             for r in range(3):
                 Eq[r, j] = (a1[r] - a0[r]) / e if with_point else 0.0
+        if not rates:
+            continue
         e = eps_v[j]
         for i in range(n):
             vp[i] = qd[i] + W[i, j] * e
@@ -378,7 +381,7 @@ def linearize(ma, q, qd, tau, point, with_point, eps_q, eps_v, Aq, Av, Bf, Eq, E
     # W from the closure rows that evaluation left in ws (A depends on q alone)
     worst = min(cond, _passive_rows_from(ma, ws.A, ws.gamma, W))
     worst = min(worst, difference_columns(ma, q, qd, tau, point, with_point, eps_q, eps_v, W, ws, lam, qdd0, a0,
-                                          np.zeros(nae, dtype=np.bool_), Aq, Av, Eq, Ev))
+                                          np.zeros(nae, dtype=np.bool_), np.bool_(True), Aq, Av, Eq, Ev))
     tp = tau.copy()
     for j in range(nae):
         # Linear in the force: a unit step is exact. The point acceleration changes by J dqdd
@@ -398,8 +401,9 @@ def linearize(ma, q, qd, tau, point, with_point, eps_q, eps_v, Aq, Av, Bf, Eq, E
 def linearize_springs(ma, q, qd, tau, point, with_point, eps_q, eps_v, Aq, Av, Bf, Eq, Ev, Ef, qdd0, a0, lws):
     """:func:`linearize` from the model's structure (:mod:`~elastic_pm_dyn.observer.core.propagation`):
     Bf and Ef from one factorisation (the gains of unit forces on every q_ae joint), the elastic
-    joints' position columns from their springs, the other columns (motors and free joints'
-    positions, every rate) by the same one-sided differences as :func:`linearize`.
+    joints' position columns from their springs, the other position columns (motors and free
+    joints) by the same one-sided differences as :func:`linearize`, and every rate column as
+    the same difference of the velocity terms alone (``propagation.rate_columns``).
     ``lws``: :func:`linearization_workspace`.
     Returns the worst conditioning (0 if the gains' Schur complement is singular)."""
     gws, G, extra = lws
@@ -418,8 +422,11 @@ def linearize_springs(ma, q, qd, tau, point, with_point, eps_q, eps_v, Aq, Av, B
         return 0.0
     analytic = np.zeros(nae, dtype=np.bool_)
     spring_columns(ma, G, point, with_point, ws[2], Aq, Bf, Eq, Ef, analytic)
+    # the rates from the evaluation's own M, A and bias terms, before the position columns reuse ws
+    if rate_columns(ma, q, qd, point, with_point, eps_v, W, ws, Bf, Av, Ev) == 0.0:
+        return 0.0
     return min(worst, difference_columns(ma, q, qd, tau, point, with_point, eps_q, eps_v, W, ws, lam, qdd0, a0,
-                                         analytic, Aq, Av, Eq, Ev))
+                                         analytic, np.bool_(False), Aq, Av, Eq, Ev))
 
 
 @njit(cache=True)

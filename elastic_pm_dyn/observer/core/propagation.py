@@ -18,8 +18,12 @@ and the dense expm of the whole linearisation (Hexa: 66 x 66, nine squarings). H
   -c Ef); what they leave out is the geometric change of a micro-deflection (the bending of
   an arm moving its masses by micrometres: 1e-5 of a column on the reference five-bar
   mid-manoeuvre, 2e-4 on the Triglide in a strong chirp). The rate columns stay one-sided
-  differences: a rod's axial rate meets the arm's rotation in Coriolis terms as large as its
-  damper's (0.1-0.4 of the column in the reference manoeuvre). So 1 + n_a + n_ae evaluations instead of 1 + 3 n_ae.
+  differences (a rod's axial rate meets the arm's rotation in Coriolis terms as large as its
+  damper's: 0.1-0.4 of the column in the reference manoeuvre), but of the velocity terms
+  alone (:func:`rate_columns`): at a fixed pose the mass matrix and the closure rows do not
+  change, so each column needs the bias forces and the closure's bias at the perturbed rates
+  (no mass matrix, no factorisation) and the reduced inertia's inverse the gains already hold.
+  So 1 + n_a full evaluations and n_ae bias sweeps instead of 1 + 3 n_ae evaluations.
 - **Discretisation** (:func:`discretize_structured`): x = [m, z] with m = [q_ae, qd_ae]
   and z the disturbance states; z' = Fz z + w does not depend on m, so Phi_zz and Qd_zz
   are constant for a given interval and noise (computed once, cached), and m sees z only
@@ -38,8 +42,10 @@ and the dense expm of the whole linearisation (Hexa: 66 x 66, nine squarings). H
 import numpy as np
 from numba import njit
 
+from elastic_pm_dyn.kinematics.kernels import all_closure_rows, point_buffers, tree_terms_into
 from elastic_pm_dyn.model.layout import JF_STIFFNESS, JI_ROLE
 from elastic_pm_dyn.sim.exponential import gains_workspace
+from elastic_pm_dyn.small_linalg import lu_factor, lu_solve
 
 ROLE_ELASTIC = 1
 INPUT_ORDER = 5  # d and its first four derivatives over the interval (module docstring)
@@ -79,6 +85,86 @@ def spring_columns(ma, G, point, with_point, J, Aq, Bf, Eq, Ef, analytic):
                 Aq[i, j] = -c * Bf[i, j]
             for r in range(3):
                 Eq[r, j] = -c * Ef[r, j]
+
+
+@njit(cache=True)
+def rate_columns(ma, q, qd, point, with_point, eps_v, W, ws, Bf, Av, Ev):
+    """Every rate column of Av = d qdd_ae / d qd_ae and Ev (the point acceleration's): the
+    one-sided differences (steps ``eps_v`` along W) that full evaluations would give, from the
+    velocity terms alone.
+
+    At a fixed pose M, the closure rows A and W stay. With qdd = W qdd_ae + c, c_p = A_p^-1
+    gamma (eq 12) and W^T (M qdd + h - tau) = 0 (eq 26), a change dh of the bias forces and
+    dgamma of the closure's bias changes the accelerations by dqdd_ae = M_r^-1 W^T (-dh - M dc),
+    dc_p = A_p^-1 dgamma, with M_r^-1 = Bf (the gains of unit forces on the q_ae joints, eq 21).
+    ``ws``: the workspace of the evaluation at (q, qd) (its M, h, J, a_pt, A and gamma; its
+    sweep scratch is reused). Returns the pivot ratio of A_p (0: singular)."""
+    n = q.shape[0]
+    ae, pidx = ma.ae_index, ma.p_index
+    nae, m = ae.shape[0], pidx.shape[0]
+    M, J = ws.M, ws.J
+    h0, gamma0 = ws.h.copy(), ws.gamma.copy()
+    a0 = np.zeros(3)
+    if with_point:
+        for r in range(3):
+            a0[r] = ws.a_pt[point, r]
+    Ap = np.empty((m, m))
+    piv = np.empty(m, dtype=np.int64)
+    for i in range(m):
+        for j in range(m):
+            Ap[i, j] = ws.A[i, pidx[j]]
+    ratio = lu_factor(Ap, piv) if m > 0 else 1.0
+    if ratio == 0.0:
+        return 0.0
+    no_mass = np.empty((0, 0))
+    hj = np.empty(n)
+    J2, a2, p2 = point_buffers(ma.points, n)
+    A2, g2, r2 = np.empty((m, n)), np.empty(m), np.empty(m)
+    vp, f, wf, dqdd, dc = np.empty(n), np.empty(n), np.empty(nae), np.empty(n), np.empty(m)
+    for j in range(nae):
+        e = eps_v[j]
+        for i in range(n):
+            vp[i] = qd[i] + W[i, j] * e
+        tree_terms_into(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_body, ma.gravity, q, vp, no_mass, hj,
+                        J2, a2, p2, ws.wz, ws.wo, ws.jv, ws.jw, ws.fr)
+        all_closure_rows(ma.closure_pairs, ma.closure_axes, ma.points, ma.couplings, q, J2, a2, p2, A2, g2, r2)
+        for i in range(m):
+            dc[i] = (g2[i] - gamma0[i]) / e
+        if m > 0:
+            lu_solve(Ap, piv, dc)
+        for t in range(n):
+            f[t] = -(hj[t] - h0[t]) / e
+        for i in range(m):
+            pt = pidx[i]
+            for t in range(n):
+                f[t] -= M[t, pt] * dc[i]
+        for k in range(nae):
+            acc = 0.0
+            for t in range(n):
+                acc += W[t, k] * f[t]
+            wf[k] = acc
+        for i in range(nae):
+            acc = 0.0
+            for k in range(nae):
+                acc += Bf[i, k] * wf[k]
+            Av[i, j] = acc
+        if not with_point:
+            for r in range(3):
+                Ev[r, j] = 0.0
+            continue
+        for t in range(n):
+            acc = 0.0
+            for k in range(nae):
+                acc += W[t, k] * Av[k, j]
+            dqdd[t] = acc
+        for i in range(m):
+            dqdd[pidx[i]] += dc[i]
+        for r in range(3):
+            acc = (a2[point, r] - a0[r]) / e
+            for t in range(n):
+                acc += J[point, r, t] * dqdd[t]
+            Ev[r, j] = acc
+    return ratio
 
 
 @njit(cache=True)
