@@ -21,7 +21,6 @@ simulator.
 from __future__ import annotations
 
 import importlib
-from types import ModuleType
 from typing import TYPE_CHECKING, Any
 
 from elastic_pm_dyn._numba_cache import configure as _configure_numba_cache
@@ -42,6 +41,7 @@ _EXPORTS: dict[str, tuple[str, str]] = {
     "elastic_modes": ("elastic_pm_dyn.dynamics.linear", "elastic_modes"),
     "Simulator": ("elastic_pm_dyn.sim.simulator", "Simulator"),
     "SimulationOptions": ("elastic_pm_dyn.sim.simulator", "SimulationOptions"),
+    "simulate": ("elastic_pm_dyn.sim.simulate", "simulate"),
     "ConstantTorque": ("elastic_pm_dyn.sim.torque", "ConstantTorque"),
     "FunctionTorque": ("elastic_pm_dyn.sim.torque", "FunctionTorque"),
     "TorqueTable": ("elastic_pm_dyn.sim.torque", "TorqueTable"),
@@ -94,6 +94,7 @@ __all__ = [  # written out, not derived from _EXPORTS: static tools read it lite
     "observe",
     "random_consistent_state",
     "rigid_feedforward",
+    "simulate",
 ]
 
 if TYPE_CHECKING:  # what type checkers and IDEs see; at run time __getattr__ below loads them
@@ -119,6 +120,7 @@ if TYPE_CHECKING:  # what type checkers and IDEs see; at run time __getattr__ be
     from elastic_pm_dyn.observer.config import load_config as load_observer_config
     from elastic_pm_dyn.observer.drivers.results import ObserveSummary
     from elastic_pm_dyn.observer.offline import observe_bag as observe
+    from elastic_pm_dyn.sim.simulate import simulate
     from elastic_pm_dyn.sim.simulator import SimulationOptions, Simulator
     from elastic_pm_dyn.sim.torque import ConstantTorque, FunctionTorque, TorqueTable, load_torque_csv
 
@@ -134,9 +136,9 @@ def __getattr__(name: str) -> Any:
 
 
 def __dir__() -> list[str]:
-    """The public names, the dunders and the subpackages loaded so far; not what this file
-    imports for itself (``Any``, ``importlib``, ``TYPE_CHECKING``, ``annotations``)."""
-    own = {name for name, value in globals().items()
-           if name.startswith("__") or (isinstance(value, ModuleType) and value.__name__.startswith(f"{__name__}.")
-                                        and not name.startswith("_"))}
-    return sorted(own | set(__all__))
+    """The public names and the dunders (``__version__``, ``__doc__``...): what a user completes
+    ``epd.`` to. Not what this file imports for itself (``Any``, ``importlib``...) nor the
+    submodules loaded so far (``errors``, ``small_linalg``, ``pinned_kernels``...), which
+    Python binds here as a side effect of importing them and which would make the list depend
+    on what ran before; they stay reachable as ``elastic_pm_dyn.<module>``."""
+    return sorted({name for name in globals() if name.startswith("__")} | set(__all__))

@@ -93,26 +93,18 @@ def _add_model(p: argparse.ArgumentParser, positional: bool = False, dof: bool =
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
-    from elastic_pm_dyn.kinematics.mechanism import Mechanism
-    from elastic_pm_dyn.sim.simulator import Simulator
-    from elastic_pm_dyn.sim.torque import load_torque_csv
-    mech = Mechanism(_load(args))
-    sim = Simulator(mech, _options(args))
-    sim.check_run_size(args.duration, prefix="--")  # before anything is read or allocated
-    torque = load_torque_csv(args.torques, mech.active_names, args.hold)
+    from elastic_pm_dyn.sim.simulate import simulate
     try:
-        result = sim.run(torque, args.duration)
+        result = simulate(_load(args), args.torques, args.duration, args.out, options=_options(args), hold=args.hold,
+                          _prefix="--")
     except RunInterrupted as stop:
-        stop.partial.to_csv(args.out)
         print(f"elastic-pm-dyn: {stop} (Ctrl-C): the {len(stop.partial.t)} samples so far written to {args.out}",
               file=sys.stderr)
         return EXIT_INTERRUPTED
     except SingularConfigurationError as err:
         if err.partial is not None:
-            err.partial.to_csv(args.out)
             print(f"partial output ({len(err.partial.t)} samples) written to {args.out}", file=sys.stderr)
         raise
-    result.to_csv(args.out)
     print(f"{len(result.t)} samples -> {args.out}  (max gap {result.gap.max():.3g} m)")
     return 0
 

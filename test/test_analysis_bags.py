@@ -51,7 +51,7 @@ def summary(run, other, bag_dir, tmp_path_factory):
     """The reference bag and a second one (sqlite3 without definitions) analysed once, with plots."""
     out = tmp_path_factory.mktemp("analysis")
     bags = [_bag(bag_dir, "ref_mcap", run), _bag(bag_dir, "other_sqlite", other, "sqlite3", False)]
-    return analyze(bags, MODEL, out, labels=["SCDD", "L-D'A"]), out
+    return analyze(MODEL, bags, out, labels=["SCDD", "L-D'A"]), out
 
 
 # ------------------------------------------------------------------------- reading
@@ -129,7 +129,7 @@ def test_report_files_and_plots(summary):
 def test_aliasing_at_the_control_rate_is_detected_and_unfolded(bag_dir):
     """Branch forces sampled at 1 kHz: the 552 Hz mode shows at 448 Hz; the model's modes unfold it."""
     slow = synthetic_run(force_rate=1000.0)
-    s = analyze([_bag(bag_dir, "forces_1khz", slow)], MODEL, bag_dir / "out_1khz", plots_on=False)
+    s = analyze(MODEL, [_bag(bag_dir, "forces_1khz", slow)], bag_dir / "out_1khz", plots_on=False)
     m = s.runs["forces_1khz"]
     v = m.vibration["left"]
     assert v.aliased and abs(v.f_apparent_hz - 448.0) < 1.0
@@ -168,7 +168,7 @@ def test_topics_found_by_type_and_words_or_given(run, bag_dir):
     assert data.roles["reference"] == "/robot/joint_states"
     with pytest.raises(BagError, match="/legs is elastic_pm_dyn_msgs/msg/BranchForces"):
         read_bag(path, {"joint_states": "/legs"})
-    s = analyze([path], MODEL, bag_dir / "out_renamed", plots_on=False).runs["renamed"]
+    s = analyze(MODEL, [path], bag_dir / "out_renamed", plots_on=False).runs["renamed"]
     # Unnamed Float64MultiArray columns are the model's motors; times moved onto the header clock.
     assert s.torques.peak_Nm["left_motor"] == pytest.approx(run.truth["peak_torque"][0], rel=1e-12)
     assert any("/effort_cmd: stamped on another clock" in w for w in s.warnings)
@@ -177,7 +177,7 @@ def test_topics_found_by_type_and_words_or_given(run, bag_dir):
 def test_missing_topics_are_reported_and_the_rest_analyzed(run, bag_dir):
     path = bag_dir / "partial"
     write_bag(path, run_messages(run, make_typestore(), topics={"/joint_states", "/torque_command"}), "sqlite3")
-    s = analyze([path], MODEL, bag_dir / "out_partial", plots_on=False).runs["partial"]
+    s = analyze(MODEL, [path], bag_dir / "out_partial", plots_on=False).runs["partial"]
     w = " | ".join(s.warnings)
     assert "branch_forces: no topic of type elastic_pm_dyn_msgs/msg/BranchForces" in w
     assert "reference: no topic" in w and "hold phase not found" in w
@@ -185,7 +185,7 @@ def test_missing_topics_are_reported_and_the_rest_analyzed(run, bag_dir):
     assert s.branch_forces.source.startswith("joint states")  # F = c u + d du/dt of the states
     assert s.gap.max_m == pytest.approx(run.truth["gap_max"], rel=1e-6)
     # The hold phase can be given instead (then the forces from the states are fitted).
-    s = analyze([path], MODEL, bag_dir / "out_partial2", hold_start=0.2, plots_on=False).runs["partial"]
+    s = analyze(MODEL, [path], bag_dir / "out_partial2", hold_start=0.2, plots_on=False).runs["partial"]
     assert s.hold_phase.to_dict() == {"start_s": 0.2, "from": "--hold-start"}
 
 
@@ -203,7 +203,7 @@ def test_large_bag_is_decimated_with_a_full_rate_window(run, bag_dir):
     # More stamps than 5 x max_samples: timing from a histogram of 1 % bins, counts exact.
     assert not bf.timing["exact"] and bf.timing["count"] == len(run.t_force) and bf.timing["gaps"] == 0
     assert bf.timing["rate"] == pytest.approx(5000.0, rel=0.01)
-    s = analyze([path], MODEL, bag_dir / "out_decimated", plots_on=False, max_samples=200,
+    s = analyze(MODEL, [path], bag_dir / "out_decimated", plots_on=False, max_samples=200,
                 window_samples=800).runs["ref_mcap"]
     assert abs(s.vibration["left"].f_d_hz - 552.0) < 1.0
     assert s.vibration["left"].zeta == pytest.approx(0.012, rel=0.05)

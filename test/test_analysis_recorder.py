@@ -83,7 +83,7 @@ def test_recorder_bag_is_analyzed(tmp_path):
     finally:
         h.close()
 
-    s = analyze([bag], MODEL, tmp_path / "out", plots_on=False).runs["bag"]
+    s = analyze(MODEL, [bag], tmp_path / "out", plots_on=False).runs["bag"]
     truth = run.truth
     assert s.bag.storage == "mcap"
     assert {k: v["messages"] for k, v in s.bag.topics.items()} == {

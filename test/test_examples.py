@@ -36,28 +36,32 @@ def number_after(text: str, label: str) -> float:
     return float(match.group(1))
 
 
-def test_every_example_has_a_docstring_that_says_how_to_run_it() -> None:
+# Examples still in the long argparse form (issue #27 item 3 not yet done for them).
+LONG_FORM = {"ros_controller", "lockstep_defaults", "two_plants"}
+
+
+def test_every_example_is_a_short_plain_script_that_says_how_to_run_it() -> None:
     scripts = sorted(EXAMPLES.glob("*.py"))
     assert {p.stem for p in scripts} >= {"simulate_manoeuvre", "compare_formulations", "observe_bag",
-                                         "analyze_bag", "ros_controller"}
+                                         "analyze_bag", "closed_loop", "ros_controller"}
     for path in scripts:
         text = path.read_text()
         assert text.startswith('"""') and f"python examples/{path.name}" in text, path.name
-        assert len(text.splitlines()) <= 110, path.name
+        if path.stem not in LONG_FORM:
+            assert len(text.splitlines()) <= 45 and "argparse" not in text, path.name
 
 
 def test_simulate_manoeuvre(tmp_path: Path) -> None:
-    out = run_example("simulate_manoeuvre.py", "--move", "0.1", "--hold", "0.05", "--out", tmp_path / "out",
-                      cwd=tmp_path)
-    for name in ("path", "branch_forces"):
-        assert (tmp_path / "out" / f"{name}.png").stat().st_size > 10_000
+    out = run_example("simulate_manoeuvre.py", cwd=tmp_path)
+    lines = (tmp_path / "manoeuvre.csv").read_text().splitlines()
+    assert lines[0].startswith("t,") and len(lines) == 3002  # a header, 0.3 s sampled every 0.1 ms
     assert number_after(out, "largest distance from the straight line:") < 100.0  # [um]
     assert number_after(out, "peak force in branch left:") > 1.0  # [N]: the rods are loaded
 
 
 def test_compare_formulations(tmp_path: Path) -> None:
-    out = run_example("compare_formulations.py", "--states", "30", cwd=tmp_path)
-    for f in ("scdd", "multipliers"):
+    out = run_example("compare_formulations.py", cwd=tmp_path)
+    for f in ("scdd", "multipliers", "cut forces"):
         assert float(re.search(rf"^{f}\s+(\S+)", out, re.MULTILINE).group(1)) <= 1e-9
     assert "the formulations agree" in out
 
@@ -66,20 +70,22 @@ def test_compare_formulations(tmp_path: Path) -> None:
 def observed(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str]:
     require("rosbags")
     tmp = tmp_path_factory.mktemp("observe")
-    return tmp / "out", run_example("observe_bag.py", "--duration", "0.15", "--out", tmp / "out", cwd=tmp)
+    return tmp / "observe_out", run_example("observe_bag.py", cwd=tmp)
 
 
 def test_observe_bag_makes_its_own_recording_and_estimates_the_forces(observed: tuple[Path, str]) -> None:
     out, text = observed
     for item in ("recording/metadata.yaml", "estimates/metadata.yaml", "estimates.csv", "summary.json"):
         assert (out / item).is_file(), item
-    assert json.loads((out / "summary.json").read_text())["rows"] == 151
-    rms = [float(line.split()[-1]) for line in text.splitlines() if line.split()[:1] in (["left"], ["right"])]
+    assert json.loads((out / "summary.json").read_text())["rows"] == 201  # 0.2 s at 1 kHz
+    rms = [number_after(line, "RMS error vs truth") for line in text.splitlines() if "RMS error" in line]
     assert len(rms) == 2 and max(rms) < 0.02, text  # [N], against the simulated truth
-    # The same recording given as BAG, with the strain gauges too.
-    again = run_example("observe_bag.py", out / "recording", "--sensors", "encoders", "imu", "branch_forces",
-                        "--out", out.parent / "again", cwd=out.parent)
-    assert "branch_forces: 151 accepted" in again
+    assert "branch_forces: 201 accepted" in text
+    # The same recording given as BAG (copied out of the folder the script clears).
+    import shutil
+    shutil.copytree(out / "recording", out.parent / "given")
+    again = run_example("observe_bag.py", out.parent / "given", cwd=out.parent)
+    assert "branch_forces: 201 accepted" in again and "RMS error" not in again
 
 
 def test_analyze_bag(observed: tuple[Path, str], tmp_path: Path) -> None:
@@ -89,15 +95,15 @@ def test_analyze_bag(observed: tuple[Path, str], tmp_path: Path) -> None:
     from elastic_pm_dyn.bags.typestore import make_typestore
     run = synthetic_run()
     bag = write_bag(tmp_path / "synthetic", run_messages(run, make_typestore()))
-    text = run_example("analyze_bag.py", bag, observed[0] / "estimates", "--out", tmp_path / "out", cwd=tmp_path)
-    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    text = run_example("analyze_bag.py", bag, observed[0] / "estimates", cwd=tmp_path)
+    summary = json.loads((tmp_path / "analyze_out" / "summary.json").read_text())
     fit = summary["runs"]["synthetic"]["vibration"]["left"]
     assert fit["f_d_hz"] == pytest.approx(run.truth["f_d"], rel=1e-3)
     assert f"rings at {run.truth['f_d']:.1f} Hz" in text
     assert "estimates - synthetic:" in text  # the second bag compared with the first
     for name in summary["plots"].values():
-        assert (tmp_path / "out" / name).stat().st_size > 10_000
-    assert (tmp_path / "out" / "summary.md").is_file()
+        assert (tmp_path / "analyze_out" / name).stat().st_size > 10_000
+    assert (tmp_path / "analyze_out" / "summary.md").is_file()
 
 
 def test_ros_controller(tmp_path: Path) -> None:

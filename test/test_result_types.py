@@ -45,7 +45,7 @@ def analysed(tmp_path_factory) -> tuple[AnalysisReport, Path, object]:
     run = synthetic_run()
     a = write_bag(tmp / "a", run_messages(run, make_typestore()))
     b = write_bag(tmp / "b", run_messages(synthetic_run(offset=(0.0, 3e-4), amplitude=1.0), make_typestore()))
-    return analyze([a, b], MODEL, tmp / "out", plots_on=False), tmp / "out", run
+    return analyze(MODEL, [a, b], tmp / "out", plots_on=False), tmp / "out", run
 
 
 def test_analysis_report_reads_back_from_summary_json(analysed) -> None:

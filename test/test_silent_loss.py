@@ -58,7 +58,7 @@ def test_infinite_efforts_are_named_in_the_summary(tmp_path: Path) -> None:
     tau[:, 1] = np.nan
     bag = tmp_path / "bag"
     write_bag(bag, run_messages(replace(run, tau=tau), make_typestore()), "mcap")
-    summary = analyze([bag], FIVE_BAR, tmp_path / "out", plots_on=False)
+    summary = analyze(FIVE_BAR, [bag], tmp_path / "out", plots_on=False)
     written = json.loads((tmp_path / "out" / "summary.json").read_text())
     (label, m), = written["runs"].items()
     warning = [w for w in m["warnings"] if "not finite" in w]

@@ -61,7 +61,7 @@ def cmd_analyze(args: argparse.Namespace) -> int:
         raise InputError(f"--hold-start must be a finite time >= 0 [s], got {args.hold_start!r}")
     topics = {role: getattr(args, role) for role in ROLE_OPTIONS.values()}
     out = _out_dir(args.out)
-    report = analyze(args.bags, args.model, out, topics=topics, hold_start=args.hold_start, labels=args.labels,
+    report = analyze(args.model, args.bags, out, topics=topics, hold_start=args.hold_start, labels=args.labels,
                      plots_on=not args.no_plots, max_samples=args.max_samples, window_samples=args.window_samples)
     _print_summary(report)
     print(f"summary.json, summary.md{' and plots' if not args.no_plots else ''} in {out}")

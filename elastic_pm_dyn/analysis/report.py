@@ -20,6 +20,7 @@ import numpy as np
 from elastic_pm_dyn.analysis import metrics, plots
 from elastic_pm_dyn.analysis.report_types import AnalysisReport
 from elastic_pm_dyn.analysis.run_data import ModelInfo, RunData
+from elastic_pm_dyn.errors import InputError
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.model.description import Model
 from elastic_pm_dyn.output_files import write_text
@@ -478,16 +479,22 @@ def markdown(summary: Mapping) -> str:
 
 
 # ------------------------------------------------------------------------------ analyze
-def analyze(bags: Sequence[str | Path], model: str | Path | Model | Mechanism, out: str | Path,
+def analyze(model: str | Path | Model | Mechanism, bags: str | Path | Sequence[str | Path], out: str | Path,
             topics: Mapping[str, str | None] | None = None, hold_start: float | None = None,
             labels: Sequence[str] | None = None, plots_on: bool = True, max_samples: int | None = None,
             window_samples: int | None = None) -> AnalysisReport:
     """``elastic-pm-dyn analyze``: one or more bags -> plots, summary.json, summary.md in ``out``.
-    ``model``: a model file, a loaded Model or a Mechanism (as ``epd.observe`` takes it).
+
+    ``model`` first, as ``epd.simulate`` and ``epd.observe`` take it: a model file, a loaded Model
+    or a Mechanism; ``bags``: one bag folder or a list of them (compared in one report).
     Returns the :class:`~elastic_pm_dyn.analysis.report_types.AnalysisReport` (summary.json as objects)."""
     from elastic_pm_dyn.analysis import bags as bagmod
     from elastic_pm_dyn.analysis.run_data import run_from_bag
 
+    if isinstance(model, list | tuple):  # the order before the model came first: refused, never reinterpreted
+        raise InputError("analyze takes the model first: analyze(model, bags, out) (a list of bags was given as "
+                         "the model; or name them: analyze(bags=..., model=..., out=...))")
+    bags = [bags] if isinstance(bags, str | Path) else list(bags)
     info = ModelInfo.load(model)
     labels = list(labels) if labels else _labels(bags)
     kw = {k: v for k, v in (("max_samples", max_samples), ("window_samples", window_samples)) if v}

@@ -42,7 +42,7 @@ from elastic_pm_dyn.observer.drivers.results import OfflineResult
 from elastic_pm_dyn.observer.tuning.smoother import SMOOTHERS, smooth
 
 
-def observe_bag(mech: Mechanism | Model | str | Path, cfg: ObserverConfig | str | Path | None, bag: str | Path,
+def observe_bag(model: Mechanism | Model | str | Path, cfg: ObserverConfig | str | Path | None, bag: str | Path,
                 out: str | Path | None = None,
                 topics: Topics | None = None, order: str = "stamp", storage: str = "mcap",
                 write_estimates_bag: bool = True, log=print, pipeline: bool = True,
@@ -59,9 +59,10 @@ def observe_bag(mech: Mechanism | Model | str | Path, cfg: ObserverConfig | str 
     runs one stage after the other); the result's ``rows`` are then the smoothed ones and its
     ``filtered`` the filter's.
 
-    ``mech``: a model file, a loaded Model or a Mechanism (as ``epd.analyze`` takes it); ``cfg``: an
-    :class:`ObserverConfig`, a parameter YAML file, or None for the defaults."""
-    mech = as_mechanism(mech)
+    ``model`` first, as ``epd.simulate`` and ``epd.analyze`` take it: a model file, a loaded Model or
+    a Mechanism; ``cfg``: an :class:`ObserverConfig`, a parameter YAML file, or None for the
+    defaults; then the input (``bag``) and the output folder (``out``), as they take theirs."""
+    mech = as_mechanism(model)
     if not isinstance(cfg, ObserverConfig):
         cfg = load_config(cfg)
     if smoother is not None and smoother not in SMOOTHERS:
