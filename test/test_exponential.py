@@ -277,9 +277,9 @@ def kernel_args(mech: Mechanism, torque: np.ndarray, dt: float, n_steps: int, si
     o = SimulationOptions()
     coef = np.zeros((3, mech.n))
     coef[0, mech.active] = torque
-    return (exponential.AVERAGED, 0, *mech.arrays), (coef, dt, n_steps, kernels.STAB_PROJECTION, 0.0, 0.0,
-                                                  o.closure_tol, singular_tol, o.phase_step, np.zeros(mech.n),
-                                                  np.zeros(mech.m), np.zeros(3))
+    return (exponential.AVERAGED, 0, mech.arrays), (coef, dt, n_steps, kernels.STAB_PROJECTION, 0.0, 0.0,
+                                                 o.closure_tol, singular_tol, o.phase_step, np.zeros(mech.n),
+                                                 np.zeros(mech.m), np.zeros(3))
 
 
 def test_a_diverged_step_leaves_the_last_good_state(five_bar) -> None:
@@ -287,12 +287,12 @@ def test_a_diverged_step_leaves_the_last_good_state(five_bar) -> None:
     tau = np.array([2e4, -2e4])  # drives the motors to > 1 rad per step within a few steps
     q, qd = initial_state(mech), np.zeros(mech.n)
     head, tail = kernel_args(mech, tau, 5e-4, 50)
-    status = exponential.exponential_steps_flat(*head, q, qd, *tail)
+    status = exponential.exponential_steps(*head, q, qd, *tail)
     info = tail[-1]
     assert status == kernels.DIVERGED and 0 < info[0] < 50
     q2, qd2 = initial_state(mech), np.zeros(mech.n)
     head, tail2 = kernel_args(mech, tau, 5e-4, int(info[0]))
-    assert exponential.exponential_steps_flat(*head, q2, qd2, *tail2) == kernels.OK
+    assert exponential.exponential_steps(*head, q2, qd2, *tail2) == kernels.OK
     np.testing.assert_array_equal(q, q2)  # exactly the state after the good steps
     np.testing.assert_array_equal(qd, qd2)
     assert np.all(np.isfinite(q)) and np.all(np.isfinite(qd))
@@ -303,7 +303,7 @@ def test_singular_conditioning_stops_before_the_step(five_bar) -> None:
     q, qd = initial_state(mech), np.zeros(mech.n)
     q_before = q.copy()
     head, tail = kernel_args(mech, np.zeros(2), 5e-4, 3, singular_tol=2.0)  # above any pivot ratio
-    assert exponential.exponential_steps_flat(*head, q, qd, *tail) == kernels.SINGULAR
+    assert exponential.exponential_steps(*head, q, qd, *tail) == kernels.SINGULAR
     assert tail[-1][0] == 0
     np.testing.assert_array_equal(q, q_before)
 
@@ -344,7 +344,7 @@ def test_the_integrator_table_reaches_each_kernel(five_bar) -> None:
         if scheme is None:
             status = kernels.rk4_steps(0, mech.arrays, q2, qd2, *tail[:8], *tail[9:])  # no phase step
         else:
-            status = exponential.exponential_steps_flat(scheme, *head[1:], q2, qd2, *tail)
+            status = exponential.exponential_steps(scheme, *head[1:], q2, qd2, *tail)
         assert status == kernels.OK
         np.testing.assert_array_equal(q, q2)
         np.testing.assert_array_equal(qd, qd2)

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from elastic_pm_dyn.dynamics.evaluate import FORMULATION_CODES, accelerations_flat
+from elastic_pm_dyn.dynamics.evaluate import FORMULATION_CODES, accelerations
 
 BENCH = Path(__file__).resolve().parent.parent / "bench" / "tools"
 sys.path.insert(0, str(BENCH))
@@ -140,8 +140,8 @@ def test_rigid_five_bar_counts_are_deterministic_and_reproduce_the_compiled_run(
         tau = mech.split_tau(np.array(st["tau_active"]))
         for form in ("scdd", "lda"):
             qdd, lam = np.empty(mech.n), np.zeros(mech.m)
-            accelerations_flat(FORMULATION_CODES[form], *mech.arrays, q, qd, tau, 0.0, 0.0, np.zeros(mech.n), qdd,
-                               lam)
+            accelerations(FORMULATION_CODES[form], mech.arrays, q, qd, tau, 0.0, 0.0, np.zeros(mech.n), qdd,
+                          lam)
             counted = np.array(r["five_bar_rigid"]["forms"][form]["qdd"])
             assert np.max(np.abs(counted - qdd)) <= 1e-12 * np.max(np.abs(qdd))
             assert r["five_bar_rigid"]["forms"][form]["max_rel_diff_vs_float_run"] == 0.0

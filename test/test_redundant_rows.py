@@ -21,7 +21,7 @@ import pytest
 from pinocchio_urdf import PinocchioMachine
 from scipy.integrate import solve_ivp
 
-from elastic_pm_dyn.dynamics.evaluate import FORMULATION_CODES, accelerations_flat
+from elastic_pm_dyn.dynamics.evaluate import FORMULATION_CODES, accelerations
 from elastic_pm_dyn.errors import ModelError
 from elastic_pm_dyn.kinematics.assembly import initial_state, random_consistent_state
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
@@ -121,8 +121,8 @@ def test_formulations_agree_and_the_dropped_row_holds(leg):
         out = {}
         for form in ("scdd", "scdd_stacked", "lda", "multipliers"):
             qdd, lam = np.zeros(mech.n), np.zeros(mech.m)
-            cond, gap = accelerations_flat(FORMULATION_CODES[form], *mech.arrays, q, qd, tau, 0.0, 0.0,
-                                           np.zeros(mech.n), qdd, lam)
+            cond, gap = accelerations(FORMULATION_CODES[form], mech.arrays, q, qd, tau, 0.0, 0.0,
+                                      np.zeros(mech.n), qdd, lam)
             assert cond > 1e-6 and gap < 1e-12
             out[form] = qdd
         scale = np.abs(out["scdd"]).max()
@@ -157,7 +157,7 @@ def test_matches_pinocchio_on_the_urdf_export(leg, tmp_path):
         q, qd, tau_a = random_consistent_state(mech, rng, spread=0.5)
         tau = mech.split_tau(tau_a)
         qdd, lam = np.zeros(mech.n), np.zeros(mech.m)
-        accelerations_flat(FORMULATION_CODES["scdd"], *mech.arrays, q, qd, tau, 0.0, 0.0, np.zeros(mech.n), qdd, lam)
+        accelerations(FORMULATION_CODES["scdd"], mech.arrays, q, qd, tau, 0.0, 0.0, np.zeros(mech.n), qdd, lam)
         theirs = peer.accelerations(q, qd, tau)
         assert np.abs(theirs - qdd).max() < 1e-9 * np.abs(qdd).max()
     q0 = initial_state(mech)

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from conftest import random_state, without_damping
 
-from elastic_pm_dyn.dynamics.evaluate import FORMULATION_CODES, accelerations_flat
+from elastic_pm_dyn.dynamics.evaluate import FORMULATION_CODES, accelerations
 from elastic_pm_dyn.dynamics.jacobian import parallel_jacobian_transpose
 from elastic_pm_dyn.dynamics.linear import compact_matrices
 from elastic_pm_dyn.dynamics.statics import static_deflection
@@ -30,8 +30,8 @@ def _mech(name: str, n_ek: int = 1, gravity: bool = True) -> Mechanism:
 
 def _accel(mech: Mechanism, formulation: str, q, qd, tau) -> np.ndarray:
     qdd, lam = np.empty(mech.n), np.zeros(mech.m)
-    cond, _ = accelerations_flat(FORMULATION_CODES[formulation], *mech.arrays, q, qd, mech.split_tau(tau), 0.0, 0.0,
-                                 np.zeros(mech.n), qdd, lam)
+    cond, _ = accelerations(FORMULATION_CODES[formulation], mech.arrays, q, qd, mech.split_tau(tau), 0.0, 0.0,
+                            np.zeros(mech.n), qdd, lam)
     assert cond > 1e-8
     return qdd
 

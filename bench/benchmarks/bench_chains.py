@@ -18,7 +18,7 @@ and runs the chain blocks
 - ``threads``: two halves on 2 threads, a ``ThreadPoolExecutor`` worker and the caller,
   both in numba ``nogil`` functions;
 - ``prange``: numba ``parallel=True`` over the chains, with 1 and 2 numba threads;
-against ``accelerations_flat`` (the core's serial SCDD evaluation, the reference). Every
+against ``accelerations`` (the core's serial SCDD evaluation, pinned, the reference). Every
 variant's accelerations are checked against it. Times are medians over rounds that visit
 the variants in random order (batches of ~2 ms); the serial fraction for Amdahl's law is
 ``couple``'s time over the serial split's. Writes bench/results/chains.json and chains.md.
@@ -42,11 +42,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # bench/: common
 import common
 from common import REPO
 
-from elastic_pm_dyn.dynamics.evaluate import FORMULATION_CODES, accelerations_flat
+from elastic_pm_dyn.dynamics.evaluate import FORMULATION_CODES, accelerations
 from elastic_pm_dyn.kinematics.assembly import initial_state
 from elastic_pm_dyn.kinematics.kernels import closure_rows, serial_chain_terms
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.model.loader import load_model
+from elastic_pm_dyn.pinned_kernels import PinnedKernel
 from elastic_pm_dyn.small_linalg import cholesky_recip, cholesky_solve_rows
 
 CASES = [("hexa", 1), ("hexa", 2), ("hexa", 4), ("triglide", 1), ("triglide", 2)]
@@ -274,8 +275,10 @@ def measure(machine: str, n_ek: int, rounds: int, pool: ThreadPoolExecutor, seed
     code = FORMULATION_CODES["scdd"]
     qdd_ref, lam_ref, prev = np.zeros(mech.n), np.zeros(mech.m), np.zeros(mech.n)
 
+    evaluate = PinnedKernel(accelerations)  # as Dynamics calls it
+
     def reference() -> None:
-        accelerations_flat(code, *ma, q, qd, tau, 0.0, 0.0, prev, qdd_ref, lam_ref)
+        evaluate(code, ma, q, qd, tau, 0.0, 0.0, prev, qdd_ref, lam_ref)
 
     split = Split(mech, q, qd, tau)
 

@@ -10,10 +10,10 @@ For Five-Bar, Triglide and Hexa with n_ek = 1..4 (five-bar: its model's n_ek = 1
   and L-D'A, whole and after the tree terms, against the paper's 192/80/432/38 and
   670/302/2482/36;
 - time per direct-dynamics evaluation for every formulation and machine: the compiled
-  ``accelerations_flat`` called from Python (``py.*``) and the kernel called from compiled
-  code (``nj.*``, no dispatch), with its parts (``nj.*.terms``: allocation, tree terms,
-  closure rows; ``nj.*.solve.<form>``: the formulation on given tree terms) and the
-  prototypes of bench/prototypes/proto_cost.py (``proto.*``).
+  ``accelerations`` called from Python through its pinned entry point, as ``Dynamics`` calls
+  it (``py.*``), and the kernel called from compiled code (``nj.*``, no dispatch), with its
+  parts (``nj.*.terms``: allocation, tree terms, closure rows; ``nj.*.solve.<form>``: the
+  formulation on given tree terms) and the prototypes of bench/prototypes/proto_cost.py (``proto.*``).
 
 Timing method (as bench/benchmarks/bench_dynamics.py, whose helpers it reuses): batches of about 1 ms,
 every round visits all items in a fresh random order, medians over batches, IQR as the
@@ -65,7 +65,7 @@ from elastic_pm_dyn.dynamics.evaluate import (  # noqa: E402
     MULTIPLIERS,
     SCDD,
     SCDD_STACKED,
-    accelerations_flat,
+    accelerations,
 )
 from elastic_pm_dyn.dynamics.kernels import (  # noqa: E402
     lagrange_dalembert,
@@ -75,6 +75,7 @@ from elastic_pm_dyn.dynamics.kernels import (  # noqa: E402
     scdd_platform,
 )
 from elastic_pm_dyn.kinematics.kernels import closure_rows, tree_terms  # noqa: E402
+from elastic_pm_dyn.pinned_kernels import PinnedKernel  # noqa: E402
 
 BATCH_TARGET_S = 1e-3
 MACHINES = ("five_bar", "triglide", "hexa")
@@ -226,7 +227,7 @@ class Config:
 
     def reference(self, form: str) -> np.ndarray:
         qdd, lam, prev = self.buffers()
-        accelerations_flat(FORMULATION_CODES[form], *self.ma, self.q, self.qd, self.tau, 0.0, 0.0, prev, qdd, lam)
+        accelerations(FORMULATION_CODES[form], self.ma, self.q, self.qd, self.tau, 0.0, 0.0, prev, qdd, lam)
         return qdd
 
 
@@ -242,8 +243,8 @@ def build_items(configs: list[Config], sanity: dict) -> list[Item]:
                 got = cf.reference(form)
                 sanity[f"{cf.key}.{form}_vs_lda_max_rel"] = float(np.abs(got - ref).max() / np.abs(ref).max())
             items.append(Item(f"py.{cf.key}.{form}",
-                              _calls(accelerations_flat, code, *ma, q, qd, tau, 0.0, 0.0, prev, qdd, lam),
-                              group="py", note="accelerations_flat called from Python"))
+                              _calls(PinnedKernel(accelerations), code, ma, q, qd, tau, 0.0, 0.0, prev, qdd, lam),
+                              group="py", note="accelerations called from Python, pinned (as Dynamics calls it)"))
             qdd, lam, prev = cf.buffers()
             items.append(Item(f"nj.{cf.key}.{form}", _inner(_loop_accelerations, code, ma, q, qd, tau, prev, qdd, lam),
                               group="nj", note="accelerations called from compiled code (no dispatch)"))
@@ -272,19 +273,12 @@ def build_items(configs: list[Config], sanity: dict) -> list[Item]:
                               note="nj.*.terms with closure_rows_noalloc"))
     cf = configs[-1]
     qdd, lam, prev = cf.buffers()
-    args = (FORMULATION_CODES["scdd"], *cf.ma, cf.q, cf.qd, cf.tau, 0.0, 0.0, prev, qdd, lam)
-    items.append(Item("py.dispatch.noop", _calls(_noop_flat, *args), group="py",
-                      note="a trivial njit function with accelerations_flat's arguments: the dispatch floor"))
-    args_nt = (FORMULATION_CODES["scdd"], cf.ma, cf.q, cf.qd, cf.tau, 0.0, 0.0, prev, qdd, lam)
-    items.append(Item("py.dispatch.noop_entry_point", _calls(_entry_point(_noop_same_args, *args_nt), *args_nt),
-                      group="py", note="the same through the compiled entry point (unboxing only)"))
+    args = (FORMULATION_CODES["scdd"], cf.ma, cf.q, cf.qd, cf.tau, 0.0, 0.0, prev, qdd, lam)
+    items.append(Item("py.dispatch.noop", _calls(_noop_same_args, *args), group="py",
+                      note="a trivial njit function with accelerations' arguments through numba's dispatcher"))
+    items.append(Item("py.dispatch.noop_entry_point", _calls(_entry_point(_noop_same_args, *args), *args),
+                      group="py", note="the same through the compiled entry point (unboxing only): the floor"))
     return items
-
-
-@njit(cache=True)
-def _noop_flat(form, jf, ji, chain_start, points, point_body, gravity, closure_pairs, closure_axes, hub,
-               ae_index, p_index, q, qd, tau, a, b, qdd_prev, qdd, lam):
-    return 1.0, 0.0
 
 
 # ----------------------------------------------------------------------- the tables
@@ -427,7 +421,8 @@ def markdown(res: dict) -> str:
 
     it = res["items"]
     L += ["", "### Time per direct-dynamics evaluation [us], median [IQR] over batches, one run", "",
-          "py: `accelerations_flat` called from Python; nj: called from compiled code (no dispatch).", "",
+          "py: `accelerations` called from Python, pinned (as `Dynamics` calls it); nj: called from compiled code "
+          "(no dispatch).", "",
           "| machine | n_ek | n_t | SCDD py | SCDD stacked py | L-D'A py | multipliers py | one-pass py | SCDD nj | "
           "L-D'A nj | SCDD/L-D'A py (paired) | SCDD/L-D'A nj (paired) |",
           "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
@@ -467,11 +462,11 @@ def markdown(res: dict) -> str:
                  f"{cell(f'nj.{key}.lda')} | {_r(rr.get('proto_fast_vs_nj_scdd'))} | "
                  f"{_r(rr.get('proto_fast_vs_nj_lda'))} | {_r(rr.get('proto_fast_vs_proto_lda'))} | "
                  f"{_r(rr.get('nj_scdd_vs_proto_lda'))} |")
-    L += ["", f"Dispatch floor: a no-op njit function with `accelerations_flat`'s arguments "
+    L += ["", f"Dispatch floor: a no-op njit function with `accelerations`' arguments "
           f"{cell('py.dispatch.noop')} us; through its compiled entry point {cell('py.dispatch.noop_entry_point')} us.",
           "", "### Target: SCDD <= 1/3 of L-D'A's time on Hexa, n_ek = 2", ""]
     tg = res["target"]
-    L.append(f"- from Python (`accelerations_flat`): SCDD / L-D'A = {_r(tg['py'])} -> "
+    L.append(f"- from Python (`accelerations`, pinned): SCDD / L-D'A = {_r(tg['py'])} -> "
              f"**{'met' if tg['py']['paired_median'] <= TARGET_RATIO else 'MISSED'}**")
     verdict = "met" if tg["nj"]["paired_median"] <= TARGET_RATIO else "missed"
     L.append(f"- from compiled code: {_r(tg['nj'])} -> {verdict}")

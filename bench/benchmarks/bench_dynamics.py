@@ -40,13 +40,13 @@ from elastic_pm_dyn.dynamics.evaluate import (  # noqa: E402
     FORMULATION_CODES,
     SINGULAR_TOL,
     accelerations,
-    accelerations_flat,
 )
 from elastic_pm_dyn.dynamics.kernels import scdd  # noqa: E402
 from elastic_pm_dyn.kinematics.assembly import initial_state, solve_pose  # noqa: E402
 from elastic_pm_dyn.kinematics.kernels import closure_rows, tree_terms  # noqa: E402
 from elastic_pm_dyn.kinematics.mechanism import Mechanism  # noqa: E402
 from elastic_pm_dyn.model.loader import load_model  # noqa: E402
+from elastic_pm_dyn.pinned_kernels import PinnedKernel  # noqa: E402
 from elastic_pm_dyn.sim import integrators, kernels  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # bench/: common, tools
@@ -176,12 +176,13 @@ class Setup:
         qdd, lam, qdd_prev = np.empty(n), np.zeros(m), np.zeros(n)
         for form, code in FORMULATION_CODES.items():
             self.items.append(Item(f"ours.kernel.{form}",
-                                   _calls(accelerations_flat, code, *ma, q, qd, tau, 0.0, 0.0, qdd_prev, qdd, lam),
-                                   group="direct dynamics"))
+                                   _calls(PinnedKernel(accelerations), code, ma, q, qd, tau, 0.0, 0.0, qdd_prev,
+                                          qdd, lam),
+                                   group="direct dynamics", note="pinned entry point, as Dynamics calls it"))
         self.items.append(Item("ours.kernel_namedtuple.scdd",
                                _calls(accelerations, FORMULATION_CODES["scdd"], ma, q, qd, tau, 0.0, 0.0, qdd_prev,
                                       qdd, lam),
-                               group="direct dynamics", note="model passed as one namedtuple: slow numba typing"))
+                               group="direct dynamics", note="through numba's dispatcher: its typing of every array"))
         for form in FORMULATION_CODES:
             dyn = Dynamics(mech, form)
             self.items.append(Item(f"ours.facade.{form}", _calls(dyn.accelerations, q, qd, TAU_ACTIVE.copy()),
@@ -208,6 +209,7 @@ class Setup:
         ma = self.ma
         status = [kernels.OK]
         settings = integrators.StepSettings(stab, ALPHA, BETA, CLOSURE_TOL, SINGULAR_TOL, 0.0)  # RK4: no phase step
+        steps = PinnedKernel(integrators.fixed_steps)  # as Simulator calls it
 
         def reset():
             q[:] = q_init
@@ -216,8 +218,7 @@ class Setup:
 
         def run(k):
             for _ in range(k):
-                r = integrators.fixed_steps_flat(integrators.RK4, 0, code, *ma, q, qd, coef, DT, n_steps, settings,
-                                                 qdd_prev, lam, info)
+                r = steps(integrators.RK4, 0, code, ma, q, qd, coef, DT, n_steps, settings, qdd_prev, lam, info)
                 status[0] = max(status[0], r)  # worst over the run: a failed step would bias the timing
             return k * n_steps
 

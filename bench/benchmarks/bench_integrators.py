@@ -348,11 +348,13 @@ def simulate_profile(repeats: int, duration: float = 2.0) -> dict:
 
     from elastic_pm_dyn.sim import simulator
     from elastic_pm_dyn.sim.result import SimulationResult
-    try:
-        from elastic_pm_dyn.sim import batch
-        owner, name = batch, "run_pieces_flat"
-    except ImportError:  # a tree before sim/batch.py (the comparison with main): one call per piece
-        owner, name = simulator.Simulator, "fixed_steps"
+    owner, name = simulator.Simulator, "run_pieces"  # the compiled pieces, through their pinned entry point
+    if not hasattr(owner, name):  # an older tree (a comparison): batch's flat twin, or one call per piece
+        try:
+            from elastic_pm_dyn.sim import batch
+            owner, name = batch, "run_pieces_flat"
+        except ImportError:
+            owner, name = simulator.Simulator, "fixed_steps"
     compiled = getattr(owner, name)
     spent = [0.0]
 

@@ -544,8 +544,8 @@ def float_reference(mech, form: str, q, qd, tau_active) -> np.ndarray:
 
     n, m = mech.n, mech.m
     qdd, lam = np.empty(n), np.zeros(m)
-    evaluate.accelerations_flat(evaluate.FORMULATION_CODES[form], *mech.arrays, q, qd, mech.split_tau(tau_active),
-                                0.0, 0.0, np.zeros(n), qdd, lam)
+    evaluate.accelerations(evaluate.FORMULATION_CODES[form], mech.arrays, q, qd, mech.split_tau(tau_active), 0.0, 0.0,
+                           np.zeros(n), qdd, lam)
     return qdd
 
 

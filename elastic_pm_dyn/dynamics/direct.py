@@ -4,10 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from elastic_pm_dyn.dynamics.evaluate import FORMULATION_CODES, SCDD_ONE_PASS, SINGULAR_TOL, accelerations_flat
+from elastic_pm_dyn.dynamics.evaluate import FORMULATION_CODES, SCDD_ONE_PASS, SINGULAR_TOL, accelerations
 from elastic_pm_dyn.dynamics.one_pass import check_one_pass, one_pass_convergence_factor
 from elastic_pm_dyn.errors import InputError, SingularConfigurationError
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
+from elastic_pm_dyn.pinned_kernels import KernelPins
 
 __all__ = ["FORMULATIONS", "Dynamics", "one_pass_convergence_factor"]
 
@@ -35,6 +36,7 @@ class Dynamics:
         self.qdd_prev = np.zeros(mech.n)
         self.cut_force = np.zeros(mech.m)
         self._checked_q: np.ndarray | None = None  # the last pose the one-pass factor was checked at
+        self._pin = KernelPins()  # accelerations without numba's type dispatch (pinned_kernels.py)
 
     def tree_forces(self, tau_active: np.ndarray, ee_force: np.ndarray | None = None,
                     q: np.ndarray | None = None) -> np.ndarray:
@@ -55,16 +57,16 @@ class Dynamics:
         The cut forces (multipliers lambda of the closure rows) are left in ``cut_force``
         (zero for L-D'A, which never forms them).
         """
-        q = np.ascontiguousarray(q, dtype=float)
-        qd = np.ascontiguousarray(qd, dtype=float)
+        n = self.mech.n
+        q, qd = state_vector(q, n, "q"), state_vector(qd, n, "qd")
         if self.code == SCDD_ONE_PASS and (self._checked_q is None or not np.array_equal(q, self._checked_q)):
             check_one_pass(self.mech, q)  # before its lag can make a wrong answer
             self._checked_q = q.copy()
         tau = self.tree_forces(tau_active, ee_force, q)
-        qdd = np.empty(self.mech.n)
+        qdd = np.empty(n)
         lam = np.zeros(self.mech.m)
-        cond, gap = accelerations_flat(self.code, *self.mech.arrays, q, qd, tau, float(baumgarte[0]),
-                                       float(baumgarte[1]), self.qdd_prev, qdd, lam)
+        cond, gap = self._pin(accelerations)(self.code, self.mech.arrays, q, qd, tau, float(baumgarte[0]),
+                                             float(baumgarte[1]), self.qdd_prev, qdd, lam)
         if cond < self.singular_tol:
             raise SingularConfigurationError(
                 f"singular configuration for {self.formulation}: conditioning {cond:.3g} "
@@ -76,3 +78,12 @@ class Dynamics:
 
     def reset(self) -> None:
         self.qdd_prev[:] = 0.0
+
+
+def state_vector(x: np.ndarray, n: int, name: str) -> np.ndarray:
+    """``x`` as the writeable, contiguous float64 vector of n entries a pinned kernel reads
+    (pinned_kernels.py: its entry point does not check types; x itself when it already is one)."""
+    x = np.ascontiguousarray(x, dtype=np.float64)
+    if x.shape != (n,):
+        raise InputError(f"{name} must have {n} tree coordinates, got shape {x.shape}")
+    return x if x.flags.writeable else x.copy()

@@ -23,7 +23,6 @@ from elastic_pm_dyn.dynamics.kernels import (
     scdd_work,
 )
 from elastic_pm_dyn.kinematics.kernels import all_closure_rows, point_buffers, tree_terms, tree_terms_into
-from elastic_pm_dyn.model.arrays import ModelArrays
 from elastic_pm_dyn.model.layout import JI_CHAIN
 from elastic_pm_dyn.small_linalg import matvec
 
@@ -166,18 +165,3 @@ def _other_formulations(form, ma, M, h, A, gamma, tau, qdd_prev, qdd, lam):
     if form == MULTIPLIERS:
         return multipliers(M, h, A, gamma, tau, qdd, lam)
     return scdd_one_pass(M, h, A, gamma, tau, ma.ae_index, ma.p_index, ma.chain_start, qdd_prev, qdd, lam)
-
-
-@njit(cache=True)
-def accelerations_flat(form, jf, ji, chain_start, points, point_body, gravity, closure_pairs,
-                       closure_axes, hub, ae_index, p_index, couplings, q, qd, tau, baumgarte_alpha,
-                       baumgarte_beta, qdd_prev, qdd, lam):
-    """:func:`accelerations` with the model as separate arrays (``*mech.arrays``).
-
-    The entry point for calls from Python: numba types plain arrays on a fast path, a
-    namedtuple argument on a slow one (about 1.7 us per call, a third of an evaluation,
-    measured 2026-11-22 on the 2-core dev machine).
-    """
-    ma = ModelArrays(jf, ji, chain_start, points, point_body, gravity, closure_pairs, closure_axes,
-                     hub, ae_index, p_index, couplings)
-    return accelerations(form, ma, q, qd, tau, baumgarte_alpha, baumgarte_beta, qdd_prev, qdd, lam)

@@ -14,9 +14,8 @@ same polynomial), so the results are bit-identical.
 import numpy as np
 from numba import njit
 
-from elastic_pm_dyn.model.arrays import ModelArrays
 from elastic_pm_dyn.sim.exponential import etd2_workspace
-from elastic_pm_dyn.sim.integrators import fixed_steps
+from elastic_pm_dyn.sim.integrators import fixed_steps_ws
 from elastic_pm_dyn.sim.kernels import OK
 
 
@@ -25,7 +24,7 @@ def run_pieces(method, scheme, form, ma, active, q, qd, coefs, hs, steps, record
                qdd_prev, lam, info):
     """Integrate the pieces k = 0 .. len(hs) - 1 in turn: ``steps[k]`` steps of ``hs[k]`` under
     the torque polynomial ``coefs[k]`` (3, n_a: the active joints' columns of the tree
-    polynomial, time from the piece's start), by :func:`elastic_pm_dyn.sim.integrators.fixed_steps`
+    polynomial, time from the piece's start), by :func:`elastic_pm_dyn.sim.integrators.fixed_steps_ws`
     (``method``, ``scheme``, ``settings``: its StepSettings). After each piece with ``record[k]``
     the state goes to row ``row`` of q_out, qd_out and row advances.
 
@@ -40,8 +39,8 @@ def run_pieces(method, scheme, form, ma, active, q, qd, coefs, hs, steps, record
         for r in range(3):
             for j in range(active.shape[0]):
                 tau_coef[r, active[j]] = coefs[k, r, j]
-        status = fixed_steps(method, scheme, form, ma, q, qd, tau_coef, hs[k], steps[k], settings, qdd_prev, lam,
-                             info, ew)
+        status = fixed_steps_ws(method, scheme, form, ma, q, qd, tau_coef, hs[k], steps[k], settings, qdd_prev, lam,
+                                info, ew)
         if status != OK:
             return status, k, row
         if record[k]:
@@ -49,14 +48,3 @@ def run_pieces(method, scheme, form, ma, active, q, qd, coefs, hs, steps, record
             qd_out[row] = qd
             row += 1
     return OK, hs.shape[0], row
-
-
-@njit(cache=True)
-def run_pieces_flat(method, scheme, form, jf, ji, chain_start, points, point_body, gravity, closure_pairs,
-                    closure_axes, hub, ae_index, p_index, couplings, active, q, qd, coefs, hs, steps, record, q_out,
-                    qd_out, row, settings, qdd_prev, lam, info):
-    """:func:`run_pieces` with the model as separate arrays (``*mech.arrays``)."""
-    ma = ModelArrays(jf, ji, chain_start, points, point_body, gravity, closure_pairs, closure_axes,
-                     hub, ae_index, p_index, couplings)
-    return run_pieces(method, scheme, form, ma, active, q, qd, coefs, hs, steps, record, q_out, qd_out, row, settings,
-                      qdd_prev, lam, info)

@@ -56,7 +56,6 @@ from numba import njit
 
 from elastic_pm_dyn.dynamics.evaluate import LDA, accelerations_into, workspace
 from elastic_pm_dyn.dynamics.kernels import chain_size_max
-from elastic_pm_dyn.model.arrays import ModelArrays
 from elastic_pm_dyn.model.layout import JF_DAMPING, JF_REST, JF_STIFFNESS, JI_CHAIN, JI_ROLE
 from elastic_pm_dyn.sim.kernels import (
     DIVERGED,
@@ -553,17 +552,6 @@ def exponential_steps_ws(scheme, form, ma, q, qd, tau_coef, dt, n_steps, stab, a
     info[1] = worst
     info[2] = gap
     return OK
-
-
-@njit(cache=True)
-def exponential_steps_flat(scheme, form, jf, ji, chain_start, points, point_chain, gravity, closure_pairs,
-                           closure_axes, hub, ae_index, p_index, couplings, q, qd, tau_coef, dt, n_steps, stab, alpha,
-                           beta, tol, singular_tol, phase_step, qdd_prev, lam, info):
-    """:func:`exponential_steps` with the model as separate arrays (``*mech.arrays``)."""
-    ma = ModelArrays(jf, ji, chain_start, points, point_chain, gravity, closure_pairs, closure_axes,
-                     hub, ae_index, p_index, couplings)
-    return exponential_steps(scheme, form, ma, q, qd, tau_coef, dt, n_steps, stab, alpha, beta, tol, singular_tol,
-                             phase_step, qdd_prev, lam, info)
 
 
 def substeps_at(mech, q: np.ndarray, dt: float) -> tuple[float, int]:

@@ -1,15 +1,14 @@
 """The fixed-step integrators behind one table and one compiled dispatch.
 
-``FIXED_STEP`` names them; :func:`fixed_steps` is the only place that picks the kernel, used
-by the stepping from Python (``Simulator.fixed_steps``, the plant) and by the compiled offline
-run of many pieces (:func:`elastic_pm_dyn.sim.batch.run_pieces`).
+``FIXED_STEP`` names them; :func:`fixed_steps_ws` is the only place that picks the kernel, used
+by the stepping from Python (:func:`fixed_steps`: ``Simulator.fixed_steps``, the plant) and by
+the compiled offline run of many pieces (:func:`elastic_pm_dyn.sim.batch.run_pieces`).
 """
 
 from typing import NamedTuple
 
 from numba import njit
 
-from elastic_pm_dyn.model.arrays import ModelArrays
 from elastic_pm_dyn.sim.exponential import AVERAGED, ETD2RK, IMPULSE, etd2_workspace, exponential_steps_ws
 from elastic_pm_dyn.sim.kernels import rk4_steps
 
@@ -36,7 +35,7 @@ class StepSettings(NamedTuple):
 
 
 @njit(cache=True)
-def fixed_steps(method, scheme, form, ma, q, qd, tau_coef, dt, n_steps, settings, qdd_prev, lam, info, ew):
+def fixed_steps_ws(method, scheme, form, ma, q, qd, tau_coef, dt, n_steps, settings, qdd_prev, lam, info, ew):
     """Advance (q, qd) in place by n_steps steps of dt of the integrator ``method`` (RK4 or
     ETD2 with ``scheme``), with the contract of :func:`elastic_pm_dyn.sim.kernels.rk4_steps`
     (tau_coef (3, n_t), info, the status). ``ew``: ETD2's work arrays
@@ -50,15 +49,11 @@ def fixed_steps(method, scheme, form, ma, q, qd, tau_coef, dt, n_steps, settings
 
 
 @njit(cache=True)
-def fixed_steps_flat(method, scheme, form, jf, ji, chain_start, points, point_body, gravity, closure_pairs,
-                     closure_axes, hub, ae_index, p_index, couplings, q, qd, tau_coef, dt, n_steps, settings,
-                     qdd_prev, lam, info):
-    """:func:`fixed_steps` with the model as separate arrays (``*mech.arrays``, the cheap
-    entry point from Python: see ``accelerations_flat``) and ETD2's work arrays made here."""
-    ma = ModelArrays(jf, ji, chain_start, points, point_body, gravity, closure_pairs, closure_axes,
-                     hub, ae_index, p_index, couplings)
-    if method == ETD2:  # RK4 makes its own, smaller, work arrays
-        return fixed_steps(method, scheme, form, ma, q, qd, tau_coef, dt, n_steps, settings, qdd_prev, lam, info,
-                           etd2_workspace(ma))
+def fixed_steps(method, scheme, form, ma, q, qd, tau_coef, dt, n_steps, settings, qdd_prev, lam, info):
+    """:func:`fixed_steps_ws` for calls from Python: ETD2's work arrays are made here (RK4 makes
+    its own, smaller, ones), so a call does not unbox a workspace of some fifty arrays."""
+    if method == ETD2:
+        return fixed_steps_ws(method, scheme, form, ma, q, qd, tau_coef, dt, n_steps, settings, qdd_prev, lam, info,
+                              etd2_workspace(ma))
     return rk4_steps(form, ma, q, qd, tau_coef, dt, n_steps, settings.stab, settings.alpha, settings.beta,
                      settings.tol, settings.singular_tol, qdd_prev, lam, info)

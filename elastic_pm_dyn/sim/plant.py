@@ -25,7 +25,7 @@ from elastic_pm_dyn.dynamics.statics import rest_state
 from elastic_pm_dyn.errors import AssemblyError, InputError, SingularConfigurationError
 from elastic_pm_dyn.kinematics.assembly import initial_state, solve_pose, solve_velocity
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
-from elastic_pm_dyn.sim import batch, kernels
+from elastic_pm_dyn.sim import kernels
 from elastic_pm_dyn.sim.simulator import FIXED_STEP, SimulationOptions, Simulator
 from elastic_pm_dyn.sim.stopped import integration_error
 from elastic_pm_dyn.sim.torque import ConstantTorque, HeldPlusSmooth
@@ -74,7 +74,6 @@ class Plant:
         self.fault_error: SingularConfigurationError | None = None
         self._sim = Simulator(mech, options)
         self._coef = np.zeros((3, mech.n))  # the held torque as RK4's polynomial (constant)
-        self._active = np.asarray(mech.active, dtype=np.int64)
         self._no_rows = np.zeros((0, mech.n))  # _smooth_steps records no samples
         # Compile (or load) the integrator now, not inside the first control period; a
         # throwaway simulator keeps the real one's state as offline runs start it.
@@ -145,7 +144,7 @@ class Plant:
         """:meth:`Simulator.advance` of ``HeldPlusSmooth(held, disturbance)`` (one quadratic per step
         through its values at the step's start, middle and end) with the disturbance evaluated at
         all the period's stage times in one vectorised pass and the steps in one compiled call
-        (sim/batch.py): 0.25 instead of 0.85 ms per 1 ms period on the five-bar at dt = 1e-4 s
+        (Simulator.run_pieces): 0.25 instead of 0.85 ms per 1 ms period on the five-bar at dt = 1e-4 s
         (measured 2026-11-27 on the 2-core dev machine; bench/benchmarks/bench_plant.py)."""
         o, sim = self.options, self._sim
         n_steps = max(1, int(np.ceil((t1 - t0) / o.dt - 1e-9)))
@@ -154,10 +153,8 @@ class Plant:
         f = held + self.disturbance.on_grid(t0, 0.5 * h, 2 * n_steps + 1)  # each step's start, middle, end
         f0, f1, f2 = f[0:-1:2], f[1::2], f[2::2]
         coefs = np.stack([f0, (4 * f1 - 3 * f0 - f2) / h, 2 * (f0 - 2 * f1 + f2) / h ** 2], axis=1)
-        status, done, _ = batch.run_pieces_flat(
-            *sim.method, sim.code, *sim._args, self._active, q, qd, coefs, np.full(n_steps, h),
-            np.ones(n_steps, dtype=np.int64), np.zeros(n_steps, dtype=bool), self._no_rows, self._no_rows, 0,
-            o.step_settings(), sim.qdd_prev, sim.lam, sim.info)
+        status, done, _ = sim.run_pieces(q, qd, coefs, np.full(n_steps, h), np.ones(n_steps, dtype=np.int64),
+                                         np.zeros(n_steps, dtype=bool), self._no_rows, self._no_rows, 0)
         if status != kernels.OK:
             raise integration_error(status, o.formulation, starts[min(done, n_steps - 1)] + sim.info[0] * h, sim.info)
 

@@ -9,11 +9,13 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from elastic_pm_dyn.dynamics.evaluate import FORMULATION_CODES, LDA, SCDD_ONE_PASS, SINGULAR_TOL, accelerations_flat
+from elastic_pm_dyn.dynamics.direct import state_vector
+from elastic_pm_dyn.dynamics.evaluate import FORMULATION_CODES, LDA, SCDD_ONE_PASS, SINGULAR_TOL, accelerations
 from elastic_pm_dyn.dynamics.one_pass import check_one_pass, one_pass_convergence_factor, one_pass_refusal
 from elastic_pm_dyn.errors import InputError, OnePassDivergenceError, RunInterrupted, SingularConfigurationError
 from elastic_pm_dyn.kinematics.assembly import initial_state
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
+from elastic_pm_dyn.pinned_kernels import KernelPins
 from elastic_pm_dyn.sim import batch, exponential, integrators, kernels
 from elastic_pm_dyn.sim.result import SimulationResult
 from elastic_pm_dyn.sim.stopped import integration_error
@@ -94,7 +96,10 @@ class Simulator:
         # Reused by every advance(): a plant node calls it once per control period.
         self._coef = np.zeros((3, mech.n))
         self.info = np.zeros(3)
-        self._args = (*mech.arrays,)
+        self._active = np.asarray(mech.active, dtype=np.int64)
+        # the compiled calls per chunk, period or DOP853 stage, without numba's type dispatch
+        # (pinned_kernels.py): every argument keeps its type from call to call
+        self._pin = KernelPins()
         # (method, exponential scheme) of a fixed-step integrator (sim/integrators.py)
         self.method = FIXED_STEP.get(self.options.integrator, (integrators.RK4, exponential.AVERAGED))
 
@@ -124,14 +129,59 @@ class Simulator:
                 raise integration_error(status, o.formulation, start + info[0] * h, info)
 
     def fixed_steps(self, q: np.ndarray, qd: np.ndarray, coef: np.ndarray, h: float, steps: int) -> int:
-        """``steps`` compiled steps of h of the fixed-step integrator; the kernel's status."""
-        return integrators.fixed_steps_flat(*self.method, self.code, *self._args, q, qd, coef, h, steps,
-                                            self.options.step_settings(), self.qdd_prev, self.lam, self.info)
+        """``steps`` compiled steps of h of the fixed-step integrator on (q, qd) in place, under the
+        tree torque polynomial ``coef`` (3, n_t); the kernel's status."""
+        n = self.mech.n
+        qw, qdw = state_vector(q, n, "q"), state_vector(qd, n, "qd")
+        coef = np.ascontiguousarray(coef, dtype=np.float64)
+        if coef.shape != (3, n):
+            raise InputError(f"torque polynomial must have shape (3, {n}), got {coef.shape}")
+        status = self._pin(integrators.fixed_steps)(*self.method, self.code, self.mech.arrays, qw, qdw, coef, float(h),
+                                                    int(steps), self.options.step_settings(), self.qdd_prev, self.lam,
+                                                    self.info)
+        if qw is not q:  # a copy was stepped: the caller's arrays get the state
+            q[:] = qw
+        if qdw is not qd:
+            qd[:] = qdw
+        return status
+
+    def run_pieces(self, q: np.ndarray, qd: np.ndarray, coefs: np.ndarray, hs: np.ndarray, steps: np.ndarray,
+                   record: np.ndarray, q_out: np.ndarray, qd_out: np.ndarray, row: int) -> tuple[int, int, int]:
+        """:func:`elastic_pm_dyn.sim.batch.run_pieces` of this simulator's integrator on (q, qd) in
+        place (float64 vectors of n_t): coefs (pieces, 3, n_a) of the active joints' torque, the
+        pieces' steps hs and step counts, which of them end on a sample row of q_out, qd_out
+        (float64, (rows, n_t)) from ``row`` on. Returns (status, pieces done, next row)."""
+        n, n_a = self.mech.n, len(self._active)
+        qw, qdw = state_vector(q, n, "q"), state_vector(qd, n, "qd")
+        coefs = np.ascontiguousarray(coefs, dtype=np.float64)
+        hs = np.ascontiguousarray(hs, dtype=np.float64)
+        steps = np.ascontiguousarray(steps, dtype=np.int64)
+        record = np.ascontiguousarray(record, dtype=np.bool_)
+        pieces = len(hs)
+        if coefs.shape != (pieces, 3, n_a) or hs.shape != (pieces,) or steps.shape != hs.shape \
+                or record.shape != hs.shape:
+            raise InputError(f"{pieces} pieces need coefs of shape ({pieces}, 3, {n_a}) and as many steps and "
+                             f"record flags, got {coefs.shape}, {steps.shape}, {record.shape}")
+        last = row + int(np.count_nonzero(record))  # the compiled code writes rows unchecked
+        for out in (q_out, qd_out):
+            if not (out.dtype == np.float64 and out.ndim == 2 and out.shape[1] == n and out.flags.c_contiguous
+                    and out.flags.writeable and row >= 0 and last <= out.shape[0]):
+                raise InputError(f"output rows {row} to {last} need writeable contiguous float64 arrays of shape "
+                                 f"(at least {last}, {n})")
+        status, done, row = self._pin(batch.run_pieces)(
+            *self.method, self.code, self.mech.arrays, self._active, qw, qdw, coefs, hs, steps, record, q_out, qd_out,
+            int(row), self.options.step_settings(), self.qdd_prev, self.lam, self.info)
+        if qw is not q:  # a copy was stepped: the caller's arrays get the state
+            q[:] = qw
+        if qdw is not qd:
+            qd[:] = qdw
+        return int(status), int(done), int(row)
 
     def _advance_adaptive(self, q: np.ndarray, qd: np.ndarray, torque: TorqueSource, t0: float, t1: float) -> None:
         o, mech, n = self.options, self.mech, self.mech.n
-        a = o.baumgarte_alpha if self.stab & kernels.STAB_BAUMGARTE else 0.0
-        b = o.baumgarte_beta if self.stab & kernels.STAB_BAUMGARTE else 0.0
+        a = float(o.baumgarte_alpha) if self.stab & kernels.STAB_BAUMGARTE else 0.0
+        b = float(o.baumgarte_beta) if self.stab & kernels.STAB_BAUMGARTE else 0.0
+        evaluate_kernel = self._pin(accelerations)
         coef = None if torque.smooth else torque.coefficients(t0, t1 - t0)
         tau = np.zeros(n)
         qdd = np.empty(n)
@@ -142,7 +192,7 @@ class Simulator:
                 kernels.partition(mech.arrays, qq, vv, o.closure_tol, 4)
             s = t - t0
             tau[mech.active] = torque.value(t) if coef is None else coef[0] + s * (coef[1] + s * coef[2])
-            cond, _ = accelerations_flat(self.code, *mech.arrays, qq, vv, tau, a, b, qdd_prev, qdd, self.lam)
+            cond, _ = evaluate_kernel(self.code, mech.arrays, qq, vv, tau, a, b, qdd_prev, qdd, self.lam)
             return cond, vv
 
         def rhs(t: float, y: np.ndarray) -> np.ndarray:
@@ -265,8 +315,6 @@ class Simulator:
         t_out = np.concatenate([grid[:1], grid[1:][is_out[1:]]])
         q_out, qd_out = np.empty((rows, mech.n)), np.empty((rows, mech.n))
         q_out[0], qd_out[0] = q, qd
-        active = np.asarray(mech.active, dtype=np.int64)
-        settings = o.step_settings()
         row = 1
 
         def result(n_rows: int) -> SimulationResult:
@@ -285,9 +333,8 @@ class Simulator:
                 for c0, c1 in itertools.pairwise(np.unique(np.concatenate([[0], ends, [len(hs)]]))):
                     coefs = torque.coefficients_many(starts[c0:c1], steps[c0:c1] * hs[c0:c1])
                     first = row
-                    status, done, row = batch.run_pieces_flat(
-                        *self.method, self.code, *self._args, active, q, qd, coefs, hs[c0:c1], steps[c0:c1],
-                        record[c0:c1], q_out, qd_out, row, settings, self.qdd_prev, self.lam, self.info)
+                    status, done, row = self.run_pieces(q, qd, coefs, hs[c0:c1], steps[c0:c1], record[c0:c1], q_out,
+                                                        qd_out, row)
                     if self.code == SCDD_ONE_PASS:
                         self._check_one_pass_rows(q_out, t_out, first, row, result)
                     if status != kernels.OK:  # a singular configuration or a blow-up, told apart
