@@ -48,7 +48,7 @@ def run(code: str, cwd: Path, env: dict[str, str] | None = None) -> str:
 
 def test_the_readme_has_a_snippet_for_each_job() -> None:
     code = "\n".join(snippets(REPO / "README.md"))
-    for call in ("epd.load_model", ".urdf", ".xml", "epd.Simulator", "torque_command", "epd.observe", "epd.analyze"):
+    for call in ("epd.load_model", ".urdf", ".xml", "epd.simulate", "torque_command", "epd.observe", "epd.analyze"):
         assert call in code, call
 
 
