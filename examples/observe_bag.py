@@ -2,7 +2,7 @@
 
 Run: ``python examples/observe_bag.py [BAG]``. Without BAG it first simulates a recording of
 the reference manoeuvre with sensor noise (observe_out/recording) and also prints each branch
-force's RMS error against the simulated truth. Writes observe_out/estimates.csv,
+force's RMS error against the simulated truth. Writes (afresh) observe_out/estimates.csv,
 observe_out/estimates/ (a bag of the estimates, which ``analyze`` reads) and summary.json.
 """
 
@@ -22,19 +22,15 @@ SENSORS = ("encoders", "imu", "branch_forces")  # strain gauges too: config/obse
 
 mech = epd.Mechanism(epd.load_model(CONFIG / "five_bar.yaml"))
 config = epd.load_observer_config(CONFIG / "observer.yaml").with_overrides(sensors=list(SENSORS))
-bag, truth = (Path(sys.argv[1]), None) if len(sys.argv) > 1 else (OUT / "recording", None)
-shutil.rmtree(OUT / "estimates", ignore_errors=True)  # an earlier run's: rosbag2 does not overwrite a bag
-if len(sys.argv) == 1:
-    shutil.rmtree(bag, ignore_errors=True)
-    truth = manoeuvre_recording(mech, seed=1, duration=DURATION)
-    recording_to_bag(truth, bag)
-result = epd.observe(mech, config, bag, OUT, log=lambda line: None)
-s = result.summary
+bag, truth = Path(sys.argv[1]) if sys.argv[1:] else OUT / "recording", None
+shutil.rmtree(OUT / "estimates" if sys.argv[1:] else OUT, ignore_errors=True)  # rosbag2 does not overwrite a bag
+if not sys.argv[1:]:  # no bag given: simulate one, the truth kept
+    recording_to_bag(truth := manoeuvre_recording(mech, seed=1, duration=DURATION), bag)
+s = (result := epd.observe(mech, config, bag, OUT, log=lambda line: None)).summary
 print(f"{s.rows} estimates over {s.duration_s:.3f} s of {bag}" + (f"; filter stopped: {s.fault}" if s.fault else ""))
 for sensor in config.sensors:
     print(f"  {sensor}: {s.sensors[sensor].accepted} accepted, {s.sensors[sensor].rejected} gated out")
-t = np.array([e.t for e in result.rows.est])
-force = np.array([e.branch_force for e in result.rows.est])
+t, force = np.array([e.t for e in result.rows.est]), np.array([e.branch_force for e in result.rows.est])
 for i, name in enumerate(result.rows.est[0].branch_names):
     print(f"{name} {force[:, i].min():.3f} .. {force[:, i].max():.3f} N", end="")
     if truth:  # one estimate per recorded stamp, after the filter's start-up

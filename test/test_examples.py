@@ -1,7 +1,8 @@
-"""Every script in examples/ runs (short arguments, a temporary directory) and does what it says.
+"""Every script in examples/ runs (in a temporary directory) and does what it says.
 
 Each runs as a user would run it: ``python examples/<name>.py ...`` in a fresh interpreter,
-with the current directory elsewhere than the repository.
+with the current directory elsewhere than the repository; the ROS ones with ``ROS_DOMAIN_ID``
+set to the module's private domain, as a ROS user sets it.
 """
 
 from __future__ import annotations
@@ -15,6 +16,8 @@ from pathlib import Path
 import pytest
 from ros_harness import domain_id, require
 
+from elastic_pm_dyn.ros.processes import ros_env  # ROS_DOMAIN_ID set, discovery on this machine
+
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 
 
@@ -23,9 +26,10 @@ EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 HANG_GUARD = 900.0  # [s]
 
 
-def run_example(name: str, *args: str | Path, cwd: Path, timeout: float = HANG_GUARD) -> str:
+def run_example(name: str, *args: str | Path, cwd: Path, timeout: float = HANG_GUARD,
+                env: dict[str, str] | None = None) -> str:
     proc = subprocess.run([sys.executable, str(EXAMPLES / name), *map(str, args)], cwd=cwd,
-                          capture_output=True, text=True, timeout=timeout)
+                          capture_output=True, text=True, timeout=timeout, env=env)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     return proc.stdout
 
@@ -36,10 +40,6 @@ def number_after(text: str, label: str) -> float:
     return float(match.group(1))
 
 
-# Examples still in the long argparse form (issue #27 item 3 not yet done for them).
-LONG_FORM = {"ros_controller", "lockstep_defaults", "two_plants"}
-
-
 def test_every_example_is_a_short_plain_script_that_says_how_to_run_it() -> None:
     scripts = sorted(EXAMPLES.glob("*.py"))
     assert {p.stem for p in scripts} >= {"simulate_manoeuvre", "compare_formulations", "observe_bag",
@@ -47,8 +47,7 @@ def test_every_example_is_a_short_plain_script_that_says_how_to_run_it() -> None
     for path in scripts:
         text = path.read_text()
         assert text.startswith('"""') and f"python examples/{path.name}" in text, path.name
-        if path.stem not in LONG_FORM:
-            assert len(text.splitlines()) <= 45 and "argparse" not in text, path.name
+        assert len(text.splitlines()) <= 40 and "argparse" not in text, path.name
 
 
 def test_simulate_manoeuvre(tmp_path: Path) -> None:
@@ -106,31 +105,43 @@ def test_analyze_bag(observed: tuple[Path, str], tmp_path: Path) -> None:
     assert (tmp_path / "analyze_out" / "summary.md").is_file()
 
 
+def test_ros_examples_take_their_domain_from_ros_domain_id(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    from elastic_pm_dyn.errors import InputError
+    from elastic_pm_dyn.ros.local_nodes import LocalNodes
+
+    monkeypatch.delenv("ROS_DOMAIN_ID", raising=False)
+    assert LocalNodes(tmp_path).domain_id == 0  # ROS 2's default
+    monkeypatch.setenv("ROS_DOMAIN_ID", "42")
+    assert LocalNodes(tmp_path).domain_id == 42
+    for bad in ("abc", "-1", "233", "1.5"):
+        monkeypatch.setenv("ROS_DOMAIN_ID", bad)
+        with pytest.raises(InputError, match=f"ROS_DOMAIN_ID must be a whole number 0-232, got '{re.escape(bad)}'"):
+            LocalNodes(tmp_path)
+
+
 def test_ros_controller(tmp_path: Path) -> None:
     require("rclpy")
-    text = run_example("ros_controller.py", "--periods", "150", "--domain-id", domain_id(14), "--timeout", "60",
-                       "--out", tmp_path / "out", cwd=tmp_path, timeout=120.0)
-    assert "150 periods of 1 ms in lockstep" in text
+    text = run_example("ros_controller.py", cwd=tmp_path, env=ros_env(domain_id(14)))
+    assert "500 periods of 1 ms in lockstep" in text
     assert number_after(text, "motor angle error: max") < 5.0  # [mrad]
     assert number_after(text, "end-effector error: max") < 1000.0  # [um]
-    log = (tmp_path / "out" / "logs" / "plant.log").read_text()
+    log = (tmp_path / "ros_controller_out" / "plant.log").read_text()
     assert "lockstep" in log and "Traceback" not in log
 
 
 def test_lockstep_defaults(tmp_path: Path) -> None:
     require("rclpy")
-    text = run_example("lockstep_defaults.py", "--periods", "50", "--domain-id", domain_id(11), "--timeout", "60",
-                       "--out", tmp_path / "out", cwd=tmp_path, timeout=120.0)
-    assert "50 lockstep periods driven with default QoS; last state at t = 0.050 s" in text
-    log = (tmp_path / "out" / "logs" / "plant.log").read_text()
+    text = run_example("lockstep_defaults.py", cwd=tmp_path, env=ros_env(domain_id(11)))
+    assert "200 lockstep periods driven with default QoS; last state at t = 0.200 s" in text
+    log = (tmp_path / "lockstep_defaults_out" / "plant.log").read_text()
     assert "Traceback" not in log
 
 
 def test_two_plants(tmp_path: Path) -> None:
     require("rclpy")
-    text = run_example("two_plants.py", "--domain-id", domain_id(8), "--timeout", "60", "--out", tmp_path / "out",
-                       cwd=tmp_path, timeout=120.0)
+    text = run_example("two_plants.py", cwd=tmp_path, env=ros_env(domain_id(8)))
     for ns in ("r1", "r2"):
         lines = [line for line in text.splitlines() if line.startswith(f"/{ns}/clock:")]
         assert len(lines) == 1 and lines[0].endswith("strictly increasing: yes"), text
         assert f"'/{ns}/plant: plant', hardware_id 'five_bar /{ns}/plant'" in text
+        assert "Traceback" not in (tmp_path / "two_plants_out" / f"{ns}.log").read_text()
