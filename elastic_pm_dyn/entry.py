@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import contextlib
 import importlib
+import os
 import sys
 
 from elastic_pm_dyn import interrupts
@@ -24,7 +25,8 @@ interrupts.install()
 
 
 def run(program: str, target: str, argv: list[str] | None = None) -> int:
-    """Import ``target`` ('module:function') and call it with ``argv``; Ctrl-C -> 130 and one line."""
+    """Import ``target`` ('module:function') and call it with ``argv``; on Ctrl-C one line, and the
+    process ends with status 130."""
     try:
         interrupts.arm()
         module, func = target.split(":")
@@ -33,7 +35,13 @@ def run(program: str, target: str, argv: list[str] | None = None) -> int:
         interrupts.ending()  # no finalizer's traceback after our one line
         with contextlib.suppress(KeyboardInterrupt):  # a second Ctrl-C while saying so
             print(f"{program}: interrupted (Ctrl-C)", file=sys.stderr)
-        return EXIT_INTERRUPTED
+            sys.stdout.flush()
+            sys.stderr.flush()
+        # End here, without the interpreter's finalization: an import the interrupt cut short
+        # leaves native objects (llvmlite's, numba's) half-built, and finalizing them can crash
+        # in C ("free(): double free detected", status -6 instead of 130; seen on a loaded
+        # machine). Nothing waits for it: main's own finally blocks (files, nodes) have run.
+        os._exit(EXIT_INTERRUPTED)
 
 
 def cli(argv: list[str] | None = None) -> int:
