@@ -87,6 +87,13 @@ def _tree(active_idx, tau, expired, out):
             out[active_idx[i]] = tau[i]
 
 
+@njit(cache=True, inline="always")
+def _relinearises(lin_age, lin_T, span, every):
+    """A prediction piece of length ``span`` renews Phi and Qd: the linearisation is due, or was
+    made for another length (the one rule of :func:`advance` and :func:`_may_relinearise`)."""
+    return lin_age >= every or abs(span - lin_T) > SAME_INTERVAL
+
+
 @njit(cache=True)
 def piece_end(t, t_to, max_interval, t_command, timeout, pend_t, head, tail, tol):
     """Where the prediction piece from ``t`` toward ``t_to`` ends: at most ``max_interval`` long,
@@ -122,7 +129,7 @@ def advance(ma, fixed, proc, state, cmd, ctl, timing, t_to, tree):
         expired = _expired(timing, t, t_command)
         _tree(active_idx, tau_hold, expired, tree)
         n_sub = max(1, int(np.ceil(T / dt - 1e-9)))
-        relin = lin_age >= every or abs(T - lin_T) > SAME_INTERVAL
+        relin = _relinearises(lin_age, lin_T, T, every)
         status = predict_checked(ma, fixed, proc, state, tree, relin, T, n_sub)
         if relin:
             lin_age, lin_T = 0.0, T
@@ -198,12 +205,12 @@ def _may_relinearise(cmd, ctl, timing, t_to):
     if not t_to - t > tol:
         return False
     head, tail = int(ctl[HEAD]), int(ctl[TAIL])
-    if ctl[LIN_AGE] >= timing[RELIN_EVERY] or head < tail:
+    if head < tail:
         return True
     end = piece_end(t, t_to, timing[MAX_INTERVAL], ctl[T_COMMAND], timing[TIMEOUT], cmd[2], head, tail, tol)
     if t_to - end > tol:
         return True  # more than one piece
-    return abs((end - t) - ctl[LIN_T]) > SAME_INTERVAL
+    return _relinearises(ctl[LIN_AGE], ctl[LIN_T], end - t, timing[RELIN_EVERY])
 
 
 @njit(cache=True)
