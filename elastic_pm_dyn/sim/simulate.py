@@ -53,13 +53,9 @@ def simulate(model: Mechanism | Model | str | Path, torques: Torques, duration: 
     source = as_torque_source(torques, mech, hold)
     try:
         result = sim.run(source, duration, q0, qd0)
-    except RunInterrupted as stop:
-        if out is not None:
+    except (RunInterrupted, SingularConfigurationError) as stop:  # both carry the samples so far
+        if out is not None and stop.partial is not None:
             stop.partial.to_csv(out)
-        raise
-    except SingularConfigurationError as err:
-        if out is not None and err.partial is not None:
-            err.partial.to_csv(out)
         raise
     if out is not None:
         result.to_csv(out)

@@ -359,12 +359,11 @@ class Simulator:
         """The one-pass SCDD's convergence factor at the samples ``first:last`` a compiled chunk
         just wrote: at the first where it is >= 1 the run stops, keeping the samples before it."""
         for k in range(first, last):
-            rho = one_pass_convergence_factor(self.mech, q_out[k])
-            if not rho < 1.0:
-                err = OnePassDivergenceError(one_pass_refusal(rho, f"at t = {t_out[k]:.6g} s"), rho,
-                                             float(t_out[k]), self.mech.gap(q_out[k]))
+            try:
+                check_one_pass(self.mech, q_out[k], f"at t = {t_out[k]:.6g} s", float(t_out[k]))
+            except OnePassDivergenceError as err:
                 err.partial = result(k)
-                raise err
+                raise
 
     def _calls(self, grid: np.ndarray, out: np.ndarray
                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
