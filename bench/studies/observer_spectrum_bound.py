@@ -41,10 +41,12 @@ import scipy.signal
 
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from observer_bound_machines import machine  # noqa: E402
 
 from elastic_pm_dyn.dynamics.statics import holding_torques, rest_state  # noqa: E402
 from elastic_pm_dyn.kinematics.mechanism import Mechanism  # noqa: E402
-from elastic_pm_dyn.model.loader import load_model  # noqa: E402
 from elastic_pm_dyn.observer import Observer, ObserverConfig  # noqa: E402
 from elastic_pm_dyn.observer.core import kernels  # noqa: E402
 from elastic_pm_dyn.observer.core.observer_model import branch_arrays  # noqa: E402
@@ -52,12 +54,6 @@ from elastic_pm_dyn.observer.testing.scenarios import Noise  # noqa: E402
 
 PERIOD = 1e-3  # [s] the control rate's sample period
 BAND = (2.0, 200.0)  # [Hz] the acceptance's flat disturbance
-
-
-def machine(spec: str) -> tuple[str, Mechanism]:
-    name, _, nek = spec.partition(":")
-    path = ROOT / "config" / f"{name}.yaml"
-    return name, Mechanism(load_model(path, elastic_dof_per_chain=int(nek)) if nek else load_model(path))
 
 
 def linear_model(mech: Mechanism) -> dict:
