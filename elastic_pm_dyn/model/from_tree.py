@@ -111,10 +111,11 @@ def build_model(tree: KinematicTree, sidecar: Sidecar | None = None) -> Model:
     if not independent:
         model = drop_repeated_rows(model)  # before the free spins: their rank needs independent rows
     model = free_passive_motions(model)  # after: a still row would hide a free spin from the rank
-    _check_counts(tree, model, sidecar, closures)
+    # before the counts: a tendon over a joint nothing holds is refused at the actuator that spreads
     transmissions = _tendon_transmissions(tree, model)
     if transmissions:
         model = replace(model, transmissions=transmissions)
+    _check_counts(tree, model, sidecar, closures)
     if not independent:  # found independent at the assembled pose: freeing joints keeps them so
         _check_repeated(model, closures)
     return model
@@ -171,6 +172,8 @@ def _tendon_transmissions(tree: KinematicTree, model: Model) -> tuple[tuple[str,
         # the tendon with no spring against it: one motor for two degrees of freedom
         free = [name for name, _ in tm.terms if model.joints[names.index(name)].role == ELASTIC
                 and model.joints[names.index(name)].stiffness == 0.0]
+        if c is None or not c.pairs:  # no loop: a passive joint no coupling ties is free too
+            free += [name for name, _ in tm.terms if names.index(name) not in rate and name not in free]
         if free:
             raise tm.where.error(f"not supported yet: the actuator's tendon runs over joints {', '.join(free)} that no "
                                  f"<joint>/<tendon> equality ties to {tm.joint!r} and no spring holds: one motor for "
