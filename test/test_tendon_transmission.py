@@ -158,13 +158,22 @@ def test_inverse_then_direct_dynamics_round_trip(slides, path_servos):
     back, left = mech.motor_inputs(tree_inverse_dynamics(mech, q, qd, qdd))
     np.testing.assert_allclose(back, u, rtol=1e-9, atol=1e-9)
     assert np.abs(left).max() < 1e-9
-    # the selection would be wrong here: the spring's row carries the tendon's share c2 u
-    assert abs(tree_inverse_dynamics(mech, q, qd, qdd)[-1]) > 1e-3 if path_servos is None else True
+    # with the selection (the spring's row left unforced) the motion would not be one: its row
+    # carries the tendon's share of the input
+    f_ae = tree_inverse_dynamics(mech, q, qd, qdd)
+    assert np.abs(f_ae[len(mech.active):]).max() > 1e-3 * np.abs(u).max()
 
 
-def test_rigid_model_keeps_the_rows_on_rigid_joints(slides):
+def test_rigid_model_inverse_then_direct_by_hand(slides):
+    """The rigid model (spring locked) keeps B's row on its motor's joint: the input for a
+    motion of slide a is (m a'' + k1 a) / c1, and the direct dynamics under it give a'' back."""
+    from elastic_pm_dyn.dynamics.inverse import motor_torques
     rigid = Mechanism(slides.model.locked())
     np.testing.assert_array_equal(rigid.transmission, [[C1]])  # the locked spring's share does no work
+    q, qd, qdd = np.array([0.01]), np.array([0.2]), np.array([3.0])
+    u = motor_torques(rigid, q, qd, qdd)
+    np.testing.assert_allclose(u, [(M * 3.0 + K1 * 0.01) / C1], rtol=1e-12)
+    np.testing.assert_allclose(Dynamics(rigid).accelerations(q, qd, u), qdd, rtol=1e-12)
 
 
 def test_observer_refuses_a_spread_motor_in_one_line(slides):
