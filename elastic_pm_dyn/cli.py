@@ -230,6 +230,9 @@ def cmd_check(args: argparse.Namespace) -> int:
     for terms, constant in couplings:
         sum_text = " + ".join(f"{c:g}*{name}" for name, c in terms).replace("+ -", "- ")
         print(f"  coupling: {sum_text} = {constant:.9g} (a closure row)")
+    for motor, terms in model.transmissions:
+        on = ", ".join(f"{name} with {c:g} u" for name, c in terms)
+        print(f"  transmission: motor {motor}'s input u (a fixed tendon's force) drives {on}")
     for line in _dropped_rows(model):
         print(line)
     q = initial_state(mech)

@@ -21,6 +21,12 @@ def tree_inverse_dynamics(mech: Mechanism, q: np.ndarray, qd: np.ndarray, qdd: n
     return W.T @ (t.M @ qdd + t.h)
 
 
+def motor_torques(mech: Mechanism, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
+    """Motor inputs (active order) for a consistent tree motion of a model without elastic
+    coordinates (the rigid one): B_a u = W^T (M_t qdd + h_t), B the motors' transmission."""
+    return mech.motor_inputs(tree_inverse_dynamics(mech, q, qd, qdd))[0]
+
+
 def multiplier_inverse_dynamics(mech: Mechanism, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray
                                 ) -> tuple[np.ndarray, np.ndarray]:
     """Eqs 4-5: multipliers from the passive rows, then the actuator forces.
@@ -59,6 +65,7 @@ class RigidFeedforward:
         return self.q.copy(), qd, qdd
 
     def torques(self, p: np.ndarray, pd: np.ndarray, pdd: np.ndarray) -> np.ndarray:
-        """Motor torques that make the rigid machine follow p(t) (eq 20)."""
+        """Motor torques that make the rigid machine follow p(t) (eq 20), through the motors'
+        transmission (B's rows on the rigid joints)."""
         q, qd, qdd = self.joint_motion(p, pd, pdd)
-        return tree_inverse_dynamics(self.mech, q, qd, qdd)
+        return self.mech.motor_inputs(tree_inverse_dynamics(self.mech, q, qd, qdd))[0]

@@ -71,8 +71,7 @@ def rest_state(mech: Mechanism) -> np.ndarray:
 
 def holding_torques(mech: Mechanism, q: np.ndarray) -> np.ndarray:
     """Motor torques (active joint order) that hold the consistent pose q at rest against
-    gravity: the motors' rows of the inverse dynamics at zero rates and accelerations."""
+    gravity: the motors' rows of the inverse dynamics at zero rates and accelerations, solved
+    through their transmission (a tendon motor's input is its force)."""
     zero = np.zeros(mech.n)
-    tau_ae = tree_inverse_dynamics(mech, q, zero, zero)
-    ae = list(mech.ae)
-    return tau_ae[[ae.index(j) for j in mech.active]]
+    return mech.motor_inputs(tree_inverse_dynamics(mech, q, zero, zero))[0]

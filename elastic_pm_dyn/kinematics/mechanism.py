@@ -64,6 +64,17 @@ class Mechanism:
         self.ae = model.ae_indices
         self.joint_names = model.joint_names
         self.active_names = [self.joint_names[i] for i in self.active]
+        # the one place the motors' transmission is built: tau_t = B u (model.transmission)
+        self.transmission = model.transmission()
+        n_a = len(self.active)
+        self.spread = not np.array_equal(self.transmission[self.active], np.eye(n_a)) \
+            or bool(np.any(self.transmission[np.setdiff1d(np.arange(self.n), self.active)]))
+        # B's rows on the motors' own coordinates: square, and solved for the inputs a motion needs
+        self._motor_rows = self.transmission[self.active]
+        if self.spread and np.any(self.transmission[self.passive]):
+            raise ValueError("a motor's transmission acts on a passive joint: give it through the couplings' rates")
+        if self.spread and np.linalg.matrix_rank(self._motor_rows) < n_a:
+            raise ValueError("the motors' transmissions do not drive their own joints independently")
         self.ee_components = np.array(model.ee_components)
         self.ee_axes = model.ee_axes  # (k, 3) world directions of the end effector's components
         self.ee_names = model.ee_names
@@ -162,10 +173,28 @@ class Mechanism:
         return W @ np.asarray(qd_ae, dtype=float)
 
     def split_tau(self, tau_active: np.ndarray) -> np.ndarray:
-        """Tree generalised forces with the motor torques on the active joints."""
-        tau = np.zeros(self.n)
-        tau[self.active] = tau_active
+        """Tree generalised forces B u of the motor inputs ``tau_active`` (..., n_a): each on its
+        own joint, or spread through its transmission (a fixed tendon's coefficients)."""
+        u = np.asarray(tau_active, dtype=float)
+        if self.spread:
+            return u @ self.transmission.T
+        tau = np.zeros(u.shape[:-1] + (self.n,))
+        tau[..., self.active] = u  # a selection: the same numbers, no products
         return tau
+
+    def motor_inputs(self, forces_ae: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The motor inputs u that generalised forces on q_ae (..., n_ae; the inverse dynamics'
+        W^T (M_t qdd + h_t)) need, and the elastic rows' forces the inputs leave: the motors'
+        rows B_a u = f_a fix u (no actuator but the motors acts there), f_e - B_e u is left.
+        W^T B = B on q_ae since B has no rows on passive joints (model/from_tree.py puts a
+        tendon's coupled terms through the couplings' rates)."""
+        f = np.asarray(forces_ae, dtype=float)
+        n_a = len(self.active)
+        if not self.spread:
+            return f[..., :n_a].copy(), f[..., n_a:].copy()
+        u = np.linalg.solve(self._motor_rows, f[..., :n_a, None])[..., 0] if f.ndim > 1 \
+            else np.linalg.solve(self._motor_rows, f[:n_a])
+        return u, f[..., n_a:] - u @ self.transmission[self.elastic].T
 
     # ----------------------------------------------------------------- energy
     def energy(self, q: np.ndarray, qd: np.ndarray) -> tuple[float, float]:

@@ -263,6 +263,9 @@ class Model:
     source: str = "<memory>"
     planar: bool = False  # closure and end effector in a plane (x-y unless the closure's basis says)
     fixed_points: tuple[tuple[str, np.ndarray], ...] = ()  # closure points on the fixed base, world frame
+    # per motor whose input acts on more than its own joint (an MJCF fixed tendon): (motor joint,
+    # ((joint, generalised force per unit input), ...)); a motor not listed drives its joint alone
+    transmissions: tuple[tuple[str, tuple[tuple[str, float], ...]], ...] = ()
 
     # --- joint bookkeeping in tree order (chains stacked, joints in chain order) ---
     @property
@@ -287,6 +290,26 @@ class Model:
 
     def joint_index(self, name: str) -> int:
         return self.joint_names.index(name)
+
+    def transmission(self) -> np.ndarray:
+        """B (n_t, n_a): the tree generalised forces per unit input of each motor (active order),
+        tau_t = B u. A motor drives its own joint with 1 unless :attr:`transmissions` spreads it
+        (a fixed tendon: its force f does the work of c_i f on each joint i of the tendon)."""
+        names = self.joint_names
+        active = self.active_names
+        B = np.zeros((len(names), len(active)))
+        for k, name in enumerate(active):
+            B[names.index(name), k] = 1.0
+        for motor, terms in self.transmissions:
+            if motor not in active:
+                raise ValueError(f"transmission of {motor!r}: not a motor of the model")
+            k = active.index(motor)
+            B[:, k] = 0.0
+            for joint, coefficient in terms:
+                if joint not in names:
+                    raise ValueError(f"transmission of {motor!r}: no joint {joint!r} in the model")
+                B[names.index(joint), k] += coefficient
+        return B
 
     @property
     def ee_components(self) -> tuple[int, ...]:
@@ -380,7 +403,10 @@ class Model:
                 (tuple((n, c) for n, c in terms if n not in rests), const - sum(c * rests[n] for n, c in terms
                                                                                   if n in rests))
                 for terms, const in closure.couplings))
-        return replace(self, chains=chains, branches=branches, closure=closure,
+        # a force on a locked joint does no work: a spread motor keeps its terms on the joints left
+        transmissions = tuple((m, tuple((n, c) for n, c in terms if n not in rests))
+                              for m, terms in self.transmissions if m not in rests)
+        return replace(self, chains=chains, branches=branches, closure=closure, transmissions=transmissions,
                        name=f"{self.name} ({role} locked)")
 
 

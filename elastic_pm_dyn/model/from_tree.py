@@ -111,8 +111,11 @@ def build_model(tree: KinematicTree, sidecar: Sidecar | None = None) -> Model:
     if not independent:
         model = drop_repeated_rows(model)  # before the free spins: their rank needs independent rows
     model = free_passive_motions(model)  # after: a still row would hide a free spin from the rank
+    # before the counts: a tendon over a joint nothing holds is refused at the actuator that spreads
+    transmissions = _tendon_transmissions(tree, model)
+    if transmissions:
+        model = replace(model, transmissions=transmissions)
     _check_counts(tree, model, sidecar, closures)
-    _check_tendon_motors(tree, model)
     if not independent:  # found independent at the assembled pose: freeing joints keeps them so
         _check_repeated(model, closures)
     return model
@@ -139,22 +142,25 @@ def _with_couplings(couplings: list[CouplingSpec], joints: list[TreeJoint], chai
     return replace(closure, couplings=rows)
 
 
-def _check_tendon_motors(tree: KinematicTree, model: Model) -> None:
-    """A motor on a fixed tendon is exact as a motor on its first joint when the tendon's other
-    joints follow that one through the couplings alone: the tendon force f then does the work
-    of a torque k f on it, k = sum of coefficient times d q_i / d q_first. Said as a warning
-    (the motor's input is that torque); a tendon over joints no coupling ties is one motor for
-    several degrees of freedom, refused."""
+def _tendon_transmissions(tree: KinematicTree, model: Model) -> tuple[tuple[str, tuple[tuple[str, float], ...]], ...]:
+    """Each tendon motor's transmission: its force f does the work of c_i f on each joint i of
+    the tendon (MuJoCo's moment arm of a fixed tendon). A term on a passive joint the couplings
+    alone tie to the independent ones (a <joint> equality) goes through their constant rate
+    d q_i / d q_ae, so the transmission acts on motors and springs only (exact: the work is the
+    same); a passive joint that a loop moves, or that nothing ties (under-actuated), is refused.
+    The motor's input is the tendon's force; its own joint (the tendon's first) keeps the
+    motor's coordinate, the other sprung joints stay elastic coordinates."""
+    out = []
     for tm in tree.tendon_motors:
         c = model.closure
         names = model.joint_names
         a = names.index(tm.joint)
         C = c.coupling_matrix(names)[:, :-1] if c is not None and c.couplings else np.zeros((0, len(names)))
         passive = [i for i, j in enumerate(model.joints) if j.role == PASSIVE and np.any(C[:, i] != 0.0)]
-        others = [i for i, j in enumerate(model.joints) if j.role != PASSIVE and i != a]
-        # d q_passive / d q_independent through the couplings; a passive joint the couplings do not
-        # fix alone (a loop's too, or free) has no constant rate
-        rate = {a: np.eye(len(names))[a]}
+        # d q / d q_independent: a motor's or spring's coordinate is itself; a passive joint the
+        # couplings fix alone has a constant rate, one a loop moves (or nothing ties) has none
+        eye = np.eye(len(names))
+        rate = {i: eye[i] for i, j in enumerate(model.joints) if j.role != PASSIVE}
         if passive:
             Cp = C[:, passive]
             X = np.linalg.lstsq(Cp, -C, rcond=None)[0]  # (passive, all joints): rates if determined
@@ -162,27 +168,33 @@ def _check_tendon_motors(tree: KinematicTree, model: Model) -> None:
             for row, i in enumerate(passive):
                 if not null.shape[1] or np.abs(null[row]).max() < 1e-12:
                     rate[i] = X[row]
+        # a free coordinate (a joint nothing holds, freed by free_passive_motions) would move under
+        # the tendon with no spring against it: one motor for two degrees of freedom
+        free = [name for name, _ in tm.terms if model.joints[names.index(name)].role == ELASTIC
+                and model.joints[names.index(name)].stiffness == 0.0]
+        if c is None or not c.pairs:  # no loop: a passive joint no coupling ties is free too
+            free += [name for name, _ in tm.terms if names.index(name) not in rate and name not in free]
+        if free:
+            raise tm.where.error(f"not supported yet: the actuator's tendon runs over joints {', '.join(free)} that no "
+                                 f"<joint>/<tendon> equality ties to {tm.joint!r} and no spring holds: one motor for "
+                                 "several degrees of freedom (under-actuated)")
         loose = [name for name, _ in tm.terms if names.index(name) not in rate]
-        if loose:
-            sprung = all(model.joints[names.index(n)].stiffness > 0.0 for n in loose) \
-                and model.joints[a].stiffness > 0.0
-            why = ("a motor spread over several sprung joints (each has its spring: not under-actuated, but a motor "
-                   "acts on one joint here)") if sprung else "one motor for several degrees of freedom (under-actuated)"
-            raise tm.where.error(f"not supported yet: the actuator's tendon runs over joints {', '.join(loose)} that "
-                                 f"no <joint>/<tendon> equality ties to {tm.joint!r}: {why}")
+        if loose:  # a loop's passive joint: its share of the tendon's work changes with the pose
+            raise tm.where.error(f"not supported yet: the actuator's tendon runs over passive joints "
+                                 f"{', '.join(loose)} of a loop (no <joint>/<tendon> equality ties them to "
+                                 f"{tm.joint!r}): their rate, and the tendon's work through them, varies with the pose")
         work = sum(coef * rate[names.index(name)] for name, coef in tm.terms)  # generalised force per unit f
-        side = [names[e] for e in others if abs(work[e]) > 1e-12]
-        if side:
-            raise tm.where.error(f"not supported yet: the actuator's tendon also drives {', '.join(side)} through the "
-                                 f"couplings, not {tm.joint!r} alone")
-        k = float(work[a])
-        if abs(k) < 1e-12:
+        coordinates = [i for i, j in enumerate(model.joints) if j.role != PASSIVE]
+        if abs(work[a]) < 1e-12:
             raise tm.where.error(f"the actuator's tendon does not move as {tm.joint!r} moves (its coefficients cancel "
-                                 "through the couplings): the motor does no work")
-        w = tm.where
-        warnings.warn(f"{w.file}:{w.line}: {w.element}: a motor on a fixed tendon is a motor on joint {tm.joint!r}, "
-                      f"its input the torque {k:.6g} times the tendon's force (exact: the other joints follow "
-                      "through the couplings)", stacklevel=3)
+                                 "through the couplings): the motor does no work on its own joint")
+        out.append((tm.joint, tuple((names[i], float(work[i])) for i in coordinates if abs(work[i]) > 1e-12)))
+    if out:
+        B = replace(model, transmissions=tuple(out)).transmission()
+        if np.linalg.matrix_rank(B[model.indices(ACTIVE)]) < B.shape[1]:
+            raise tree.tendon_motors[0].where.error("the actuators' tendons do not drive their motors' joints "
+                                                    "independently (their inputs' rows on them are singular)")
+    return tuple(out)
 
 
 def _check_repeated(model: Model, closures: list) -> None:

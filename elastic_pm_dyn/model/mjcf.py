@@ -11,12 +11,14 @@ one body -> a path of joints: a universal joint is two hinges); a body without j
 welded to its parent; joint ``stiffness``/``springref``/``damping`` -> an elastic joint
 (on a motor's joint: a spring in parallel with the motor), ``damping`` alone -> viscous
 friction, ``armature`` -> rotor inertia; a joint driven by a ``<motor>`` -> active, a
-``<motor>`` on a fixed tendon -> a motor on the tendon's first joint (exact where the
-equalities tie the others to it); ``<connect>`` -> a point closure, ``<weld>`` -> a 6d
-closure, ``<joint>``/``<tendon>`` equalities with a linear polycoef -> linear coupling rows;
-sites are frames. The start pose is the first keyframe, else qpos0 (a spring whose
-springref lies elsewhere starts preloaded, as in MuJoCo). A joint ``ref`` keeps MuJoCo's
-coordinate (the joint angle is ``qpos``: the body is written at ``qpos = ref``).
+``<motor>`` on a fixed tendon -> a motor on the tendon's first joint whose input, the tendon's
+force, acts through the tendon's coefficients (its transmission: on the sprung joints of the
+tendon directly, on the joints the equalities tie to it through their rates); ``<connect>``
+-> a point closure, ``<weld>`` -> a 6d closure, ``<joint>``/``<tendon>`` equalities with
+a linear polycoef -> linear coupling rows; sites are frames. The start pose is the first
+keyframe, else qpos0 (a spring whose springref lies elsewhere starts preloaded, as in
+MuJoCo). A joint ``ref`` keeps MuJoCo's coordinate (the joint angle is ``qpos``: the body is
+written at ``qpos = ref``).
 
 A free joint (a floating base) is refused, unless ``fix_base``: then each body carried by
 a free joint is welded to the world at the pose the file writes it at (the free joint's
@@ -325,7 +327,7 @@ class _Tree:
                                   "servos_as_motors=True (check/simulate --servos-as-motors) takes its joint for "
                                   "a motor's, the servo law left out")
             if m.actuator_trntype[a] == TRN_TENDON:
-                # a motor on a fixed tendon: on the tendon's first joint, the others coupled to it
+                # a motor on a fixed tendon: the tendon's first joint is the motor's, its force acts on all
                 terms = self._tendon_terms(int(m.actuator_trnid[a, 0]), where)
                 if not terms:
                     raise where.error("the actuator's tendon has no joint")

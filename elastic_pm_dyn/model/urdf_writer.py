@@ -10,6 +10,7 @@ loads again as the same Model (up to the end-effector mass, which is already in 
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 from xml.sax.saxutils import quoteattr
 
@@ -88,7 +89,13 @@ def _frame_rotations(model: Model) -> dict[int, np.ndarray]:
 
 
 def closure_sidecar(model: Model) -> str:
-    """The ``robot.yaml`` that goes with :func:`model_to_urdf`'s file."""
+    """The ``robot.yaml`` that goes with :func:`model_to_urdf`'s file. A motor's transmission (an
+    MJCF fixed tendon's) has no sidecar key: said in a warning, the written machine's motors
+    then drive their own joints alone."""
+    if model.transmissions:
+        warnings.warn(f"{model.source}: the transmissions of motor(s) {', '.join(m for m, _ in model.transmissions)} "
+                      "(fixed tendons) are not in the sidecar: there each motor drives its own joint alone",
+                      stacklevel=2)
     labels = [label.replace(".", "_") for _, _, label in model.point_list()]
     data: dict = {}
     if model.closure is not None:

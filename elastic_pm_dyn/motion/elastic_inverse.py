@@ -6,9 +6,10 @@ The servo-constraint problem: find the tree motion q(t) and motor torques tau(t)
     h(q) = 0                                 (eq 8: closure)
     task(q) = y(t)                           (the path: end-effector point or platform coordinates)
 
-Projected with W = dq_t/dq_ae (eq 18) this is W^T (M_t qdd + h_t) = [tau_a; 0] (eq 17): the
-motor rows give the torques, the elastic rows (no actuator acts on a spring coordinate)
-W_e^T (M_t qdd + h_t) = 0 are the equations that fix the deflections. Given y(t) and q_e(t)
+Projected with W = dq_t/dq_ae (eq 18) this is W^T (M_t qdd + h_t) = B_ae u (eq 17; B_ae =
+[I; 0] for motors on their own joints): the motor rows B_a u give the inputs, the elastic rows
+W_e^T (M_t qdd + h_t) - B_e u = 0 (B_e: a tendon motor's share on a spring coordinate, else
+none) are the equations that fix the deflections. Given y(t) and q_e(t)
 the closure fixes every other coordinate (:class:`~elastic_pm_dyn.motion.task.Task`), so the
 unknown is q_e(t) alone. The spring term K_e (q_e - q_rest) sits in h_t, hence the fixed point
 
@@ -91,7 +92,6 @@ def solve(mech: Mechanism, path: Path, move: float, step: float, q_start: np.nda
     if not (step > 0 and move > 0):
         raise InputError(f"grid step and move time must be > 0 (got {step}, {move})")
     e = mech.elastic
-    n_a = len(mech.active)
     k_e = mech.stiffness[e]
     if len(e) and not np.all(k_e > 0):
         raise InputError("the elastic inverse needs a stiffness > 0 on every elastic joint")
@@ -122,8 +122,8 @@ def solve(mech: Mechanism, path: Path, move: float, step: float, q_start: np.nda
                              "give it more time")
         Q, Qd, Qdd, F, previous_pass = _pass(mech, task, ys, qe, qed, qedd, previous_pass, q_guess, t)
         if not len(e):
-            return InverseMotion(t, Q, Qd, Qdd, F, 1, 0.0)
-        r = F[:, n_a:]
+            return InverseMotion(t, Q, Qd, Qdd, mech.motor_inputs(F)[0], 1, 0.0)
+        U, r = mech.motor_inputs(F)  # the motors' rows through their transmission; the elastic rows' rest
         # the change still to come, from the contraction seen so far (geometric): its torques'
         # error is that small a part of the springs' share
         if size <= TOLERANCE or (np.isfinite(last_change) and size * size / last_change <= TOLERANCE):
@@ -135,7 +135,7 @@ def solve(mech: Mechanism, path: Path, move: float, step: float, q_start: np.nda
                 raise InputError(f"the elastic inverse leaves {residual / spring:.2g} of the spring forces "
                                  f"unbalanced: the move ({move:g} s) is too fast for its grid ({step:g} s) or the "
                                  "machine's internal dynamics; give it more time")
-            return InverseMotion(t, Q, Qd, Qdd, F[:, :n_a], passes, residual, n_tail * step, n_tail * step)
+            return InverseMotion(t, Q, Qd, Qdd, U, passes, residual, n_tail * step, n_tail * step)
         last_change, previous = size, qe
         qe = qe - r / k_e if not n_tail else qe + _noncausal_step(r, modes, unstable, step)
     raise InputError(f"the elastic inverse did not converge in {MAX_PASSES} passes")
@@ -157,7 +157,7 @@ def zero_dynamics(mech: Mechanism, task: Task, path: Path, q_start: np.ndarray
 
     def rows(qe: np.ndarray, qedd: np.ndarray) -> np.ndarray:
         F = _pass(mech, task, [(y0, rest, rest)], qe[None], zeros, qedd[None], None, q_start, np.zeros(1))[3]
-        return F[0, len(mech.active):]
+        return mech.motor_inputs(F)[1][0]
 
     base = np.asarray(q_start, dtype=float)[e]
     r0 = rows(base, np.zeros(n_e))

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.interpolate import make_interp_spline
 
-from elastic_pm_dyn.dynamics.inverse import RigidFeedforward, tree_inverse_dynamics
+from elastic_pm_dyn.dynamics.inverse import RigidFeedforward, motor_torques
 from elastic_pm_dyn.errors import AssemblyError, InputError
 from elastic_pm_dyn.kinematics.assembly import solve_acceleration, solve_pose, solve_velocity
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
@@ -52,7 +52,7 @@ class LineReference:
 
     def _solve(self, t: float) -> ReferenceSample:
         q, qd, qdd = self.ff.joint_motion(*self.line(t))
-        return ReferenceSample(q, qd, qdd, tree_inverse_dynamics(self.ff.mech, q, qd, qdd))
+        return ReferenceSample(q, qd, qdd, motor_torques(self.ff.mech, q, qd, qdd))
 
     def sample(self, t: float) -> ReferenceSample:
         k = round(t * self.rate)
@@ -159,7 +159,7 @@ class JointReference:
         qd = solve_velocity(mech, q, mech.passive, fixed)
         fixed[mech.active] = qdda
         qdd = solve_acceleration(mech, q, qd, mech.passive, fixed)
-        return ReferenceSample(q.copy(), qd, qdd, tree_inverse_dynamics(mech, q, qd, qdd))
+        return ReferenceSample(q.copy(), qd, qdd, motor_torques(mech, q, qd, qdd))
 
 
 class HoldReference:
@@ -175,7 +175,7 @@ class HoldReference:
         zero = np.zeros(mech.n)
         self.ff = ff
         self.duration = float(duration)
-        self._sample = ReferenceSample(q, zero, zero.copy(), tree_inverse_dynamics(mech, q, zero, zero))
+        self._sample = ReferenceSample(q, zero, zero.copy(), motor_torques(mech, q, zero, zero))
 
     def sample(self, t: float) -> ReferenceSample:
         return self._sample

@@ -20,11 +20,12 @@ from elastic_pm_dyn.sim.kernels import OK
 
 
 @njit(cache=True)
-def run_pieces(method, scheme, form, ma, active, q, qd, coefs, hs, steps, record, q_out, qd_out, row, settings,
+def run_pieces(method, scheme, form, ma, transmission, q, qd, coefs, hs, steps, record, q_out, qd_out, row, settings,
                qdd_prev, lam, info):
     """Integrate the pieces k = 0 .. len(hs) - 1 in turn: ``steps[k]`` steps of ``hs[k]`` under
-    the torque polynomial ``coefs[k]`` (3, n_a: the active joints' columns of the tree
-    polynomial, time from the piece's start), by :func:`elastic_pm_dyn.sim.integrators.fixed_steps_ws`
+    the torque polynomial ``coefs[k]`` (3, n_a: the motors' inputs, time from the piece's
+    start; the tree polynomial is ``transmission`` (n_t, n_a: B, Mechanism.transmission) times
+    them), by :func:`elastic_pm_dyn.sim.integrators.fixed_steps_ws`
     (``method``, ``scheme``, ``settings``: its StepSettings). After each piece with ``record[k]``
     the state goes to row ``row`` of q_out, qd_out and row advances.
 
@@ -37,8 +38,12 @@ def run_pieces(method, scheme, form, ma, active, q, qd, coefs, hs, steps, record
     ew = etd2_workspace(ma)
     for k in range(hs.shape[0]):
         for r in range(3):
-            for j in range(active.shape[0]):
-                tau_coef[r, active[j]] = coefs[k, r, j]
+            for i in range(n):
+                s = 0.0  # B's zeros add nothing: a selection gives the inputs themselves
+                for j in range(transmission.shape[1]):
+                    if transmission[i, j] != 0.0:
+                        s += transmission[i, j] * coefs[k, r, j]
+                tau_coef[r, i] = s
         status = fixed_steps_ws(method, scheme, form, ma, q, qd, tau_coef, hs[k], steps[k], settings, qdd_prev, lam,
                                 info, ew)
         if status != OK:

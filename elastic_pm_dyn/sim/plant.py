@@ -135,7 +135,10 @@ class Plant:
         o, sim = self.options, self._sim
         n_steps = max(1, int(np.ceil((t1 - t0) / o.dt - 1e-9)))
         h = (t1 - t0) / n_steps
-        self._coef[0, self.mech.active] = tau
+        if self.mech.spread:
+            self._coef[0] = self.mech.split_tau(tau)
+        else:  # in place, every period
+            self._coef[0, self.mech.active] = tau
         status = sim.fixed_steps(q, qd, self._coef, h, n_steps)
         if status != kernels.OK:
             raise integration_error(status, o.formulation, t0 + sim.info[0] * h, sim.info)
@@ -235,14 +238,15 @@ class Plant:
     # ------------------------------------------------------------------ outputs
     def efforts(self, out: np.ndarray | None = None, springs: np.ndarray | None = None,
                 work: np.ndarray | None = None) -> np.ndarray:
-        """Per tree joint: applied motor torque (active), spring force c u + d du/dt (elastic), 0
-        (passive); into ``out`` without allocating where ``out``, ``springs`` and ``work`` (scratch
-        of the tree's size) are given (the plant node's publishing, every period)."""
+        """Per tree joint: applied motor torque (active: B u on the motor's joint), spring force
+        c u + d du/dt (elastic), 0 (passive); into ``out`` without allocating where ``out``,
+        ``springs`` and ``work`` (scratch of the tree's size) are given (the plant node's publishing, every period)."""
         mech = self.mech
         out = np.empty(mech.n) if out is None else out
         springs = mech.spring_forces(self.q, self.qd, springs, work)
         out[:] = 0.0
-        out[mech.active] = self.tau
+        # a spread motor (a tendon): what its input does on its own joint
+        out[mech.active] = mech.split_tau(self.tau)[mech.active] if mech.spread else self.tau
         out[mech.elastic] = springs[mech.elastic]
         return out
 

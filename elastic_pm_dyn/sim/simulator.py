@@ -96,7 +96,7 @@ class Simulator:
         # Reused by every advance(): a plant node calls it once per control period.
         self._coef = np.zeros((3, mech.n))
         self.info = np.zeros(3)
-        self._active = np.asarray(mech.active, dtype=np.int64)
+        self._transmission = np.ascontiguousarray(mech.transmission, dtype=np.float64)  # B (n_t, n_a)
         # the compiled calls per chunk, period or DOP853 stage, without numba's type dispatch
         # (pinned_kernels.py): every argument keeps its type from call to call
         self._pin = KernelPins()
@@ -123,7 +123,7 @@ class Simulator:
         calls = ([(t0 + k * h, 1) for k in range(n_steps)] if torque.smooth else
                  [(t0 + k * h, min(STEPS_PER_CALL, n_steps - k)) for k in range(0, n_steps, STEPS_PER_CALL)])
         for start, steps in calls:
-            coef[:, self.mech.active] = torque.coefficients(start, steps * h)
+            coef[:] = self.mech.split_tau(torque.coefficients(start, steps * h))
             status = self.fixed_steps(q, qd, coef, h, steps)
             if status != kernels.OK:  # a singular configuration or a blow-up, told apart
                 raise integration_error(status, o.formulation, start + info[0] * h, info)
@@ -151,7 +151,7 @@ class Simulator:
         place (float64 vectors of n_t): coefs (pieces, 3, n_a) of the active joints' torque, the
         pieces' steps hs and step counts, which of them end on a sample row of q_out, qd_out
         (float64, (rows, n_t)) from ``row`` on. Returns (status, pieces done, next row)."""
-        n, n_a = self.mech.n, len(self._active)
+        n, n_a = self.mech.n, self._transmission.shape[1]
         qw, qdw = state_vector(q, n, "q"), state_vector(qd, n, "qd")
         coefs = np.ascontiguousarray(coefs, dtype=np.float64)
         hs = np.ascontiguousarray(hs, dtype=np.float64)
@@ -169,8 +169,8 @@ class Simulator:
                 raise InputError(f"output rows {row} to {last} need writeable contiguous float64 arrays of shape "
                                  f"(at least {last}, {n})")
         status, done, row = self._pin(batch.run_pieces)(
-            *self.method, self.code, self.mech.arrays, self._active, qw, qdw, coefs, hs, steps, record, q_out, qd_out,
-            int(row), self.options.step_settings(), self.qdd_prev, self.lam, self.info)
+            *self.method, self.code, self.mech.arrays, self._transmission, qw, qdw, coefs, hs, steps, record, q_out,
+            qd_out, int(row), self.options.step_settings(), self.qdd_prev, self.lam, self.info)
         if qw is not q:  # a copy was stepped: the caller's arrays get the state
             q[:] = qw
         if qdw is not qd:
@@ -191,7 +191,7 @@ class Simulator:
             if self.code == LDA:
                 kernels.partition(mech.arrays, qq, vv, o.closure_tol, 4)
             s = t - t0
-            tau[mech.active] = torque.value(t) if coef is None else coef[0] + s * (coef[1] + s * coef[2])
+            tau[:] = mech.split_tau(torque.value(t) if coef is None else coef[0] + s * (coef[1] + s * coef[2]))
             cond, _ = evaluate_kernel(self.code, mech.arrays, qq, vv, tau, a, b, qdd_prev, qdd, self.lam)
             return cond, vv
 

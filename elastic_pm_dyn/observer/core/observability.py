@@ -42,8 +42,7 @@ def linear_model(obs, q: np.ndarray, qd: np.ndarray, tau_active: np.ndarray
     """(A, G Q_c G^T, H_point) of the observer's continuous model at a consistent tree state."""
     mech = obs.mech
     nae = obs.nae
-    tau = np.zeros(mech.n)
-    tau[mech.active] = tau_active
+    tau = mech.split_tau(tau_active)
     if hasattr(obs, "z"):
         tau[obs.dist_idx] += obs.disturbance()
     Aq, Av, Bf = np.empty((nae, nae)), np.empty((nae, nae)), np.empty((nae, nae))

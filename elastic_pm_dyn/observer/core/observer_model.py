@@ -22,6 +22,7 @@ from functools import cached_property
 import numpy as np
 
 from elastic_pm_dyn.dynamics.linear import elastic_modes
+from elastic_pm_dyn.errors import InputError
 from elastic_pm_dyn.kinematics.assembly import initial_state
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.model.description import ACTIVE, ELASTIC
@@ -139,6 +140,10 @@ class ObserverModel:
     @classmethod
     def build(cls, mech: Mechanism, cfg: ObserverConfig) -> ObserverModel:
         model = mech.model
+        if mech.spread:  # the compiled steps put each motor's torque on its own joint
+            spread = [n for n, _ in model.transmissions]
+            raise InputError(f"observer: not supported yet: motor {spread[0]!r} is spread over several joints "
+                             "(a fixed tendon's transmission); the observer drives each motor's joint alone")
         ae = np.asarray(mech.ae, dtype=np.int64)
         nae = len(ae)
         x_of_ae = {int(j): k for k, j in enumerate(ae)}

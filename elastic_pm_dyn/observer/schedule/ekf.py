@@ -420,9 +420,7 @@ class Observer:
         return True
 
     def _tree_tau(self, tau_active: np.ndarray) -> np.ndarray:
-        tau = np.zeros(self.mech.n)
-        tau[self.mech.active] = tau_active
-        return tau
+        return self.mech.split_tau(tau_active)
 
     def _linearize_here(self) -> None:
         """Accelerometer Jacobian at the current state (before the first prediction)."""
