@@ -37,7 +37,7 @@ from numba import njit
 from elastic_pm_dyn.dynamics.evaluate import SCDD, SINGULAR_TOL, accelerations_into, workspace
 from elastic_pm_dyn.dynamics.kernels import passive_map
 from elastic_pm_dyn.kinematics.kernels import point_buffers, unit_axis
-from elastic_pm_dyn.model.layout import JF_STIFFNESS
+from elastic_pm_dyn.model.layout import JF_STIFFNESS, JI_ROLE, ROLE_CODES
 from elastic_pm_dyn.observer.core.propagation import (
     balance,
     discretize_structured,
@@ -49,6 +49,8 @@ from elastic_pm_dyn.observer.core.propagation import (
 from elastic_pm_dyn.sim.exponential import AVERAGED, DEFAULT_PHASE_STEP, elastic_gains, exponential_steps
 from elastic_pm_dyn.sim.kernels import OK, STAB_PROJECTION, _closure, partition, rk4_steps
 from elastic_pm_dyn.small_linalg import cholesky, cholesky_solve, positive_definite
+
+ROLE_ACTIVE = ROLE_CODES["active"]  # a motor's joint in ma.ji[:, JI_ROLE]
 
 RK4, ETD2 = 0, 1  # Process.method[0]: the mean's integrator
 DIFFERENCES, SPRINGS = 0, 1  # Process.method[1]: the linearisation and discretisation
@@ -64,7 +66,7 @@ class Fixed(NamedTuple):
     eps_v: np.ndarray  # (n_ae,) ... and of the rates
     point: int  # the accelerometer's point (the end effector's without one)
     with_point: bool  # an accelerometer is used: its Jacobian Hpt is linearised too
-    active_idx: np.ndarray  # (n_a,) tree indices of the motors (command order)
+    transmission: np.ndarray  # (n_t, n_a) B: tree forces per unit motor input, tau_t = B u (Mechanism.transmission)
     ee_point: int  # the end-effector point (its position in the estimates)
     ee_axes: np.ndarray  # (k, 3) world directions of its components in the estimates (Mechanism.ee_axes)
     branch_joint: np.ndarray  # (n_b,) tree index of each branch's elastic joint
@@ -261,7 +263,7 @@ def estimate_flat(ma, fixed, proc, state, tau_last, t, out):
     """Every output of ``Observer.estimate`` into one flat array ``out``:
     [t, q, qd, q_std, qd_std, effort (n_t each), F, F_std, deflection, deflection rate (n_b each),
     ee, ee_std, d, d_std, x, P (row-major)]."""
-    _, _, _, _, active_idx, point, ee_axes, branch_joint, stiff, damp, rest = fixed
+    _, _, _, _, transmission, point, ee_axes, branch_joint, stiff, damp, rest = fixed
     dist_idx, Lz = proc[0], proc[2]
     q, qd, z, P, _, _, _, _ = state
     n = q.shape[0]
@@ -289,8 +291,13 @@ def estimate_flat(ma, fixed, proc, state, tau_last, t, out):
         out[oq + i] = q[i]
         out[oqd + i] = qd[i]
         out[oeff + i] = 0.0
-    for i in range(active_idx.shape[0]):
-        out[oeff + active_idx[i]] = tau_last[i]
+    for i in range(n):  # a motor's joint: what the inputs do there (B u; its own input unless spread)
+        if ma.ji[i, JI_ROLE] == ROLE_ACTIVE:
+            s = 0.0
+            for j in range(transmission.shape[1]):
+                if transmission[i, j] != 0.0:
+                    s += transmission[i, j] * tau_last[j]
+            out[oeff + i] = s
     for k in range(nd):
         s = 0.0
         for m in range(nz):

@@ -22,7 +22,6 @@ from functools import cached_property
 import numpy as np
 
 from elastic_pm_dyn.dynamics.linear import elastic_modes
-from elastic_pm_dyn.errors import InputError
 from elastic_pm_dyn.kinematics.assembly import initial_state
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.model.description import ACTIVE, ELASTIC
@@ -140,10 +139,6 @@ class ObserverModel:
     @classmethod
     def build(cls, mech: Mechanism, cfg: ObserverConfig) -> ObserverModel:
         model = mech.model
-        if mech.spread:  # the compiled steps put each motor's torque on its own joint
-            spread = [n for n, _ in model.transmissions]
-            raise InputError(f"observer: not supported yet: motor {spread[0]!r} is spread over several joints "
-                             "(a fixed tendon's transmission); the observer drives each motor's joint alone")
         ae = np.asarray(mech.ae, dtype=np.int64)
         nae = len(ae)
         x_of_ae = {int(j): k for k, j in enumerate(ae)}
@@ -174,8 +169,9 @@ class ObserverModel:
         point = imu.point if imu is not None else ee_point
         active_idx = np.asarray(mech.active, dtype=np.int64)
         ee_axes = np.ascontiguousarray(mech.ee_axes, dtype=float)
-        fixed = tuple(kernels.Fixed(eps_q, eps_v, point, imu is not None, active_idx, ee_point, ee_axes, branch_joint,
-                                    stiff, damp, rest))
+        transmission = np.ascontiguousarray(mech.transmission, dtype=np.float64)
+        fixed = tuple(kernels.Fixed(eps_q, eps_v, point, imu is not None, transmission, ee_point, ee_axes,
+                                    branch_joint, stiff, damp, rest))
         return cls(mech, model_key(cfg), ae, x_of_ae, tuple(model.joints[j].role for j in ae), eps_q, eps_v,
                    np.array(dist, dtype=np.int64), np.array([x_of_ae[j] for j in dist], dtype=np.int64),
                    [mech.joint_names[j] for j in dist], branch_names, branch_joint, stiff, damp, rest, H_F,

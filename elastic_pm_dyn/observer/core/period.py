@@ -79,12 +79,17 @@ def _expired(timing, t, t_command):
 
 
 @njit(cache=True)
-def _tree(active_idx, tau, expired, out):
-    """The tree force vector of a command in active order (zero if ``expired``)."""
+def _tree(transmission, tau, expired, out):
+    """The tree force vector B u of a command u in active order (zero if ``expired``); B's zeros
+    add nothing, so a motor on its own joint gives its input itself."""
     out[:] = 0.0
     if not expired:
-        for i in range(active_idx.shape[0]):
-            out[active_idx[i]] = tau[i]
+        for i in range(transmission.shape[0]):
+            s = 0.0
+            for j in range(transmission.shape[1]):
+                if transmission[i, j] != 0.0:
+                    s += transmission[i, j] * tau[j]
+            out[i] = s
 
 
 @njit(cache=True, inline="always")
@@ -115,7 +120,7 @@ def advance(ma, fixed, proc, state, cmd, ctl, timing, t_to, tree):
     delayed one starts to act). Returns the status of ``kernels.predict_checked``: on a failure
     the time stays at the failing piece's start (COVARIANCE_LOST: after it)."""
     tau_hold, tau_last, pend_t, pend_tau = cmd
-    active_idx = fixed[4]
+    transmission = fixed[4]
     max_interval, dt, tol = timing[MAX_INTERVAL], timing[DT], timing[TOL]
     every, timeout = timing[RELIN_EVERY], timing[TIMEOUT]
     t, lin_age, lin_T, t_command = ctl[T_NOW], ctl[LIN_AGE], ctl[LIN_T], ctl[T_COMMAND]
@@ -127,7 +132,7 @@ def advance(ma, fixed, proc, state, cmd, ctl, timing, t_to, tree):
         end = piece_end(t, t_to, max_interval, t_command, timeout, pend_t, head, tail, tol)
         T = end - t
         expired = _expired(timing, t, t_command)
-        _tree(active_idx, tau_hold, expired, tree)
+        _tree(transmission, tau_hold, expired, tree)
         n_sub = max(1, int(np.ceil(T / dt - 1e-9)))
         relin = _relinearises(lin_age, lin_T, T, every)
         status = predict_checked(ma, fixed, proc, state, tree, relin, T, n_sub)
@@ -220,12 +225,12 @@ def _imu(ma, fixed, proc, state, cmd, ctl, timing, evidence, imu, imu_gate, meas
     ``waiting`` (the command of the stamp still to come, no delay): under ``auto`` correct with
     the before hypothesis now and weigh the sample when the command comes (its prior into
     ``work``). Returns (NIS, status, log det S)."""
-    active_idx = fixed[4]
+    transmission = fixed[4]
     tau_hold, tau_last = cmd[0], cmd[1]
     trees, prior, tau_before, a_before = work
     tree_b, tree_a = trees[0], trees[1]
-    _tree(active_idx, tau_last, np.bool_(False), tree_b)
-    _tree(active_idx, tau_hold, _expired(timing, ctl[T_NOW], ctl[T_COMMAND]), tree_a)
+    _tree(transmission, tau_last, np.bool_(False), tree_b)
+    _tree(transmission, tau_hold, _expired(timing, ctl[T_NOW], ctl[T_COMMAND]), tree_a)
     after = _use_after(ctl, evidence)
     if int(timing[IMU_MODE]) == 2 and not waiting:
         return imu_correct_auto(ma, fixed, proc, state, imu, tree_b, tree_a, after, meas, imu_gate, evidence)
@@ -301,7 +306,7 @@ def command_step(ma, fixed, proc, state, cmd, ctl, timing, evidence, imu, imu_ga
     otherwise (or if the held sample is not ordinary), else 1; nis_row[1], nis_row[3]: the held
     sample's NIS and log det S."""
     tau_hold, _, pend_t, pend_tau = cmd
-    active_idx = fixed[4]
+    transmission = fixed[4]
     tol, delay = timing[TOL], timing[DELAY]
     t = ctl[T_NOW]
     tail = int(ctl[TAIL])
@@ -330,7 +335,7 @@ def command_step(ma, fixed, proc, state, cmd, ctl, timing, evidence, imu, imu_ga
             ctl[T_COMMAND] = t_a
         if waiting == DEFERRED:
             trees, prior, tau_before, a_before = work
-            _tree(active_idx, tau_hold, _expired(timing, ctl[T_NOW], ctl[T_COMMAND]), trees[1])
+            _tree(transmission, tau_hold, _expired(timing, ctl[T_NOW], ctl[T_COMMAND]), trees[1])
             imu_innovations(ma, fixed, proc, prior, imu, tau_before, trees[1], imu_meas, imu_gate, evidence, a_before,
                             np.bool_(True))
         elif waiting == HELD:
