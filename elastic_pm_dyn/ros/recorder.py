@@ -29,7 +29,10 @@ before the middleware drops anything. What is lost anyway is counted per topic
 plus messages the writer dropped) and reported in the log (throttled), on /diagnostics
 and, at close, in the bag's ``metadata.yaml`` (``custom_data: elastic_pm_dyn.losses``).
 A topic that is matched but delivers nothing for :data:`SILENT_AFTER` seconds is reported
-the same way (a publisher that is silent, or a transport that does not deliver).
+the same way (a publisher that is silent, or a transport that does not deliver), and read by a
+new reader beside the old one: a publisher that was only silent (the observer before its loop
+starts) serves the old reader at once, while a new participant's reader may take a second to
+match; a message both deliver is recorded once (:class:`_Once`).
 
 Killed at any moment (even SIGKILL), the node leaves a bag that ``analyze``, ``export``
 and ``observe`` read up to at most ~1 s before the kill: the writer flushes (an mcap chunk,
@@ -43,7 +46,9 @@ import importlib
 import json
 import math
 import sys
+import threading
 import time
+from collections import deque
 from pathlib import Path
 from typing import Any
 
@@ -94,6 +99,32 @@ def subscription_depth(rate_hint: float, max_lag: float, offered_depths: list[in
     return int(min(MAX_DEPTH, max(10, math.ceil(rate_hint * max_lag), *offered_depths)))
 
 
+class _Once:
+    """Each message once when several readers of a topic deliver it, keyed by the writer's source
+    stamp and publication sequence number. Their callbacks run on several threads (a second
+    participant spins its own): the recording of a message happens under :attr:`lock`."""
+
+    SIZE = 4096  # keys remembered: far more than two readers of one topic are ever apart
+
+    def __init__(self) -> None:
+        self.lock = threading.Lock()
+        self._keys: set[tuple[Any, Any]] = set()
+        self._order: deque[tuple[Any, Any]] = deque()
+
+    def new(self, info: dict[str, Any]) -> bool:
+        """True the first time a message is seen (always, if the RMW gives no stamp or number)."""
+        key = (info.get("source_timestamp"), info.get("publication_sequence_number"))
+        if key == (None, None):
+            return True
+        if key in self._keys:
+            return False
+        self._keys.add(key)
+        self._order.append(key)
+        if len(self._order) > self.SIZE:
+            self._keys.discard(self._order.popleft())
+        return True
+
+
 class _Topic:
     """One recorded topic: its bag connection, subscription and what it lost."""
 
@@ -105,6 +136,9 @@ class _Topic:
         self.early = False  # subscribed before any publisher showed: its QoS is still a guess
         self.subscription: Any = None
         self.node: Any = None  # the node whose participant holds the subscription
+        # readers made before a resubscription, still subscribed: (node, subscription)
+        self.kept: list[tuple[Any, Any]] = []
+        self.once: _Once | None = None  # set once the topic has several readers
         self.msg_class: type | None = None
         self.arrive_reported = False
         self.resubscribed = 0  # times the subscription was made anew because it stayed silent
@@ -202,10 +236,19 @@ class RecorderNode(ManagedNode):
         put, losses, clock = self.writer.put, state.losses, self.get_clock()
         conn = state.conn
 
-        def take(raw: bytes, info: dict[str, Any]) -> None:  # the hot path: queue and count, nothing else
+        def record(raw: bytes, info: dict[str, Any]) -> None:  # the hot path: queue and count, nothing else
             put(conn, clock.now().nanoseconds, raw)
             losses.received += 1
             losses.gaps.take(info.get("publication_sequence_number"), state.matched)
+
+        def take(raw: bytes, info: dict[str, Any]) -> None:
+            once = state.once
+            if once is None:
+                record(raw, info)
+                return
+            with once.lock:  # several readers: each message once, from whichever delivers it first
+                if once.new(info):
+                    record(raw, info)
 
         def lost(event: Any) -> None:
             losses.dds_lost += event.total_count_change
@@ -250,9 +293,12 @@ class RecorderNode(ManagedNode):
         participant too, while other participants' readers are served (issue #29; see
         :mod:`~elastic_pm_dyn.ros.second_participant`). The k-th new subscription of any topic is
         made in the k-th extra participant, so at most :data:`MAX_RESUBSCRIBE` are ever made."""
-        state.node.destroy_subscription(state.subscription)
+        # The old reader stays: if the publisher was only silent it serves that one at once, while the
+        # new participant's reader may take a second to match (a loop's first estimates were lost so)
+        if state.once is None:
+            state.once = _Once()
+        state.kept.append((state.node, state.subscription))
         state.resubscribed += 1
-        state.losses.gaps.last = None  # the new reader starts from the publisher's current sequence
         while len(self.participants) < state.resubscribed:
             self.participants.append(SecondParticipant(
                 self.context.get_domain_id(), f"{self.get_name()}_{len(self.participants) + 1}"))
