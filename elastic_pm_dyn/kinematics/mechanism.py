@@ -172,15 +172,18 @@ class Mechanism:
         W, _ = self.passive_map(self.terms(q))
         return W @ np.asarray(qd_ae, dtype=float)
 
-    def split_tau(self, tau_active: np.ndarray) -> np.ndarray:
+    def split_tau(self, tau_active: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         """Tree generalised forces B u of the motor inputs ``tau_active`` (..., n_a): each on its
-        own joint, or spread through its transmission (a fixed tendon's coefficients)."""
+        own joint, or spread through its transmission (a fixed tendon's coefficients); into
+        ``out`` (..., n_t) where given (a plant's period, a simulator's torque polynomial)."""
         u = np.asarray(tau_active, dtype=float)
+        if out is None:
+            out = np.empty(u.shape[:-1] + (self.n,))
         if self.spread:
-            return u @ self.transmission.T
-        tau = np.zeros(u.shape[:-1] + (self.n,))
-        tau[..., self.active] = u  # a selection: the same numbers, no products
-        return tau
+            return np.matmul(u, self.transmission.T, out=out)
+        out[...] = 0.0
+        out[..., self.active] = u  # a selection: the same numbers, no products
+        return out
 
     def motor_inputs(self, forces_ae: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The motor inputs u that generalised forces on q_ae (..., n_ae; the inverse dynamics'

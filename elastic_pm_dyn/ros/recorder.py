@@ -136,8 +136,6 @@ class _Topic:
         self.early = False  # subscribed before any publisher showed: its QoS is still a guess
         self.subscription: Any = None
         self.node: Any = None  # the node whose participant holds the subscription
-        # readers made before a resubscription, still subscribed: (node, subscription)
-        self.kept: list[tuple[Any, Any]] = []
         self.once: _Once | None = None  # set once the topic has several readers
         self.msg_class: type | None = None
         self.arrive_reported = False
@@ -293,11 +291,11 @@ class RecorderNode(ManagedNode):
         participant too, while other participants' readers are served (issue #29; see
         :mod:`~elastic_pm_dyn.ros.second_participant`). The k-th new subscription of any topic is
         made in the k-th extra participant, so at most :data:`MAX_RESUBSCRIBE` are ever made."""
-        # The old reader stays: if the publisher was only silent it serves that one at once, while the
-        # new participant's reader may take a second to match (a loop's first estimates were lost so)
+        # The old reader stays subscribed (its node keeps it): if the publisher was only silent it
+        # serves that one at once, while the new participant's reader may take a second to match
+        # (a loop's first estimates were lost so)
         if state.once is None:
             state.once = _Once()
-        state.kept.append((state.node, state.subscription))
         state.resubscribed += 1
         while len(self.participants) < state.resubscribed:
             self.participants.append(SecondParticipant(

@@ -16,7 +16,7 @@ from numba import njit
 
 from elastic_pm_dyn.sim.exponential import etd2_workspace
 from elastic_pm_dyn.sim.integrators import fixed_steps_ws
-from elastic_pm_dyn.sim.kernels import OK
+from elastic_pm_dyn.sim.kernels import OK, transmit
 
 
 @njit(cache=True)
@@ -38,12 +38,7 @@ def run_pieces(method, scheme, form, ma, transmission, q, qd, coefs, hs, steps, 
     ew = etd2_workspace(ma)
     for k in range(hs.shape[0]):
         for r in range(3):
-            for i in range(n):
-                s = 0.0  # B's zeros add nothing: a selection gives the inputs themselves
-                for j in range(transmission.shape[1]):
-                    if transmission[i, j] != 0.0:
-                        s += transmission[i, j] * coefs[k, r, j]
-                tau_coef[r, i] = s
+            transmit(transmission, coefs[k, r], tau_coef[r])
         status = fixed_steps_ws(method, scheme, form, ma, q, qd, tau_coef, hs[k], steps[k], settings, qdd_prev, lam,
                                 info, ew)
         if status != OK:

@@ -52,6 +52,19 @@ DIVERGED = 2
 
 
 @njit(cache=True)
+def transmit(transmission, u, out):
+    """out = B u: the tree forces of motor inputs u (B: ``Mechanism.transmission``, n_t x n_a).
+    B's zeros add nothing, so a motor on its own joint gives its input itself, bit for bit (and
+    a non-finite input reaches only the joints its motor drives)."""
+    for i in range(transmission.shape[0]):
+        s = 0.0
+        for j in range(transmission.shape[1]):
+            if transmission[i, j] != 0.0:
+                s += transmission[i, j] * u[j]
+        out[i] = s
+
+
+@njit(cache=True)
 def _closure(ma, q, qd, M, h, J, a_pt, p_pt, A, gamma, res):
     tree_terms(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_body, ma.gravity, q, qd, M, h, J, a_pt, p_pt)
     all_closure_rows(ma.closure_pairs, ma.closure_axes, ma.points, ma.couplings, q, J, a_pt, p_pt, A, gamma, res)

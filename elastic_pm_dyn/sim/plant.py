@@ -135,10 +135,7 @@ class Plant:
         o, sim = self.options, self._sim
         n_steps = max(1, int(np.ceil((t1 - t0) / o.dt - 1e-9)))
         h = (t1 - t0) / n_steps
-        if self.mech.spread:
-            self._coef[0] = self.mech.split_tau(tau)
-        else:  # in place, every period
-            self._coef[0, self.mech.active] = tau
+        self.mech.split_tau(tau, out=self._coef[0])  # in place, every period
         status = sim.fixed_steps(q, qd, self._coef, h, n_steps)
         if status != kernels.OK:
             raise integration_error(status, o.formulation, t0 + sim.info[0] * h, sim.info)

@@ -123,7 +123,7 @@ class Simulator:
         calls = ([(t0 + k * h, 1) for k in range(n_steps)] if torque.smooth else
                  [(t0 + k * h, min(STEPS_PER_CALL, n_steps - k)) for k in range(0, n_steps, STEPS_PER_CALL)])
         for start, steps in calls:
-            coef[:] = self.mech.split_tau(torque.coefficients(start, steps * h))
+            self.mech.split_tau(torque.coefficients(start, steps * h), out=coef)
             status = self.fixed_steps(q, qd, coef, h, steps)
             if status != kernels.OK:  # a singular configuration or a blow-up, told apart
                 raise integration_error(status, o.formulation, start + info[0] * h, info)
@@ -132,17 +132,14 @@ class Simulator:
         """``steps`` compiled steps of h of the fixed-step integrator on (q, qd) in place, under the
         tree torque polynomial ``coef`` (3, n_t); the kernel's status."""
         n = self.mech.n
-        qw, qdw = state_vector(q, n, "q"), state_vector(qd, n, "qd")
+        qw, qdw = self._state(q, qd)
         coef = np.ascontiguousarray(coef, dtype=np.float64)
         if coef.shape != (3, n):
             raise InputError(f"torque polynomial must have shape (3, {n}), got {coef.shape}")
         status = self._pin(integrators.fixed_steps)(*self.method, self.code, self.mech.arrays, qw, qdw, coef, float(h),
                                                     int(steps), self.options.step_settings(), self.qdd_prev, self.lam,
                                                     self.info)
-        if qw is not q:  # a copy was stepped: the caller's arrays get the state
-            q[:] = qw
-        if qdw is not qd:
-            qd[:] = qdw
+        _write_back(q, qd, qw, qdw)
         return status
 
     def run_pieces(self, q: np.ndarray, qd: np.ndarray, coefs: np.ndarray, hs: np.ndarray, steps: np.ndarray,
@@ -152,7 +149,7 @@ class Simulator:
         pieces' steps hs and step counts, which of them end on a sample row of q_out, qd_out
         (float64, (rows, n_t)) from ``row`` on. Returns (status, pieces done, next row)."""
         n, n_a = self.mech.n, self._transmission.shape[1]
-        qw, qdw = state_vector(q, n, "q"), state_vector(qd, n, "qd")
+        qw, qdw = self._state(q, qd)
         coefs = np.ascontiguousarray(coefs, dtype=np.float64)
         hs = np.ascontiguousarray(hs, dtype=np.float64)
         steps = np.ascontiguousarray(steps, dtype=np.int64)
@@ -171,11 +168,13 @@ class Simulator:
         status, done, row = self._pin(batch.run_pieces)(
             *self.method, self.code, self.mech.arrays, self._transmission, qw, qdw, coefs, hs, steps, record, q_out,
             qd_out, int(row), self.options.step_settings(), self.qdd_prev, self.lam, self.info)
-        if qw is not q:  # a copy was stepped: the caller's arrays get the state
-            q[:] = qw
-        if qdw is not qd:
-            qd[:] = qdw
+        _write_back(q, qd, qw, qdw)
         return int(status), int(done), int(row)
+
+    def _state(self, q: np.ndarray, qd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(q, qd) as the vectors a compiled call steps in place (themselves when they already are)."""
+        n = self.mech.n
+        return state_vector(q, n, "q"), state_vector(qd, n, "qd")
 
     def _advance_adaptive(self, q: np.ndarray, qd: np.ndarray, torque: TorqueSource, t0: float, t1: float) -> None:
         o, mech, n = self.options, self.mech, self.mech.n
@@ -191,7 +190,7 @@ class Simulator:
             if self.code == LDA:
                 kernels.partition(mech.arrays, qq, vv, o.closure_tol, 4)
             s = t - t0
-            tau[:] = mech.split_tau(torque.value(t) if coef is None else coef[0] + s * (coef[1] + s * coef[2]))
+            mech.split_tau(torque.value(t) if coef is None else coef[0] + s * (coef[1] + s * coef[2]), out=tau)
             cond, _ = evaluate_kernel(self.code, mech.arrays, qq, vv, tau, a, b, qdd_prev, qdd, self.lam)
             return cond, vv
 
@@ -391,3 +390,11 @@ class Simulator:
                                 self.options.formulation,
                                 {"integrator": self.options.integrator, "dt": self.options.dt,
                                  "stabilization": self.options.stabilization})
+
+
+def _write_back(q: np.ndarray, qd: np.ndarray, qw: np.ndarray, qdw: np.ndarray) -> None:
+    """After a compiled call stepped (qw, qdw): where those were copies, the caller's arrays get the state."""
+    if qw is not q:
+        q[:] = qw
+    if qdw is not qd:
+        qd[:] = qdw

@@ -47,7 +47,7 @@ from elastic_pm_dyn.observer.core.propagation import (
     spring_columns,
 )
 from elastic_pm_dyn.sim.exponential import AVERAGED, DEFAULT_PHASE_STEP, elastic_gains, exponential_steps
-from elastic_pm_dyn.sim.kernels import OK, STAB_PROJECTION, _closure, partition, rk4_steps
+from elastic_pm_dyn.sim.kernels import OK, STAB_PROJECTION, _closure, partition, rk4_steps, transmit
 from elastic_pm_dyn.small_linalg import cholesky, cholesky_solve, positive_definite
 
 ROLE_ACTIVE = ROLE_CODES["active"]  # a motor's joint in ma.ji[:, JI_ROLE]
@@ -291,13 +291,11 @@ def estimate_flat(ma, fixed, proc, state, tau_last, t, out):
         out[oq + i] = q[i]
         out[oqd + i] = qd[i]
         out[oeff + i] = 0.0
+    forces = np.empty(n)
+    transmit(transmission, tau_last, forces)
     for i in range(n):  # a motor's joint: what the inputs do there (B u; its own input unless spread)
         if ma.ji[i, JI_ROLE] == ROLE_ACTIVE:
-            s = 0.0
-            for j in range(transmission.shape[1]):
-                if transmission[i, j] != 0.0:
-                    s += transmission[i, j] * tau_last[j]
-            out[oeff + i] = s
+            out[oeff + i] = forces[i]
     for k in range(nd):
         s = 0.0
         for m in range(nz):

@@ -46,6 +46,7 @@ from elastic_pm_dyn.observer.core.kernels import (
     imu_innovations,
     predict_checked,
 )
+from elastic_pm_dyn.sim.kernels import transmit
 
 # sample_step's results besides 0 (not taken): what became of an accelerometer sample
 TAKEN, HELD, DEFERRED = 1, 2, 3
@@ -82,14 +83,10 @@ def _expired(timing, t, t_command):
 def _tree(transmission, tau, expired, out):
     """The tree force vector B u of a command u in active order (zero if ``expired``); B's zeros
     add nothing, so a motor on its own joint gives its input itself."""
-    out[:] = 0.0
-    if not expired:
-        for i in range(transmission.shape[0]):
-            s = 0.0
-            for j in range(transmission.shape[1]):
-                if transmission[i, j] != 0.0:
-                    s += transmission[i, j] * tau[j]
-            out[i] = s
+    if expired:
+        out[:] = 0.0
+    else:
+        transmit(transmission, tau, out)
 
 
 @njit(cache=True, inline="always")
