@@ -20,6 +20,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from elastic_pm_dyn.errors import InputError
 from elastic_pm_dyn.model import yaml12
 
@@ -34,6 +36,7 @@ LINEARIZATIONS = ("springs", "differences")  # of the covariance (process.linear
 BRANCH_SOURCES = ("branch_forces", "joint_state_effort")
 SAMPLE_TIMINGS = ("before_command", "after_command", "auto")
 AXES = ("x", "y", "z")
+AUTO_AXES = "auto"  # imu.axes: the sensor axes in the machine's plane (planar), all three (spatial)
 
 # Every parameter (without the "observer." prefix) and its default. Floats are floats,
 # so that a ROS node can declare them with the right type.
@@ -51,7 +54,7 @@ DEFAULT_PARAMETERS: dict[str, Any] = {
     "imu.chain": "",  # chain whose end carries the accelerometer; "" = the end effector
     "imu.frame_id": "",  # expected header.frame_id of sensor_msgs/Imu; "" = accept any
     "imu.rpy": [0.0, 0.0, 0.0],  # sensor axes in the world frame (roll, pitch, yaw) [rad]
-    "imu.axes": ["x", "y"],  # measured sensor axes
+    "imu.axes": [AUTO_AXES],  # measured sensor axes; auto: those in the machine's plane (planar), x, y, z (spatial)
     "imu.stddev": [0.02],  # [m/s^2]
     "imu.specific_force": True,  # True: the sensor reads a - g (a real accelerometer)
     "imu.sample_timing": "auto",  # the sample of t_k: before_command | after_command (a(t_k+)) | auto (from the data)
@@ -250,6 +253,17 @@ class ObserverConfig:
         cfg.validate()
         return cfg
 
+    def for_machine(self, mech: Any) -> ObserverConfig:
+        """This configuration with what it leaves to the machine decided (``imu.axes: [auto]``: the
+        sensor axes that lie in a planar machine's plane, all three on a spatial one); itself if nothing."""
+        if self.imu.axes != [AUTO_AXES]:
+            return self
+        from elastic_pm_dyn.model.description import rpy_to_matrix
+
+        sensor_axes = rpy_to_matrix(np.asarray(self.imu.rpy, dtype=float))  # columns: the axes in the world
+        in_plane = np.linalg.norm(np.asarray(mech.ee_axes, dtype=float) @ sensor_axes, axis=0) > 0.5
+        return self.with_overrides(imu__axes=[a for a, keep in zip(AXES, in_plane, strict=True) if keep])
+
     def with_overrides(self, **flat: Any) -> ObserverConfig:
         """A copy with some flat parameters replaced, e.g. ``with_overrides(sensors=["encoders", "imu"])``;
         dots in names are written as double underscores (``process__dt=2e-4``)."""
@@ -325,9 +339,10 @@ class ObserverConfig:
                 raise bad(key, f"expected one of {', '.join(map(str, allowed))}, got {_shown(value)}")
         if self.initial.source not in ("measurement", "model"):
             raise bad("initial.source", f"expected measurement or model, got {_shown(self.initial.source)}")
-        if not self.imu.axes or any(a not in AXES for a in self.imu.axes) or len(set(self.imu.axes)) != len(
-                self.imu.axes):
-            raise bad("imu.axes", f"expected distinct axes among x, y, z, got {_shown(self.imu.axes)}")
+        if self.imu.axes != [AUTO_AXES] and (not self.imu.axes or any(a not in AXES for a in self.imu.axes)
+                                             or len(set(self.imu.axes)) != len(self.imu.axes)):
+            raise bad("imu.axes", f"expected distinct axes among x, y, z, or [{AUTO_AXES}], "
+                      f"got {_shown(self.imu.axes)}")
         if len(self.imu.rpy) != 3:
             raise bad("imu.rpy", f"expected 3 angles, got {_shown(self.imu.rpy)}")
         if not 0.5 < self.gating.probability < 1.0:

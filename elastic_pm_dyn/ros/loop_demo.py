@@ -476,12 +476,15 @@ def observer_input_bag(bag: Path, out: Path, first_ns: int, topics: dict[str, st
     are served in that order when several messages wait)."""
     rank = {t: k for k, t in enumerate((topics["imu"], topics["encoders"], topics["command"])) if t}
     msgs = []
+    seen: set[tuple[str, int]] = set()
     with open_bag(bag) as b:
         conns = [c for c in b.connections if c.topic in rank]
         for i, (conn, _, raw) in enumerate(b.messages(conns)):
             ns = stamp_ns(b.deserialize(raw, conn.msgtype).header.stamp)
-            if ns >= first_ns:
+            sample = (conn.topic, ns)
+            if ns >= first_ns and not (conn.topic != topics["command"] and sample in seen):
                 msgs.append((ns, rank[conn.topic], i, conn, raw))
+                seen.add(sample)  # a sample published again (the lockstep plant's first state) once, as live
     if out.exists():
         shutil.rmtree(out)
     with BagWriter(out) as w:

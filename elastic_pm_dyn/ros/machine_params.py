@@ -55,8 +55,14 @@ DESCRIPTION_PARAMS = [
 ESTIMATE_PARAMS = [
     Param("topics.joint_states_stddev", "~/joint_states_stddev", "observer: JointState of the standard "
           "deviations (position, velocity) of every tree joint"),
-    Param("lockstep_order", False, "lockstep loop whose controller answers every estimate: the samples of t_k+1 "
-          "wait for the command of t_k, the joint state of t_k for the other samples of t_k (offline observe's order)"),
+    Param("input_order", "stamp", "stamp: the inputs are taken in stamp order across topics, as offline observe "
+          "takes a recording (the samples of t_k+1 wait for the command that moved the machine there, the encoders "
+          "of t_k for the other samples of t_k; a bounded wait, see input_wait); arrival: as they arrive",
+          choices=("stamp", "arrival")),
+    Param("input_wait", 0.5, "[s] wall time an input waits for what comes before it in stamp order (input_order: "
+          "stamp); then it goes without, and the topic it waited for is not waited for until it delivers again",
+          positive=True, runtime=True),
+    Param("lockstep_order", True, "replaced by input_order (true: stamp, false: arrival)"),
 ]
 
 

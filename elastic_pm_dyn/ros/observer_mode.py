@@ -59,6 +59,7 @@ from elastic_pm_dyn.bags.msgtypes import stamp_ns
 from elastic_pm_dyn.errors import InputError
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.observer.config import DEFAULT_PARAMETERS, PREFIX, RUNTIME_PARAMETERS
+from elastic_pm_dyn.ros.input_order import AFTER, BEFORE, COMMAND, PRIMARY, InputOrder
 from elastic_pm_dyn.ros.markers import MechanismMarkers
 from elastic_pm_dyn.ros.messages import EstimateMessages, stamp
 from elastic_pm_dyn.ros.observer_session import ObserverSession, Outcome, observer_config, parameter_message
@@ -67,8 +68,7 @@ from elastic_pm_dyn.ros.qos import DIAGNOSTICS_QOS, OBSERVER_INPUT_QOS, STATE_QO
 from elastic_pm_dyn.ros.throttle import KindThrottle
 
 WARN_EVERY = 1.0  # [s] throttle of repeated warnings, per kind
-MAX_HOLD = 10.0  # [s] wall time messages wait (lockstep_order; a loaded machine's controller may take
-# seconds, a stopped one never answers) before they go without what they wait for
+ORDER_CHECK = 0.05  # [s] wall time between checks of inputs that wait too long (input_order: stamp)
 FINDINGS_EVERY = 10.0  # [s] throttle of the NIS findings (they describe a window of samples, not one)
 LEVELS = {0: DiagnosticStatus.OK, 1: DiagnosticStatus.WARN, 2: DiagnosticStatus.ERROR}
 
@@ -101,21 +101,21 @@ class ObserverMode:
         self.last_stamp = 0  # [ns] of the latest published estimate
         self.timing_logged = 0  # sample timing decisions logged so far
         self.warn = KindThrottle(node, WARN_EVERY)
-        # lockstep_order: messages of different topics may arrive in any order (the plant may answer
-        # the command of t_k with the samples of t_k+1 before that command got here; the joint state
-        # of t_k may overtake the accelerometer sample of t_k); they wait here for what comes first
-        # in offline observe's order: the command of t_k, then the samples of t_k+1, the joint
-        # state (which publishes the estimate) last
-        self.lockstep_order = bool(p.get("lockstep_order", False))
-        self.awaiting: int | None = None  # [ns] stamp of the newest estimate whose command has not come
-        self.held: list[tuple[str, Any, Any]] = []  # (kind, handler, message) in arrival order
-        self.held_since = 0.0  # monotonic [s]
-        # samples of a stamp that come before its joint state: an accelerometer sampling before the
-        # command (published with the state), strain gauges
-        self.same_stamp = [k for k, on in (
-            ("imu", "imu" in cfg.sensors and cfg.imu.sample_timing != "after_command"),
-            ("branch_forces", "branch_forces" in cfg.sensors and cfg.branch_forces.source == "branch_forces")) if on]
-        self.latest: dict[str, int] = {}  # kind -> newest stamp taken
+        # input_order stamp: the inputs in stamp order across topics (ros/input_order.py), as offline
+        # observe takes them; lockstep_order is its older name
+        order = p["input_order"]
+        if "lockstep_order" in getattr(node, "_parameter_overrides", {}):
+            order = "stamp" if p["lockstep_order"] else "arrival"
+            node.get_logger().warning(f"parameter 'lockstep_order' is replaced by 'input_order' (taken as "
+                                      f"input_order: {order})")
+        self.order: InputOrder | None = None
+        if order == "stamp":
+            imu_rank = AFTER if cfg.imu.sample_timing == "after_command" else BEFORE
+            ranks = {"command": COMMAND, "joint_state": PRIMARY, "imu": imu_rank, "branch_forces": BEFORE}
+            self.order = InputOrder(ranks, self.session.primary, p["input_wait"],
+                                    int(min(cfg.timing.max_future, 1e9) * 1e9))
+        self.handlers = {"command": self._take_command, "joint_state": self._on_joint_state, "imu": self._on_imu,
+                         "branch_forces": self._on_branch_forces}
 
         self.pub_joint_states = node.create_publisher(JointState, p["topics.joint_states"], STATE_QOS)
         self.pub_branch_forces = node.create_publisher(BranchForces, p["topics.branch_forces"], STATE_QOS)
@@ -125,25 +125,21 @@ class ObserverMode:
         self.pub_diagnostics = node.create_publisher(DiagnosticArray, "/diagnostics", DIAGNOSTICS_QOS)
 
         topics = cfg.topics
-        # Creation order is the order in which the executor serves messages that wait together:
-        # the command of t_k-1, then the samples of t_k, the joint state (which publishes the
-        # estimate of t_k) after the accelerometer and gauges of its stamp.
         inputs = [(JointState if p["command_type"] == "joint_state" else Float64MultiArray,
                    topics.torque_command, self._on_command)]
         if "imu" in cfg.sensors:
-            inputs.append((Imu, topics.ee_imu, self._held("imu", self._on_imu)))
+            inputs.append((Imu, topics.ee_imu, self._input("imu")))
         if "branch_forces" in cfg.sensors and cfg.branch_forces.source == "branch_forces":
-            inputs.append((BranchForces, topics.measured_branch_forces, self._held("branch_forces",
-                                                                                    self._on_branch_forces)))
-        inputs.append((JointState, topics.measured_joint_states, self._held("joint_state", self._on_joint_state)))
+            inputs.append((BranchForces, topics.measured_branch_forces, self._input("branch_forces")))
+        inputs.append((JointState, topics.measured_joint_states, self._input("joint_state")))
         for msg_type, topic, callback in inputs:  # a copy each: rclpy writes the overrides into the profile
             node.create_subscription(msg_type, topic, callback, copy.copy(OBSERVER_INPUT_QOS),
                                      qos_overriding_options=QoSOverridingOptions.with_default_policies())
         node.create_service(Trigger, "~/reset", self._on_reset)
         node.create_service(SetJointState, "~/set_state", self._on_set_state)
         steady = Clock(clock_type=ClockType.STEADY_TIME)
-        if self.lockstep_order:
-            node.create_timer(0.1, self._check_held, clock=steady)
+        if self.order is not None:  # inputs that wait for a topic that went silent
+            node.create_timer(ORDER_CHECK, self._release, clock=steady)
         self.steady = steady
         self.timers = {"marker_rate": node.create_timer(1.0 / p["marker_rate"], self._publish_markers, clock=steady),
                        "diagnostics_rate": node.create_timer(1.0 / p["diagnostics_rate"], self._publish_diagnostics,
@@ -167,6 +163,10 @@ class ObserverMode:
                 return parameter_message(err).removeprefix(f"parameter '{name}': ")
             self.cfg = cfg
             return None
+        if name == "input_wait":
+            if self.order is not None:
+                self.order.max_wait = value
+            return None
         if name not in self.timers:
             return "fixed at start-up in an observer (restart the node)"
         callback = self._publish_markers if name == "marker_rate" else self._publish_diagnostics
@@ -175,58 +175,40 @@ class ObserverMode:
         return None
 
     # ------------------------------------------------------------------ inputs
-    def _held(self, kind: str, handler: Any) -> Any:
-        """``handler``, or with lockstep_order: the message waits until it is its turn (see __init__)."""
-        if not self.lockstep_order:
-            return handler
+    def _input(self, kind: str) -> Any:
+        """The callback of a sample topic: straight to its handler, or through the stamp order."""
+        if self.order is None:
+            return self.handlers[kind]
 
-        def gate(msg: Any) -> None:
-            if not self.held:
-                self.held_since = time.monotonic()
-            self.held.append((kind, handler, msg))
+        def queue(msg: Any) -> None:
+            self.order.push(kind, stamp_ns(msg.header.stamp), msg, time.monotonic())
             self._release()
-        return gate
+        return queue
 
-    def _ready(self, kind: str, ns: int) -> bool:
-        if self.awaiting is not None and ns > self.awaiting:
-            return False  # the command of the newest estimate first
-        return kind != "joint_state" or all(self.latest.get(k, -1) >= ns for k in self.same_stamp)
-
-    def _release(self, force: bool = False) -> None:
-        """Take the waiting messages that may go now, the earliest first (``force``: all, in arrival order)."""
-        while self.held:
-            i = 0 if force else next((i for i, (k, _, m) in enumerate(self.held)
-                                      if self._ready(k, stamp_ns(m.header.stamp))), None)
-            if i is None:
-                return
-            kind, handler, msg = self.held.pop(i)
-            if kind != "joint_state":
-                self.latest[kind] = max(self.latest.get(kind, -1), stamp_ns(msg.header.stamp))
-            handler(msg)
-            self.held_since = time.monotonic()
-
-    def _check_held(self) -> None:
-        if self.held and time.monotonic() - self.held_since > MAX_HOLD:
-            what = (f"the torque command stamped {self.awaiting * 1e-9:.6f} s" if self.awaiting is not None
-                    else "the samples of the joint state's stamp")
-            self.warn.warning("waited", f"no {what} within {MAX_HOLD:g} s: {len(self.held)} messages taken "
-                              "without it (lockstep_order)")
-            self.awaiting = None
-            self._release(force=True)
+    def _release(self) -> None:
+        """Hand on the inputs whose turn it is (input_order: stamp)."""
+        for kind, ns, msg in self.order.pop_ready(time.monotonic()):
+            if kind == "command":
+                self._take_command(msg, ns)
+            else:
+                self.handlers[kind](msg)
 
     def _on_command(self, msg: JointState | Float64MultiArray) -> None:
+        # no header (Float64MultiArray): the arrival time on the node's clock
+        ns = stamp_ns(msg.header.stamp) if isinstance(msg, JointState) else self.node.get_clock().now().nanoseconds
+        if self.order is None:
+            self._take_command(msg, ns)
+            return
+        self.order.push("command", ns, msg, time.monotonic())
+        self._release()
+
+    def _take_command(self, msg: JointState | Float64MultiArray, ns: int) -> None:
         t0 = time.perf_counter()
         if isinstance(msg, JointState):
-            ns = stamp_ns(msg.header.stamp)
             out = self.session.torque_command(ns, msg.name, msg.effort)
-        else:  # no header: the arrival time on the node's clock
-            ns = self.node.get_clock().now().nanoseconds
+        else:
             out = self.session.torque_command(ns, (), msg.data)
         self._after(out, ns, t0)
-        if self.awaiting is not None and ns >= self.awaiting:
-            self.awaiting = None
-            if self.lockstep_order:
-                self._release()
 
     def _on_joint_state(self, msg: JointState) -> None:
         t0 = time.perf_counter()
@@ -264,8 +246,6 @@ class ObserverMode:
         self.pub_stddev.publish(m.stddev)
         self.session.published += 1
         self.last_stamp = ns
-        if self.lockstep_order:
-            self.awaiting = ns
 
     def _publish_markers(self) -> None:
         if self.pub_markers.get_subscription_count() and self.session.published:
@@ -286,11 +266,27 @@ class ObserverMode:
         if findings:
             log.warning("; ".join(findings.values()), throttle_duration_sec=FINDINGS_EVERY)
         level, message, values = self.session.report()
+        if self.order is not None:
+            values |= self._order_values()
         status = DiagnosticStatus(name=f"{self.node.get_fully_qualified_name()}: observer", hardware_id=self.model_name,
                                   level=LEVELS[level], message=message,
                                   values=[KeyValue(key=k, value=v) for k, v in values.items()])
         header = Header(stamp=stamp(self.node.get_clock().now().nanoseconds))
         self.pub_diagnostics.publish(DiagnosticArray(header=header, status=[status]))
+
+    def _order_values(self) -> dict[str, str]:
+        """The stamp-order queue for /diagnostics: depth now and deepest since the last report, how far
+        the estimates lag the newest sample, and what was dropped, re-stamped or released without waiting."""
+        order = self.order
+        st = order.stats
+        values = {"input_order.queue_depth": str(order.depth()), "input_order.queue_depth_max": str(st.max_depth),
+                  "input_order.lag_s": f"{order.lag_ns() * 1e-9:.6f}",
+                  "input_order.repeated_samples": str(st.repeated),
+                  "input_order.commands_restamped": str(st.restamped),
+                  "input_order.released_after_wait": str(st.waited_out),
+                  "input_order.released_queue_full": str(st.forced)}
+        st.max_depth = order.depth()
+        return values
 
     # ---------------------------------------------------------------- services
     def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:

@@ -3,8 +3,10 @@
     ros2 run elastic_pm_dyn observer_node --ros-args --params-file config/observer_node.yaml
     elastic-pm-dyn observer --params-file config/observer_node.yaml
 
-Torque commands and measurements in, estimated states out, on the topics the plant node
-uses, so RViz and the analysis work unchanged: what it subscribes to, publishes and serves
+Torque commands and measurements in, estimated states out, as the plant node's messages
+under the node's own name (``~/joint_states``, ``~/branch_forces``, ``~/ee_pose``,
+``~/markers``: /observer/joint_states ... beside a plant in the same namespace), so RViz and the
+analysis read them as a plant's: what it subscribes to, publishes and serves
 is :mod:`~elastic_pm_dyn.ros.observer_mode`'s. The plant node with ``mode: observer`` runs
 the same code with the same parameters
 (:data:`~elastic_pm_dyn.ros.machine_params.MACHINE_PARAMS`,
@@ -22,12 +24,25 @@ from typing import Any
 from elastic_pm_dyn.ros.machine_params import DESCRIPTION_PARAMS, ESTIMATE_PARAMS, MACHINE_PARAMS, load_machine
 from elastic_pm_dyn.ros.node_main import ManagedNode, run_node
 from elastic_pm_dyn.ros.observer_mode import OBSERVER_PARAMS, ObserverMode
-from elastic_pm_dyn.ros.params import COMMAND_JOINTS, on_runtime_change, read_parameters, reject_unknown
+from elastic_pm_dyn.ros.params import COMMAND_JOINTS, Param, on_runtime_change, read_parameters, reject_unknown
 from elastic_pm_dyn.ros.robot_description import publish_robot_description
 
-# the wall-clock rates may change while it runs (their timers are made anew), as in the plant node
-PARAMS = [*(dataclasses.replace(s, runtime=True) if s.name in ("marker_rate", "diagnostics_rate") else s
-            for s in MACHINE_PARAMS), *ESTIMATE_PARAMS, *DESCRIPTION_PARAMS]
+# Its outputs under its own name (/observer/joint_states ...): beside a plant in the same namespace,
+# never on the plant's truth topics.
+OWN_TOPICS = ("topics.joint_states", "topics.branch_forces", "topics.ee_pose", "topics.markers",
+              "topics.robot_description")
+
+
+def _own(spec: Param) -> Param:
+    if spec.name in OWN_TOPICS:
+        return dataclasses.replace(spec, default="~/" + spec.default)
+    # the wall-clock rates may change while it runs (their timers are made anew), as in the plant node
+    if spec.name in ("marker_rate", "diagnostics_rate"):
+        return dataclasses.replace(spec, runtime=True)
+    return spec
+
+
+PARAMS = [_own(s) for s in (*MACHINE_PARAMS, *ESTIMATE_PARAMS, *DESCRIPTION_PARAMS)]
 
 
 class ObserverNode(ManagedNode):

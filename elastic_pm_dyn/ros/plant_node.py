@@ -9,9 +9,10 @@ Sync modes (parameter ``sync_mode``):
   that period is published (stamp = simulated time, also on ``topics.clock``); a rejected
   command holds the last valid one (zero torque if none) for its period, so every command
   is answered within one period while the plant runs. The state at t = 0 is published at
-  start-up and, until the first command arrives, again (same stamp) every
-  ``lockstep.waiting_republish_period`` seconds of wall time: a controller with any QoS (a
-  default volatile subscriber that matched late) gets it; it should answer each stamp once.
+  start-up and, until the first command arrives, again (same stamp and bytes: states, clock,
+  sensor samples, disturbance truth) every ``lockstep.waiting_republish_period`` seconds of
+  wall time: a controller with any QoS (a default volatile subscriber that matched late), reading
+  any of these topics, gets it and starts the loop; it should answer each stamp once.
   The same torques give the same states as offline ``simulate``.
 
 Simulator services (docs/ros.md): ``~/pause``, ``~/unpause`` (std_srvs/Trigger), ``~/step``
@@ -606,16 +607,19 @@ class PlantNode(ManagedNode):
                 self._publish_state()  # the last good state: the plant keeps it on a fault
 
     def _republish_waiting(self) -> None:
-        """Lockstep before the first command: the latest state again, same stamp, for a controller
-        that subscribed after it was published (a volatile subscriber gets no history). Only while a
-        volatile subscriber is there (a transient-local one got the state when it matched), once it
-        has been there for a whole republish period and the state is that old: a controller that
-        answers within the period never sees a state twice."""
+        """Lockstep before the first command: everything published per period again (states,
+        clock, sensors, disturbance truth; the same bytes and stamp), for a controller that
+        subscribed after it was published (a volatile subscriber gets no history), whichever of
+        these topics it reads. Only while a volatile subscriber of one of them is there (a
+        transient-local one got the state when it matched), once it has been there for a whole
+        republish period and the state is that old: a controller that answers within the period
+        never sees a state twice."""
         if not self.awaiting_first or self.paused:
             return
         now = time.monotonic()
-        readers = self.get_subscriptions_info_by_topic(self.pub_joint_states.topic_name)
-        if not any(r.qos_profile.durability == DurabilityPolicy.VOLATILE for r in readers):
+        if not any(r.qos_profile.durability == DurabilityPolicy.VOLATILE
+                   for pub in self._period_publishers()
+                   for r in self.get_subscriptions_info_by_topic(pub.topic_name)):
             self.matched_since = None
             return
         if self.matched_since is None:
@@ -626,17 +630,34 @@ class PlantNode(ManagedNode):
         if now - self.waiting_logged >= WAITING_LOG_EVERY:
             self.waiting_logged = now
             self.get_logger().info(
-                f"lockstep: waiting for a command on '{self.command_sub.topic_name}' "
-                f"({self.command_sub.get_publisher_count()} publisher(s)); the state of t = {self.plant.t:.6g} s is "
+                f"lockstep: waiting for the first command on '{self.command_sub.topic_name}' "
+                f"({self._command_publishers()}); the state of t = {self.plant.t:.6g} s and its samples are "
                 f"published again every {self.republish_period:g} s until one arrives")
+
+    def _period_publishers(self) -> list[Any]:
+        """The publishers of every period's state (a lockstep controller may read any of them)."""
+        pubs = [self.pub_joint_states, self.pub_branch_forces, self.pub_ee_pose]
+        if self.sensors is not None:
+            pubs += self.sensors.publishers()
+        if self.pub_disturbance is not None:
+            pubs.append(self.pub_disturbance)
+        return pubs
+
+    def _command_publishers(self) -> str:
+        """Who publishes on the command topic, for the waiting line."""
+        infos = self.get_publishers_info_by_topic(self.command_sub.topic_name)
+        if not infos:
+            return "no publisher yet"
+        names = sorted({f"{i.node_namespace.rstrip('/')}/{i.node_name}" for i in infos})
+        return f"publishers: {', '.join(names)}"
 
     # ----------------------------------------------------------------- outputs
     def _stamp_ns(self) -> int:
         return self.stamp_base + self.plant.k * self.period_ns
 
     def _publish_state(self, again: bool = False) -> None:
-        """The state of the current period on every output; ``again``: the same state once more
-        (state topics and clock only: sensor noise is drawn once per stamp)."""
+        """The state of the current period on every output; ``again``: the same state and samples
+        once more (the sensors' bytes as published: their noise is drawn once per stamp)."""
         m = self.messages
         self.last_state_wall = time.monotonic()
         if not again:
@@ -648,8 +669,9 @@ class PlantNode(ManagedNode):
         if self.pub_clock is not None:
             self.pub_clock.publish(m.clock_raw)
         if again:
-            return
-        if self.sensors is not None:
+            if self.sensors is not None:
+                self.sensors.publish_again()
+        elif self.sensors is not None:
             self.sensors.publish_state(m.stamp_ns, m.force)
         if self.pub_disturbance is not None:  # the truth at t_k: the held part of the period that ended + d(t_k)
             self.pub_disturbance.publish(disturbance_message(

@@ -126,6 +126,7 @@ class SensorOutputs:
         n_a, n_b = len(mech.active), len(mech.model.branches)
         self.after = spec.imu.sample_timing == "after_command"
         self.pub_encoders = self.pub_imu = self.pub_gauges = None
+        self.imu_published = False
         if spec.encoders.enabled:
             self.pub_encoders = node.create_publisher(JointState, p["sensors.topics.measured_joint_states"],
                                                       STATE_OUT_QOS)
@@ -163,6 +164,20 @@ class SensorOutputs:
                 m.arrays[1][:] = velocity
             self.pub_encoders.publish(m.raw())
 
+    def publishers(self) -> list[Any]:
+        """The sensors' publishers (a lockstep plant waiting for its first command looks at their readers)."""
+        return [p for p in (self.pub_encoders, self.pub_imu, self.pub_gauges) if p is not None]
+
+    def publish_again(self) -> None:
+        """The samples published last, once more, the same bytes (the noise is drawn once per stamp;
+        an accelerometer sampling after the command has published nothing before it)."""
+        if self.pub_imu is not None and not self.after and self.imu_published:
+            self.pub_imu.publish(self.imu.raw())
+        if self.pub_gauges is not None:
+            self.pub_gauges.publish(self.gauges.raw())
+        if self.pub_encoders is not None:  # last, as in publish_state
+            self.pub_encoders.publish(self.encoders.raw())
+
     def publish_imu(self, ns: int, torque: np.ndarray) -> None:
         """The accelerometer at the plant's state under the motor ``torque`` (commands + disturbance)."""
         if self.pub_imu is None:
@@ -170,6 +185,7 @@ class SensorOutputs:
         self.imu.set_stamp(*divmod(ns, NS))
         self.imu.arrays[0][:] = self.model.accelerometer(self.plant.q, self.plant.qd, torque)
         self.pub_imu.publish(self.imu.raw())
+        self.imu_published = True
 
 
 def _imu_template(spec: ImuSpec, acceleration: np.ndarray) -> Imu:

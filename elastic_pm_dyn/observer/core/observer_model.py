@@ -138,6 +138,7 @@ class ObserverModel:
 
     @classmethod
     def build(cls, mech: Mechanism, cfg: ObserverConfig) -> ObserverModel:
+        cfg = cfg.for_machine(mech)
         model = mech.model
         ae = np.asarray(mech.ae, dtype=np.int64)
         nae = len(ae)
@@ -179,4 +180,4 @@ class ObserverModel:
 
     def serves(self, cfg: ObserverConfig) -> bool:
         """Was this model built from the same fixed parts as ``cfg`` has?"""
-        return self.key == model_key(cfg)
+        return self.key == model_key(cfg.for_machine(self.mech))

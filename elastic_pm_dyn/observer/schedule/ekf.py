@@ -233,7 +233,8 @@ class Observer:
 
     def __init__(self, mech: Mechanism | ObserverModel, config: ObserverConfig | None = None, t0: float = 0.0,
                  q0: np.ndarray | None = None, qd0: np.ndarray | None = None):
-        cfg = config or ObserverConfig.from_parameters()
+        cfg = (config or ObserverConfig.from_parameters()).for_machine(
+            mech.mech if isinstance(mech, ObserverModel) else mech)
         if isinstance(mech, ObserverModel):
             if not mech.serves(cfg):
                 raise InputError("observer: the configuration's sensors or disturbance joints are not its model's")

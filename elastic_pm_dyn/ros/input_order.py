@@ -1,0 +1,191 @@
+"""The observer node's inputs merged into stamp order (rclpy-free; :class:`InputOrder`).
+
+Messages of different topics reach a node in any order: the plant publishes the samples of
+t_k, a controller answers with the command of t_k, the plant publishes the samples of t_k+1,
+but the observer's executor may hand it the accelerometer sample of t_k+1 before the encoder
+sample of t_k, or the samples of t_k+1 before the command that moved the plant there (it
+travelled another way). Offline ``observe`` takes a recording in stamp order; so does the live
+observer when its inputs go through this merge: each topic is first in, first out, so a
+message is taken once every other topic has shown that it holds nothing earlier. Keys:
+
+- a sample: (stamp, rank), rank 0 for samples of the state before the command (an
+  accelerometer sampling before it, strain gauges), 1 for the primary sample (the encoders:
+  it publishes the estimate), 3 for an accelerometer sampling after the command;
+- a command: (stamp, 2), after the samples of its stamp. A command stamped 0 (an unset header)
+  or further ahead than ``max_future`` (another clock: wall time against simulated time) is
+  taken as stamped at the newest primary sample received, the state it answers. The command
+  topic covers the samples up to the next primary stamp: the samples of t_k+1 wait for a
+  command stamped t_k or later, or for one that arrived after the estimate of t_k went out
+  (the lockstep controller's answer, whatever its stamp). A command stamped before what was
+  already taken is taken at once (the observer applies it from its current time).
+
+The wait is bounded: a topic that holds nothing earlier is not waited for once a message
+stamped 1.5 sample periods later is waiting (it skipped that stamp: a slower sensor, a
+controller slower than the plant), nor once a message has waited ``max_wait`` seconds of wall
+time (then the topic is not waited for until it delivers again: a stopped controller, the
+last state of a run). A topic is waited for only after its first message. The same sample
+received twice (a lockstep plant publishes its first state again until a command comes) is
+taken once. At most ``max_pending`` messages wait; beyond, the earliest goes.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Any
+
+BEFORE, PRIMARY, COMMAND, AFTER = 0, 1, 2, 3  # ranks within one stamp
+HORIZON = 1.5  # sample periods: a topic with nothing pending is skipped once a message this much later waits
+
+
+@dataclass
+class _Topic:
+    rank: int
+    pending: deque[tuple[tuple[int, int], float, Any]] = field(default_factory=deque)  # (key, arrival, item)
+    last_ns: int | None = None  # newest stamp received
+    covers: tuple[int, int] | None = None  # nothing earlier than this key will come
+    stalled: bool = False  # not waited for until it delivers again
+
+
+@dataclass
+class OrderStats:
+    """Counts for /diagnostics (cumulative) and the queue's depth and lag."""
+
+    taken: int = 0
+    repeated: int = 0  # the same sample again: dropped
+    restamped: int = 0  # commands stamped 0 or on another clock: taken at the newest primary stamp
+    waited_out: int = 0  # releases after max_wait without what they waited for
+    forced: int = 0  # releases because more than max_pending waited
+    max_depth: int = 0  # deepest queue since the last report
+
+
+class InputOrder:
+    """Merge of the observer's input topics into stamp order (see module doc)."""
+
+    def __init__(self, ranks: dict[str, int], primary: str, max_wait: float, max_future_ns: int,
+                 max_pending: int = 1000):
+        self.topics = {kind: _Topic(rank) for kind, rank in ranks.items()}
+        self.primary = primary
+        self.max_wait = max_wait
+        self.max_future_ns = max_future_ns
+        self.max_pending = max_pending
+        self.period_ns: int | None = None  # the primary topic's sample period, from its stamps
+        self.released_primary: int | None = None  # newest primary stamp taken
+        self.newest_ns: int | None = None  # newest stamp received on any sample topic
+        self.stats = OrderStats()
+        self._flushed: list[tuple[str, int, Any]] = []  # taken before a backward stamp, not handed out yet
+
+    # ------------------------------------------------------------------ input
+    def push(self, kind: str, ns: int, item: Any, now: float) -> int:
+        """Queue one message; returns the stamp it is taken at (a command's may change)."""
+        topic = self.topics[kind]
+        if kind == "command":
+            ns = self._command_stamp(ns)
+            covered = max(ns, self.released_primary if self.released_primary is not None else ns)
+            topic.covers = (covered, COMMAND)
+        else:
+            if topic.last_ns is not None and ns == topic.last_ns:
+                self.stats.repeated += 1
+                return ns
+            if topic.last_ns is not None and ns < topic.last_ns:
+                self._restart()
+            if kind == self.primary and topic.last_ns is not None and ns > topic.last_ns:
+                gap = ns - topic.last_ns
+                self.period_ns = gap if self.period_ns is None else min(self.period_ns, gap)
+            topic.covers = (ns, topic.rank)
+            self.newest_ns = ns if self.newest_ns is None else max(self.newest_ns, ns)
+        topic.last_ns = ns
+        topic.stalled = False
+        topic.pending.append(((ns, topic.rank), now, item))
+        depth = self.depth()
+        self.stats.max_depth = max(self.stats.max_depth, depth)
+        return ns
+
+    def _command_stamp(self, ns: int) -> int:
+        newest = self.topics[self.primary].last_ns
+        if newest is not None and (ns == 0 or ns - newest > self.max_future_ns):
+            self.stats.restamped += 1
+            return newest
+        return ns
+
+    # ----------------------------------------------------------------- output
+    def pop_ready(self, now: float) -> list[tuple[str, int, Any]]:
+        """The messages that may be taken now, in stamp order: (kind, stamp, item)."""
+        out, self._flushed = self._flushed, []
+        while True:
+            head = self._earliest()
+            if head is None:
+                return out
+            kind, (key, arrival, _) = head
+            blockers = self._blockers(kind, key)
+            if blockers:
+                if now - arrival > self.max_wait:
+                    self.stats.waited_out += 1
+                    for b in blockers:
+                        self.topics[b].stalled = True
+                elif self.depth() > self.max_pending:
+                    self.stats.forced += 1
+                else:
+                    return out
+            out.append(self._take(kind))
+
+    def flush(self) -> list[tuple[str, int, Any]]:
+        """Everything waiting, in stamp order (shutdown, reset)."""
+        out = []
+        while (head := self._earliest()) is not None:
+            out.append(self._take(head[0]))
+        return out
+
+    def _restart(self) -> None:
+        """A topic went back in time (a reset clock): what waits goes first, in its order, and
+        the merge starts afresh from the new stamps (no order across the jump)."""
+        self._flushed += self.flush()
+        for topic in self.topics.values():
+            topic.last_ns = topic.covers = None
+        self.released_primary = self.newest_ns = None
+
+    def depth(self) -> int:
+        return sum(len(t.pending) for t in self.topics.values())
+
+    def lag_ns(self) -> int:
+        """Newest sample stamp received minus the newest primary stamp taken (0 when none waits)."""
+        if self.newest_ns is None or self.released_primary is None:
+            return 0
+        return max(0, self.newest_ns - self.released_primary)
+
+    def _earliest(self) -> tuple[str, tuple[tuple[int, int], float, Any]] | None:
+        best = None
+        for kind, topic in self.topics.items():
+            if topic.pending and (best is None or topic.pending[0][0] < best[1][0]):
+                best = (kind, topic.pending[0])
+        return best
+
+    def _blockers(self, kind: str, key: tuple[int, int]) -> list[str]:
+        """Topics that may still deliver something earlier than ``key``."""
+        skip = self.period_ns is not None and self.newest_ns is not None and \
+            self.newest_ns - key[0] >= HORIZON * self.period_ns
+        blockers = []
+        for other, topic in self.topics.items():
+            if other == kind or topic.pending or topic.covers is None or topic.stalled or skip:
+                continue
+            if other == "command":
+                # a command covers the samples up to the next primary stamp after it
+                before = self._primary_before(key[0])
+                if before is not None and topic.covers[0] < before:
+                    blockers.append(other)
+            elif topic.covers < key:
+                blockers.append(other)
+        return blockers
+
+    def _primary_before(self, ns: int) -> int | None:
+        """The primary stamp before ``ns`` (the state the command that leads to ``ns`` answers)."""
+        if self.period_ns is None:
+            return self.released_primary if self.released_primary is not None and self.released_primary < ns else None
+        return ns - self.period_ns if ns - self.period_ns >= 0 else None
+
+    def _take(self, kind: str) -> tuple[str, int, Any]:
+        key, _, item = self.topics[kind].pending.popleft()
+        if kind == self.primary:
+            self.released_primary = key[0] if self.released_primary is None else max(self.released_primary, key[0])
+        self.stats.taken += 1
+        return kind, key[0], item
