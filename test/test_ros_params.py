@@ -86,6 +86,7 @@ def test_parameter_file_loads(name: str, tmp_path: Path) -> None:
     ("feedforward", "trigger", "clock", "parameter 'trigger' is 'clock'"),
     ("recorder", "storage", "rosbag1", "parameter 'storage' is 'rosbag1'"),
     ("recorder", "topics", ["/a", "/b"], None),  # valid: control case
+    ("recorder", "topics", ["joint states"], "parameter 'topics': 'joint states' is no topic name (topic name"),
 ])
 def test_wrong_parameter_fails_with_reason(node: str, param: str, value: Any, reason: str | None,
                                            tmp_path: Path) -> None:
