@@ -541,7 +541,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the feedforward node's method: rigid (default) or elastic (the elastic inverse on the "
                         "9th-order law: the manoeuvre without its ringing)")
     p.add_argument("--timeout", type=float, help="[s] limit for the run (default 120; with --observer 1800)")
-    p.add_argument("--domain-id", type=int, help="ROS domain id (default: a private one from the process id)")
+    p.add_argument("--domain-id", type=int, help="ROS domain id 0-232 (default: ROS_DOMAIN_ID when it is set, so "
+                   "the shell's ros2 tools see the run; else a private one from the process id)")
     p.add_argument("--observer", action="store_true",
                    help="the closed loop: plant with sensors and a disturbance, observer node, PD + feedforward "
                         "controller, recorder; summary with estimate vs truth vs open loop "

@@ -1,7 +1,8 @@
 """Close the loop through ROS 2: plant with sensors, state observer, PD + feedforward controller.
 
-Starts, in lockstep on a private loopback-only ROS domain: ``plant_node`` (the elastic machine
-with encoders, an accelerometer and an unknown 2-200 Hz motor torque), ``observer_node`` (joints
+Starts, in lockstep on a loopback-only ROS domain (``ROS_DOMAIN_ID`` when set, else a private
+one): ``plant_node`` (the elastic machine with encoders, an accelerometer and an unknown 2-200 Hz
+motor torque), ``observer_node`` (joints
 and branch forces), ``feedforward_node`` as the controller (rigid feedforward plus a PD on the
 encoders) and ``recorder_node``; then reads the bag back and prints how well the observer
 estimated the branch forces against the open loop. Needs rclpy and elastic_pm_dyn_msgs.

@@ -7,6 +7,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
 from ros_harness import domain_id, require
 
 from elastic_pm_dyn.bags.msgtypes import BRANCH_FORCES
@@ -49,6 +50,28 @@ def test_ros_demo_reports_a_node_that_cannot_start(tmp_path: Path) -> None:
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("elastic-pm-dyn: error: ")
     assert "exited with status 2" in lines[0] and "no such file" in lines[0]
+
+
+def test_ros_demo_domain_is_the_option_else_ros_domain_id_else_private(monkeypatch: pytest.MonkeyPatch) -> None:
+    from elastic_pm_dyn.errors import InputError
+    from elastic_pm_dyn.ros.local_nodes import run_domain_id
+    from elastic_pm_dyn.ros.processes import private_domain_id
+
+    monkeypatch.delenv("ROS_DOMAIN_ID", raising=False)
+    assert run_domain_id() == private_domain_id()
+    assert run_domain_id(0) == 0  # --domain-id 0 is domain 0, not "unset"
+    monkeypatch.setenv("ROS_DOMAIN_ID", "42")
+    assert run_domain_id() == 42
+    assert run_domain_id(7) == 7  # --domain-id wins
+    monkeypatch.setenv("ROS_DOMAIN_ID", "0")
+    assert run_domain_id() == 0
+    monkeypatch.setenv("ROS_DOMAIN_ID", " ")  # set but empty: unset, as for every ROS 2 tool
+    assert run_domain_id() == private_domain_id()
+    monkeypatch.setenv("ROS_DOMAIN_ID", "abc")
+    with pytest.raises(InputError, match="ROS_DOMAIN_ID must be a whole number 0-232, got 'abc'"):
+        run_domain_id()
+    with pytest.raises(InputError, match="domain id must be a whole number 0-232, got 300"):
+        run_domain_id(300)
 
 
 def test_launch_file_uses_installed_executables_and_configs() -> None:

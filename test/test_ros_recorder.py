@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -77,3 +78,82 @@ def test_recorded_branch_forces_deserialize_with_rosbags(storage: str, tmp_path:
     np.testing.assert_allclose(topics["/joint_states"].t, np.arange(PERIODS + 1) * 1e-3, rtol=0, atol=1e-12)
     assert len(topics["/torque_command"].t) >= PERIODS - 1  # subscribed once the driver's publisher was seen
     np.testing.assert_array_equal(topics["/joint_states"].column("position", "left_motor")[-1], plant.plant.q[0])
+
+
+def _recorder_status(h: RosHarness) -> list[Any]:
+    """Every recorder status on /diagnostics, in arrival order."""
+    from diagnostic_msgs.msg import DiagnosticArray
+
+    from elastic_pm_dyn.ros.qos import DIAGNOSTICS_QOS
+    statuses: list[Any] = []
+    h.node("diagnostics_listener").create_subscription(
+        DiagnosticArray, "/diagnostics",
+        lambda msg: statuses.extend(s for s in msg.status if s.name.endswith(": recorder")), DIAGNOSTICS_QOS)
+    return statuses
+
+
+def test_namespaced_recorder_records_its_namespace(tmp_path: Path) -> None:
+    """``-r __ns:=/r1 -p topics:=[joint_states, ...]`` beside a plant in /r1: the relative names are
+    /r1's (an absolute one stays absolute), and /diagnostics says "nothing lost" only once every
+    topic has a publisher."""
+    require("rclpy")
+    require("rosbags")
+    from diagnostic_msgs.msg import DiagnosticStatus
+    from rclpy.parameter import Parameter
+
+    from elastic_pm_dyn.bags.series import read_series
+    from elastic_pm_dyn.ros.plant_node import PlantNode
+    from elastic_pm_dyn.ros.recorder import RecorderNode
+
+    bag = tmp_path / "bag"
+    h = RosHarness(domain_id(86))
+    try:
+        statuses = _recorder_status(h)
+        recorder = h.add(RecorderNode(context=h.context, namespace="/r1", parameter_overrides=[
+            Parameter("output", value=str(bag)),
+            Parameter("topics", value=["joint_states", "branch_forces", "/r1/ee_pose"])]))
+        assert recorder.wanted == ["/r1/joint_states", "/r1/branch_forces", "/r1/ee_pose"]
+        h.wait_until(lambda: statuses, 60.0, "the recorder's diagnostics")
+        assert statuses[-1].level == DiagnosticStatus.WARN
+        assert statuses[-1].message == "no publisher: /r1/joint_states, /r1/branch_forces, /r1/ee_pose"
+
+        h.add(PlantNode(context=h.context, namespace="/r1", parameter_overrides=[
+            Parameter("sync_mode", value="lockstep")]))  # publishes its t = 0 state, then waits
+        h.wait_until(lambda: all(recorder.count(t) for t in recorder.wanted), 60.0, "the plant's /r1 topics recorded")
+        n = len(statuses)
+        h.wait_until(lambda: len(statuses) > n, 60.0, "the next diagnostics")
+        assert statuses[-1].level == DiagnosticStatus.OK, statuses[-1].message
+        assert statuses[-1].message == "recording, nothing lost"
+        recorder.close()
+    finally:
+        h.close()
+    topics = read_series(bag)
+    assert set(topics) == {"/r1/joint_states", "/r1/branch_forces", "/r1/ee_pose"}
+
+
+def test_recorder_says_which_topics_have_no_publisher(tmp_path: Path) -> None:
+    require("rclpy")
+    from diagnostic_msgs.msg import DiagnosticStatus
+    from rclpy.parameter import Parameter
+    from std_msgs.msg import String
+
+    from elastic_pm_dyn.ros.recorder import RecorderNode
+    h = RosHarness(domain_id(86))
+    try:
+        statuses = _recorder_status(h)
+        recorder = h.add(RecorderNode(context=h.context, parameter_overrides=[
+            Parameter("output", value=str(tmp_path / "bag")), Parameter("topics", value=["/talk", "nobody"]),
+            Parameter("topic_types", value=["nobody std_msgs/msg/String"])]))  # subscribed at once, unmatched
+        talker = h.node("talker")
+        pub = talker.create_publisher(String, "/talk", 10)
+        talker.create_timer(0.05, lambda: pub.publish(String(data="hello")))
+        h.wait_until(lambda: recorder.count("/talk"), 60.0, "/talk recorded")
+        n = len(statuses)
+        h.wait_until(lambda: len(statuses) > n, 60.0, "the next diagnostics")
+        status = statuses[-1]
+        assert status.level == DiagnosticStatus.WARN
+        assert status.message == "no publisher: /nobody"
+        assert {kv.key: kv.value for kv in status.values}["no_publisher"] == "/nobody"
+        recorder.close()
+    finally:
+        h.close()

@@ -1,6 +1,7 @@
 """The ROS demo (``elastic-pm-dyn ros-demo``, the README's demo command).
 
-Plant, feedforward and recorder run as separate processes on a private loopback domain;
+Plant, feedforward and recorder run as separate processes on a loopback-only domain
+(``--domain-id``, else ``ROS_DOMAIN_ID`` when set, else a private one: :func:`run_domain_id`);
 the feedforward drives the reference manoeuvre through ``torque_command``; the recorder
 writes a bag; then the bag is read back with ``rosbags`` and compared with the offline
 simulation of the same torques: plots of path, branch forces, gap and torques, and
@@ -29,10 +30,10 @@ from elastic_pm_dyn.model.loader import load_model
 from elastic_pm_dyn.motion.feedforward import elastic_line_torques, line_torques
 from elastic_pm_dyn.motion.manoeuvre import REFERENCE_MANOEUVRE
 from elastic_pm_dyn.motion.trajectory import Line, QuinticLine
+from elastic_pm_dyn.ros.local_nodes import run_domain_id
 from elastic_pm_dyn.ros.params import share_path
 from elastic_pm_dyn.ros.processes import (
     NodeProcess,
-    private_domain_id,
     ros_env,
     wait_for_exit,
     wait_for_recording,
@@ -75,9 +76,10 @@ def run_ros_demo(out: Path, model_path: Path, sync: str = "lockstep", storage: s
         raise InputError(f"feedforward must be one of {', '.join(FEEDFORWARDS)}, got {feedforward!r}")
     if feedforward == "elastic":
         line = Line(np.asarray(line.start, dtype=float), np.asarray(line.end, dtype=float), line.move, line.hold, 4)
+    domain_id = run_domain_id(domain_id)  # before anything is written: a bad ROS_DOMAIN_ID is one line
     bag = fresh_bag(out)
     wall = time.monotonic()
-    _run_nodes(out, bag, model_path, sync, storage, timeout, domain_id or private_domain_id(), line, feedforward)
+    _run_nodes(out, bag, model_path, sync, storage, timeout, domain_id, line, feedforward)
     wall = time.monotonic() - wall
     print(f"  bag -> {bag} ({wall:.1f} s)")
     return analyse(out, bag, model_path, sync, line, wall, feedforward)

@@ -23,7 +23,7 @@ from types import TracebackType
 from typing import Any
 
 from elastic_pm_dyn.errors import InputError
-from elastic_pm_dyn.ros.processes import NodeProcess, NodeProcessError, ros_env
+from elastic_pm_dyn.ros.processes import NodeProcess, NodeProcessError, private_domain_id, ros_env
 
 MAX_DOMAIN_ID = 232  # the highest ROS_DOMAIN_ID whose DDS ports fit on Linux (ROS 2 docs, "The ROS_DOMAIN_ID")
 
@@ -36,6 +36,19 @@ def domain_from_env() -> int:
     if not text.isdigit() or int(text) > MAX_DOMAIN_ID:
         raise InputError(f"ROS_DOMAIN_ID must be a whole number 0-{MAX_DOMAIN_ID}, got {text!r}")
     return int(text)
+
+
+def run_domain_id(given: int | None = None) -> int:
+    """The domain of a run that starts its own nodes (``ros-demo``): ``given`` (``--domain-id``),
+    else ``ROS_DOMAIN_ID`` when it is set (the shell's ROS 2 tools then see the run), else a
+    private one (:func:`~elastic_pm_dyn.ros.processes.private_domain_id`: no other run hears it)."""
+    if given is not None:
+        if not 0 <= given <= MAX_DOMAIN_ID:
+            raise InputError(f"domain id must be a whole number 0-{MAX_DOMAIN_ID}, got {given}")
+        return given
+    if os.environ.get("ROS_DOMAIN_ID", "").strip():
+        return domain_from_env()
+    return private_domain_id()
 
 
 class LocalNodes:

@@ -1,6 +1,7 @@
 """The closed loop through ROS 2 (``elastic-pm-dyn ros-demo --observer``).
 
-Five node processes on a private loopback domain, all in lockstep:
+Five node processes on a loopback-only domain (as ``ros-demo``'s: ``--domain-id``, else
+``ROS_DOMAIN_ID`` when set, else a private one), all in lockstep:
 - plant (lockstep, with its sensors: encoders and an end-effector accelerometer, and an unknown
   torque disturbance, flat 2-200 Hz, 0.02 N m RMS by default): ``joint_states``,
   ``branch_forces``, ``ee_pose`` (the truth), ``measured_joint_states``, ``ee_imu``,
@@ -27,7 +28,7 @@ import shutil
 import signal
 import time
 from collections import Counter
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -50,11 +51,11 @@ from elastic_pm_dyn.observer.offline import observe_bag
 from elastic_pm_dyn.observer.testing.evaluation import OpenLoop, offline_run, quasi_static_series, score
 from elastic_pm_dyn.observer.testing.scenarios import Noise, Recording
 from elastic_pm_dyn.ros.demo import fresh_bag
+from elastic_pm_dyn.ros.local_nodes import run_domain_id
 from elastic_pm_dyn.ros.params import share_path
 from elastic_pm_dyn.ros.processes import (
     NodeProcess,
     NodeProcessError,
-    private_domain_id,
     ros_env,
     wait_for_exit,
     wait_for_recording,
@@ -204,6 +205,7 @@ def run_loop_demo(out: Path, opts: LoopOptions) -> dict:
     """Run the five nodes, record, analyse; returns the summary (also in out/summary.json)."""
     if not opts.duration > 0:
         raise InputError(f"--duration must be > 0, got {opts.duration}")
+    opts = replace(opts, domain_id=run_domain_id(opts.domain_id))  # a bad ROS_DOMAIN_ID: one line, nothing written
     bag = fresh_bag(out)
     mech = Mechanism(load_model(opts.model, opts.elastic_dof_per_chain))
     wall = time.monotonic()
@@ -278,7 +280,7 @@ def node_arguments(bag: Path, mech: Mechanism, opts: LoopOptions) -> dict[str, l
 
 
 def _run_nodes(out: Path, bag: Path, mech: Mechanism, opts: LoopOptions) -> None:
-    domain_id = opts.domain_id or private_domain_id()
+    domain_id = run_domain_id(opts.domain_id)
     env = ros_env(domain_id)
     logs = out / "logs"
     args = node_arguments(bag, mech, opts)
@@ -343,7 +345,7 @@ class Kicker:
         self.needed.update(t for t in (topics["command"], topics["encoders"], topics["imu"]) if t)
         self.needed.update((topics["encoders"], topics["estimate" if pace_on_observer else "truth"]))
         self.sensor_topics = [t for t in (topics["encoders"], topics["imu"]) if t]
-        if localhost:  # the demo's private domain (ros_env); a launch keeps the user's setting
+        if localhost:  # the demo's loopback-only domain (ros_env); a launch keeps the user's setting
             os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
         self.context = rclpy.Context()
         rclpy.init(context=self.context, domain_id=domain_id)

@@ -29,6 +29,8 @@ from elastic_pm_dyn.ros.params import (
 )
 
 COMMAND_TYPES = ("joint_state", "float64_multi_array")
+# Wall-clock timers of an idle node: above this they cost a core and flood /diagnostics for nothing
+MAX_TIMER_RATE = 100.0  # [Hz]
 
 MACHINE_PARAMS = [
     Param("model", "", "model YAML file; empty = the five-bar shipped with the package"),
@@ -42,8 +44,10 @@ MACHINE_PARAMS = [
     Param("topics.ee_pose", "ee_pose", "geometry_msgs/PoseStamped of the end-effector point"),
     Param("topics.markers", "markers", "visualization_msgs/MarkerArray of the links"),
     Param("frames.base", "world", "frame of ee_pose and markers (the model's base)"),
-    Param("marker_rate", 30.0, "[Hz] wall-clock rate of the RViz markers", positive=True),
-    Param("diagnostics_rate", 1.0, "[Hz] wall-clock rate of /diagnostics", positive=True),
+    Param("marker_rate", 30.0, f"[Hz] wall-clock rate of the RViz markers, (0, {MAX_TIMER_RATE:g}]", positive=True,
+          maximum=MAX_TIMER_RATE),
+    Param("diagnostics_rate", 1.0, f"[Hz] wall-clock rate of /diagnostics, (0, {MAX_TIMER_RATE:g}]", positive=True,
+          maximum=MAX_TIMER_RATE),
 ]
 # The machine as URDF for robot_state_publisher and RViz (:mod:`~elastic_pm_dyn.ros.robot_description`).
 DESCRIPTION_PARAMS = [

@@ -8,12 +8,14 @@ parameter and says what is expected (the node then refuses to start with that li
 
 A spec with ``runtime=True`` may change while the node runs (``ros2 param set``):
 :func:`on_runtime_change` checks a new value with the same one-line errors as at start-up and
-hands it to the node, or refuses it with that line. The others stay read-only, their
+hands it to the node, or refuses it with that line; arrays may come as lists or as
+``array.array`` (the SetParameters service). The others stay read-only, their
 descriptor's ``additional_constraints`` saying why (``ros2 param describe``).
 """
 
 from __future__ import annotations
 
+import array
 import difflib
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
@@ -51,6 +53,7 @@ class Param:
     description: str
     choices: tuple[str, ...] = ()
     positive: bool = False  # numbers (or every list entry) > 0; list defaults must not be empty
+    maximum: float | None = None  # numbers (or every list entry) <= this (e.g. a wall-clock timer's rate)
     item: type | None = None  # entry type of a list whose default is empty (unset): float, int or str
     runtime: bool = False  # may be set while the node runs (the node applies it: on_runtime_change)
     fixed: str = "fixed at start-up"  # why a read-only one cannot change (shown by ros2 param describe)
@@ -113,13 +116,16 @@ def _refuse(node: Node, reason: str) -> SetParametersResult:
 
 
 def _typed(spec: Param, parameter: Parameter) -> Any:
-    """The value of a dynamically typed (runtime) parameter if it has the spec's type, else ParameterError."""
+    """The value of a dynamically typed (runtime) parameter if it has the spec's type, else ParameterError.
+    An array arrives as a list from a node's own set_parameters, as array.array('d'/'q') through the
+    SetParameters service (``ros2 param set``, AsyncParameterClient): both are lists here."""
     value = parameter.value
+    if isinstance(value, array.array | tuple):
+        value = list(value)
     kind = type(spec.default)
     if kind is list:
         item = spec.item or (type(spec.default[0]) if spec.default else float)
-        ok = isinstance(value, list | tuple) and all(type(v) is item for v in value)
-        value = list(value) if ok else value
+        ok = isinstance(value, list) and all(type(v) is item for v in value)
     else:
         ok = type(value) is kind
     if not ok:
@@ -131,11 +137,13 @@ def _typed(spec: Param, parameter: Parameter) -> Any:
 
 def _declare(node: Node, spec: Param) -> Any:
     if spec.runtime:  # typed by our own check (the same line at start-up and at run time)
-        descriptor = ParameterDescriptor(description=spec.description, dynamic_typing=True)
+        descriptor = ParameterDescriptor(description=spec.description, dynamic_typing=True,
+                                         additional_constraints=_range_text(spec))
         value = node.declare_parameter(spec.name, spec.default, descriptor)
         return _typed(spec, value)
     descriptor = ParameterDescriptor(description=spec.description, read_only=True,
-                                     additional_constraints=f"read-only: {spec.fixed}")
+                                     additional_constraints="; ".join(filter(None, (f"read-only: {spec.fixed}",
+                                                                                    _range_text(spec)))))
     # An empty default has no type of its own: declared by the type of its entries, unset until given.
     default = _ARRAY_TYPES[spec.item] if spec.item is not None and spec.default == [] else spec.default
     try:
@@ -158,11 +166,21 @@ def _declare(node: Node, spec: Param) -> Any:
 def _check(spec: Param, value: Any) -> Any:
     if spec.choices and value not in spec.choices:
         raise ParameterError(f"parameter '{spec.name}' is {value!r}, expected one of: {', '.join(spec.choices)}")
-    if spec.positive:
+    if spec.positive or spec.maximum is not None:
         values = np.atleast_1d(np.asarray(value, dtype=float))
-        if not np.all(np.isfinite(values) & (values > 0)):
-            raise ParameterError(f"parameter '{spec.name}' must be a positive number, got {value!r}")
+        ok = np.isfinite(values) & (values > 0 if spec.positive else True)
+        if spec.maximum is not None:
+            ok &= values <= spec.maximum
+        if not np.all(ok):
+            raise ParameterError(f"parameter '{spec.name}' must be {_range_text(spec)}, got {value!r}")
     return value
+
+
+def _range_text(spec: Param) -> str:
+    """What ``positive`` and ``maximum`` allow, in words ("" when they allow anything)."""
+    if spec.maximum is None:
+        return "a positive number" if spec.positive else ""
+    return f"a {'positive ' if spec.positive else ''}number at most {spec.maximum:g}"
 
 
 def share_path(*parts: str) -> Path:

@@ -34,6 +34,11 @@ new reader beside the old one: a publisher that was only silent (the observer be
 starts) serves the old reader at once, while a new participant's reader may take a second to
 match; a message both deliver is recorded once (:class:`_Once`).
 
+Topic names resolve as a node's own do: a relative name (``joint_states``) in the recorder's
+namespace (``-r __ns:=/r1``: ``/r1/joint_states``), with its remappings; an absolute one stays.
+A wanted topic that no publisher serves yet is said in /diagnostics (WARN, ``no publisher:``),
+so a recorder in the wrong namespace never reports "recording, nothing lost" over an empty bag.
+
 Killed at any moment (even SIGKILL), the node leaves a bag that ``analyze``, ``export``
 and ``observe`` read up to at most ~1 s before the kill: the writer flushes (an mcap chunk,
 a sqlite3 commit) every :data:`FLUSH_PERIOD` of wall-clock time. "recording <topic>" is
@@ -49,6 +54,7 @@ import sys
 import threading
 import time
 from collections import deque
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -83,8 +89,9 @@ LOSSES_KEY = "elastic_pm_dyn.losses"  # metadata.yaml custom_data: per-topic los
 PARAMS = [
     Param("output", "bag", "bag directory to create (must not exist)"),
     Param("storage", "mcap", "mcap or sqlite3", choices=STORAGES),
-    Param("topics", DEMO_TOPICS, "topics to record (absolute names)"),
-    Param("topic_types", [], "'<topic> <pkg/msg/Type>' per topic to subscribe at start-up (the others "
+    Param("topics", DEMO_TOPICS, "topics to record (relative names resolve in the node's namespace)"),
+    Param("topic_types", [], "'<topic> <pkg/msg/Type>' per topic to subscribe at start-up, names resolved as in "
+          "'topics' (the others "
           "wait for a publisher to show their type; config/recorder.yaml lists the demo's); a listed topic that is "
           "not in 'topics' is not recorded", item=str),
     Param("rate_hint", 1000.0, "[Hz] the highest message rate expected on one topic", positive=True),
@@ -151,7 +158,8 @@ class RecorderNode(ManagedNode):
         super().__init__("recorder", **node_kwargs)
         reject_unknown(self, [s.name for s in PARAMS])
         p = read_parameters(self, PARAMS)
-        self.wanted = [t if t.startswith("/") else "/" + t for t in p["topics"]]
+        # resolved as a publisher of this node would resolve them: namespace, ~, remappings
+        self.wanted = [self._resolve("topics", t) for t in p["topics"]]
         if not self.wanted:
             raise ParameterError("parameter 'topics' is empty: nothing to record")
         if p["rate_hint"] > 1e6 or p["max_lag"] > 3600:
@@ -170,7 +178,7 @@ class RecorderNode(ManagedNode):
         self.lost_events_supported = True
         self.participants: list[SecondParticipant] = []  # made for silent topics (_resubscribe)
         self.write_error_reported = False
-        for topic, msgtype in _topic_types(p["topic_types"]).items():
+        for topic, msgtype in _topic_types(p["topic_types"], lambda t: self._resolve("topic_types", t)).items():
             if topic in self.wanted:
                 try:
                     self._subscribe(topic, msgtype, early=True)
@@ -181,6 +189,14 @@ class RecorderNode(ManagedNode):
         self.create_timer(DISCOVERY_PERIOD, self._discover, clock=steady)
         self.create_timer(REPORT_PERIOD, self._report, clock=steady)
         self.get_logger().info(f"waiting for {', '.join(self.wanted)} -> {self.path} ({p['storage']})")
+
+    def _resolve(self, parameter: str, topic: str) -> str:
+        """The fully qualified name of ``topic``; ParameterError (one line) when it is no topic name."""
+        try:
+            return self.resolve_topic_name(topic)
+        except RuntimeError as err:  # rclpy's RCLError: "failed to resolve name: <why>, at <rcl source>"
+            why = str(err).removeprefix("failed to resolve name: ").split(", at /")[0]
+            raise ParameterError(f"parameter '{parameter}': {topic!r} is no topic name ({why})") from None
 
     @property
     def connections(self) -> dict[str, Any]:
@@ -225,9 +241,9 @@ class RecorderNode(ManagedNode):
     def _create_subscription(self, topic: str, state: _Topic, qos: QoSProfile | None = None,
                              node: Any = None) -> None:
         """Subscribe ``topic`` (``qos``, else the publishers' QoS) in ``node``'s participant (else this node's).
-        Another participant's node has none of this node's remappings: it gets the resolved name."""
+        ``topic`` is resolved already (__init__): another participant's node, without this node's
+        namespace and remappings, subscribes the same topic."""
         node = node or self
-        name = topic if node is self else self.resolve_topic_name(topic)
         state.matched = self.count_publishers(topic)
         state.subscribed_at = time.monotonic()
         qos = qos or self._qos(topic)
@@ -257,14 +273,14 @@ class RecorderNode(ManagedNode):
         if self.lost_events_supported:
             try:
                 state.subscription = node.create_subscription(
-                    state.msg_class, name, take, qos, raw=True,
+                    state.msg_class, topic, take, qos, raw=True,
                     event_callbacks=SubscriptionEventCallbacks(message_lost=lost, matched=matched))
             except UnsupportedEventTypeError:  # an RMW without them: sequence gaps remain
                 self.lost_events_supported = False
                 self.get_logger().warning("this RMW reports no message-lost events: losses are counted "
                                           "from sequence gaps only")
         if not self.lost_events_supported:
-            state.subscription = node.create_subscription(state.msg_class, name, take, qos, raw=True)
+            state.subscription = node.create_subscription(state.msg_class, topic, take, qos, raw=True)
         state.node = node
         where = "" if node is self else f" through a new DDS participant ({node.get_name()})"
         self.get_logger().info(f"subscribed to {topic} [{conn.msgtype}], depth {qos.depth}{where}")
@@ -329,6 +345,19 @@ class RecorderNode(ManagedNode):
                     "resubscribed": s.resubscribed}
                 for t, s in self.topics.items()}
 
+    def _without_publisher(self) -> list[str]:
+        """Wanted topics that nothing has come on and no publisher serves (matched, or in the graph
+        for a topic not subscribed yet); a topic of a type that cannot be recorded is not among them."""
+        out = []
+        for topic in self.wanted:
+            s = self.topics.get(topic)
+            if s is None:
+                if topic not in self.skipped:  # subscribed once a publisher shows
+                    out.append(topic)
+            elif s.losses.received == 0 and s.matched == 0 and s.subscription.get_publisher_count() == 0:
+                out.append(topic)
+        return out
+
     def _silent(self, s: _Topic) -> bool:
         return (s.losses.received == 0 and s.matched > 0
                 and time.monotonic() - s.subscribed_at > SILENT_AFTER)
@@ -361,6 +390,11 @@ class RecorderNode(ManagedNode):
             elif (s.silent_reported or s.resubscribed) and s.losses.received and not s.arrive_reported:
                 s.arrive_reported = True
                 log.info(f"{topic}: messages arrive now (after {s.resubscribed} new subscription(s))")
+        unserved = self._without_publisher()
+        if unserved:  # a namespace or a name that is wrong looks like this: never "nothing lost"
+            problems.insert(0, f"no publisher: {', '.join(unserved)}")
+        if self.skipped:  # the log said why, once
+            problems.insert(0, f"not recordable: {', '.join(sorted(self.skipped))}")
         if self.writer.error is not None:
             problems.insert(0, f"bag write failed: {self.writer.error}")
             if not self.write_error_reported:
@@ -371,7 +405,7 @@ class RecorderNode(ManagedNode):
         status.level = (DiagnosticStatus.ERROR if self.writer.error is not None
                         else DiagnosticStatus.WARN if problems else DiagnosticStatus.OK)
         status.message = "; ".join(problems) or "recording, nothing lost"
-        values = {"queued_bytes": str(self.writer.queued_bytes())}
+        values = {"queued_bytes": str(self.writer.queued_bytes()), "no_publisher": " ".join(unserved)}
         for topic, counts in self.losses().items():
             values.update({f"{topic} {k}": str(v) for k, v in counts.items()})
         status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
@@ -397,14 +431,14 @@ class RecorderNode(ManagedNode):
             + (f"; never seen: {', '.join(missing)}" if missing else ""))
 
 
-def _topic_types(entries: list[str]) -> dict[str, str]:
-    """'<topic> <pkg/msg/Type>' entries -> {absolute topic: type}; a malformed one is a ParameterError."""
+def _topic_types(entries: list[str], resolve: Callable[[str], str]) -> dict[str, str]:
+    """'<topic> <pkg/msg/Type>' entries -> {resolved topic: type}; a malformed one is a ParameterError."""
     out = {}
     for entry in entries:
         parts = entry.split()
         if len(parts) != 2 or parts[1].count("/") != 2:
             raise ParameterError(f"parameter 'topic_types': {entry!r} is not '<topic> <pkg/msg/Type>'")
-        out[parts[0] if parts[0].startswith("/") else "/" + parts[0]] = parts[1]
+        out[resolve(parts[0])] = parts[1]
     return out
 
 
