@@ -15,13 +15,13 @@ message is taken once every other topic has shown that it holds nothing earlier.
   or further ahead than ``max_future`` (another clock: wall time against simulated time) is
   taken as stamped at the newest primary sample received, the state it answers. The command
   topic covers the samples up to the next primary stamp: the samples of t_k+1 wait for a
-  command stamped t_k or later, or for one that arrived after the estimate of t_k went out
-  (the lockstep controller's answer, whatever its stamp). A command stamped before what was
-  already taken is taken at once (the observer applies it from its current time).
+  command stamped t_k or later. A command stamped before what was already taken is taken at
+  once (the observer applies it from its current time).
 
-The wait is bounded: a topic that holds nothing earlier is not waited for once a message
-stamped 1.5 sample periods later is waiting (it skipped that stamp: a slower sensor, a
-controller slower than the plant), nor once a message has waited ``max_wait`` seconds of wall
+The wait is bounded: a topic that has left out a sample period before (a slower sensor, a
+controller slower than the plant; a lockstep controller answers every period) is not waited for
+once a message stamped 1.5 sample periods later is waiting, and no topic once a message has
+waited ``max_wait`` seconds of wall
 time (then the topic is not waited for until it delivers again: a stopped controller, the
 last state of a run). A topic is waited for only after its first message. The same sample
 received twice (a lockstep plant publishes its first state again until a command comes) is
@@ -45,6 +45,7 @@ class _Topic:
     last_ns: int | None = None  # newest stamp received
     covers: tuple[int, int] | None = None  # nothing earlier than this key will come
     stalled: bool = False  # not waited for until it delivers again
+    skips: bool = False  # has left out a sample period: not waited for past HORIZON
 
 
 @dataclass
@@ -81,8 +82,7 @@ class InputOrder:
         topic = self.topics[kind]
         if kind == "command":
             ns = self._command_stamp(ns)
-            covered = max(ns, self.released_primary if self.released_primary is not None else ns)
-            topic.covers = (covered, COMMAND)
+            topic.covers = (ns, COMMAND)
         else:
             if topic.last_ns is not None and ns == topic.last_ns:
                 self.stats.repeated += 1
@@ -94,6 +94,8 @@ class InputOrder:
                 self.period_ns = gap if self.period_ns is None else min(self.period_ns, gap)
             topic.covers = (ns, topic.rank)
             self.newest_ns = ns if self.newest_ns is None else max(self.newest_ns, ns)
+        if topic.last_ns is not None and self.period_ns is not None and ns - topic.last_ns >= HORIZON * self.period_ns:
+            topic.skips = True  # a slower sensor or controller (a lockstep one answers every period)
         topic.last_ns = ns
         topic.stalled = False
         topic.pending.append(((ns, topic.rank), now, item))
@@ -166,7 +168,7 @@ class InputOrder:
             self.newest_ns - key[0] >= HORIZON * self.period_ns
         blockers = []
         for other, topic in self.topics.items():
-            if other == kind or topic.pending or topic.covers is None or topic.stalled or skip:
+            if other == kind or topic.pending or topic.covers is None or topic.stalled or (skip and topic.skips):
                 continue
             if other == "command":
                 # a command covers the samples up to the next primary stamp after it
