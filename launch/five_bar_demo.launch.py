@@ -24,8 +24,10 @@ def generate_launch_description() -> LaunchDescription:
     sync_mode = LaunchConfiguration("sync_mode")
     config = PathJoinSubstitution([FindPackageShare(PACKAGE), "config"])
     # lockstep and fast: one command per plant state (a timer cannot keep up with a plant that runs
-    # ahead of the wall clock); realtime: the feedforward's own timer
+    # ahead of the wall clock); realtime: the feedforward's own timer, on the plant's clock (/clock,
+    # use_sim_time), which slows when the plant cannot keep up (realtime.overrun: slow)
     trigger = PythonExpression(["'timer' if '", sync_mode, "' == 'realtime' else 'state'"])
+    sim_time = PythonExpression(["'", sync_mode, "' == 'realtime'"])
 
     plant = Node(package=PACKAGE, executable="plant_node", name="plant", output="screen",
                  parameters=[PathJoinSubstitution([config, "plant.yaml"]), {"sync_mode": sync_mode}])
@@ -34,13 +36,13 @@ def generate_launch_description() -> LaunchDescription:
                                 {"output": LaunchConfiguration("bag"), "storage": LaunchConfiguration("storage")}])
     feedforward = Node(package=PACKAGE, executable="feedforward_node", name="feedforward", output="screen",
                        parameters=[PathJoinSubstitution([config, "feedforward.yaml"]),
-                                   {"trigger": trigger, "exit_when_done": True,
+                                   {"trigger": trigger, "use_sim_time": sim_time, "exit_when_done": True,
                                     "wait_for_subscribers": 2}])  # the plant and the recorder
 
     return LaunchDescription([
         DeclareLaunchArgument("sync_mode", default_value="lockstep", choices=["lockstep", "realtime", "fast"],
-                              description="lockstep: deterministic (equals offline simulate); realtime: wall clock; "
-                              "fast: ahead of the wall clock"),
+                              description="lockstep: deterministic (equals offline simulate); realtime: wall "
+                              "clock (slowed when the plant cannot keep up); fast: ahead of the wall clock"),
         DeclareLaunchArgument("bag", default_value="five_bar_bag", description="bag directory to create"),
         DeclareLaunchArgument("storage", default_value="mcap", choices=["mcap", "sqlite3"],
                               description="bag storage"),

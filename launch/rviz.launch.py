@@ -37,7 +37,9 @@ def _nodes(context: LaunchContext) -> list[Node]:
     sync_mode = LaunchConfiguration("sync_mode").perform(context)
     urdf = robot_description_of_file(model)
     root = urdf_root_link(urdf)
-    sim_time = sync_mode != "realtime"  # fast and lockstep stamp simulated time (the plant publishes /clock)
+    # Every mode stamps the plant's clock and publishes it on /clock (realtime too: its clock slows when
+    # the plant cannot keep up, realtime.overrun: slow in config/plant.yaml)
+    sim_time = True
 
     plant = Node(package=PACKAGE, executable="plant_node", name="plant", output="screen",
                  parameters=[str(share_path("config", "plant.yaml")),
@@ -53,7 +55,7 @@ def _nodes(context: LaunchContext) -> list[Node]:
                        condition=IfCondition(LaunchConfiguration("manoeuvre")),
                        parameters=[str(share_path("config", "feedforward.yaml")),
                                    {"model": str(model), "trigger": "state" if sync_mode == "lockstep" else "timer",
-                                    "use_sim_time": sync_mode == "fast"}])
+                                    "use_sim_time": sim_time}])
     return [plant, state_publisher, rviz, feedforward]
 
 

@@ -218,7 +218,9 @@ def test_launch_file_gives_its_nodes_the_plants_urdf_and_frame(monkeypatch: pyte
     assert urdf.args == (model_to_urdf(machine),) and urdf.kwargs == {"value_type": str}
     assert plant["frames.base"] == root and nodes["rviz2"]["arguments"][-2:] == ["-f", root]
     assert Path(nodes["rviz2"]["arguments"][1]).name == "five_bar.rviz"
-    assert nodes["robot_state_publisher"]["parameters"][0]["use_sim_time"] is False
+    # realtime too: the plant's clock (/clock), which slows when the plant cannot keep up
+    assert nodes["robot_state_publisher"]["parameters"][0]["use_sim_time"] is True
+    assert nodes["feedforward_node"]["parameters"][1]["use_sim_time"] is True
 
 
 def test_the_observer_node_publishes_the_written_urdf(ros: RosHarness) -> None:

@@ -65,6 +65,7 @@ def test_parameter_file_loads(name: str, tmp_path: Path) -> None:
     ("plant", "command_timeout", 1, "parameter 'command_timeout' must be a float"),  # runtime: same line
     ("plant", "command_timeout", -0.5, "parameter 'command_timeout' must be a positive number"),
     ("plant", "realtime.priority", 120, "parameter 'realtime.priority' must lie in 0-99"),
+    ("plant", "realtime.overrun", "drop", "parameter 'realtime.overrun' is 'drop'"),
     ("plant", "command_joints", ["left_motor"], "parameter 'command_joints'"),
     ("plant", "model", "/no/such/model.yaml", "parameter 'model': no such file"),
     ("plant", "formulaton", "lda", "unknown parameter(s) formulaton"),

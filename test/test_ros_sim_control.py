@@ -4,7 +4,8 @@ A default-QoS (volatile) controller and a SensorDataQoS one drive lockstep witho
 pause / step N / unpause advance exactly N periods (fast and lockstep); two plants in two
 namespaces give two clean clock streams and two distinguishable diagnostics; a runtime
 change of command_timeout takes effect and a bad one is refused in one line; realtime late
-and slipped periods are counted; an RK4 step too coarse for the Triglide's modes is said.
+and slowed (or, with overrun skip, slipped) periods are counted; an RK4 step too coarse for
+the Triglide's modes is said.
 """
 
 from __future__ import annotations
@@ -202,13 +203,19 @@ def test_runtime_command_timeout(ros: RosHarness) -> None:
     assert plant.stats.stale == stale1
 
 
-def test_realtime_late_periods_are_counted(ros: RosHarness) -> None:
-    plant = make_plant(ros, sync_mode="realtime", publish_rate=RATE, realtime__keep_gc_out=False, **OPTIONS)
+@pytest.mark.parametrize("overrun", ["slow", "skip"])
+def test_realtime_late_periods_are_counted(ros: RosHarness, overrun: str) -> None:
+    plant = make_plant(ros, sync_mode="realtime", publish_rate=RATE, realtime__keep_gc_out=False,
+                       realtime__overrun=overrun, **OPTIONS)
     ros.wait_until(lambda: plant.plant.k > 50, 60.0, "the realtime plant running")
-    late0, slipped0 = plant.stats.late_periods, plant.stats.slipped_periods
+    s = plant.stats
+    late0, slipped0, slowed0 = s.late_periods, s.slipped_periods, s.slowed_periods
     time.sleep(0.06)  # the executor does not run: about 60 periods fall due
     ros.spin_for(0.05)
-    assert plant.stats.slipped_periods - slipped0 >= 40  # beyond max_catch_up (5): given up, counted
+    # beyond max_catch_up (5): the clock slows (slow) or the periods are given up (skip), counted
+    behind = s.slowed_periods - slowed0 if overrun == "slow" else s.slipped_periods - slipped0
+    assert behind >= 40
+    assert (s.slipped_periods if overrun == "slow" else s.slowed_periods) == 0
     assert plant.stats.late_periods - late0 >= 3  # the caught-up ones, each counted
     values = plant.stats.values(plant.plant.period, plant.plant.t, plant.plant.k, time.monotonic())
     assert float(values["max_lateness_ms"]) >= 1.5

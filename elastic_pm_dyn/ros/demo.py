@@ -6,7 +6,9 @@ the feedforward drives the reference manoeuvre through ``torque_command``; the r
 writes a bag; then the bag is read back with ``rosbags`` and compared with the offline
 simulation of the same torques: plots of path, branch forces, gap and torques, and
 ``summary.json``. In ``lockstep`` the ROS run equals offline ``simulate`` to round-off;
-``realtime`` shows the same manoeuvre paced by the wall clock; ``fast`` lets the plant run
+``realtime`` shows the same manoeuvre paced by the wall clock (the feedforward's timer on the
+plant's clock, ``use_sim_time``: a plant that cannot keep up slows its clock instead of
+skipping periods, and the feedforward slows with it); ``fast`` lets the plant run
 ahead of the wall clock with a state-triggered feedforward (one command per plant state,
 applied when it arrives, a few periods late: every command is sent and recorded). A timer
 feedforward cannot drive a fast plant: its timer wakes at wall-clock moments while /clock
@@ -96,6 +98,8 @@ def _run_nodes(out: Path, bag: Path, model_path: Path, sync: str, storage: str, 
                   "-p", f"dt:={o.dt!r}", "-p", f"stabilization:={o.stabilization}"]
     ff_args = ["--params-file", str(share_path("config", "feedforward.yaml")), "-p", f"model:={model_path}",
                "-p", f"rate:={CONTROL_RATE!r}", "-p", "trigger:=" + ("timer" if sync == "realtime" else "state"),
+               # realtime: the timer on the plant's clock (/clock), which slows when the plant cannot keep up
+               "-p", f"use_sim_time:={str(sync == 'realtime').lower()}",
                "-p", f"line.start:={[float(x) for x in line.start]}", "-p", f"line.end:={[float(x) for x in line.end]}",
                "-p", f"line.move:={float(line.move)!r}", "-p", f"line.hold:={float(line.hold)!r}",
                "-p", f"method:={feedforward}", "-p", "autostart:=true", "-p", "exit_when_done:=true",

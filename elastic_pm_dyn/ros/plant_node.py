@@ -3,7 +3,17 @@
 Sync modes (parameter ``sync_mode``):
 - ``realtime``: a steady-clock timer at ``publish_rate`` advances one control period per
   tick (catching up at most ``realtime.max_catch_up`` periods after a late tick, each counted
-  and logged as late) and stamps with wall time.
+  and logged as late). A plant further behind (:mod:`~elastic_pm_dyn.ros.realtime_schedule`),
+  with ``realtime.overrun``:
+
+  - ``slow`` (default): slows its clock, as Gazebo does. The stamps are the plant's own
+    clock, ``stamp = wall time of its first period + simulated time``: on the simulated-time
+    grid, every period stamped, no gap; equal to the wall clock while the plant keeps up,
+    behind it by the time it slowed (and was paused). Published on ``topics.clock``, so a
+    node with ``use_sim_time`` follows the slowed clock. The achieved real-time factor and
+    the slowed periods are in /diagnostics (WARN while it slows).
+  - ``skip``: stamps with wall time; the periods it is behind are skipped (the stamps jump,
+    counted as ``slipped_periods``); no clock topic.
 - ``fast``: as fast as possible; stamps are simulated time, published on ``topics.clock``.
 - ``lockstep``: each command advances exactly one period, then the state at the end of
   that period is published (stamp = simulated time, also on ``topics.clock``); a rejected
@@ -34,7 +44,9 @@ the same output topics (the sync parameters then do not apply): the observer nod
 (``observer_node``, :mod:`~elastic_pm_dyn.ros.observer_node`) under the plant's name, with
 the same parameters (:mod:`~elastic_pm_dyn.ros.machine_params`, ``observer.*``).
 Torque held over a period: the last valid command, or zero when it is older than
-``command_timeout`` (wall time in realtime, simulated time in fast; lockstep waits).
+``command_timeout`` on the plant's clock: simulated time in fast and realtime ``slow`` (a
+stall that stops the plant's clock does not age the command: the plant applies it when it
+goes on), wall time in realtime ``skip`` (its stamps are the wall clock); lockstep waits.
 
 Simulated sensors (``sensors.*``) and an unknown disturbance torque on the motors
 (``disturbance.*``): :mod:`~elastic_pm_dyn.ros.plant_sensors` (all off by default).
@@ -96,6 +108,7 @@ from elastic_pm_dyn.ros.qos import (
     VIEWER_QOS,
 )
 from elastic_pm_dyn.ros.realtime import collect_young, prepare, restore
+from elastic_pm_dyn.ros.realtime_schedule import OVERRUNS, RealtimeSchedule
 from elastic_pm_dyn.ros.robot_description import publish_robot_description
 from elastic_pm_dyn.ros.step_check import rk4_step_warning
 from elastic_pm_dyn.ros.throttle import KindThrottle
@@ -128,18 +141,24 @@ PARAMS = [
           "restart the node"),
     Param("sync_mode", "realtime", "realtime | fast | lockstep", choices=SYNC_MODES,
           fixed="QoS, clock and timers depend on it: restart the node"),
-    Param("command_timeout", 0.1, "[s] an older command means zero torque (wall time in realtime, "
-          "simulated time in fast; unused in lockstep)", positive=True, runtime=True),
+    Param("command_timeout", 0.1, "[s] an older command means zero torque (the plant's clock: simulated "
+          "time in fast and realtime with overrun slow, wall time with overrun skip; unused in lockstep)",
+          positive=True, runtime=True),
     Param("topics.command", "torque_command", "torque command topic"),
-    Param("topics.clock", "clock", "rosgraph_msgs/Clock in fast and lockstep; relative: <namespace>/clock "
-          "(a node with use_sim_time in that namespace remaps /clock:=clock)"),
+    Param("topics.clock", "clock", "rosgraph_msgs/Clock in fast, lockstep and realtime with overrun slow "
+          "(the plant's clock); relative: <namespace>/clock (a node with use_sim_time in that namespace "
+          "remaps /clock:=clock)"),
     Param("topics.diagnostics", "/diagnostics", "diagnostic_msgs/DiagnosticArray (status name: the node's "
           "fully qualified name)"),
     Param("hardware_id", "", "hardware_id of the diagnostics status; empty: <model name> <node's full name>"),
     Param("lockstep.waiting_republish_period", 0.5, "[s] wall time: lockstep re-publishes the latest state "
           "this often until the first command arrives", positive=True, runtime=True),
-    Param("realtime.max_catch_up", 5, "realtime: periods advanced in one late tick before the schedule slips "
-          "(each one counted as late)", positive=True),
+    Param("realtime.max_catch_up", 5, "realtime: periods advanced in one late tick (each one counted as late); "
+          "further behind, realtime.overrun applies", positive=True),
+    Param("realtime.overrun", "slow", "realtime, more than max_catch_up periods behind: slow (the plant's "
+          "clock slows, the stamps stay on the simulated-time grid, published on topics.clock) or skip (the "
+          "stamps follow the wall clock and jump over the periods behind)", choices=OVERRUNS,
+          fixed="the clock topic depends on it: restart the node"),
     Param("realtime.keep_gc_out", True, "realtime: no automatic garbage collection in the loop (the node "
           "collects the young generations between periods, at the diagnostics rate)"),
     Param("realtime.cpu_affinity", [], "realtime: CPUs the process runs on (empty: any)", item=int),
@@ -213,12 +232,16 @@ class PlantNode(ManagedNode):
         self.period_ns = round(period * NS)
         self.timeout = p["command_timeout"]
         self.formulation = p["formulation"]
-        self.max_catch_up: int = p["realtime.max_catch_up"]
+        self.overrun: str = p["realtime.overrun"]
+        self.schedule = RealtimeSchedule(period, p["realtime.max_catch_up"], self.overrun)
+        # The stamps are the plant's clock, not the wall clock: fast, lockstep, realtime slowing
+        self.own_clock = self.sync_mode != "realtime" or self.overrun == "slow"
         self.republish_period: float = p["lockstep.waiting_republish_period"]
         self.hardware_id = p["hardware_id"] or f"{mech.model.name} {self.get_fully_qualified_name()}"
         self.messages = PlantMessages(self.plant, p["frames.base"])
         self.markers = MechanismMarkers(mech, p["frames.base"])
         self.stamp_base = 0  # [ns] stamp = stamp_base + k * period_ns
+        self.stamp_set = False  # realtime: stamp_base taken from the wall clock (slow: once, at the first tick)
         self.warn = KindThrottle(self, WARN_EVERY)
 
         self.pub_joint_states = self.create_publisher(JointState, p["topics.joint_states"], STATE_OUT_QOS)
@@ -226,8 +249,7 @@ class PlantNode(ManagedNode):
         self.pub_ee_pose = self.create_publisher(PoseStamped, p["topics.ee_pose"], STATE_OUT_QOS)
         self.pub_markers = self.create_publisher(MarkerArray, p["topics.markers"], VIEWER_QOS)
         self.pub_diagnostics = self.create_publisher(DiagnosticArray, p["topics.diagnostics"], DIAGNOSTICS_QOS)
-        self.pub_clock = (self.create_publisher(ClockMsg, p["topics.clock"], CLOCK_QOS)
-                          if self.sync_mode != "realtime" else None)
+        self.pub_clock = self.create_publisher(ClockMsg, p["topics.clock"], CLOCK_QOS) if self.own_clock else None
         msg_type = JointState if p["command_type"] == "joint_state" else Float64MultiArray
         self.command_sub = self.create_subscription(
             msg_type, p["topics.command"], lambda msg, info: self._on_command(msg, info),  # two args: with info
@@ -268,8 +290,6 @@ class PlantNode(ManagedNode):
         self.marker_timer = self.create_timer(1.0 / p["marker_rate"], self._publish_markers, clock=self.steady)
         self.diagnostics_timer = self.create_timer(1.0 / p["diagnostics_rate"], self._publish_diagnostics,
                                                    clock=self.steady)
-        self.wall_start: float | None = None  # realtime schedule origin (monotonic)
-        self.k_start = 0  # plant period count at wall_start
         self.step_timer = None
         self.republish_timer = None
         self.keep_gc_out = False
@@ -373,7 +393,7 @@ class PlantNode(ManagedNode):
         self.disturbance_time = self._disturbance_clock()
 
     def _disturbance_clock(self) -> float:
-        return time.monotonic() if self.sync_mode == "realtime" else self.plant.t
+        return self.plant.t if self.own_clock else time.monotonic()
 
     def _held_disturbance(self) -> np.ndarray | None:
         """The disturbance_torque for the next period: the last valid one, zero when stale; None
@@ -386,7 +406,8 @@ class PlantNode(ManagedNode):
         return np.zeros(len(self.plant.tau))
 
     def _command_clock(self) -> float:
-        return time.monotonic() if self.sync_mode == "realtime" else self.plant.t
+        """The clock a command's age is measured on: the stamps' (simulated time unless they are the wall clock)."""
+        return self.plant.t if self.own_clock else time.monotonic()
 
     def _held_torque(self) -> np.ndarray:
         """The torque for the next period in realtime/fast: the command, or zero when stale."""
@@ -437,6 +458,7 @@ class PlantNode(ManagedNode):
             response.message = f"already paused at t = {self.plant.t:.6g} s"
             return response
         self.paused = True
+        self.stats.pause(time.monotonic())
         if self.step_timer is not None:
             self.step_timer.cancel()
         response.message = (f"paused at t = {self.plant.t:.6g} s ({self.plant.k} periods)"
@@ -450,6 +472,7 @@ class PlantNode(ManagedNode):
             response.message = f"not paused (t = {self.plant.t:.6g} s)"
             return response
         self.paused = False
+        self.stats.resume(time.monotonic())
         self._resume()
         response.message = f"running from t = {self.plant.t:.6g} s"
         self.get_logger().info(response.message)
@@ -511,7 +534,7 @@ class PlantNode(ManagedNode):
         if self.step_timer is not None and self.step_timer.is_canceled() and self.plant.fault is None:
             self.step_timer.reset()
         if self.sync_mode == "realtime":
-            self.wall_start = None  # a fresh schedule; its first tick publishes the state
+            self.schedule.stop()  # a fresh schedule; its first tick publishes the state
         elif publish:
             self._publish_state()
         if self.sync_mode == "lockstep" and self.queue:
@@ -552,35 +575,34 @@ class PlantNode(ManagedNode):
 
     def _on_realtime_tick(self) -> None:
         now = time.monotonic()
-        if self.wall_start is None:
-            self.wall_start, self.k_start = now, self.plant.k
-            self.stamp_base = self.get_clock().now().nanoseconds - self.plant.k * self.period_ns
+        schedule = self.schedule
+        if not schedule.started:
+            schedule.start(now, self.plant.k)
+            if not (self.stamp_set and self.overrun == "slow"):  # skip: the stamps follow the wall clock again
+                self.stamp_base = self.get_clock().now().nanoseconds - self.plant.k * self.period_ns
+                self.stamp_set = True
             self._publish_state()
             return
-        period = self.plant.period
-        # Periods due by now; the half period tolerates ticks that come a little early.
-        done = self.plant.k - self.k_start
-        due = int((now - self.wall_start) / period + 0.5) - done
-        if due > self.max_catch_up:  # too far behind: let the schedule (and the stamps) slip
-            self.stats.overruns += 1
-            slip = due - self.max_catch_up
-            self.stats.slipped_periods += slip
-            self.wall_start += slip * period
-            self.stamp_base += slip * self.period_ns
-            due = self.max_catch_up
-            self.warn.warning("slipped", f"realtime: {self.stats.slipped_periods} period(s) slipped so far, "
-                              f"{slip} now (more than {self.max_catch_up} periods behind); the stamps jump")
-        if due <= 0:
-            return
-        # Period n (counted from the schedule's origin) was due at wall_start + n period; one
-        # stepped more than half a period after that was late (caught up in this tick).
-        lateness = now - (self.wall_start + (done + 1) * period)
-        late = sum(1 for i in range(due) if lateness - i * period > 0.5 * period)
-        if late:
-            self.stats.late(late, lateness)
-            self.warn.warning("late", f"realtime: {late} period(s) caught up, the first {lateness * 1e3:.2f} ms "
-                              f"late ({self.stats.late_periods} late so far; cycle_load in /diagnostics)")
-        for _ in range(due):
+        tick = schedule.tick(now, self.plant.k)
+        s = self.stats
+        if tick.slowed:
+            s.overruns += 1
+            s.slowed_periods += tick.slowed
+            self.warn.warning("slowed", f"realtime: the clock slowed by {tick.slowed} period(s) "
+                              f"({s.slowed_periods} so far; more than {schedule.max_catch_up} periods behind); "
+                              "the stamps stay on the simulated-time grid")
+        elif tick.skipped:
+            s.overruns += 1
+            s.slipped_periods += tick.skipped
+            self.stamp_base += tick.skipped * self.period_ns
+            self.warn.warning("slipped", f"realtime: {s.slipped_periods} period(s) slipped so far, "
+                              f"{tick.skipped} now (more than {schedule.max_catch_up} periods behind); the stamps jump")
+        if tick.late:
+            s.late(tick.late, tick.lateness)
+            self.warn.warning("late", f"realtime: {tick.late} period(s) caught up, the first "
+                              f"{tick.lateness * 1e3:.2f} ms late ({s.late_periods} late so far; cycle_load in "
+                              "/diagnostics)")
+        for _ in range(tick.due):
             if not self._step(self._held_torque(), self._take_arrival()):
                 return
 
@@ -691,6 +713,10 @@ class PlantNode(ManagedNode):
         idle = time.monotonic() - self.last_command_wall
         return f"waiting for a command for {idle:.3g} s" if idle > 1.0 else ""
 
+    def _factor_text(self, wall: float) -> str:
+        factor = self.stats.real_time_factor(self.plant.t, wall)
+        return f"{factor:.2g}" if factor is not None else "?"
+
     def _publish_diagnostics(self) -> None:
         s, plant = self.stats, self.plant
         if self.keep_gc_out:  # between periods: the collection's time shows in gc_time_ms, not in a period
@@ -708,7 +734,11 @@ class PlantNode(ManagedNode):
                 (s.window_late != s.late_periods,
                  f"realtime: {s.late_periods - s.window_late} period(s) late, up to "
                  f"{s.window_max_lateness * 1e3:.2f} ms"),
-                (s.window_overruns != s.overruns, "realtime overrun: the schedule slipped"),
+                (s.window_slowed != s.slowed_periods,
+                 f"realtime: running slower than real time (factor {self._factor_text(wall)}, "
+                 f"{s.slowed_periods - s.window_slowed} period(s) slowed)"),
+                (s.window_slipped != s.slipped_periods,
+                 f"realtime overrun: the schedule slipped ({s.slipped_periods - s.window_slipped} period(s))"),
                 (s.window_overwritten != self.command_gaps.missed and self.sync_mode == "lockstep",
                  "commands overwritten (unanswered)"))
                 if changed]
@@ -728,6 +758,8 @@ class PlantNode(ManagedNode):
             "zero_torque_periods": str(s.stale), "overruns": str(s.overruns),
             "commands_overwritten": str(self.command_gaps.missed),
         }
+        if self.sync_mode == "realtime":
+            values["overrun"] = self.overrun
         status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
         self.pub_diagnostics.publish(DiagnosticArray(header=Header(stamp=stamp(self._stamp_ns())), status=[status]))
         s.new_window(plant.t, plant.k, wall)

@@ -74,8 +74,8 @@ DISTURBANCE_PARAMS = [
     Param("disturbance.seed", 0, "seed: a test recording with this seed and duration has the same d(t)"),
     Param("disturbance.duration", 1.0, "[s] window over which the RMS is scaled (periodic beyond)", positive=True),
     Param("disturbance.input", False, "subscribe topics.disturbance_torque: an unknown torque added to the command"),
-    Param("disturbance.timeout", 0.1, "[s] an older disturbance_torque means zero (wall time in realtime, "
-          "simulated time in fast and lockstep)", positive=True, runtime=True),
+    Param("disturbance.timeout", 0.1, "[s] an older disturbance_torque means zero (as command_timeout: on the "
+          "plant's clock, simulated time; wall time in realtime with overrun skip)", positive=True, runtime=True),
     Param("topics.disturbance_torque", "disturbance_torque", "input: disturbance torque (command_type's message)"),
     Param("topics.disturbance", "disturbance", "truth: sensor_msgs/JointState, effort = the disturbance on the motors"),
 ]

@@ -8,11 +8,12 @@ with the message definitions stored in the bag, so that ``ros2 bag`` users and
 A topic whose type the configuration gives (``topic_types``; :data:`DEMO_TYPES`, in config/recorder.yaml)
 is subscribed at start-up, before any publisher exists, so the first message of a run is
 in the bag even from a publisher that starts sending as soon as its other subscribers
-matched. Until a publisher shows, the reader is reliable and transient local: a writer that
+matched. Until a publisher shows, two readers wait, reliable: a transient-local one (a writer that
 offers the same (the plant's states, our controllers' commands) hands it the samples sent
-before the reader's side of the match completed, which a volatile reader would miss; when
-the publishers turn out to be volatile (or best effort) they do not match it, nothing has
-arrived, and it is made anew with their QoS. Other topics are subscribed once the ROS graph shows a publisher (its type
+before the reader's side of the match completed, which a volatile reader would miss) and a
+volatile one (a volatile writer, a user's controller on default QoS, matches only that one, at
+once); each message is recorded once. When nothing has arrived by the time the publishers
+show, a reader with their QoS is made. Other topics are subscribed once the ROS graph shows a publisher (its type
 is used). Subscriptions take ``raw=True``: the wire bytes are written as they are, never
 re-serialised (rclpy's ``serialize_message`` can append bytes that rosbags rejects). Like
 ``ros2 bag record``, the subscription QoS follows the publishers: transient local when all
@@ -140,6 +141,7 @@ class _Topic:
         self.losses = TopicLosses()
         self.subscribed_at = time.monotonic()
         self.matched = 0  # publishers matched (the matched event; the graph's count until it fires)
+        self.matched_by: dict[object, int] = {}  # per reader of the topic
         self.early = False  # subscribed before any publisher showed: its QoS is still a guess
         self.subscription: Any = None
         self.node: Any = None  # the node whose participant holds the subscription
@@ -234,9 +236,18 @@ class RecorderNode(ManagedNode):
         state.msg_class = msg_class
         state.early = early
         self.topics[topic] = state
-        self._create_subscription(topic, state, QoSProfile(
-            depth=subscription_depth(self.rate_hint, self.max_lag, []), reliability=ReliabilityPolicy.RELIABLE,
-            durability=DurabilityPolicy.TRANSIENT_LOCAL) if early else None)
+        if not early:
+            self._create_subscription(topic, state)
+            return
+        # Before any publisher shows: a transient-local reader (a durable writer's first messages,
+        # published before discovery matched, still arrive) and a volatile one (a volatile writer,
+        # e.g. a user's controller on default QoS, never matches a transient-local reader); each
+        # message is recorded once, from whichever delivers it first.
+        state.once = _Once()
+        for durability in (DurabilityPolicy.TRANSIENT_LOCAL, DurabilityPolicy.VOLATILE):
+            self._create_subscription(topic, state, QoSProfile(
+                depth=subscription_depth(self.rate_hint, self.max_lag, []), reliability=ReliabilityPolicy.RELIABLE,
+                durability=durability))
 
     def _create_subscription(self, topic: str, state: _Topic, qos: QoSProfile | None = None,
                              node: Any = None) -> None:
@@ -267,8 +278,11 @@ class RecorderNode(ManagedNode):
         def lost(event: Any) -> None:
             losses.dds_lost += event.total_count_change
 
+        reader = object()  # this reader's key: a topic may have several (the most matched counts)
+
         def matched(event: Any) -> None:
-            state.matched = event.current_count
+            state.matched_by[reader] = event.current_count
+            state.matched = max(state.matched_by.values())
 
         if self.lost_events_supported:
             try:
