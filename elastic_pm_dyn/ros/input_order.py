@@ -13,7 +13,9 @@ message is taken once every other topic has shown that it holds nothing earlier.
   it publishes the estimate), 3 for an accelerometer sampling after the command;
 - a command: (stamp, 2), after the samples of its stamp. A command stamped 0 (an unset header)
   or further ahead than ``max_future`` (another clock: wall time against simulated time) is
-  taken as stamped at the newest primary sample received, the state it answers. The command
+  taken as stamped at the primary sample it answers: the one after the previous command's
+  while the controller has answered every period (lockstep, where the plant's next state may
+  reach this node before the command that led to it), else the newest received. The command
   topic covers the samples up to the next primary stamp: the samples of t_k+1 wait for a
   command stamped t_k or later. A command stamped before what was already taken is taken at
   once (the observer applies it from its current time).
@@ -23,7 +25,9 @@ controller slower than the plant; a lockstep controller answers every period) is
 once a message stamped 1.5 sample periods later is waiting, and no topic once a message has
 waited ``max_wait`` seconds of wall
 time (then the topic is not waited for until it delivers again: a stopped controller, the
-last state of a run). A topic is waited for only after its first message. The same sample
+last state of a run). A sample topic is waited for only after its first message, the command
+topic from the start (the samples after the first stamp need the command that held the
+machine there). The same sample
 received twice (a lockstep plant publishes its first state again until a command comes) is
 taken once. At most ``max_pending`` messages wait; beyond, the earliest goes.
 """
@@ -66,6 +70,8 @@ class InputOrder:
     def __init__(self, ranks: dict[str, int], primary: str, max_wait: float, max_future_ns: int,
                  max_pending: int = 1000):
         self.topics = {kind: _Topic(rank) for kind, rank in ranks.items()}
+        if "command" in self.topics:  # waited for from the start: the first samples after t_0 need the
+            self.topics["command"].covers = (-1, COMMAND)  # command of t_0 (a holding torque, say)
         self.primary = primary
         self.max_wait = max_wait
         self.max_future_ns = max_future_ns
@@ -75,6 +81,7 @@ class InputOrder:
         self.newest_ns: int | None = None  # newest stamp received on any sample topic
         self.stats = OrderStats()
         self._flushed: list[tuple[str, int, Any]] = []  # taken before a backward stamp, not handed out yet
+        self.primaries: deque[int] = deque(maxlen=max_pending)  # recent primary stamps received
 
     # ------------------------------------------------------------------ input
     def push(self, kind: str, ns: int, item: Any, now: float) -> int:
@@ -92,6 +99,8 @@ class InputOrder:
             if kind == self.primary and topic.last_ns is not None and ns > topic.last_ns:
                 gap = ns - topic.last_ns
                 self.period_ns = gap if self.period_ns is None else min(self.period_ns, gap)
+            if kind == self.primary:
+                self.primaries.append(ns)
             topic.covers = (ns, AFTER + 1)  # one message per stamp: nothing more of this stamp comes
             self.newest_ns = ns if self.newest_ns is None else max(self.newest_ns, ns)
         if topic.last_ns is not None and self.period_ns is not None and ns - topic.last_ns >= HORIZON * self.period_ns:
@@ -104,11 +113,20 @@ class InputOrder:
         return ns
 
     def _command_stamp(self, ns: int) -> int:
+        """An unset stamp (0) or one on another clock: the primary stamp the command answers. That is
+        the newest one received, unless the controller has so far answered every period (lockstep):
+        then the one after its previous command's, since the plant's next state may have come first."""
         newest = self.topics[self.primary].last_ns
-        if newest is not None and (ns == 0 or ns - newest > self.max_future_ns):
-            self.stats.restamped += 1
+        if newest is None or not (ns == 0 or ns - newest > self.max_future_ns):
+            return ns
+        self.stats.restamped += 1
+        command = self.topics["command"]
+        if command.skips or not self.primaries:
             return newest
-        return ns
+        previous = command.last_ns
+        if previous is None:
+            return self.primaries[0]
+        return next((s for s in self.primaries if s > previous), newest)
 
     # ----------------------------------------------------------------- output
     def pop_ready(self, now: float) -> list[tuple[str, int, Any]]:
@@ -145,6 +163,7 @@ class InputOrder:
         for topic in self.topics.values():
             topic.last_ns = topic.covers = None
         self.released_primary = self.newest_ns = None
+        self.primaries.clear()
 
     def depth(self) -> int:
         return sum(len(t.pending) for t in self.topics.values())
