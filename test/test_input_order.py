@@ -30,7 +30,7 @@ def lockstep_arrivals(periods: int, seed: int, stamp: str) -> list[tuple[str, in
         ns = k * P
         events += [(t + rnd.random() * 0.5, "imu", ns), (t + rnd.random() * 0.5, "joint_state", ns)]
         answered = t + 0.2 + rnd.random()
-        events.append((answered + rnd.random() * 1.5, "command", ns if stamp == "copy" else 0))
+        events.append((answered + rnd.random() * 0.5, "command", ns if stamp == "copy" else 0))
         t = answered + 0.1
     arrivals, last = [], {}
     for when, kind, ns in events:  # each topic in order: a later message never arrives first
