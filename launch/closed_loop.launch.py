@@ -3,17 +3,16 @@
     ros2 launch elastic_pm_dyn closed_loop.launch.py [model:=path/to/model.yaml]
         [observer_config:=tuned.yaml] [kp:="[77.0, 80.0]"] [kd:="[3.4, 3.6]"] [bag:=closed_loop_bag]
 
-The same nodes and wiring as ``elastic-pm-dyn ros-demo --observer`` (which needs no launch and
-also reads the bag back; docs/nodes.md, "Closing the loop"): the plant (config/plant_sensors.yaml:
-lockstep, encoders, accelerometer, a flat 2-200 Hz unknown torque) publishes the truth and
-the sensors; the observer publishes its estimates under ``observer/`` and takes its inputs in
-offline observe's order (``lockstep_order``); the controller (config/feedforward.yaml: the reference line,
-rigid feedforward) adds a PD on ``measured_joint_states`` and answers each estimate; the
-recorder writes every topic. ``python -m elastic_pm_dyn.ros.loop_demo`` starts the loop once
-every node is up (it resets the plant if the observer missed its t = 0 samples). The launch
-ends a second after the controller has finished the reference. The default gains are the
-five-bar's (a 5 Hz loop); another machine: its model and, without a point line, ``source:=hold``.
-"""
+The same nodes and wiring as ``elastic-pm-dyn ros-demo --observer`` (which needs no launch and also
+reads the bag back; docs/nodes.md, "Closing the loop"): the plant (config/plant_sensors.yaml:
+lockstep, encoders, accelerometer, a flat 2-200 Hz unknown torque) publishes the truth and the
+sensors; the observer publishes its estimates under ``observer/`` and takes its inputs in offline
+observe's order (``input_order: stamp``, the default); the controller (config/feedforward.yaml: the
+reference line, rigid feedforward) adds a PD on ``measured_joint_states`` and answers each estimate;
+the recorder writes every topic. ``python -m elastic_pm_dyn.ros.loop_demo`` starts the loop once
+every node is up (it resets the plant if the observer missed its t = 0 samples). The launch ends a
+second after the controller has finished the reference. The default gains are the five-bar's (a 5 Hz
+loop); another machine: its model and, without a point line, ``source:=hold``. """
 
 from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument, EmitEvent, ExecuteProcess, RegisterEventHandler, TimerAction
@@ -37,7 +36,7 @@ def generate_launch_description() -> LaunchDescription:
                  parameters=[PathJoinSubstitution([config, "plant_sensors.yaml"]), {"model": model}])
     observer = Node(package=PACKAGE, executable="observer_node", name="observer", output="screen",
                     parameters=[LaunchConfiguration("observer_config"),
-                                {"model": model, "lockstep_order": True,
+                                {"model": model,
                                  "topics.joint_states": "observer/joint_states",
                                  "topics.branch_forces": "observer/branch_forces",
                                  "topics.ee_pose": "observer/ee_pose", "topics.markers": "observer/markers",

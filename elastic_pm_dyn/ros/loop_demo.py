@@ -235,7 +235,6 @@ def node_arguments(bag: Path, mech: Mechanism, opts: LoopOptions) -> dict[str, l
     dof = (_p("elastic_dof_per_chain", int(opts.elastic_dof_per_chain))
            if opts.elastic_dof_per_chain is not None else [])
     cfg_path = opts.observer_config or share_path("config", "observer_node.yaml")
-    spatial = len(mech.ee_components) == 3
     topics = opts.topics()
     # config/plant_sensors.yaml: encoders and accelerometer on, a flat disturbance; this run's numbers
     sensors = [*_p("sensors.seed", int(opts.seed)),
@@ -257,11 +256,9 @@ def node_arguments(bag: Path, mech: Mechanism, opts: LoopOptions) -> dict[str, l
                 *_p("topics.ee_pose", f"{OBSERVER_NS}/ee_pose"),
                 *_p("topics.markers", f"{OBSERVER_NS}/markers"),
                 *_p("topics.robot_description", f"{OBSERVER_NS}/robot_description"),
-                "-p", "lockstep_order:=true",  # offline observe's order of the inputs
                 *_p("observer.sensors", opts.sensors),
                 *_p("observer.topics.measured_joint_states", topics["encoders"]),
-                *_p("observer.imu.sample_timing", opts.imu_sample_timing),
-                *(_p("observer.imu.axes", ["x", "y", "z"]) if spatial else [])]
+                *_p("observer.imu.sample_timing", opts.imu_sample_timing)]
     kp, kd = default_gains(mech, opts.bandwidth, opts.damping)
     kp = np.broadcast_to(opts.kp if opts.kp is not None else kp, kp.shape)
     kd = np.broadcast_to(opts.kd if opts.kd is not None else kd, kd.shape)
