@@ -26,7 +26,7 @@ EXAMPLE = ROOT / "examples" / "own_controller.py"
 START = 900.0  # [s] a cold start compiles the kernels (minutes on a loaded 2-core machine)
 PERIODS = 1000  # 1 s of loop at 1 kHz
 MACHINES = {"five_bar": "five_bar.yaml", "triglide": "triglide.yaml", "hexa": "hexa.yaml"}
-DOMAINS = {"five_bar": domain_id(96), "triglide": domain_id(97), "hexa": domain_id(98), "first": domain_id(99)}
+DOMAINS = {"five_bar": domain_id(96), "triglide": domain_id(97), "hexa": domain_id(93), "first": domain_id(99)}
 TOPICS = ["/joint_states", "/branch_forces", "/ee_pose", "/torque_command", "/measured_joint_states", "/ee_imu",
           "/disturbance", "/observer/joint_states", "/observer/branch_forces", "/observer/ee_pose"]
 
