@@ -10,9 +10,10 @@ sensors; the observer publishes its estimates under ``observer/`` and takes its 
 observe's order (``input_order: stamp``, the default); the controller (config/feedforward.yaml: the
 reference line, rigid feedforward) adds a PD on ``measured_joint_states`` and answers each estimate;
 the recorder writes every topic. ``python -m elastic_pm_dyn.ros.loop_demo`` starts the loop once
-every node is up (it resets the plant if the observer missed its t = 0 samples). The launch ends a
-second after the controller has finished the reference. The default gains are the five-bar's (a 5 Hz
-loop); another machine: its model and, without a point line, ``source:=hold``. """
+every node is up (the plant publishes its t = 0 state and samples again until the first command).
+The launch ends a second after the controller has finished the reference. The default gains are the
+five-bar's (a 5 Hz loop); another machine: its model and, without a point line, ``source:=hold``.
+"""
 
 from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument, EmitEvent, ExecuteProcess, RegisterEventHandler, TimerAction

@@ -26,13 +26,16 @@ EXAMPLE = ROOT / "examples" / "own_controller.py"
 START = 900.0  # [s] a cold start compiles the kernels (minutes on a loaded 2-core machine)
 PERIODS = 1000  # 1 s of loop at 1 kHz
 MACHINES = {"five_bar": "five_bar.yaml", "triglide": "triglide.yaml", "hexa": "hexa.yaml"}
-DOMAINS = {"five_bar": domain_id(96), "triglide": domain_id(97), "hexa": domain_id(93), "first": domain_id(99)}
+DOMAINS = {"five_bar": domain_id(96), "triglide": domain_id(97), "hexa": domain_id(93), "first": domain_id(99),
+           "realtime": domain_id(94)}
 TOPICS = ["/joint_states", "/branch_forces", "/ee_pose", "/torque_command", "/measured_joint_states", "/ee_imu",
-          "/disturbance", "/observer/joint_states", "/observer/branch_forces", "/observer/ee_pose"]
+          "/disturbance", "/observer/joint_states", "/observer/branch_forces", "/observer/ee_pose", "/diagnostics"]
 
 
-def run_user_loop(out: Path, model: Path, domain: int, controller_first: bool = False) -> dict:
-    """Plant, observer, recorder and the example controller on ``domain``; the loop's summary."""
+def run_user_loop(out: Path, model: Path, domain: int, controller_first: bool = False,
+                  plant_args: tuple[str, ...] = (), analyse: bool = True) -> dict | Path:
+    """Plant, observer, recorder and the example controller on ``domain``; the loop's summary
+    (``analyse`` False: the bag)."""
     import time
 
     from elastic_pm_dyn.ros.loop_demo import LoopOptions, analyse_loop
@@ -65,8 +68,8 @@ def run_user_loop(out: Path, model: Path, domain: int, controller_first: bool = 
             controller = user_controller()
             observer()
         procs.append(NodeProcess("plant", "elastic_pm_dyn.ros.plant_node",
-                                 ["--params-file", str(CONFIG / "plant_sensors.yaml"), "-p", f"model:={model}"],
-                                 env, logs))
+                                 ["--params-file", str(CONFIG / "plant_sensors.yaml"), "-p", f"model:={model}",
+                                  *plant_args], env, logs))
         wait_for_recording(["/joint_states"], domain, START, procs)
         if controller is None:
             observer()
@@ -82,6 +85,8 @@ def run_user_loop(out: Path, model: Path, domain: int, controller_first: bool = 
             controller.kill()
         for p in reversed(procs):
             p.stop()
+    if not analyse:
+        return bag
     from elastic_pm_dyn.kinematics.mechanism import Mechanism
     from elastic_pm_dyn.model.loader import load_model
 
@@ -105,3 +110,47 @@ def test_user_controller_started_first(tmp_path: Path) -> None:
     s = run_user_loop(tmp_path, CONFIG / "five_bar.yaml", DOMAINS["first"], controller_first=True)
     assert s["plant_states_in_loop"] >= PERIODS, s
     assert s["plant_states_without_estimate"] <= 0.01 * s["plant_states_in_loop"], s
+
+
+def cpu_hogs(n: int) -> list[subprocess.Popen]:
+    """Busy processes (a loaded machine): each spins until killed."""
+    return [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(n)]
+
+
+def test_user_controller_in_realtime_beside_two_cpu_hogs(tmp_path: Path) -> None:
+    """Realtime: the plant advances on its own clock, slowed when it cannot keep up (never skipping
+    a period); every state of the loop gets its estimate, the stamps stay on the 1 ms grid and the
+    plant reports its real-time factor."""
+    require("rclpy")
+    import numpy as np
+    from rosbags.typesys import Stores, get_typestore
+
+    from elastic_pm_dyn.bags.msgtypes import stamp_ns
+    from elastic_pm_dyn.bags.reader import open_bag
+
+    hogs = cpu_hogs(2)
+    try:
+        bag = run_user_loop(tmp_path, CONFIG / "five_bar.yaml", DOMAINS["realtime"],
+                            plant_args=("-p", "sync_mode:=realtime", "-p", "diagnostics_rate:=5.0"), analyse=False)
+    finally:
+        for h in hogs:
+            h.kill()
+    stamps: dict[str, list[int]] = {"/measured_joint_states": [], "/observer/joint_states": [], "/torque_command": []}
+    factors = []
+    typestore = get_typestore(Stores.ROS2_JAZZY)
+    with open_bag(bag) as b:
+        for conn, _, raw in b.messages([c for c in b.connections if c.topic in (*stamps, "/diagnostics")]):
+            msg = typestore.deserialize_cdr(raw, conn.msgtype)
+            if conn.topic == "/diagnostics":
+                factors += [float(kv.value) for st in msg.status if st.name.endswith(": plant")
+                            for kv in st.values if kv.key == "real_time_factor_total"]
+            else:
+                stamps[conn.topic].append(stamp_ns(msg.header.stamp))
+    commands = np.array(sorted(set(stamps["/torque_command"])))
+    states = np.array(sorted(set(stamps["/measured_joint_states"])))
+    loop = states[(states >= commands[0]) & (states <= commands[-1])]  # the states the controller answered
+    assert len(loop) >= PERIODS - 1
+    assert set(np.diff(states).tolist()) == {1_000_000}  # on the grid: no period skipped
+    estimated = np.isin(loop, stamps["/observer/joint_states"])
+    assert estimated.mean() >= 0.99, f"{np.sum(~estimated)} of {len(loop)} states without an estimate"
+    assert factors and all(0 < f <= 1.05 for f in factors)

@@ -13,9 +13,8 @@ Five node processes on a loopback-only domain (as ``ros-demo``'s: ``--domain-id`
   reference at t_k and the encoder sample stamped t_k;
 - recorder: every topic above, the commands and the reference.
 
-The loop starts when every node is up: the plant's ``~/reset`` publishes its start state one
-period after t = 0, which every node has subscribed to by then (the volatile sensor topics lose
-what was published before a subscriber matched). Then the bag is read back: estimates against
+The loop starts by itself: the lockstep plant publishes its t = 0 state and samples again until
+the first command, so every node gets them however late it subscribed. Then the bag is read back: estimates against
 the truth, the open-loop prediction (:func:`~elastic_pm_dyn.observer.testing.evaluation.open_loop`: the
 model under the recorded commands without the disturbance), NEES, and ``observe`` over the
 recorded sensor topics compared with the live estimates row by row (``summary.json``, plots).
@@ -66,8 +65,6 @@ from elastic_pm_dyn.sim.torque import TorqueTable
 CONTROL_RATE = REFERENCE_MANOEUVRE.control_rate  # [Hz] plant, controller, sensors
 PLANT_DT = 1e-4  # [s] the plant's RK4 step (config/plant_sensors.yaml)
 DRAIN = 1.0  # [s] after the controller ends, for the last messages to reach the recorder
-SETTLE = 3.0  # [s] wall time for a loop that started by itself to show
-KICK_EVERY = 30.0  # [s] wall time without progress after which the plant is reset again
 LATE = 0.2  # [s] the figures also from here on (after a start transient)
 OPEN_LOOP_PIECE = 0.25  # [s] the open loop is integrated piece by piece (up to a singular pose)
 STALL = 120.0  # [s] wall time without a new plant state after which a running loop has stalled
@@ -284,7 +281,7 @@ def _run_nodes(out: Path, bag: Path, mech: Mechanism, opts: LoopOptions) -> None
     procs: list[NodeProcess] = []
     previous = signal.signal(signal.SIGTERM, _interrupt)  # a terminated run stops its nodes too
     try:
-        # The plant publishes its t = 0 state at start-up; the loop starts at its ~/reset below.
+        # The plant publishes its t = 0 state at start-up, and again until the first command.
         procs.append(NodeProcess("plant", "elastic_pm_dyn.ros.plant_node", args["plant"], env, logs))
         procs.append(NodeProcess("recorder", "elastic_pm_dyn.ros.recorder", args["recorder"], env, logs))
         procs.append(NodeProcess("observer", "elastic_pm_dyn.ros.observer_node", args["observer"], env, logs))
@@ -320,10 +317,9 @@ def _interrupt(signum: int, frame: object) -> None:
 
 
 class Kicker:
-    """The orchestrator's own node. Once every node is up, the loop may already run (the observer
-    matched the plant before its t = 0 samples went out) or wait (the volatile sensor subscriptions
-    missed them): then the plant's ``~/reset`` publishes its start state again, one period later.
-    Running is told by the plant's newest state: its stamp moves on only when commands come."""
+    """The orchestrator's own node: waits for every node, then for the loop to start (the plant
+    re-publishes its t = 0 state and samples until the first command). Running is told by the
+    plant's newest state: its stamp moves on only when commands come."""
 
     def __init__(self, domain_id: int, topics: dict[str, str | None], localhost: bool = True,
                  pace_on_observer: bool = True):
@@ -333,7 +329,6 @@ class Kicker:
         from rclpy.executors import SingleThreadedExecutor
         from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
         from sensor_msgs.msg import JointState
-        from std_srvs.srv import Trigger
         self._rclpy = rclpy
         # topic -> subscribers it needs: the recorder on the loop's topics, the observer on the
         # commands and sensors, the controller on the encoders and the estimates
@@ -353,8 +348,6 @@ class Kicker:
                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
         self.node.create_subscription(JointState, topics["truth"], self._on_state, latest)
         self.node.create_subscription(JointState, topics["estimate"], self._on_estimate, latest)
-        self.reset = self.node.create_client(Trigger, "/plant/reset")
-        self.request = Trigger.Request()
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
 
@@ -403,27 +396,15 @@ class Kicker:
                                        f"(an observer that stopped? see {logs / 'observer.log'})")
 
     def start_loop(self, timeout: float, watch: list[NodeProcess]) -> str:
-        deadline = time.monotonic() + timeout
-        self._spin_for(SETTLE, watch, lambda: self.newest > 0)  # running already?
+        """Wait for the loop to start by itself: the lockstep plant publishes its t = 0 state and
+        samples again until the first command, so every node gets them however late it
+        subscribed. No reset: one that crossed a slow first command (a loaded machine) sent the
+        plant back to t = 0 under a controller that had answered that stamp already, and the loop
+        stalled at t = 0.001 s."""
+        self._spin_for(timeout, watch, lambda: self.newest > 0)
         if self.newest > 0:
             return "from the plant's t = 0 state"
-        while not self.reset.wait_for_service(timeout_sec=0.1):
-            if time.monotonic() > deadline:
-                raise NodeProcessError("the plant's ~/reset service did not appear")
-            for p in watch:
-                p.check_running()
-        # Reset again only if the reset's state did not appear within KICK_EVERY (a reset that
-        # reached nobody). Once it did, the loop runs, however slowly its first periods go (an
-        # observer loading its kernels on a busy machine): a second reset would restart the plant
-        # under a running controller and observer (seen: two resets 65 s into a loaded run).
-        while True:
-            before = self.newest
-            self.reset.call_async(self.request)
-            self._spin_for(KICK_EVERY, watch, lambda b=before: self.newest > b)
-            if self.newest > before:
-                return "from the plant's ~/reset"
-            if time.monotonic() > deadline:
-                raise NodeProcessError(f"the loop did not start within {timeout:g} s (see the node logs)")
+        raise NodeProcessError(f"the loop did not start within {timeout:g} s (see the node logs)")
 
 
 # ------------------------------------------------------------------------------------ analysis
@@ -505,7 +486,7 @@ def analyse_loop(out: Path, bag: Path, mech: Mechanism, opts: LoopOptions, wall:
     if missing:
         raise InputError(f"{bag}: no messages on {', '.join(missing)} (see {out / 'logs'})")
     truth, est, cmd, enc = (data[topics[k]] for k in ("truth", "estimate", "command", "encoders"))
-    first = int(est.ns[0])  # the loop: from the first estimate (the plant's reset state) on
+    first = int(est.ns[0])  # the loop: from the first estimate (the plant's t = 0 state) on
     # Samples: stamps with a true state, an estimate and the command computed for them.
     # Every period of the loop: a true state and the command computed for it (the open loop and
     # the scores need them all); the live estimates are compared where they exist (all of them
@@ -731,8 +712,8 @@ def _plots(out: Path, mech: Mechanism, t: np.ndarray, F: np.ndarray, F_live: np.
 
 def start_loop_main(argv: list[str] | None = None) -> int:
     """``python -m elastic_pm_dyn.ros.loop_demo``: start a closed loop that a launch file brought
-    up (launch/closed_loop.launch.py) on this ROS domain: wait for every node, reset the plant
-    if the loop did not start from its t = 0 state, exit."""
+    up (launch/closed_loop.launch.py) on this ROS domain: wait for every node and for the loop to
+    start (from the plant's t = 0 state, which it publishes again until the first command), exit."""
     import argparse
     import os
     import sys
