@@ -13,7 +13,9 @@ from __future__ import annotations
 
 import signal
 import sys
+import time
 from collections.abc import Callable
+from typing import Any
 
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
@@ -26,12 +28,24 @@ from elastic_pm_dyn.errors import ElasticPmDynError
 
 EXIT_START_FAILED = 2
 SPIN_TIMEOUT = 0.1  # [s] longest time until a stop request or node.done is seen
+_stop: list[int] = []  # the signals that asked the running node to stop
+
+
+def stopping() -> bool:
+    """Has SIGINT or SIGTERM asked the node to stop? A long service call or computation in a
+    callback asks this between its steps and ends early (the spin loop only sees the request
+    once the callback returns)."""
+    return bool(_stop)
 
 
 class ManagedNode(Node):
     """A node run by :func:`run_node`: set ``done`` to end the process, override ``close``."""
 
     done = False
+
+    def __init__(self, *args: Any, **kwargs: Any):
+        self.created = time.monotonic()  # when it joined the graph (graph_checks waits for discovery from here)
+        super().__init__(*args, **kwargs)
 
     def close(self) -> None:
         """Release resources before the node is destroyed (called once, also on signals)."""
@@ -45,7 +59,8 @@ def run_node(program: str, factory: Callable[[], ManagedNode], args: list[str] |
         reason = str(err).split(", at ")[0]  # drop rcl's source locations
         print(f"{program}: error: ROS arguments rejected: {reason}", file=sys.stderr)
         return EXIT_START_FAILED
-    stop: list[int] = []
+    stop = _stop
+    stop.clear()
 
     def request_stop(signum: int, _frame: object) -> None:
         if stop:  # a second signal: the loop did not get to it, stop the hard way

@@ -59,6 +59,7 @@ from elastic_pm_dyn.bags.msgtypes import stamp_ns
 from elastic_pm_dyn.errors import InputError
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.observer.config import DEFAULT_PARAMETERS, PREFIX, RUNTIME_PARAMETERS
+from elastic_pm_dyn.ros.graph_checks import refuse_if_taken, resolved_topics
 from elastic_pm_dyn.ros.input_order import AFTER, BEFORE, COMMAND, PRIMARY, InputOrder
 from elastic_pm_dyn.ros.markers import MechanismMarkers
 from elastic_pm_dyn.ros.messages import EstimateMessages, stamp
@@ -117,6 +118,9 @@ class ObserverMode:
         self.handlers = {"command": self._take_command, "joint_state": self._on_joint_state, "imu": self._on_imu,
                          "branch_forces": self._on_branch_forces}
 
+        # not a second observer (or plant in observer mode) where one runs: estimates would interleave
+        refuse_if_taken(node, [resolved_topics(node, p, ["topics.joint_states"])["topics.joint_states"]],
+                        getattr(node, "created", 0.0))
         self.pub_joint_states = node.create_publisher(JointState, p["topics.joint_states"], STATE_QOS)
         self.pub_branch_forces = node.create_publisher(BranchForces, p["topics.branch_forces"], STATE_QOS)
         self.pub_ee_pose = node.create_publisher(PoseStamped, p["topics.ee_pose"], STATE_QOS)

@@ -77,11 +77,12 @@ from elastic_pm_dyn.bags.msgtypes import NS
 from elastic_pm_dyn.dynamics.direct import FORMULATIONS
 from elastic_pm_dyn.errors import InputError, SingularConfigurationError
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
+from elastic_pm_dyn.ros.graph_checks import refuse_if_taken, resolved_topics
 from elastic_pm_dyn.ros.losses import SequenceGaps
 from elastic_pm_dyn.ros.machine_params import DESCRIPTION_PARAMS, ESTIMATE_PARAMS, MACHINE_PARAMS, load_machine
 from elastic_pm_dyn.ros.markers import MechanismMarkers
 from elastic_pm_dyn.ros.messages import PlantMessages, stamp
-from elastic_pm_dyn.ros.node_main import ManagedNode, run_node
+from elastic_pm_dyn.ros.node_main import ManagedNode, run_node, stopping
 from elastic_pm_dyn.ros.params import (
     COMMAND_JOINTS,
     Param,
@@ -177,6 +178,7 @@ ONLY = {"plant": ("formulation", "integrator", "dt", "start", "stabilization", "
                   *(s.name for s in SENSOR_PARAMS), *(s.name for s in DISTURBANCE_PARAMS)),
         "observer": tuple(s.name for s in ESTIMATE_PARAMS)}
 OBSERVER_PREFIX = "observer."
+TOPIC_PARAMS = ("topics.", "sensors.topics.")  # every topic name among the parameters
 
 
 class PlantNode(ManagedNode):
@@ -192,6 +194,7 @@ class PlantNode(ManagedNode):
         reject_unknown(self, known)
         p = read_parameters(self, PARAMS)
         self.mode: str = p["mode"]
+        self.resolved = resolved_topics(self, p, [s.name for s in PARAMS if s.name.startswith(TOPIC_PARAMS)])
         mech, self.decoder = load_machine(self, p)
         self._warn_unused()
         if self.mode == "observer":
@@ -244,6 +247,8 @@ class PlantNode(ManagedNode):
         self.stamp_set = False  # realtime: stamp_base taken from the wall clock (slow: once, at the first tick)
         self.warn = KindThrottle(self, WARN_EVERY)
 
+        # not a second machine where one runs (its states would interleave with this one's)
+        refuse_if_taken(self, [self.resolved["topics.joint_states"]], self.created)
         self.pub_joint_states = self.create_publisher(JointState, p["topics.joint_states"], STATE_OUT_QOS)
         self.pub_branch_forces = self.create_publisher(BranchForces, p["topics.branch_forces"], STATE_OUT_QOS)
         self.pub_ee_pose = self.create_publisher(PoseStamped, p["topics.ee_pose"], STATE_OUT_QOS)
@@ -492,14 +497,17 @@ class PlantNode(ManagedNode):
         else:
             try:
                 for _ in range(n):
+                    if stopping():  # Ctrl-C or SIGTERM: answer with what was done, then the node ends
+                        break
                     if not self._step(*self._step_torque()):
                         break
                     response.periods_advanced += 1
             except Exception as err:  # never die on a service call: answer why
                 self.get_logger().error(f"step failed: {type(err).__name__}: {err}")
             response.success = response.periods_advanced == n
+            why = "the node is stopping" if stopping() else self.plant.fault or "see the log"
             response.message = (f"advanced {response.periods_advanced} of {n} period(s) to t = {self.plant.t:.6g} s"
-                                + ("" if response.success else f"; stopped: {self.plant.fault or 'see the log'}"))
+                                + ("" if response.success else f"; stopped: {why}"))
         response.sim_time = self.plant.t
         if response.success:  # one severity per call site (rclpy's rule)
             self.get_logger().info(f"step: {response.message}")

@@ -65,14 +65,17 @@ SENSOR_PARAMS = [
           "strain gauges: elastic_pm_dyn_msgs/BranchForces (force)"),
 ]
 DISTURBANCES = ("none", *SPECTRA)
+MAX_DISTURBANCE_RMS = 1.0e4  # [N m or N] far beyond any motor; larger only faults the plant
+MAX_DISTURBANCE_DURATION = 60.0  # [s] its RMS is scaled on a 0.1 ms grid over it: ~0.4 s of start-up per second
 DISTURBANCE_PARAMS = [
     Param("disturbance.spectrum", "none", "unknown torque on the motors: none | flat | pink | tones | drift",
           choices=DISTURBANCES),
-    Param("disturbance.rms", 0.02, "[N m or N] RMS per motor over disturbance.duration"),
+    Param("disturbance.rms", 0.02, "[N m or N] RMS per motor over disturbance.duration (at most 1e4)"),
     Param("disturbance.band", [], "[Hz] [low, high] of the spectrum; unset = its own (flat, pink 2-200, tones "
           "5-150, drift 0.05-1)", item=float),
     Param("disturbance.seed", 0, "seed: a test recording with this seed and duration has the same d(t)"),
-    Param("disturbance.duration", 1.0, "[s] window over which the RMS is scaled (periodic beyond)", positive=True),
+    Param("disturbance.duration", 1.0, "[s] window over which the RMS is scaled (periodic beyond; at most 60)",
+          positive=True),
     Param("disturbance.input", False, "subscribe topics.disturbance_torque: an unknown torque added to the command"),
     Param("disturbance.timeout", 0.1, "[s] an older disturbance_torque means zero (as command_timeout: on the "
           "plant's clock, simulated time; wall time in realtime with overrun skip)", positive=True, runtime=True),
@@ -101,8 +104,13 @@ def sensor_spec(p: dict[str, Any]) -> SensorSpec:
 def spectrum_disturbance(p: dict[str, Any], channels: int) -> SpectrumDisturbance | None:
     """The ``disturbance.*`` spectrum, or None; ParameterError (one line) when out of range."""
     rms, band, seed = p["disturbance.rms"], p["disturbance.band"], p["disturbance.seed"]
-    if not (np.isfinite(rms) and rms >= 0):
-        raise ParameterError(f"parameter 'disturbance.rms' must be a number >= 0, got {rms!r}")
+    if not (np.isfinite(rms) and 0 <= rms <= MAX_DISTURBANCE_RMS):
+        raise ParameterError(f"parameter 'disturbance.rms' must be a number in [0, {MAX_DISTURBANCE_RMS:g}] "
+                             f"[N m or N], got {rms!r}")
+    duration = p["disturbance.duration"]
+    if not duration <= MAX_DISTURBANCE_DURATION:
+        raise ParameterError(f"parameter 'disturbance.duration' must be at most {MAX_DISTURBANCE_DURATION:g} s "
+                             f"(its spectrum is scaled on a 0.1 ms grid over it; periodic beyond), got {duration!r}")
     if band and not (len(band) == 2 and np.all(np.isfinite(band)) and 0 < band[0] < band[1]):
         raise ParameterError(f"parameter 'disturbance.band' must be [low, high] with 0 < low < high [Hz], got {band!r}")
     if seed < 0:

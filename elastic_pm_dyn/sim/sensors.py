@@ -39,6 +39,8 @@ def ee_acceleration(mech: Mechanism, dyn: Dynamics, q: np.ndarray, qd: np.ndarra
     return terms.J[chain] @ qdd + terms.a_tip[chain]
 
 
+MAX_STDDEV = 1.0e3  # sensor noise std [rad, m, m/s^2, N]: beyond, no sensor (and squares near overflow)
+
 @dataclass
 class EncoderSpec:
     enabled: bool = False
@@ -83,8 +85,8 @@ class SensorSpec:
         for name, value in (("encoders.position_stddev", e.position_stddev),
                             ("encoders.velocity_stddev", e.velocity_stddev), ("imu.stddev", i.stddev),
                             ("branch_forces.stddev", b.stddev)):
-            if not (np.isfinite(value) and value >= 0):
-                raise InputError(f"'sensors.{name}' must be a number >= 0, got {value!r}")
+            if not (np.isfinite(value) and 0 <= value <= MAX_STDDEV):
+                raise InputError(f"'sensors.{name}' must be a number in [0, {MAX_STDDEV:g}], got {value!r}")
         for name, value in (("encoders.counts_per_revolution", e.counts_per_revolution),
                             ("encoders.counts_per_metre", e.counts_per_metre), ("seed", self.seed)):
             if value < 0:
