@@ -224,11 +224,12 @@ def test_launch_file_gives_its_nodes_the_plants_urdf_and_frame(monkeypatch: pyte
 
 
 def test_the_observer_node_publishes_the_written_urdf(ros: RosHarness) -> None:
-    """The observer's own executable publishes the description as the plant does."""
+    """The observer's own executable publishes the description as the plant does, under its own
+    name (beside a plant's /robot_description)."""
     from elastic_pm_dyn.ros.observer_node import ObserverNode
     ros.add(ObserverNode(context=ros.context))
     ros.spin_for(0.1)
-    viewer = _Listener(ros)
+    viewer = _Listener(ros, "/observer/robot_description")
     ros.wait_until(lambda: viewer.descriptions, 10.0, "robot_description")
     machine = load_model(FIVE_BAR)
     assert viewer.descriptions == [model_to_urdf(machine)]

@@ -98,9 +98,9 @@ def _run(params_file: Path, node_class: str, rec: Any,
                   "branch_forces": "/measured_branch_forces"}
         pubs = {k: feeder.create_publisher(types[k], topics[k], OBSERVER_INPUT_QOS) for k in types}
         out: dict[str, list] = {k: [] for k in (*OUTPUTS, "diag")}
-        for key, msg_type, topic, qos in (("js", JointState, "joint_states", STATE_QOS),
-                                          ("bf", BranchForces, "branch_forces", STATE_QOS),
-                                          ("pose", PoseStamped, "ee_pose", STATE_QOS),
+        for key, msg_type, topic, qos in (("js", JointState, mode.pub_joint_states.topic_name, STATE_QOS),
+                                          ("bf", BranchForces, mode.pub_branch_forces.topic_name, STATE_QOS),
+                                          ("pose", PoseStamped, mode.pub_ee_pose.topic_name, STATE_QOS),
                                           ("std", JointState, mode.pub_stddev.topic_name, STATE_QOS),
                                           ("diag", DiagnosticArray, "/diagnostics", DIAGNOSTICS_QOS)):
             feeder.create_subscription(msg_type, topic, out[key].append, qos)
@@ -138,6 +138,9 @@ def test_parameter_files_agree() -> None:
     config/observer.yaml's observer block unchanged."""
     node, plant = _params(NODE_FILE), _params(PLANT_FILE)
     assert "mode" not in node and plant.pop("mode") == "observer"
+    # the node publishes under its own name (beside a plant), the plant in observer mode as the plant
+    assert node.pop("topics") == {k: v if k == "joint_states_stddev" else f"~/{v}"
+                                  for k, v in plant.pop("topics").items()}
     assert node == plant
     assert node["observer"] == _params(CONFIG / "observer.yaml")["observer"]
 

@@ -69,7 +69,7 @@ def test_parameter_file_loads(name: str, tmp_path: Path) -> None:
     ("plant", "command_joints", ["left_motor"], "parameter 'command_joints'"),
     ("plant", "model", "/no/such/model.yaml", "parameter 'model': no such file"),
     ("plant", "formulaton", "lda", "unknown parameter(s) formulaton"),
-    ("plant", "sensors.imu.stddev", -1.0, "parameter 'sensors.imu.stddev' must be a number >= 0"),
+    ("plant", "sensors.imu.stddev", -1.0, "parameter 'sensors.imu.stddev' must be a number in [0, 1000]"),
     ("plant", "sensors.imu.sample_timing", "later", "parameter 'sensors.imu.sample_timing' is 'later'"),
     ("plant", "sensors.imu.rpy", [0.0, 1.0], "parameter 'sensors.imu.rpy' must be 3 finite numbers"),
     ("plant", "sensors.encoders.counts_per_revolution", 4096.0, "must be an integer"),

@@ -3,11 +3,14 @@
 - :func:`resolved_topics`: every topic parameter resolved as the node's publishers will resolve
   it (namespace, ``~``, remappings); a name that is no topic name is one ParameterError line at
   start-up instead of rclpy's traceback when the publisher is made.
-- :func:`refuse_if_taken`: a node that stands for a machine (the plant) does not start where one
-  already runs: the same node name in the same namespace, or another writer of its state topics
-  (two plants in ``/r1`` interleave their states on ``/r1/joint_states`` and both serve
-  ``/r1/plant/step``). Discovery takes a moment, so the check waits until the node has been in
-  the graph for :data:`DISCOVERY_WAIT` (the model's loading usually covers it).
+- :func:`refuse_if_taken`: a node that stands for a machine (the plant, an observer) does not
+  start where one already runs: the same node name in the same namespace, or another writer of
+  its state topic (two plants in ``/r1`` interleave their states on ``/r1/joint_states`` and both
+  serve ``/r1/plant/step``). Discovery takes a moment, so the check looks until the node has been
+  in the graph for :data:`DISCOVERY_WAIT` (the model's loading usually covers it). The graph also
+  shows, for a while, a node that has just stopped (one killed without a goodbye: up to the DDS
+  lease, ~20 s), so a node seen there counts only if it is alive: it publishes its status on
+  ``/diagnostics`` (every node of ours does, named by its full name) within :data:`ALIVE_WAIT`.
 """
 
 from __future__ import annotations
@@ -19,6 +22,7 @@ from typing import Any
 from elastic_pm_dyn.ros.params import ParameterError
 
 DISCOVERY_WAIT = 1.0  # [s] in the graph before a node is sure it is alone (local discovery: ~0.1-0.5 s)
+ALIVE_WAIT = 3.0  # [s] for a status of a node seen in the graph (our nodes report at 1 Hz by default)
 POLL = 0.05  # [s]
 
 
@@ -37,23 +41,58 @@ def resolved_topics(node: Any, p: dict[str, Any], names: Iterable[str]) -> dict[
     return out
 
 
+def _others(node: Any, topics: list[str]) -> set[str]:
+    """Full names of other nodes of this name, and of the writers of ``topics`` (graph view)."""
+    me = (node.get_name(), node.get_namespace())
+    found = set()
+    if sum(1 for n in node.get_node_names_and_namespaces() if n == me) > 1:
+        found.add(node.get_fully_qualified_name())
+    for topic in topics:
+        for info in node.get_publishers_info_by_topic(topic):
+            found.add(f"{info.node_namespace.rstrip('/')}/{info.node_name}")
+    return found
+
+
+def _alive(node: Any, names: set[str], wait: float) -> set[str]:
+    """Those of ``names`` whose status comes on /diagnostics within ``wait`` seconds."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.executors import SingleThreadedExecutor
+
+    from elastic_pm_dyn.ros.qos import DIAGNOSTICS_QOS
+
+    heard: set[str] = set()
+
+    def take(msg: DiagnosticArray) -> None:
+        heard.update(s.name.split(": ")[0] for s in msg.status)
+
+    sub = node.create_subscription(DiagnosticArray, "/diagnostics", take, DIAGNOSTICS_QOS)
+    executor = SingleThreadedExecutor(context=node.context)
+    executor.add_node(node)
+    try:
+        deadline = time.monotonic() + wait
+        while time.monotonic() < deadline and not names & heard:
+            executor.spin_once(timeout_sec=POLL)
+    finally:
+        executor.remove_node(node)
+        executor.shutdown()
+        node.destroy_subscription(sub)
+    return names & heard
+
+
 def refuse_if_taken(node: Any, topics: Iterable[str], since: float, wait: float = DISCOVERY_WAIT) -> None:
     """ParameterError (one line) if another node of this name and namespace, or another writer of
-    one of ``topics`` (fully qualified), shows in the graph before ``since + wait`` (monotonic)."""
-    me = (node.get_name(), node.get_namespace())
+    one of ``topics`` (fully qualified), shows in the graph before ``since + wait`` (monotonic)
+    and is alive (see the module doc); a silent one is one warning."""
     topics = list(topics)
-    while True:
-        same = sum(1 for n in node.get_node_names_and_namespaces() if n == me)
-        if same > 1:
-            raise ParameterError(f"a node {node.get_fully_qualified_name()} already runs on this ROS domain: "
-                                 "not starting a second one beside it (start it in another namespace, "
-                                 "-r __ns:=/r2, or stop the first)")
-        for topic in topics:
-            infos = node.get_publishers_info_by_topic(topic)
-            writers = [f"{i.node_namespace.rstrip('/')}/{i.node_name}" for i in infos]
-            if writers:
-                raise ParameterError(f"{topic} is already published by {', '.join(sorted(set(writers)))}: not "
-                                     "starting a second machine on it (another namespace: -r __ns:=/r2)")
-        if time.monotonic() >= since + wait:
-            return
+    while not (others := _others(node, topics)) and time.monotonic() < since + wait:
         time.sleep(POLL)
+    if not others:
+        return
+    named = {n for n in others if "_UNKNOWN_" not in n} or {node.get_fully_qualified_name()}
+    alive = _alive(node, named | {node.get_fully_qualified_name()}, ALIVE_WAIT)
+    if alive:
+        raise ParameterError(f"{', '.join(sorted(alive))} already runs on this ROS domain and publishes "
+                             f"{', '.join(topics)}: not starting a second one beside it (another namespace: "
+                             "-r __ns:=/r2, or stop the first)")
+    node.get_logger().warning(f"{', '.join(sorted(named))} shows in the ROS graph but is silent (stopped a moment "
+                              "ago?): starting")

@@ -47,7 +47,8 @@ class _Topic:
     rank: int
     pending: deque[tuple[tuple[int, int], float, Any]] = field(default_factory=deque)  # (key, arrival, item)
     last_ns: int | None = None  # newest stamp received
-    covers: tuple[int, int] | None = None  # nothing earlier than this key will come
+    covers: tuple[int, int] | None = None  # its next message's key is at least this
+    period_ns: int | None = None  # its sample period (the smallest stamp step seen)
     stalled: bool = False  # not waited for until it delivers again
     skips: bool = False  # has left out a sample period: not waited for past HORIZON
 
@@ -101,7 +102,11 @@ class InputOrder:
                 self.period_ns = gap if self.period_ns is None else min(self.period_ns, gap)
             if kind == self.primary:
                 self.primaries.append(ns)
-            topic.covers = (ns, AFTER + 1)  # one message per stamp: nothing more of this stamp comes
+            if topic.last_ns is not None and ns > topic.last_ns:
+                gap = ns - topic.last_ns
+                topic.period_ns = gap if topic.period_ns is None else min(topic.period_ns, gap)
+            # its next message: a period later (periodic samples), at least a later stamp
+            topic.covers = (ns + topic.period_ns, topic.rank) if topic.period_ns else (ns, AFTER + 1)
             self.newest_ns = ns if self.newest_ns is None else max(self.newest_ns, ns)
         if topic.last_ns is not None and self.period_ns is not None and ns - topic.last_ns >= HORIZON * self.period_ns:
             topic.skips = True  # a slower sensor or controller (a lockstep one answers every period)

@@ -633,8 +633,9 @@ def _check_pd(ref: _Stamped, enc: _Stamped, cmd: _Stamped, stamps: np.ndarray, o
               mech: Mechanism) -> dict:
     """Recompute each command from the reference, the encoder sample of its stamp and the one
     before (the node's own arithmetic, :func:`pd_torque`): equal bit for bit if the node used them.
-    The first command's rate is zero or differenced from a sample before the loop (one published
-    before a reset restarted the plant), depending on whether the controller had matched by then."""
+    The first command's rate is zero or differenced from a sample before the loop, depending on
+    whether the controller had matched by then; a sample published again (the lockstep plant's
+    first, until a command comes) is one sample."""
     active = mech.active_names
     kp, kd = _gains_used(opts, mech)
     enc_idx = {int(ns): i for i, ns in enumerate(enc.ns)}
@@ -653,10 +654,13 @@ def _check_pd(ref: _Stamped, enc: _Stamped, cmd: _Stamped, stamps: np.ndarray, o
         if enc.values["velocity"].shape[1] == len(enc.names):  # the sample's own rates
             rates.append(enc.values["velocity"][i][cols_enc])
         else:
-            if i > 0:
-                dt = (int(enc.ns[i]) - int(enc.ns[i - 1])) * 1e-9
-                rates.append((q_m - enc.values["position"][i - 1][cols_enc]) / dt)
-            if i == 0 or k == 0:
+            j = i - 1
+            while j >= 0 and enc.ns[j] == enc.ns[i]:  # the plant's first sample published again
+                j -= 1
+            if j >= 0:
+                dt = (int(enc.ns[i]) - int(enc.ns[j])) * 1e-9
+                rates.append((q_m - enc.values["position"][j][cols_enc]) / dt)
+            if j < 0 or k == 0:
                 rates.append(np.zeros(len(active)))
         d = min(float(np.abs(pd_torque(ref.values["effort"][r][cols_ref], ref.values["position"][r][cols_ref],
                                        ref.values["velocity"][r][cols_ref], q_m, qd_m, kp, kd) - tau[k]).max())

@@ -433,6 +433,7 @@ class Observer:
         from the next sample on; state, covariance, schedule and model stay. ``cfg`` must differ
         from the current configuration only there (InputError otherwise)."""
         from elastic_pm_dyn.observer.config import RUNTIME_PARAMETERS
+        cfg = cfg.for_machine(self.mech)  # as at construction (imu.axes: auto resolved)
         old, new = self.cfg.parameters, cfg.parameters
         other = sorted(k for k in old if old[k] != new.get(k) and k not in RUNTIME_PARAMETERS)
         if other:
