@@ -31,8 +31,10 @@ def test_a_second_plant_in_the_same_namespace_refuses_and_the_first_runs_on(tmp_
     env = ros_env(DOMAIN)
     args = ["-r", "__ns:=/r1", "-p", "sync_mode:=lockstep"]
     first = NodeProcess("first", "elastic_pm_dyn.ros.plant_node", args, env, tmp_path)
+    second = None
     try:
         wait_for_line(first, "lockstep; commands")
+        time.sleep(1.0)  # its status on /diagnostics (1 Hz): it is alive
         second = NodeProcess("second", "elastic_pm_dyn.ros.plant_node", args, env, tmp_path)
         assert second.wait(START) == 2
         lines = [line for line in second.log.read_text().splitlines() if "error" in line]
@@ -45,6 +47,8 @@ def test_a_second_plant_in_the_same_namespace_refuses_and_the_first_runs_on(tmp_
         finally:
             third.stop()
     finally:
+        if second is not None and second.proc.poll() is None:
+            second.stop()
         first.stop()
 
 

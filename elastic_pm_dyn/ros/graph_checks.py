@@ -21,8 +21,9 @@ from typing import Any
 
 from elastic_pm_dyn.ros.params import ParameterError
 
-DISCOVERY_WAIT = 1.0  # [s] in the graph before a node is sure it is alone (local discovery: ~0.1-0.5 s)
-ALIVE_WAIT = 3.0  # [s] for a status of a node seen in the graph (our nodes report at 1 Hz by default)
+DISCOVERY_WAIT = 2.0  # [s] in the graph before a node is sure it is alone (local discovery: ~0.1-0.5 s)
+MIN_LOOK = 0.5  # [s] of looking at the graph in any case
+ALIVE_WAIT = 5.0  # [s] for a status of a node seen in the graph (our nodes report at 1 Hz by default)
 POLL = 0.05  # [s]
 
 
@@ -84,7 +85,9 @@ def refuse_if_taken(node: Any, topics: Iterable[str], since: float, wait: float 
     one of ``topics`` (fully qualified), shows in the graph before ``since + wait`` (monotonic)
     and is alive (see the module doc); a silent one is one warning."""
     topics = list(topics)
-    while not (others := _others(node, topics)) and time.monotonic() < since + wait:
+    # at least MIN_LOOK of looking now: a loaded machine's discovery may lag the node's own start-up
+    deadline = max(since + wait, time.monotonic() + MIN_LOOK)
+    while not (others := _others(node, topics)) and time.monotonic() < deadline:
         time.sleep(POLL)
     if not others:
         return
