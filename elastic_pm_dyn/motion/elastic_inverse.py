@@ -41,6 +41,7 @@ from scipy.interpolate import make_interp_spline, make_lsq_spline
 from scipy.linalg import solve_banded
 
 from elastic_pm_dyn.errors import InputError
+from elastic_pm_dyn.interrupts import checkpoint
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.motion.task import Task
 
@@ -105,7 +106,11 @@ def solve(mech: Mechanism, path: Path, move: float, step: float, q_start: np.nda
     n = int(np.ceil(move / step - 1e-9))
     t = np.arange(-PAD - n_tail, n + n_tail + PAD + 1) * step
     span = (-n_tail * step, move + n_tail * step)
-    ys = [path(float(tk)) for tk in t]
+    ys = []
+    for tk in t:
+        if not len(ys) % 256:
+            checkpoint()  # a cancelled computation (interrupts.cancellable) ends here
+        ys.append(path(float(tk)))
     q_guess = np.array(q_start, dtype=float)
     qe = np.tile(q_guess[e], (len(t), 1))
     Q = np.empty((len(t), mech.n))
@@ -241,6 +246,7 @@ def _pass(mech: Mechanism, task: Task, ys: list, qe: np.ndarray, qed: np.ndarray
     F = np.empty((N, len(mech.ae)))
     q = q_guess.copy()
     for k, (y, yd, ydd) in enumerate(ys):
+        checkpoint()  # a cancelled computation (interrupts.cancellable) ends here
         if previous is not None:
             q = previous[0][k] + previous[2][k] @ (qe[k] - previous[1][k])
         elif k:  # first pass: Newton from the last point's second-order Taylor step (one iteration)
@@ -295,5 +301,9 @@ def zoh_samples(motion: InverseMotion, rate: float, duration: float) -> tuple[np
     n = round((duration + motion.pre + motion.post) * rate)
     times = np.arange(n + 1) / rate
     h = 1.0 / rate
-    values = np.array([(f(tk) + 4 * f(tk + 0.5 * h) + f(tk + h)) / 6 for tk in times - motion.pre])
+    values = np.empty((len(times), len(motion.tau[0])))
+    for k, tk in enumerate(times - motion.pre):
+        if not k % 256:
+            checkpoint()  # a cancelled computation (interrupts.cancellable) ends here
+        values[k] = (f(tk) + 4 * f(tk + 0.5 * h) + f(tk + h)) / 6
     return times, values

@@ -16,6 +16,7 @@ from scipy.interpolate import make_interp_spline
 
 from elastic_pm_dyn.dynamics.inverse import RigidFeedforward, motor_torques
 from elastic_pm_dyn.errors import AssemblyError, InputError
+from elastic_pm_dyn.interrupts import checkpoint
 from elastic_pm_dyn.kinematics.assembly import solve_acceleration, solve_pose, solve_velocity
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.model.description import Model
@@ -48,7 +49,10 @@ class LineReference:
         self.rate = rate
         self.duration = line.duration
         n_move = int(np.ceil(line.move * rate - 1e-9))  # t_k >= move from k = n_move on: the end at rest
-        self._table = [self._solve(k / rate) for k in range(n_move + 1)]
+        self._table = []
+        for k in range(n_move + 1):
+            checkpoint()  # a cancelled computation (interrupts.cancellable) ends here
+            self._table.append(self._solve(k / rate))
 
     def _solve(self, t: float) -> ReferenceSample:
         q, qd, qdd = self.ff.joint_motion(*self.line(t))
@@ -137,6 +141,7 @@ class JointReference:
         self.duration = self.path.end
         self._q = ff.q.copy()  # warm start of the passive joints, follows the path
         for k, p in enumerate(self.path.positions):  # every waypoint must assemble
+            checkpoint()  # a cancelled computation (interrupts.cancellable) ends here
             try:
                 self._assemble(p)
             except AssemblyError as err:
