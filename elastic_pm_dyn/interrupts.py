@@ -8,19 +8,12 @@ is imported) counts every SIGINT and keeps those tracebacks quiet; until :func:`
 entry point's guard is up) a SIGINT is only counted, so one that lands between the import and
 the guard (seen in CI, on a loaded machine) is not a traceback either; code that ends a start-up
 asks :func:`requested`; :func:`ending` quiets every finalizer once the program ends on a Ctrl-C.
-
-A computation in a worker thread cannot be interrupted that way: :func:`cancellable` marks a
-thread's computation as one to stop when asked, and the long loops (the elastic inverse, a
-feedforward goal's reference) call :func:`checkpoint` between their steps.
 """
 
 from __future__ import annotations
 
-import contextlib
 import signal
 import sys
-import threading
-from collections.abc import Callable, Iterator
 from typing import Any
 
 _received = 0
@@ -68,32 +61,3 @@ def ending() -> None:
     global _ending
     _ending = True
     sys.unraisablehook = _quiet
-
-
-# ------------------------------------------------------------ cooperative cancellation
-class Cancelled(Exception):
-    """A computation run under :func:`cancellable` was asked to stop (raised by :func:`checkpoint`)."""
-
-
-_local = threading.local()
-
-
-@contextlib.contextmanager
-def cancellable(asked: Callable[[], bool]) -> Iterator[None]:
-    """Long computations in this thread (the elastic inverse, a goal's reference) end with
-    :class:`Cancelled` at their next :func:`checkpoint` once ``asked()`` is true: a thread
-    cannot be killed, so it stops between its steps (each well under a second)."""
-    before = getattr(_local, "asked", None)
-    _local.asked = asked
-    try:
-        yield
-    finally:
-        _local.asked = before
-
-
-def checkpoint() -> None:
-    """Raise :class:`Cancelled` if the computation of this thread was asked to stop; nothing
-    (a few hundred ns) outside :func:`cancellable`."""
-    asked = getattr(_local, "asked", None)
-    if asked is not None and asked():
-        raise Cancelled("cancelled")

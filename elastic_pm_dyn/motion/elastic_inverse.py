@@ -41,7 +41,6 @@ from scipy.interpolate import make_interp_spline, make_lsq_spline
 from scipy.linalg import solve_banded
 
 from elastic_pm_dyn.errors import InputError
-from elastic_pm_dyn.interrupts import checkpoint
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.motion.task import Task
 
@@ -75,10 +74,22 @@ class InverseMotion:
         ends, where the path's fifth derivative jumps, are the spline's ends), the rest values outside."""
         inside = (self.t >= self.t[PAD] - 1e-12) & (self.t <= self.t[-1 - PAD] + 1e-12)
         t, tau = self.t[inside], self.tau[inside]
-        spline = make_interp_spline(t, tau, k=5 if len(t) > 5 else 1, axis=0)
-        lo, hi = t[0], t[-1]
-        first, last = tau[0], tau[-1]
-        return lambda x: first.copy() if x <= lo else last.copy() if x >= hi else np.asarray(spline(x))
+        return _Torque(make_interp_spline(t, tau, k=5 if len(t) > 5 else 1, axis=0), t[0], t[-1], tau[0], tau[-1])
+
+
+class _Torque:
+    """tau(t) of :meth:`InverseMotion.torque` (a class, not a closure: a reference made in a
+    worker process comes back pickled)."""
+
+    def __init__(self, spline, lo: float, hi: float, first: np.ndarray, last: np.ndarray):
+        self.spline, self.lo, self.hi, self.first, self.last = spline, lo, hi, first, last
+
+    def __call__(self, x: float) -> np.ndarray:
+        if x <= self.lo:
+            return self.first.copy()
+        if x >= self.hi:
+            return self.last.copy()
+        return np.asarray(self.spline(x))
 
 
 def solve(mech: Mechanism, path: Path, move: float, step: float, q_start: np.ndarray,
@@ -106,11 +117,7 @@ def solve(mech: Mechanism, path: Path, move: float, step: float, q_start: np.nda
     n = int(np.ceil(move / step - 1e-9))
     t = np.arange(-PAD - n_tail, n + n_tail + PAD + 1) * step
     span = (-n_tail * step, move + n_tail * step)
-    ys = []
-    for tk in t:
-        if not len(ys) % 256:
-            checkpoint()  # a cancelled computation (interrupts.cancellable) ends here
-        ys.append(path(float(tk)))
+    ys = [path(float(tk)) for tk in t]
     q_guess = np.array(q_start, dtype=float)
     qe = np.tile(q_guess[e], (len(t), 1))
     Q = np.empty((len(t), mech.n))
@@ -246,7 +253,6 @@ def _pass(mech: Mechanism, task: Task, ys: list, qe: np.ndarray, qed: np.ndarray
     F = np.empty((N, len(mech.ae)))
     q = q_guess.copy()
     for k, (y, yd, ydd) in enumerate(ys):
-        checkpoint()  # a cancelled computation (interrupts.cancellable) ends here
         if previous is not None:
             q = previous[0][k] + previous[2][k] @ (qe[k] - previous[1][k])
         elif k:  # first pass: Newton from the last point's second-order Taylor step (one iteration)
@@ -301,9 +307,5 @@ def zoh_samples(motion: InverseMotion, rate: float, duration: float) -> tuple[np
     n = round((duration + motion.pre + motion.post) * rate)
     times = np.arange(n + 1) / rate
     h = 1.0 / rate
-    values = np.empty((len(times), len(motion.tau[0])))
-    for k, tk in enumerate(times - motion.pre):
-        if not k % 256:
-            checkpoint()  # a cancelled computation (interrupts.cancellable) ends here
-        values[k] = (f(tk) + 4 * f(tk + 0.5 * h) + f(tk + h)) / 6
+    values = np.array([(f(tk) + 4 * f(tk + 0.5 * h) + f(tk + h)) / 6 for tk in times - motion.pre])
     return times, values

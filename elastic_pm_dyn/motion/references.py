@@ -16,7 +16,6 @@ from scipy.interpolate import make_interp_spline
 
 from elastic_pm_dyn.dynamics.inverse import RigidFeedforward, motor_torques
 from elastic_pm_dyn.errors import AssemblyError, InputError
-from elastic_pm_dyn.interrupts import checkpoint
 from elastic_pm_dyn.kinematics.assembly import solve_acceleration, solve_pose, solve_velocity
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.model.description import Model
@@ -49,10 +48,7 @@ class LineReference:
         self.rate = rate
         self.duration = line.duration
         n_move = int(np.ceil(line.move * rate - 1e-9))  # t_k >= move from k = n_move on: the end at rest
-        self._table = []
-        for k in range(n_move + 1):
-            checkpoint()  # a cancelled computation (interrupts.cancellable) ends here
-            self._table.append(self._solve(k / rate))
+        self._table = [self._solve(k / rate) for k in range(n_move + 1)]
 
     def _solve(self, t: float) -> ReferenceSample:
         q, qd, qdd = self.ff.joint_motion(*self.line(t))
@@ -122,26 +118,32 @@ class TaskReference:
         return ReferenceSample(q, qd, qdd, tau)
 
 
+def joint_path(mech: Mechanism, joint_names: Sequence[str], times: Sequence[float],
+               positions: Sequence[Sequence[float]], velocities: Sequence[Sequence[float]] | None = None,
+               accelerations: Sequence[Sequence[float]] | None = None) -> JointSpline:
+    """The motion of the active joints through waypoints (InputError, one line, for a bad one:
+    names, sizes, times, NaN), before any waypoint is assembled."""
+    names = list(joint_names)
+    if sorted(names) != sorted(mech.active_names) or len(set(names)) != len(names):
+        raise InputError(f"trajectory joints {names} must be the active joints "
+                         f"{mech.active_names}, each once")
+    order = [names.index(n) for n in mech.active_names]  # to active order
+    return JointSpline(times, positions, order, velocities, accelerations)
+
+
 class JointReference:
     """A smooth motion of the active joints through waypoints (:class:`JointSpline`), passive joints by assembly."""
 
     def __init__(self, ff: RigidFeedforward, joint_names: Sequence[str], times: Sequence[float],
                  positions: Sequence[Sequence[float]], velocities: Sequence[Sequence[float]] | None = None,
                  accelerations: Sequence[Sequence[float]] | None = None):
-        mech = ff.mech
-        names = list(joint_names)
-        if sorted(names) != sorted(mech.active_names) or len(set(names)) != len(names):
-            raise InputError(f"trajectory joints {names} must be the active joints "
-                             f"{mech.active_names}, each once")
-        order = [names.index(n) for n in mech.active_names]  # to active order
-        self.path = JointSpline(times, positions, order, velocities, accelerations)
+        self.path = joint_path(ff.mech, joint_names, times, positions, velocities, accelerations)
 
         self.ff = ff
         self.t0 = self.path.start
         self.duration = self.path.end
         self._q = ff.q.copy()  # warm start of the passive joints, follows the path
         for k, p in enumerate(self.path.positions):  # every waypoint must assemble
-            checkpoint()  # a cancelled computation (interrupts.cancellable) ends here
             try:
                 self._assemble(p)
             except AssemblyError as err:
