@@ -21,7 +21,8 @@ EXIT_RUN_FAILED = 1
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, as a shell reports a program stopped by Ctrl-C
 MAX_MESSAGE = 400  # characters of one error line
 MIN_MOVE_PERIODS = 10  # a move sampled by fewer control periods is not in the torque table
-MAX_TORQUE_SAMPLES = 1e7  # feedforward rows: ~3 h at 1 kHz, a few minutes of computing per million
+MAX_TORQUE_SAMPLES = 1e6  # feedforward rows: ~17 min at 1 kHz, minutes of computing, some 50 MB of CSV
+MAX_CONTROL_RATE = 1e5  # [Hz] feedforward --rate: 10x the fastest torque loops; beyond, rows without information
 RTOL_MIN = 100 * float(np.finfo(float).eps)  # scipy's DOP853 raises a smaller rtol to this, with a warning
 
 
@@ -119,9 +120,10 @@ def cmd_feedforward(args: argparse.Namespace) -> int:
     from elastic_pm_dyn.motion.time_laws import law_order
     from elastic_pm_dyn.motion.trajectory import make_line
     from elastic_pm_dyn.sim.torque import write_torque_csv
+    rate = _control_rate(args)  # checked before the model is read
     model = _load(args)
     if args.waypoints is not None:
-        return _waypoint_feedforward(args, model)
+        return _waypoint_feedforward(args, model, rate)
     names = [c.upper() for c in model.ee_names]
     dims = len(names)
     axes = " ".join(f"{c}A" for c in names) + " " + " ".join(f"{c}B" for c in names)
@@ -133,11 +135,6 @@ def cmd_feedforward(args: argparse.Namespace) -> int:
         raise InputError(f"--line: this machine's end effector has {dims} coordinates: give {2 * dims} numbers "
                          f"{axes}, got {len(points)}")
     a, b = np.array(points[:dims]), np.array(points[dims:])
-    rate = ref.control_rate if args.rate is None else args.rate
-    for name in ("move", "hold"):
-        value = getattr(args, name)
-        if value is not None and not (np.isfinite(value) and value >= 0):
-            raise InputError(f"--{name} must be a finite number of seconds >= 0, got {value!r}")
     move = ref.move if args.move is None else args.move
     if move < MIN_MOVE_PERIODS / rate:  # the samples would miss the motion (a short move or a tiny --rate)
         raise InputError(f"--move {move:g} s is shorter than {MIN_MOVE_PERIODS} control periods "
@@ -166,7 +163,22 @@ def cmd_feedforward(args: argparse.Namespace) -> int:
     return 0
 
 
-def _waypoint_feedforward(args: argparse.Namespace, model) -> int:
+def _control_rate(args: argparse.Namespace) -> float:
+    """feedforward's --rate (default: the reference manoeuvre's), and --move, --hold checked before any work."""
+    from elastic_pm_dyn.errors import InputError
+    from elastic_pm_dyn.motion.manoeuvre import REFERENCE_MANOEUVRE as ref
+    for name in ("move", "hold"):
+        value = getattr(args, name)
+        if value is not None and not (np.isfinite(value) and value >= 0):
+            raise InputError(f"--{name} must be a finite number of seconds >= 0, got {value!r}")
+    rate = ref.control_rate if args.rate is None else args.rate
+    if not rate <= MAX_CONTROL_RATE:
+        raise InputError(f"--rate {rate:g} Hz is more than the {MAX_CONTROL_RATE:g} Hz a torque table may have "
+                         "(10x the fastest torque loops; rows beyond hold no information)")
+    return rate
+
+
+def _waypoint_feedforward(args: argparse.Namespace, model, rate: float) -> int:
     """feedforward --waypoints: poses of the task coordinates or motor positions with times."""
     from elastic_pm_dyn.errors import InputError
     from elastic_pm_dyn.kinematics.mechanism import Mechanism
@@ -181,12 +193,15 @@ def _waypoint_feedforward(args: argparse.Namespace, model) -> int:
     columns, table = read_waypoints(args.waypoints)
     mech = Mechanism(model)
     task = Task(mech)
-    rate = ref.control_rate if args.rate is None else args.rate
     span = float(table[-1, 0] - table[0, 0])
     if not span >= MIN_MOVE_PERIODS / rate:  # the samples would miss the motion
         raise InputError(f"--waypoints span {span:g} s, shorter than {MIN_MOVE_PERIODS} control periods "
                          f"({MIN_MOVE_PERIODS / rate:g} s at {rate:g} Hz): the torque table would not hold the move")
     hold = ref.hold if args.hold is None else args.hold
+    samples = (float(table[-1, 0]) + hold) * rate
+    if not samples <= MAX_TORQUE_SAMPLES:  # before any solve
+        raise InputError(f"--waypoints up to t = {table[-1, 0]:g} s + --hold {hold:g} s at --rate {rate:g} Hz means "
+                         f"{samples:.4g} samples, more than the limit of {MAX_TORQUE_SAMPLES:.0e}; send it in parts")
     elastic = args.method == "elastic" or (args.method == "shaped" and args.shaped_inverse == "elastic")
     law = args.law or ("nonic" if elastic else "quintic")
     if columns == task.names:

@@ -21,6 +21,7 @@ class ModelError(ElasticPmDynError):
         self.file = file
         self.key_path = key_path
         self.line = line
+        self.message = message
         where = f"{file}:{line}" if line is not None else file
         super().__init__(f"{where}: {key_path or '<root>'}: {message}")
 

@@ -5,6 +5,9 @@ a truncated PNG or half a bag copy where the user expects a result (nor destroy 
 that was there). Everything is written under a hidden temporary name in the same folder
 and renamed into place once complete; on any error the temporary is removed and the error
 becomes one line naming the user's path (:class:`OutputError`), never the temporary's.
+A command that writes several files into a folder (``analyze``, ``export``) writes them all
+into a hidden staging folder first (:func:`staged_files`): on an error none of them, and no
+folder the command would have made, is left.
 """
 
 from __future__ import annotations
@@ -18,7 +21,7 @@ from pathlib import Path
 
 from elastic_pm_dyn.errors import OutputError
 
-__all__ = ["OutputError", "atomic_dir", "atomic_file", "temp_name", "write_bytes", "write_text"]
+__all__ = ["OutputError", "atomic_dir", "atomic_file", "staged_files", "temp_name", "write_bytes", "write_text"]
 
 
 def _reason(err: OSError) -> str:
@@ -84,3 +87,41 @@ def atomic_dir(path: str | Path) -> Iterator[Path]:
         raise OutputError(f"cannot write {path}: {_reason(err)}") from None
     finally:
         shutil.rmtree(parent, ignore_errors=True)
+
+
+@contextlib.contextmanager
+def staged_files(path: str | Path) -> Iterator[Path]:
+    """Yield a hidden staging folder beside the output folder ``path``; what the block writes
+    there is moved into ``path`` (made if need be; files of the same name replaced, the others
+    kept) when it ends without error. On an error nothing of the run is left: not the staging
+    folder, not ``path`` or its parents if they were made for it; an :class:`OutputError` names
+    ``path``, not the staging folder."""
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise OutputError(f"cannot write {path}: exists and is not a directory")
+    made = [p for p in (path, *path.parents) if not p.exists()]  # deepest first
+    stage = temp_name(path)
+    shutil.rmtree(stage, ignore_errors=True)
+    moved = False
+    try:
+        try:
+            stage.parent.mkdir(parents=True, exist_ok=True)
+            stage.mkdir()
+            yield stage
+            path.mkdir(exist_ok=True)
+            for item in sorted(stage.iterdir()):
+                target = path / item.name
+                if item.is_dir() and target.is_dir():  # a folder output (estimates/): the new one, whole
+                    shutil.rmtree(target)
+                os.replace(item, target)
+            moved = True
+        except OutputError as err:  # written inside the stage: name the user's path
+            raise OutputError(str(err).replace(str(stage), str(path))) from None
+        except OSError as err:
+            raise OutputError(f"cannot write {path}: {_reason(err)}") from None
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
+        if not moved:
+            for p in made:  # (a folder someone else filled meanwhile stays)
+                with contextlib.suppress(OSError):
+                    p.rmdir()

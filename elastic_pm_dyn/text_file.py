@@ -12,6 +12,7 @@ from __future__ import annotations
 import os
 import stat
 from pathlib import Path
+from typing import BinaryIO
 
 
 class TextFileError(Exception):
@@ -39,18 +40,28 @@ def _kind(mode: int) -> str:
     return "not a file"
 
 
+def _open_regular(p: Path) -> tuple[BinaryIO, int]:
+    """(binary file object, size) of a regular file, opened without blocking (a FIFO without a
+    writer would block open()); TextFileError for anything else."""
+    fd = os.open(p, os.O_RDONLY | os.O_NONBLOCK)
+    try:
+        info = os.fstat(fd)
+        if not stat.S_ISREG(info.st_mode):  # (checked before fdopen, which refuses a directory itself)
+            raise TextFileError(f"not a regular file ({_kind(info.st_mode)}); give a file")
+        fh = os.fdopen(fd, "rb")
+    except BaseException:
+        os.close(fd)
+        raise
+    return fh, info.st_size
+
+
 def read_text(path: str | Path, max_bytes: int, what: str = "file") -> str:
     """The UTF-8 text of ``path`` (a byte-order mark dropped); TextFileError if it cannot be
     read, is larger than ``max_bytes`` or is not UTF-8."""
     p = Path(path)
     try:
-        # Opened without blocking (a FIFO without a writer would block open()), then checked.
-        fd = os.open(p, os.O_RDONLY | os.O_NONBLOCK)
-        with os.fdopen(fd, "rb") as fh:
-            info = os.fstat(fd)
-            if not stat.S_ISREG(info.st_mode):
-                raise TextFileError(f"not a regular file ({_kind(info.st_mode)}); give a file")
-            size = info.st_size
+        fh, size = _open_regular(p)
+        with fh:
             if size > max_bytes:
                 raise TextFileError(f"{_size(size)} ({size} bytes), more than the {_size(max_bytes)} "
                                     f"a {what} may have")
@@ -64,3 +75,14 @@ def read_text(path: str | Path, max_bytes: int, what: str = "file") -> str:
     except UnicodeDecodeError as exc:
         raise TextFileError(f"not UTF-8 text: byte 0x{raw[exc.start]:02x} at byte {exc.start}",
                             raw.count(b"\n", 0, exc.start) + 1) from None
+
+
+def read_head(path: str | Path, n_bytes: int) -> bytes:
+    """The first ``n_bytes`` of a regular file (to tell its format), with the same refusals as
+    :func:`read_text` (a FIFO, a device, a directory: TextFileError at once, never a block)."""
+    try:
+        fh, _ = _open_regular(Path(path))
+        with fh:
+            return fh.read(n_bytes)
+    except OSError as exc:
+        raise TextFileError(f"cannot read file: {exc.strerror or exc}") from None

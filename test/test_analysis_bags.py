@@ -283,6 +283,11 @@ def test_command_line(run, bag_dir, tmp_path, capsys):
     assert _cli(["analyze", str(bag), str(bag), "--labels", "x", "--out", str(tmp_path / "c")]) == 2
     assert _cli(["export", str(bag), "--out", str(tmp_path / "e2"), "--topics", "/nope"]) == 2
     assert "no topic /nope" in capsys.readouterr().err
+    # a topic the user names that the bag lacks: one line, exit 2, nothing written (it was a warning and exit 0)
+    assert _cli(["analyze", str(bag), "--out", str(tmp_path / "d"), "--joint-states", "/nope"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "topic /nope (--joint-states) is not in the bag" in err[0] and str(bag) in err[0]
+    assert not (tmp_path / "d").exists()
 
 
 def test_paper_figures(tmp_path):

@@ -9,7 +9,9 @@ years, zero threads) each get one line. Every case ends with exit 2 and one line
 
 from __future__ import annotations
 
+import contextlib
 import os
+import signal
 from pathlib import Path
 
 import pytest
@@ -173,3 +175,65 @@ def test_feedforward_move_and_analyze_hold_start(capsys, tmp_path: Path) -> None
     assert not (tmp_path / "t.csv").exists()
     assert "--hold-start" in _one_line(capsys, ["analyze", "none", "--hold-start", "nan", "--out",
                                                 str(tmp_path / "a")])
+
+
+@contextlib.contextmanager
+def _never_blocks(seconds: float = 60.0):
+    """Fail (instead of hanging) if the block waits, e.g. in open() of a FIFO without a writer."""
+    def expired(_signum, _frame):
+        raise TimeoutError(f"blocked for {seconds:g} s")
+
+    previous = signal.signal(signal.SIGALRM, expired)
+    signal.setitimer(signal.ITIMER_REAL, seconds)
+    try:
+        yield
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous)
+
+
+def test_a_model_fifo_without_a_suffix_is_refused_at_once(capsys, tmp_path: Path) -> None:
+    """The format of a file without a known suffix is read from its head: a FIFO is refused there,
+    not opened (it blocked until a writer came)."""
+    fifo = tmp_path / "machine"
+    os.mkfifo(fifo)
+    with _never_blocks():
+        line = _one_line(capsys, ["check", str(fifo)])
+    assert str(fifo) in line and "not a regular file (a FIFO)" in line
+
+
+@pytest.mark.parametrize(("waypoints", "words"), [
+    ("/dev/zero", "not a regular file (a device)"),
+    ("fifo", "not a regular file (a FIFO)"),
+    ("dir", "not a regular file (a directory)"),
+    ("rows", "10001 rows, more than the 10000"),
+    ("big", "more than the 4 MiB a waypoint file may have"),
+    ("long", "samples, more than the limit of 1e+06"),
+])
+def test_feedforward_waypoint_files_are_bounded_before_work(capsys, tmp_path: Path, waypoints: str,
+                                                            words: str) -> None:
+    path = {"/dev/zero": Path("/dev/zero"), "fifo": tmp_path / "poses", "dir": tmp_path}.get(waypoints,
+                                                                                         tmp_path / "poses.csv")
+    if waypoints == "fifo":
+        os.mkfifo(path)
+    elif waypoints == "rows":
+        path.write_text("t,x,y\n" + "".join(f"{k * 1e-3},-0.05,0.35\n" for k in range(10001)))
+    elif waypoints == "big":
+        with path.open("w") as fh:
+            fh.write("t,x,y\n0,-0.05,0.35\n1,-0.05,0.36\n")
+            fh.truncate(5 * 2**20)  # sparse
+    elif waypoints == "long":  # two poses 2000 s apart: 2e6 samples at 1 kHz
+        path.write_text("t,x,y\n0,-0.05,0.35\n2000,-0.05,0.36\n")
+    out = tmp_path / "tau.csv"
+    with _never_blocks():
+        line = _one_line(capsys, ["feedforward", "--model", str(FIVE_BAR), "--waypoints", str(path),
+                                  "--out", str(out)])
+    assert words in line and not out.exists()
+
+
+@pytest.mark.parametrize("method", ["rigid", "elastic"])
+def test_feedforward_rate_is_bounded_before_work(capsys, tmp_path: Path, method: str) -> None:
+    out = tmp_path / "tau.csv"
+    line = _one_line(capsys, ["feedforward", "--model", str(FIVE_BAR), "--method", method, "--rate", "1e7",
+                              "--out", str(out)])
+    assert "--rate 1e+07 Hz is more than the 100000 Hz" in line and not out.exists()

@@ -85,11 +85,20 @@ def test_set_state_refuses_absurd_values_and_keeps_the_state(mech: Mechanism) ->
     q, qd = plant.q.copy(), plant.qd.copy()
     for names, position, velocity in ((["left_motor"], [1e300], []), (["left_motor"], [-1e300], []),
                                       (["left_motor"], [plant.q0[0]], [1e300]), (["left_motor"], [np.inf], []),
-                                      (["left_motor", "left_motor"], [1.0, 1.0], []), (["elbow"], [0.0], [])):
-        with pytest.raises(InputError):
+                                      (["left_motor", "left_motor"], [1.0, 1.0], []), (["elbow"], [0.0], []),
+                                      ([], [], []),  # an empty request (it was "state set")
+                                      (["left_elbow"], [0.0], []),  # a passive angle the closure does not allow
+                                      (list(mech.joint_names), list(plant.q), [0.1, 0, 0, 0, 0, 0.3])):  # nor rates
+        with pytest.raises(InputError) as err:
             plant.set_state(names, position, velocity)
+        assert "\n" not in str(err.value)
+        if not names:
+            assert "an empty request" in str(err.value)
+        elif "left_elbow" in names:
+            assert "state not reachable: the closure puts left_elbow" in str(err.value)
         np.testing.assert_array_equal(plant.q, q)
         np.testing.assert_array_equal(plant.qd, qd)
+    assert "state set" in plant.set_state(list(mech.joint_names), list(q), [])  # the state it has: consistent
 
 
 def test_lda_started_at_a_type_2_singularity_stops_there() -> None:

@@ -70,17 +70,28 @@ def test_urdf(tmp_path: Path) -> None:
 
 
 def test_export(tmp_path: Path, bag: Path) -> None:
-    out = tmp_path / "csv"
+    out = tmp_path / "csv" / "run"
     proc = _run(["export", str(bag), "--out", str(out)], tmp_path)
     _one_line_naming(proc, out)
-    assert not out.exists() or not any(out.iterdir())  # no CSV, whole or cut
+    _nothing_left(tmp_path, set())  # no CSV, whole or cut, and not the folders it would have made
 
 
-def test_analyze(tmp_path: Path, bag: Path) -> None:
+@pytest.mark.parametrize("limit", [20_000, 100_000])  # the first plot fails; some plots fit, a later one fails
+def test_analyze(tmp_path: Path, bag: Path, limit: int) -> None:
     out = tmp_path / "analysis"
-    proc = _run(["analyze", str(bag), "--out", str(out)], tmp_path, limit=20_000)
+    proc = _run(["analyze", str(bag), "--out", str(out)], tmp_path, limit=limit)
     _one_line_naming(proc, out)
-    assert not out.exists() or not [p.name for p in out.rglob("*") if p.is_file()], list(out.rglob("*"))
+    _nothing_left(tmp_path, set())  # no plot, no summary, no empty folder
+
+
+def test_analyze_into_a_folder_with_files_keeps_them_and_adds_none(tmp_path: Path, bag: Path) -> None:
+    out = tmp_path / "analysis"
+    out.mkdir()
+    (out / "notes.txt").write_text("mine\n")
+    proc = _run(["analyze", str(bag), "--out", str(out)], tmp_path, limit=100_000)
+    _one_line_naming(proc, out)
+    _nothing_left(tmp_path, {"analysis"})
+    assert [p.name for p in out.iterdir()] == ["notes.txt"] and (out / "notes.txt").read_text() == "mine\n"
 
 
 def test_bag_repair(tmp_path: Path, bag: Path) -> None:

@@ -161,8 +161,8 @@ def discover_topics(topics: Mapping[str, tuple[str, int]], given: Mapping[str, s
             raise BagError(f"unknown topic role {role!r}")
         topic = name if name in topics or name.startswith("/") else "/" + name
         if topic not in topics:
-            notes.append(f"{role}: topic {topic} (given) is not in the bag")
-            continue
+            have = ", ".join(sorted(topics)) or "none"
+            raise BagError(f"topic {topic} (--{role.replace('_', '-')}) is not in the bag (its topics: {have})")
         if topics[topic][0] not in ROLES[role][0]:
             raise BagError(f"topic {topic} is {topics[topic][0]}, but {role} needs {' or '.join(ROLES[role][0])}")
         accept(role, topic)

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import contextlib
 import csv
-import os
 import re
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -25,7 +24,7 @@ import numpy as np
 from elastic_pm_dyn.bags.errors import BagError
 from elastic_pm_dyn.bags.msgtypes import DURATION, KEY_VALUE, NS, TIME, stamp_ns
 from elastic_pm_dyn.bags.reader import open_bag
-from elastic_pm_dyn.output_files import OutputError, temp_name
+from elastic_pm_dyn.output_files import OutputError, staged_files
 
 MAX_ARRAY = 256  # longer arrays (images, point clouds) are exported as their length only
 TIME_TYPES = (TIME, DURATION)
@@ -128,10 +127,6 @@ def export_bag(bag: str | Path, out: str | Path, topics: Sequence[str] | None = 
         unknown = [t for t in wanted if t not in table]
         if unknown:
             raise BagError(f"{bag}: no topic {', '.join(unknown)} (the bag has {', '.join(table) or 'none'})")
-        try:
-            out.mkdir(parents=True, exist_ok=True)
-        except OSError as err:
-            raise OutputError(f"cannot write {out}: {err.strerror or err}") from None
         flat = {t: Flattener(reader.typestore) for t in wanted}
         writers: dict[str, tuple[Any, Any, list[str], list[int]]] = {}
         conns = [c for c in reader.connections if c.topic in wanted]
@@ -139,38 +134,34 @@ def export_bag(bag: str | Path, out: str | Path, topics: Sequence[str] | None = 
         if undecodable:
             raise BagError(f"{bag}: no message definition for {', '.join(undecodable)}")
         files: dict[str, Path] = {}
-        temps: dict[str, Path] = {}  # written under these names, renamed when every one is complete
         current = out
-        try:
-            for conn, t_ns, msg in reader.decoded(conns):
-                row = flat[conn.topic].flatten(msg, conn.msgtype)
-                if conn.topic not in writers:
-                    files[conn.topic] = current = out / csv_name(conn.topic)
-                    temps[conn.topic] = temp_name(files[conn.topic])
-                    fh = temps[conn.topic].open("w", newline="")
-                    w = csv.writer(fh)
-                    cols = list(row)
-                    w.writerow(["receive_time_ns", *cols])
-                    writers[conn.topic] = (fh, w, cols, [0, 0])
-                fh, w, cols, counts = writers[conn.topic]
-                current = files[conn.topic]
-                w.writerow([t_ns, *(row.pop(c, "") for c in cols)])
-                counts[0] += 1
-                counts[1] += len(row)  # left over: no column for them
-            for topic, (fh, *_) in writers.items():
-                current = files[topic]
-                fh.close()  # flushes: a full disk shows here
-            for topic, temp in temps.items():
-                current = files[topic]
-                os.replace(temp, files[topic])
-        except OSError as err:
-            raise OutputError(f"cannot write {current}: {err.strerror or err}") from None
-        finally:
-            for fh, *_ in writers.values():
-                with contextlib.suppress(OSError):
-                    fh.close()
-            for temp in temps.values():
-                temp.unlink(missing_ok=True)
+        # every CSV into a staging folder, moved into out when all are complete: none, and no
+        # folder, on an error
+        with staged_files(out) as stage:
+            try:
+                for conn, t_ns, msg in reader.decoded(conns):
+                    row = flat[conn.topic].flatten(msg, conn.msgtype)
+                    if conn.topic not in writers:
+                        files[conn.topic] = current = out / csv_name(conn.topic)
+                        fh = (stage / csv_name(conn.topic)).open("w", newline="")
+                        w = csv.writer(fh)
+                        cols = list(row)
+                        w.writerow(["receive_time_ns", *cols])
+                        writers[conn.topic] = (fh, w, cols, [0, 0])
+                    fh, w, cols, counts = writers[conn.topic]
+                    current = files[conn.topic]
+                    w.writerow([t_ns, *(row.pop(c, "") for c in cols)])
+                    counts[0] += 1
+                    counts[1] += len(row)  # left over: no column for them
+                for topic, (fh, *_) in writers.items():
+                    current = files[topic]
+                    fh.close()  # flushes: a full disk shows here
+            except OSError as err:
+                raise OutputError(f"cannot write {current}: {err.strerror or err}") from None
+            finally:
+                for fh, *_ in writers.values():
+                    with contextlib.suppress(OSError):
+                        fh.close()
     result = []
     for topic in wanted:
         if topic in writers:

@@ -23,6 +23,7 @@ from elastic_pm_dyn.model.description import Model
 from elastic_pm_dyn.motion.feedforward import line_torques
 from elastic_pm_dyn.motion.manoeuvre import REFERENCE_MANOEUVRE
 from elastic_pm_dyn.motion.trajectory import QuinticLine
+from elastic_pm_dyn.output_files import staged_files
 from elastic_pm_dyn.sim.result import SimulationResult
 from elastic_pm_dyn.sim.simulator import SimulationOptions, Simulator
 from elastic_pm_dyn.sim.torque import TorqueTable
@@ -54,8 +55,8 @@ def simulate_reference(model: Model, line: QuinticLine = REFERENCE_MANOEUVRE.lin
 
 def paper_figures(out: Path, model_path: Path, line: QuinticLine = REFERENCE_MANOEUVRE.line, runs: dict = RUNS,
                   sample: float = REFERENCE_MANOEUVRE.sample) -> dict:
-    """Simulate, then write the figures, ``summary.json``/``.md``, ``paper_figures.json`` and CSVs."""
-    out.mkdir(parents=True, exist_ok=True)
+    """Simulate, then write the figures, ``summary.json``/``.md``, ``paper_figures.json`` and CSVs
+    (all of them, or none: :func:`~elastic_pm_dyn.output_files.staged_files`)."""
     info = ModelInfo.load(model_path)
     times, torques, _, results = simulate_reference(info.model, line, runs, sample)
     data: list[RunData] = []
@@ -67,10 +68,11 @@ def paper_figures(out: Path, model_path: Path, line: QuinticLine = REFERENCE_MAN
                            "hold_s": line.hold, "control_rate_hz": 1.0 / (times[1] - times[0]),
                            "output_sample_s": sample},
              "formulations": {k: {"formulation": f, "stabilization": s} for k, (f, s) in runs.items()}}
-    report = write_report(out, data, info, names=PAPER_NAMES, extra=extra)
-    figures = _figure_numbers(report, data, results)
-    (out / "paper_figures.json").write_text(json.dumps(clean(figures), indent=2))
-    _write_series(out, data)
+    with staged_files(out) as stage:
+        report = write_report(stage, data, info, names=PAPER_NAMES, extra=extra)
+        figures = _figure_numbers(report, data, results)
+        (stage / "paper_figures.json").write_text(json.dumps(clean(figures), indent=2))
+        _write_series(stage, data)
     return figures
 
 

@@ -23,7 +23,7 @@ from elastic_pm_dyn.analysis.run_data import ModelInfo, RunData
 from elastic_pm_dyn.errors import InputError
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.model.description import Model
-from elastic_pm_dyn.output_files import write_text
+from elastic_pm_dyn.output_files import staged_files, write_text
 
 # Plot file names by figure; paper-figures uses the paper's numbering.
 PLOT_NAMES = {"path": "path.png", "branch_forces": "branch_forces.png", "gap": "gap.png",
@@ -502,7 +502,8 @@ def analyze(model: str | Path | Model | Mechanism, bags: str | Path | Sequence[s
     for bag, label in zip(bags, labels, strict=True):
         data = bagmod.read_bag(bag, topics, hold_start=hold_start, **kw)
         runs.append(run_from_bag(data, info, label, hold_start))
-    return write_report(Path(out), runs, info, plots_on)
+    with staged_files(out) as stage:  # every file, or none (and no folder made for them)
+        return write_report(stage, runs, info, plots_on)
 
 
 def _labels(bags: Sequence[str | Path]) -> list[str]:

@@ -13,6 +13,7 @@ from __future__ import annotations
 import csv
 import glob
 import hashlib
+import io
 import json
 import os
 import re
@@ -22,6 +23,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from elastic_pm_dyn.errors import InputError
+from elastic_pm_dyn.text_file import TextFileError, read_head, read_text
 
 KINDS = ("observe", "tune", "analyze", "simulate")
 INPUT_COLUMN = {"observe": "bag", "tune": "bag", "analyze": "bag", "simulate": "torques"}
@@ -29,6 +31,7 @@ META_COLUMNS = ("robot", "date", "label")  # carried to the table, not given to 
 MANIFEST_SUFFIXES = (".csv", ".yaml", ".yml")
 BAG_SUFFIXES = (".mcap", ".db3")
 TRUE, FALSE = ("true", "yes", "on"), ("false", "no", "off", "")
+MAX_MANIFEST_BYTES = 4 * 2**20  # a CSV manifest: some 40 000 rows of bag paths
 FORMAT = 1  # bump when a runner's outputs change: every item is redone
 
 
@@ -142,8 +145,11 @@ def _is_manifest(path: Path, kind: str) -> bool:
         return False
     if path.suffix != ".csv":
         return True
-    with open(path, newline="", encoding="utf-8", errors="replace") as f:
-        header = next(csv.reader(f), [])
+    try:
+        head = read_head(path, 65536).decode("utf-8", errors="replace")  # the header row
+    except TextFileError:
+        return False
+    header = next(csv.reader(io.StringIO(head, newline="")), [])
     return INPUT_COLUMN[kind] in [h.strip() for h in header] or "id" in [h.strip() for h in header]
 
 
@@ -246,8 +252,9 @@ def read_manifest(path: Path, common: Inputs) -> list[Item]:
 def _manifest_rows(path: Path) -> list[dict]:
     try:
         if path.suffix == ".csv":
-            with open(path, newline="", encoding="utf-8") as f:
-                rows = [{k.strip(): (v or "").strip() for k, v in r.items() if k} for r in csv.DictReader(f)]
+            text = read_text(path, MAX_MANIFEST_BYTES, "manifest")
+            rows = [{k.strip(): (v or "").strip() for k, v in r.items() if k}
+                    for r in csv.DictReader(io.StringIO(text, newline=""))]
         else:
             from elastic_pm_dyn.model import yaml12
             data = yaml12.load_file(path)
@@ -255,6 +262,8 @@ def _manifest_rows(path: Path) -> list[dict]:
             if not isinstance(rows, list) or not all(isinstance(r, dict) for r in rows):
                 raise InputError(f"{path}: a manifest is a list of mappings (or 'items:' holding one)")
             rows = [dict(r) for r in rows]
+    except TextFileError as err:
+        raise InputError(f"{path}: cannot read the manifest: {err.reason}") from None
     except (OSError, UnicodeDecodeError, csv.Error) as err:
         raise InputError(f"{path}: cannot read the manifest: {err}") from None
     except InputError:

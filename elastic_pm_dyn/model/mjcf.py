@@ -31,6 +31,7 @@ whose torque is the input; the servo's law (kp, kv) is left out.
 from __future__ import annotations
 
 import re
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -63,6 +64,8 @@ def read_mjcf(path: str | Path, fix_base: bool = False, servos_as_motors: bool =
     ``servos_as_motors`` takes a servo's joint for a motor's (module doc)."""
     file = str(path)
     src = XmlSource.from_file(path)
+    _check_values(src)
+    _check_includes(src, Path(path).parent)
     lines = _element_lines(src)
     mujoco = _mujoco(file)
     m = compile_mjcf(path, fix_base)
@@ -84,6 +87,38 @@ def _check_keyframe(src: XmlSource, nq: int, file: str) -> None:
                          "coordinate; a free joint takes 7)", src.line(key))
 
 
+MAX_INCLUDE_DEPTH = 16  # nested <include>s followed (MuJoCo refuses a file included twice)
+
+
+def _check_values(src: XmlSource) -> None:
+    """A NaN in any attribute (``mass="nan"``): one line at its element, not MuJoCo's warning and
+    error on two lines."""
+    for el in src.root.iter():
+        for key, value in el.attrib.items():
+            if any(token.lower().lstrip("+-") == "nan" for token in value.split()):
+                raise src.error(el, f"{key}={value[:40]!r}: NaN is no value a model may hold")
+
+
+def _check_includes(src: XmlSource, base: Path, depth: int = 0) -> None:
+    """Every ``<include file>`` (relative to the main file's folder, as MuJoCo reads it) must be a
+    regular file: a directory is one line here, a FIFO is not opened by MuJoCo (it would block);
+    the included files' own includes alike."""
+    for el in src.root.iter("include"):
+        name = el.get("file")
+        if not name:
+            continue
+        target = base / name
+        try:
+            included = XmlSource.from_file(target) if depth < MAX_INCLUDE_DEPTH else None
+        except ModelError as err:
+            if not target.exists():
+                continue  # MuJoCo's own error names the missing file
+            raise src.error(el, f"file {name!r}: {err.message}") from None
+        if included is not None:
+            _check_values(included)
+            _check_includes(included, base, depth + 1)
+
+
 def _mujoco(file: str):
     try:
         import mujoco
@@ -97,6 +132,24 @@ def compile_mjcf(path: str | Path, fix_base: bool = False):
     keyframe entries): the model this package reads, for a peer simulation of the same machine."""
     file = str(path)
     mujoco = _mujoco(file)
+    warned: list[str] = []  # MuJoCo's warnings (printed on stderr by default): in our one line
+    previous = mujoco.get_mju_user_warning()
+    mujoco.set_mju_user_warning(warned.append)
+    try:
+        m = _compile(mujoco, file, fix_base)
+    except ModelError as err:
+        if not warned:
+            raise
+        said = "; ".join(" ".join(w.split()) for w in warned)[:200]
+        raise ModelError(err.file, err.key_path, f"{err.message} (MuJoCo warned: {said})", err.line) from None
+    finally:
+        mujoco.set_mju_user_warning(previous)
+    for w in warned:
+        warnings.warn(f"{file}: MuJoCo: {' '.join(w.split())}", stacklevel=2)
+    return m
+
+
+def _compile(mujoco, file: str, fix_base: bool):
     try:
         if not fix_base:
             return mujoco.MjModel.from_xml_path(file)

@@ -17,7 +17,10 @@ from xml.sax.saxutils import quoteattr
 import numpy as np
 import yaml
 
+from elastic_pm_dyn.errors import ModelError
 from elastic_pm_dyn.model.description import ACTIVE, ELASTIC, PRISMATIC, Joint, Model, matrix_to_rpy
+from elastic_pm_dyn.model.xml_source import MAX_XML_BYTES
+from elastic_pm_dyn.text_file import TextFileError, read_text
 
 BASE = "world"
 _INERTIA = {"ixx": (0, 0), "ixy": (0, 1), "ixz": (0, 2), "iyy": (1, 1), "iyz": (1, 2), "izz": (2, 2)}
@@ -27,7 +30,10 @@ def model_to_urdf(model: Model) -> str:
     """The machine as URDF text; a URDF machine's own file unchanged."""
     src = Path(model.source)
     if src.suffix.lower() == ".urdf" and src.is_file():
-        return src.read_text(encoding="utf-8")
+        try:
+            return read_text(src, MAX_XML_BYTES, "robot file")  # as it was read: regular, bounded
+        except TextFileError as exc:
+            raise ModelError(str(src), "", exc.reason, exc.line) from None
     size = max([float(np.linalg.norm(j.origin_xyz)) for j in model.joints] + [0.1])
     radius = 0.02 * size
     out = ['<?xml version="1.0"?>', f"<robot name={quoteattr(model.name)}>", f"  <link name={quoteattr(BASE)}/>"]

@@ -13,7 +13,7 @@ from pathlib import Path
 from xml.parsers import expat
 
 from elastic_pm_dyn.errors import ModelError
-from elastic_pm_dyn.text_file import TextFileError, read_text
+from elastic_pm_dyn.text_file import TextFileError, read_head, read_text
 
 MAX_XML_BYTES = 32 * 2**20  # exporters inline long visual lists; geometry stays in mesh files
 
@@ -74,9 +74,8 @@ def _short(text: str, limit: int = 40) -> str:
 def is_xml(path: str | Path) -> str | None:
     """The root tag of an XML file (``robot``, ``mujoco``), or None for anything else."""
     try:
-        with open(path, "rb") as f:
-            head = f.read(4096)
-    except OSError:
+        head = read_head(path, 4096)  # a FIFO or device: None at once (its reader then refuses it)
+    except TextFileError:
         return None
     text = head.decode("utf-8-sig", errors="replace").lstrip()
     if not text.startswith("<"):

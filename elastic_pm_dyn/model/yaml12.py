@@ -151,6 +151,11 @@ def load_file(path: str | Path, what: str = "parameter file") -> Any:
     """:func:`load` of a file, every problem one ``InputError`` line naming the file (and the line
     where known): unreadable, larger than MAX_PARAMETER_BYTES, not UTF-8, malformed, or holding a
     recursive alias (``&a [*a]``), which would make every later walk over the data recurse forever."""
+    return load_file_text(path, what)[0]
+
+
+def load_file_text(path: str | Path, what: str = "parameter file") -> tuple[Any, str]:
+    """:func:`load_file`, and the file's text (e.g. to see whether it ends with its last line)."""
     p = Path(path)
     try:
         text = read_text(p, MAX_PARAMETER_BYTES, what)
@@ -168,7 +173,7 @@ def load_file(path: str | Path, what: str = "parameter file") -> Any:
     except (yaml.YAMLError, RecursionError, ValueError) as exc:
         raise InputError(f"{p}: not valid YAML: {' '.join(str(exc).split())[:200]}") from None
     _refuse_cycles(data, p)
-    return data
+    return data, text
 
 
 def _refuse_cycles(data: Any, path: Path) -> None:

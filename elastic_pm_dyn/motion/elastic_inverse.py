@@ -74,10 +74,22 @@ class InverseMotion:
         ends, where the path's fifth derivative jumps, are the spline's ends), the rest values outside."""
         inside = (self.t >= self.t[PAD] - 1e-12) & (self.t <= self.t[-1 - PAD] + 1e-12)
         t, tau = self.t[inside], self.tau[inside]
-        spline = make_interp_spline(t, tau, k=5 if len(t) > 5 else 1, axis=0)
-        lo, hi = t[0], t[-1]
-        first, last = tau[0], tau[-1]
-        return lambda x: first.copy() if x <= lo else last.copy() if x >= hi else np.asarray(spline(x))
+        return _Torque(make_interp_spline(t, tau, k=5 if len(t) > 5 else 1, axis=0), t[0], t[-1], tau[0], tau[-1])
+
+
+class _Torque:
+    """tau(t) of :meth:`InverseMotion.torque` (a class, not a closure: a reference made in a
+    worker process comes back pickled)."""
+
+    def __init__(self, spline, lo: float, hi: float, first: np.ndarray, last: np.ndarray):
+        self.spline, self.lo, self.hi, self.first, self.last = spline, lo, hi, first, last
+
+    def __call__(self, x: float) -> np.ndarray:
+        if x <= self.lo:
+            return self.first.copy()
+        if x >= self.hi:
+            return self.last.copy()
+        return np.asarray(self.spline(x))
 
 
 def solve(mech: Mechanism, path: Path, move: float, step: float, q_start: np.ndarray,

@@ -118,19 +118,26 @@ class TaskReference:
         return ReferenceSample(q, qd, qdd, tau)
 
 
+def joint_path(mech: Mechanism, joint_names: Sequence[str], times: Sequence[float],
+               positions: Sequence[Sequence[float]], velocities: Sequence[Sequence[float]] | None = None,
+               accelerations: Sequence[Sequence[float]] | None = None) -> JointSpline:
+    """The motion of the active joints through waypoints (InputError, one line, for a bad one:
+    names, sizes, times, NaN), before any waypoint is assembled."""
+    names = list(joint_names)
+    if sorted(names) != sorted(mech.active_names) or len(set(names)) != len(names):
+        raise InputError(f"trajectory joints {names} must be the active joints "
+                         f"{mech.active_names}, each once")
+    order = [names.index(n) for n in mech.active_names]  # to active order
+    return JointSpline(times, positions, order, velocities, accelerations)
+
+
 class JointReference:
     """A smooth motion of the active joints through waypoints (:class:`JointSpline`), passive joints by assembly."""
 
     def __init__(self, ff: RigidFeedforward, joint_names: Sequence[str], times: Sequence[float],
                  positions: Sequence[Sequence[float]], velocities: Sequence[Sequence[float]] | None = None,
                  accelerations: Sequence[Sequence[float]] | None = None):
-        mech = ff.mech
-        names = list(joint_names)
-        if sorted(names) != sorted(mech.active_names) or len(set(names)) != len(names):
-            raise InputError(f"trajectory joints {names} must be the active joints "
-                             f"{mech.active_names}, each once")
-        order = [names.index(n) for n in mech.active_names]  # to active order
-        self.path = JointSpline(times, positions, order, velocities, accelerations)
+        self.path = joint_path(ff.mech, joint_names, times, positions, velocities, accelerations)
 
         self.ff = ff
         self.t0 = self.path.start

@@ -11,6 +11,10 @@ A CSV file with a header ``t,<names>`` and one row per waypoint, times strictly 
   (:class:`~elastic_pm_dyn.motion.trajectory.JointSpline`); rigid method only (the elastic
   inverse prescribes the output, not the motors).
 Before the first time the path rests at its first waypoint.
+
+The file is read like every user file (:func:`~elastic_pm_dyn.text_file.read_text`: regular
+files only, at most :data:`MAX_WAYPOINT_BYTES`) and holds at most :data:`MAX_WAYPOINTS` rows,
+both checked before a number is converted.
 """
 
 from __future__ import annotations
@@ -26,17 +30,26 @@ from elastic_pm_dyn.motion.feedforward import rigid_feedforward
 from elastic_pm_dyn.motion.poses import PoseLine
 from elastic_pm_dyn.motion.references import JointReference
 from elastic_pm_dyn.motion.trajectory import make_line
+from elastic_pm_dyn.text_file import TextFileError, read_text
+
+MAX_WAYPOINTS = 10_000  # rows of a waypoint file, points of a goal message: a path, not a sampled table
+MAX_WAYPOINT_BYTES = 4 * 2**20  # 10 000 rows of a 6-DOF pose take some 1.3 MB
 
 
 def read_waypoints(path: str | Path) -> tuple[list[str], np.ndarray]:
     """(column names after ``t``, rows [t, values...]) of a waypoint CSV; one clear line on error."""
     p = Path(path)
     try:
-        lines = [ln.strip() for ln in p.read_text().splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
-    except (OSError, UnicodeDecodeError) as err:
-        raise InputError(f"waypoint file {p}: cannot read it ({type(err).__name__})") from None
+        text = read_text(p, MAX_WAYPOINT_BYTES, "waypoint file")
+    except TextFileError as err:
+        where = "" if err.line is None else f" line {err.line}:"
+        raise InputError(f"waypoint file {p}:{where} {err.reason}") from None
+    lines = [ln.strip() for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
     if len(lines) < 2:
         raise InputError(f"waypoint file {p}: needs a header t,<names> and at least one row")
+    if len(lines) - 1 > MAX_WAYPOINTS:
+        raise InputError(f"waypoint file {p}: {len(lines) - 1} rows, more than the {MAX_WAYPOINTS} a path may have "
+                         "(a waypoint file holds poses to pass, not a sampled motion)")
     header = [h.strip() for h in lines[0].split(",")]
     if header[0] != "t" or len(header) < 2:
         raise InputError(f"waypoint file {p}: the header must start with t and name the columns, got {lines[0][:60]!r}")

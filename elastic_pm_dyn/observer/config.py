@@ -437,21 +437,25 @@ def load_config(path: str | Path | None = None, node: str | None = None) -> Obse
     """Read the observer parameters from a ``ros__parameters`` YAML file (defaults if None).
 
     The file may hold several node sections (``/**``, ``plant``, ...): the ``observer``
-    parameters of ``node`` (or of the first section that has any) are used. A plain map
-    with a top-level ``observer`` key is accepted too.
+    parameters of ``node`` (or of the first section that has any) are used. It is read as a
+    node reads it: a file without a ``ros__parameters`` section, or with a value of another ROS
+    type than its parameter's (an integer, ``2`` or ``[2]``, for a float or a list of floats; one
+    value for a list), is refused in one line, as the node would refuse it. So is a file that ends
+    in the middle of a line and leaves observer parameters at their defaults (a file cut off).
     """
     if path is None:
         return ObserverConfig.from_parameters({}, "<defaults>")
     p = Path(path)
-    data = yaml12.load_file(p, "observer configuration")
+    data, text = yaml12.load_file_text(p, "observer configuration")
     if not isinstance(data, dict):
         raise InputError(f"{p}: expected a map of node names to ros__parameters")
     sections = []
     for name, body in data.items():
         if isinstance(body, dict) and isinstance(body.get("ros__parameters"), dict):
             sections.append((name, body["ros__parameters"]))
-    if not sections and "observer" in data:
-        sections = [("<plain>", data)]
+    if not sections:
+        raise InputError(f"{p}: no ros__parameters section: an observer configuration is a ROS parameter file, "
+                         "<node>: ros__parameters: observer: ... (as config/observer.yaml)")
     chosen = None
     for name, params in sections:
         if (node is None or name.strip("/") == node.strip("/") or name == "/**") and "observer" in params:
@@ -462,4 +466,35 @@ def load_config(path: str | Path | None = None, node: str | None = None) -> Obse
     if not isinstance(chosen["observer"], dict):
         raise InputError(f"{p}: observer: expected a map of parameters")
     flat = {k: v for k, v in flatten(chosen).items() if k.startswith(PREFIX)}
+    for name, value in flat.items():
+        _ros_typed(p, name, value)
+    missing = [k for k in DEFAULT_PARAMETERS if PREFIX + k not in flat]
+    if missing and text and not text.endswith("\n"):
+        raise InputError(f"{p}: ends in the middle of a line and leaves {len(missing)} observer parameter(s) at "
+                         f"their defaults ({', '.join(missing[:3])}{', ...' if len(missing) > 3 else ''}): a file cut "
+                         "off? (if it is whole, end its last line)")
     return ObserverConfig.from_parameters(flat, str(p))
+
+
+def _ros_typed(path: Path, name: str, value: Any) -> None:
+    """InputError if a node could not take ``value`` for the parameter ``name`` (its ROS type is
+    its default's: a float is written with a point, a list as a list)."""
+    default = DEFAULT_PARAMETERS.get(name[len(PREFIX):])
+    if default is None:
+        return  # unknown: from_parameters names it
+    where = f"{path}: {_shown(name, bare=True)}"
+
+    def number(v: Any) -> bool:
+        return isinstance(v, int | float) and not isinstance(v, bool)
+
+    if isinstance(default, float) and isinstance(value, int) and not isinstance(value, bool):
+        raise InputError(f"{where}: {_shown(value)} is an integer, a float parameter's value is written as a float "
+                         f"(e.g. {_shown(float(value)) if abs(value) < 1e300 else '1.0e300'}); a node refuses it")
+    if isinstance(default, list):
+        item = type(default[0])
+        if not isinstance(value, list):
+            raise InputError(f"{where}: a list parameter takes a list, e.g. [{_shown(value)}], got "
+                             f"{_shown(value)}; a node refuses it")
+        if item is float and any(number(v) and not isinstance(v, float) for v in value):
+            raise InputError(f"{where}: {_shown(value)} holds integers, a list of floats is written with points "
+                             "(e.g. [2.0]); a node refuses it")

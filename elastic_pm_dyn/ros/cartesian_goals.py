@@ -57,8 +57,8 @@ UNIT_TOLERANCE = 1e-3  # |q| - 1 of a quaternion accepted (and normalised)
 REST_TOLERANCE = 1e-9  # twist and acceleration components taken as zero
 NS = 1_000_000_000
 MIN_PERIODS = 10  # a goal shorter than this many control periods would not be in its torques (the CLI's rule)
-# The goal is computed in the subscription's callback (the node answers nothing else meanwhile):
-# 1e5 control instants (100 s at 1 kHz) take some 10-60 s on one core
+# The goal is computed in a child process beside the command stream (ros.goal_worker): 1e5
+# control instants (100 s at 1 kHz) take some 10-60 s on one core, and its table that much memory
 MAX_SAMPLES = 100_000
 _AXES = ([1, 0, 0], [0, 1, 0], [0, 0, 1])
 

@@ -11,7 +11,7 @@ goals (empty: quintic for rigid, nonic, C^4, for elastic). Desired motion (param
 - ``line``: the reference manoeuvre, a Cartesian straight line with quintic time law
   (``line.*`` parameters); started at start-up (``autostart``) or by ``~/start``;
 - ``trajectory``: trajectory_msgs/JointTrajectory of the active joints on ``trajectory``,
-  started at its header stamp (zero stamp: at once); joint_trajectory_controller's spline
+  started at its header stamp (see Goals below); joint_trajectory_controller's spline
   rules (cubic with velocities, quintic with accelerations too), positions alone as
   rest-to-rest 9th-order segments (logged once; :class:`~elastic_pm_dyn.motion.trajectory.JointSpline`);
 - ``trajectory`` also takes Cartesian goals: trajectory_msgs/MultiDOFJointTrajectory of the end
@@ -22,6 +22,19 @@ goals (empty: quintic for rigid, nonic, C^4, for elastic). Desired motion (param
   that hold it against gravity (any machine, also one whose end-effector point does not fix
   its pose, such as a hexapod); started like the line.
 After the end the final pose is held (its static torque keeps being published).
+
+Goals (JointTrajectory, MultiDOFJointTrajectory) and their stamps. A goal is checked in its
+callback (a bad one: one line) and its reference computed in a child process beside the
+command stream (:mod:`~elastic_pm_dyn.ros.goal_worker`): meanwhile the current reference goes
+on (after its end its end pose is held, the last torque published again), which the node
+says once; a newer goal supersedes one still being computed; Ctrl-C or SIGTERM kills the
+computation at once (the node stops within its spin timeout).
+``header.stamp`` (:mod:`~elastic_pm_dyn.ros.goal_stamps`): 0 is now, i.e. when its reference
+is ready, from its first point; any other stamp is its start on the node's clock (wall
+time, simulated time with use_sim_time, with ``trigger: state`` the plant states' stamps),
+refused in one line beyond 5 s before or 60 s after the node's now; a start that has passed
+starts the goal now, whole, with a warning (never cut: that would jump to a later pose).
+Until a future start the goal's first pose is held.
 
 Feedback (``feedback.kp``, ``feedback.kd``: one value or one per active joint; 0 and 0, the
 default, is the pure feedforward): tau = tau_ff + kp (q_ref - q_meas) + kd (qd_ref - qd_meas)
@@ -50,6 +63,7 @@ from __future__ import annotations
 import sys
 import time
 from collections import OrderedDict
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -71,15 +85,19 @@ from elastic_pm_dyn.motion.references import (
     JointReference,
     LineReference,
     TaskReference,
+    joint_path,
 )
 from elastic_pm_dyn.motion.shaping import SHAPERS, ShapedPath
 from elastic_pm_dyn.motion.time_laws import LAWS, law_order
 from elastic_pm_dyn.motion.trajectory import Line, QuinticLine, make_line
-from elastic_pm_dyn.ros.cartesian_goals import goal_path, goal_reference
+from elastic_pm_dyn.motion.waypoints import MAX_WAYPOINTS
+from elastic_pm_dyn.ros.cartesian_goals import goal_path
 from elastic_pm_dyn.ros.commands import CommandDecoder
+from elastic_pm_dyn.ros.goal_stamps import goal_start, late_start
+from elastic_pm_dyn.ros.goal_worker import GoalJob, cartesian_reference, joint_reference, prestart
 from elastic_pm_dyn.ros.losses import SequenceGaps
 from elastic_pm_dyn.ros.messages import joint_state, torque_command
-from elastic_pm_dyn.ros.node_main import ManagedNode, run_node
+from elastic_pm_dyn.ros.node_main import ManagedNode, run_node, stopping
 from elastic_pm_dyn.ros.params import (
     COMMAND_JOINTS,
     Param,
@@ -97,12 +115,14 @@ READY_POLL = 0.05  # [s] wall-clock check for subscribers while waiting to start
 SOLVE_ERRORS = (ElasticPmDynError, np.linalg.LinAlgError)
 WARN_EVERY = 1.0  # [s] throttle of repeated warnings, per kind
 KEEP_SAMPLES = 1000  # encoder samples kept for matching by stamp (1 s at 1 kHz)
+MAX_RATE = 1e4  # [Hz] rate: a Python node answers a timer or a plant state up to a few kHz
+JOIN_WAIT = 2.0  # [s] close(): how long to wait for a cancelled goal's thread (its child is killed)
 
 # Rate and line default to the reference manoeuvre (config/feedforward.yaml repeats them; a test holds them equal).
 PARAMS = [
     Param("model", "", "model YAML file; empty = the five-bar shipped with the package"),
     Param("rate", REFERENCE_MANOEUVRE.control_rate, "control rate [Hz]: timer period and the time grid of the commands",
-          positive=True),
+          positive=True, maximum=MAX_RATE),
     Param("source", "line", "line (parameters line.*), trajectory (JointTrajectory topic) or hold (the start pose)",
           choices=("line", "trajectory", "hold")),
     Param("line.start", list(REFERENCE_MANOEUVRE.start), "start point p_A [m] (2 numbers planar, 3 spatial)"),
@@ -139,6 +159,9 @@ PARAMS = [
 ]
 
 
+Reference = LineReference | ElasticLineReference | HoldReference | JointReference | TaskReference
+
+
 class FeedforwardNode(ManagedNode):
     """Feedforward torques of a line (rigid, elastic or shaped) or a joint trajectory (see module doc)."""
 
@@ -147,7 +170,7 @@ class FeedforwardNode(ManagedNode):
         reject_unknown(self, [s.name for s in PARAMS] + [COMMAND_JOINTS])
         p = read_parameters(self, PARAMS)
         self.model = load_model(model_path(p["model"]))
-        rigid = rigid_feedforward(self.model).mech
+        rigid = self.rigid_mech = rigid_feedforward(self.model).mech
         p |= read_parameters(self, [command_joints_param(rigid.active_names)])
         self.ff_names = rigid.joint_names  # rigid tree: active + passive
         try:
@@ -208,8 +231,10 @@ class FeedforwardNode(ManagedNode):
             self.create_subscription(JointState, p["topics.measured_joint_states"], self._on_encoders,
                                      OBSERVER_INPUT_QOS)
 
-        self.reference: (LineReference | ElasticLineReference | HoldReference | JointReference | TaskReference
-                         | None) = None
+        self.reference: Reference | None = None
+        self.goal: GoalJob | None = None  # the goal being computed (module doc: Goals)
+        if self.source == "trajectory":
+            prestart()  # the fork server's imports, now rather than at the first goal
         self.start_ns: int | None = None  # reference time origin; None = at the next tick/state
         self.last_ns: int | None = None  # newest control instant answered
         self.pending_ns: int | None = None  # state trigger: newest state not yet answered
@@ -243,46 +268,114 @@ class FeedforwardNode(ManagedNode):
         return response
 
     def _on_trajectory(self, msg: JointTrajectory) -> None:
+        """A JointTrajectory: checked here, its reference made beside the stream (module doc: Goals)."""
         pts = msg.points
         if self.method != "rigid":
             self.get_logger().warning(f"trajectory rejected: method {self.method} needs the end effector's path: "
                                       "send a MultiDOFJointTrajectory (a JointTrajectory takes method rigid)")
             return
+        if len(pts) > MAX_WAYPOINTS:
+            self.get_logger().warning(f"trajectory rejected: {len(pts)} points, more than the {MAX_WAYPOINTS} a goal "
+                                      "may have; send it in parts")
+            return
+        times = [p.time_from_start.sec + p.time_from_start.nanosec / NS for p in pts]
+        vel = [p.velocities for p in pts] if pts and all(len(p.velocities) for p in pts) else None
+        acc = [p.accelerations for p in pts] if pts and all(len(p.accelerations) for p in pts) else None
+        positions = [p.positions for p in pts]
+        names = list(msg.joint_names)
         try:
-            times = [p.time_from_start.sec + p.time_from_start.nanosec / NS for p in pts]
-            vel = [p.velocities for p in pts] if pts and all(len(p.velocities) for p in pts) else None
-            acc = [p.accelerations for p in pts] if pts and all(len(p.accelerations) for p in pts) else None
-            reference = JointReference(rigid_feedforward(self.model), msg.joint_names, times,
-                                       [p.positions for p in pts], vel, acc)
+            start = self._start_of(msg.header.stamp)
+            joint_path(self.rigid_mech, names, times, positions, vel, acc)  # the checks that need no assembly
         except SOLVE_ERRORS as err:
             self.get_logger().warning(f"trajectory rejected: {err}")
             return
-        if reference.path.rule == "at rest" and not self.told_at_rest:
+        self._submit(GoalJob(f"trajectory of {len(pts)} points", start,
+                             partial(joint_reference, self.model, names, times, positions, vel, acc), stopping))
+
+    def _on_cartesian(self, msg: MultiDOFJointTrajectory) -> None:
+        """A Cartesian goal: checked here (bad goals: one line), its path through the node's method
+        beside the stream (module doc: Goals)."""
+        if len(msg.points) > MAX_WAYPOINTS:
+            self.get_logger().warning(f"cartesian goal rejected: {len(msg.points)} points, more than the "
+                                      f"{MAX_WAYPOINTS} a goal may have; send it in parts")
+            return
+        try:
+            start = self._start_of(msg.header.stamp)
+            path = goal_path(msg, self.model, self.frame, self.goal_law, self.rate)
+        except (*SOLVE_ERRORS, ValueError) as err:  # ValueError: scipy on a degenerate input
+            self.get_logger().warning(f"cartesian goal rejected: {err}")
+            return
+        self._submit(GoalJob(f"cartesian goal of {len(msg.points)} points ({self.method})", start,
+                             partial(cartesian_reference, self.model, path, self.method, self.rate, self.shaper,
+                                     self.ff_names), stopping))
+
+    # ------------------------------------------------------------------- goals
+    def _goal_clock(self) -> tuple[int, str]:
+        """The node's now [ns] and what that clock is (the time base of the commands' stamps)."""
+        if self.trigger == "state":
+            seen = [ns for ns in (self.last_ns, self.pending_ns) if ns is not None]
+            if seen:
+                return max(seen), "the plant states' stamps (trigger state)"
+        sim = self.get_parameter("use_sim_time").value
+        return self.get_clock().now().nanoseconds, "simulated time (use_sim_time)" if sim else "wall time"
+
+    def _start_of(self, stamp: Any) -> int | None:
+        """A goal's start [ns] on the node's clock (None: now); InputError outside the window
+        (:func:`~elastic_pm_dyn.ros.goal_stamps.goal_start`)."""
+        now, clock = self._goal_clock()
+        return goal_start(stamp_ns(stamp), now, clock)
+
+    def _submit(self, goal: GoalJob) -> None:
+        """Compute ``goal``'s reference beside the stream; a goal still computing is superseded."""
+        old = self.goal
+        if old is not None:
+            old.cancel.set()
+            self.get_logger().warning(f"{old.what}: superseded by a newer goal before its reference was ready")
+        meanwhile = ("the current reference goes on (after its end its end pose is held)" if self.reference is not None
+                     else "no command (there is none to hold yet)")
+        self.get_logger().info(f"{goal.what}: computing its reference beside the command stream; meanwhile "
+                               f"{meanwhile}")
+        self.goal = goal
+        goal.start()
+
+    def _poll_goal(self) -> None:
+        """Take the goal's reference once it is ready (or say why there is none)."""
+        goal = self.goal
+        if goal is None or not goal.done.is_set():
+            return
+        self.goal = None
+        if goal.cancelled:
+            return
+        if goal.reference is None:
+            self.get_logger().warning(f"{goal.what} rejected: {goal.error}")
+            return
+        took = time.monotonic() - goal.received
+        reference = goal.reference
+        if isinstance(reference, JointReference) and reference.path.rule == "at rest" and not self.told_at_rest:
             self.told_at_rest = True  # once: the rule does not change from one goal to the next
             self.get_logger().info("trajectory with positions only: each segment is a rest-to-rest move with the "
                                    "9th-order law, stopping at every waypoint (joint_trajectory_controller would "
                                    "join them by straight lines: a torque impulse at each); give velocities for "
                                    "a cubic, velocities and accelerations for a quintic")
+        start, when = goal.start_ns, "starts now"
+        if start is not None:
+            now, clock = self._goal_clock()
+            late = late_start(start, now, 1.0 / self.rate)
+            if late:  # a late start would cut its beginning: the whole motion, shifted
+                self.get_logger().warning(f"{goal.what}: its stamp passed {late:.3g} s ago ({clock}; the reference "
+                                          f"took {took:.3g} s to compute): it starts now, the whole motion shifted")
+                start = None
+            else:
+                when = f"starts at its stamp {start / NS:.9f} s"
         self.reference = reference
-        self.start_ns = stamp_ns(msg.header.stamp) or None
+        self.start_ns = start
         self.want_start = False
-        self.get_logger().info(f"trajectory of {len(pts)} points, {reference.duration:.3g} s accepted")
-        self._respond()
+        self.get_logger().info(f"{goal.what}, {reference.duration:.3g} s, accepted after {took:.3g} s: {when}")
 
-    def _on_cartesian(self, msg: MultiDOFJointTrajectory) -> None:
-        """A Cartesian goal: its path through the node's method, computed now; bad goals: one line."""
-        try:
-            path = goal_path(msg, self.model, self.frame, self.goal_law, self.rate)
-            reference = goal_reference(self.model, path, self.method, self.rate, self.shaper, self.ff_names)
-        except (*SOLVE_ERRORS, ValueError) as err:  # ValueError: scipy on a degenerate input
-            self.get_logger().warning(f"cartesian goal rejected: {err}")
-            return
-        self.reference = reference
-        self.start_ns = stamp_ns(msg.header.stamp) or None
-        self.want_start = False
-        self.get_logger().info(f"cartesian goal of {len(msg.points)} points, {reference.duration:.3g} s "
-                               f"({self.method}) accepted")
-        self._respond()
+    def close(self) -> None:
+        """A goal still computing is cancelled: its child process is killed."""
+        if self.goal is not None:
+            self.goal.stop(JOIN_WAIT)
 
     def _on_encoders(self, msg: JointState) -> None:
         ns = stamp_ns(msg.header.stamp)
@@ -312,12 +405,14 @@ class FeedforwardNode(ManagedNode):
         return self.pub_command.get_subscription_count() >= self.wait_for
 
     def _on_tick(self) -> None:
+        self._poll_goal()
         if self._ready():
             self._command_at(self.get_clock().now().nanoseconds, quantise=True)
 
     def _respond(self) -> None:
         """State trigger: answer the newest plant state once there is something to send (and,
         with feedback, the encoder sample of its stamp or the end of waiting for it)."""
+        self._poll_goal()
         if self.pending_ns is None or not self._ready() or not self._sample_ready(self.pending_ns):
             return
         if self._command_at(self.pending_ns):
@@ -398,7 +493,7 @@ class FeedforwardNode(ManagedNode):
                 return False
         if quantise and self.last_ns is not None and ns - self.last_ns > 1.5 * NS / self.rate:
             self._count_skipped(round((ns - self.last_ns) * self.rate / NS) - 1, ns)
-        if self.exit_when_done and t >= self.reference.duration:
+        if self.exit_when_done and t >= self.reference.duration and self.goal is None:
             self.get_logger().info(f"reference finished at t = {t:.6g} s: {self.sent} command(s) sent, "
                                    f"{self.skipped} control instant(s) without one")
             self.done = True

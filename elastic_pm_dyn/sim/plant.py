@@ -33,6 +33,7 @@ from elastic_pm_dyn.sim.torque import ConstantTorque, HeldPlusSmooth
 # [rad or m] a requested position beyond this is a mistake: float spacing there exceeds 1e-10
 START_STATES = ("relaxed", "static")  # Plant(start=...): springs unloaded, or deflected by gravity
 MAX_POSITION = 1.0e6
+SET_TOLERANCE = 1e-6  # set_state: a named passive joint where the closure puts it, to this (relative beyond 1)
 
 
 @dataclass
@@ -167,12 +168,17 @@ class Plant:
 
         Unnamed active/elastic joints keep their current position (after a fault: the
         elastic ones go back to rest, as the last good state led to the fault); passive
-        positions (named ones are the Newton guess) come from assembly. Velocity: empty =
-        at rest, else given for the named joints, zero for the other active/elastic ones,
-        passive from the closure. Raises InputError (state unchanged) when it cannot be done.
+        positions come from assembly, a named one the Newton guess that must also be where the
+        closure puts it (to SET_TOLERANCE). Velocity: empty = at rest, else given for the named
+        joints, zero for the other active/elastic ones, passive from the closure (a named one
+        must match it alike). Raises InputError (state unchanged) when it cannot be done: an
+        empty request, or a state the closure does not allow.
         """
         mech = self.mech
         names = [str(n) for n in names]
+        if not names:
+            raise InputError("an empty request: name the joints to set (state.name) and give their positions "
+                             "(state.position)")
         unknown = [n for n in names if n not in mech.joint_names]
         if unknown:
             raise InputError(f"unknown joint(s) {', '.join(unknown)} (joints: {', '.join(mech.joint_names)})")
@@ -197,6 +203,13 @@ class Plant:
         if len(vel):
             qd[idx] = vel
         q, qd = self._assemble(q, qd, idx)
+        for what, want, got in (("at", pos, q[idx]), ("moving at", vel, qd[idx]) if len(vel) else ("", (), ())):
+            off = np.abs(np.asarray(got) - want) > SET_TOLERANCE * np.maximum(1.0, np.abs(want))
+            if np.any(off):  # a named passive joint the closure puts elsewhere (the rest are set as named)
+                k = int(np.argmax(off))
+                raise InputError(f"state not reachable: the closure puts {mech.joint_names[idx[k]]} {what} "
+                                 f"{got[k]:.6g}, not {want[k]:.6g} (with the other joints as named); name the motors "
+                                 "(and springs) alone to let the closure place the passive joints")
         self._restart(q, qd)
         return f"state set at t = {self.t:.6g} s (closure gap {mech.gap(q):.3g} m)"
 

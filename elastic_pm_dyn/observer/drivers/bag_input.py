@@ -82,6 +82,36 @@ def _decode(dec: Decoder, msgtype: str, kind: str, t_recv: int, raw: bytes) -> t
     return ns, (names, force)
 
 
+BACKWARD_LIMIT = 10  # stamps of one topic that go back in time, and ...
+BACKWARD_SHARE = 0.01  # ... this share of its messages so far: its stamps are not the samples' times
+
+
+class StampOrder:
+    """Each topic's header stamps must run forward in the order the bag recorded them (one
+    publisher stamps its samples in order, the recorder keeps that order): a topic whose stamps go
+    back more than BACKWARD_LIMIT times, and in more than BACKWARD_SHARE of its messages, has
+    stamps that are not its samples' times (shuffled, two publishers, a clock that jumped). The
+    filter would take each sample for another time and diverge; the bag is refused in one line
+    instead. A few late messages (a recorder's reordering) stay below both."""
+
+    def __init__(self, bag: Path):
+        self.bag = bag
+        self.seen: dict[str, list[int]] = {}  # topic -> [messages, backward steps, latest stamp]
+
+    def check(self, topic: str, stamp: int) -> None:
+        counts = self.seen.setdefault(topic, [0, 0, stamp])
+        counts[0] += 1
+        if stamp < counts[2]:
+            counts[1] += 1
+            if counts[1] > BACKWARD_LIMIT and counts[1] > BACKWARD_SHARE * counts[0]:
+                raise InputError(f"{self.bag}: {topic}: header stamps go back in time at {counts[1]} of its first "
+                                 f"{counts[0]} messages (now {stamp / NS:.9f} s after {counts[2] / NS:.9f} s): they "
+                                 "are not the times of its samples (shuffled, two publishers, a clock that jumped?); "
+                                 "the observer needs each topic stamped in the order it was recorded")
+        else:
+            counts[2] = stamp
+
+
 def read_events(bag: Path, topics: Topics, cfg: ObserverConfig) -> tuple[list[Event], dict]:
     """Decode the observer's input topics of a bag into events (bag order)."""
     events: list[Event] = []
@@ -115,11 +145,13 @@ def iter_events(bag: Path, topics: Topics, cfg: ObserverConfig, counts: dict, ch
                 raise InputError(f"{bag}: {c.topic} has type {c.msgtype}, expected "
                                  f"{' or '.join(EXPECTED[wanted[c.topic]])}")
         dec = reader.decoder()
+        order = StampOrder(bag)
         for i, (conn, t_recv, raw) in enumerate(reader.messages(conns)):
             if gate is not None and not gate.is_set():
                 gate.wait()
             kind = wanted[conn.topic]
             stamp, data = _decode(dec, conn.msgtype, kind, t_recv, raw)
+            order.check(conn.topic, stamp)
             events.append(Event(stamp, kind, data, i))
             counts[kind] += 1
             if len(events) >= chunk:
