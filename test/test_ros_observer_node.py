@@ -142,6 +142,22 @@ def test_parameter_files_agree() -> None:
     assert node["observer"] == _params(CONFIG / "observer.yaml")["observer"]
 
 
+def test_a_machines_own_observer_file_is_found_beside_its_model(tmp_path: Path) -> None:
+    """observer_config_for (ros-demo --observer, the user-loop test): observer_<model stem>.yaml
+    beside the model file, else the generic node file; a model of the same name elsewhere is
+    another machine and does not get it."""
+    require("rclpy")
+    from elastic_pm_dyn.ros.params import observer_config_for
+    model = tmp_path / "my_machine.yaml"
+    assert observer_config_for(model) == NODE_FILE  # none beside it
+    (tmp_path / "observer_my_machine.yaml").write_text("")
+    assert observer_config_for(model) == tmp_path / "observer_my_machine.yaml"
+    assert observer_config_for(str(model)) == tmp_path / "observer_my_machine.yaml"
+    for name in ("hexa.yaml", "five_bar.urdf"):
+        assert observer_config_for(tmp_path / name) == NODE_FILE
+    assert observer_config_for("") == observer_config_for(CONFIG / "five_bar.yaml")  # the packaged five-bar
+
+
 def test_node_publishes_the_plant_nodes_observer_estimates(rec: Any, five_bar: Any) -> None:
     require("rclpy")
     ours, logged, values = _run(NODE_FILE, "observer", rec)

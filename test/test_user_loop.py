@@ -2,13 +2,15 @@
 plus the holding torque) closes the loop with the shipped defaults (issue #37).
 
 Each node is its own process, started in the natural order: the plant from
-config/plant_sensors.yaml, the observer from config/observer_node.yaml (both with only the model
-changed), a recorder, then the controller, which reads only the encoder topic and was started
-after the plant published its first state: the plant publishes it again until the first command,
-so nothing needs a kick or a reset. The bag is scored as ``ros-demo --observer`` scores its own
-loop (ros/loop_demo.py: analyse_loop): every plant state of the loop has its estimate, the
-branch-force error against the true forces' elastic part, and the live estimates equal offline
-``observe`` over the same recording. A controller started before the plant starts the loop too.
+config/plant_sensors.yaml, the observer from the machine's shipped observer file as ``ros-demo
+--observer`` picks it (config/observer_<machine>.yaml, else config/observer_node.yaml; both with
+only the model changed), a recorder, then the controller, which reads only the encoder topic and
+was started after the plant published its first state: the plant publishes it again until the
+first command, so nothing needs a kick or a reset. The bag is scored as ``ros-demo --observer``
+scores its own loop (ros/loop_demo.py: analyse_loop): every plant state of the loop has its
+estimate, the branch-force error against the true forces' elastic part, and the live estimates
+equal offline ``observe`` over the same recording. A controller started before the plant starts
+the loop too.
 """
 
 from __future__ import annotations
@@ -36,6 +38,7 @@ def run_user_loop(out: Path, model: Path, domain: int, controller_first: bool = 
     import time
 
     from elastic_pm_dyn.ros.loop_demo import LoopOptions, analyse_loop
+    from elastic_pm_dyn.ros.params import observer_config_for
     from elastic_pm_dyn.ros.processes import NodeProcess, ros_env, wait_for_recording
 
     env = ros_env(domain)
@@ -49,7 +52,7 @@ def run_user_loop(out: Path, model: Path, domain: int, controller_first: bool = 
 
         def observer() -> None:  # started, and up: its subscriptions made (it says so in one line)
             procs.append(NodeProcess("observer", "elastic_pm_dyn.ros.observer_node",
-                                     ["--params-file", str(CONFIG / "observer_node.yaml"), "-p", f"model:={model}"],
+                                     ["--params-file", str(observer_config_for(model)), "-p", f"model:={model}"],
                                      env, logs))
             deadline = time.monotonic() + START
             while "one estimate per" not in (logs / "observer.log").read_text(errors="replace"):
@@ -85,7 +88,7 @@ def run_user_loop(out: Path, model: Path, domain: int, controller_first: bool = 
     from elastic_pm_dyn.kinematics.mechanism import Mechanism
     from elastic_pm_dyn.model.loader import load_model
 
-    opts = LoopOptions(model=model, duration=PERIODS * 1e-3)
+    opts = LoopOptions(model=model, duration=PERIODS * 1e-3, observer_config=observer_config_for(model))
     return analyse_loop(out, bag, Mechanism(load_model(model)), opts, 0.0)
 
 
