@@ -142,6 +142,30 @@ def test_parameter_files_agree() -> None:
     assert node["observer"] == _params(CONFIG / "observer.yaml")["observer"]
 
 
+def test_machine_observer_files_differ_from_the_generic_only_in_observer_values() -> None:
+    """config/observer_<machine>.yaml (tuned for a shipped machine) is config/observer_node.yaml with
+    other values of some observer.* parameters: the same node parameters, the same observer keys
+    and types (floats as floats), and it loads for its machine; its header says how it was tuned."""
+    from elastic_pm_dyn.kinematics.mechanism import Mechanism
+    from elastic_pm_dyn.model.loader import load_model
+    from elastic_pm_dyn.observer import Observer
+    from elastic_pm_dyn.observer.config import load_config
+    generic = _params(NODE_FILE)
+    files = sorted(p for p in CONFIG.glob("observer_*.yaml") if p != NODE_FILE)
+    assert {p.name for p in files} >= {"observer_five_bar.yaml", "observer_triglide.yaml", "observer_hexa.yaml"}
+    for path in files:
+        model = CONFIG / f"{path.stem.removeprefix('observer_')}.yaml"
+        assert model.is_file(), path
+        own = _params(path)
+        assert {**own, "observer": None} == {**generic, "observer": None}, path
+        mine, base = flatten(own["observer"]), flatten(generic["observer"])
+        assert mine.keys() == base.keys(), path
+        assert all(type(mine[k]) is type(base[k]) for k in base), path
+        assert any(mine[k] != base[k] for k in base), path
+        assert "elastic-pm-dyn tune --model" in path.read_text(), path
+        Observer(Mechanism(load_model(model)), load_config(path))  # valid for its machine
+
+
 def test_a_machines_own_observer_file_is_found_beside_its_model(tmp_path: Path) -> None:
     """observer_config_for (ros-demo --observer, the user-loop test): observer_<model stem>.yaml
     beside the model file, else the generic node file; a model of the same name elsewhere is
