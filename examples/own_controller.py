@@ -2,7 +2,9 @@
 
 Start the plant and the observer (any order, before or after this script), e.g. in two shells:
   elastic-pm-dyn plant --params-file config/plant_sensors.yaml
-  elastic-pm-dyn observer --params-file config/observer_node.yaml
+  elastic-pm-dyn observer --params-file config/observer_five_bar.yaml
+(another machine: --model on both, and its own observer file, e.g. config/observer_hexa.yaml;
+config/observer_node.yaml for a machine without one)
 then ``python examples/own_controller.py [MODEL] [PERIODS]`` (domain: ROS_DOMAIN_ID). In lockstep every command
 advances the plant one period: answer each new encoder stamp once, with that stamp (the observer's estimates of
 the springs and branch forces appear on observer/joint_states and observer/branch_forces).
