@@ -566,7 +566,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, help="--observer: seed of the sensor noise and the disturbance (default 1)")
     p.add_argument("--duration", type=float, help="--observer: [s] of loop (default 2)")
     p.add_argument("--observer-config", help="--observer: observer parameter file, e.g. one written by "
-                   "'elastic-pm-dyn tune' (default config/observer_node.yaml)")
+                   "'elastic-pm-dyn tune' (default: the machine's own, observer_<model stem>.yaml beside the model "
+                   "as config/observer_hexa.yaml, else config/observer_node.yaml)")
     p.add_argument("--kp", type=float, nargs="+", help="--observer: PD gains [N m/rad], one or one per motor "
                    "(default: a 2 Hz loop, damping 0.1, on the machine's inertia)")
     p.add_argument("--kd", type=float, nargs="+", help="--observer: [N m s/rad], one or one per motor")

@@ -1,7 +1,7 @@
 """Your own controller in the loop: a PD on the plant's encoders plus the holding torque, on default QoS. Start
-`elastic-pm-dyn plant --params-file config/plant_sensors.yaml` and `elastic-pm-dyn observer --params-file
-config/observer_node.yaml`, then ``python examples/own_controller.py [MODEL] [PERIODS]`` (ROS_DOMAIN_ID). In lockstep
-a command advances the plant one period: answer each new encoder stamp once, with that stamp (docs/ros.md)."""
+`elastic-pm-dyn plant --params-file config/plant_sensors.yaml`, `elastic-pm-dyn observer --params-file
+config/observer_five_bar.yaml` (other machines: -p model:=M on both, config/observer_<machine>.yaml), then
+``python examples/own_controller.py [MODEL] [PERIODS] [LISTENERS]``; answer each new stamp once (docs/ros.md)."""
 import sys
 
 import numpy as np
@@ -12,13 +12,12 @@ import elastic_pm_dyn as epd
 from elastic_pm_dyn.dynamics.statics import holding_torques, rest_state
 from elastic_pm_dyn.ros.loop_demo import default_gains  # kp = m w^2, kd = 2 zeta m w at 2 Hz
 
-MODEL = sys.argv[1] if len(sys.argv) > 1 else "config/five_bar.yaml"
-PERIODS = int(sys.argv[2]) if len(sys.argv) > 2 else 1000  # commands to send, then stop
+MODEL, PERIODS, LISTENERS = (sys.argv[1:] + ["config/five_bar.yaml", "1000", "2"][len(sys.argv) - 1:])[:3]
 mech = epd.Mechanism(epd.load_model(MODEL))
 rest = rest_state(mech)  # the plant's `start: static` pose: hold it
 target, hold, (kp, kd) = rest[mech.active], holding_torques(mech, rest), default_gains(mech)
 motors = list(mech.active_names)
-last = {"ns": -1, "q": None, "left": PERIODS}
+last = {"ns": -1, "q": None, "left": int(PERIODS)}  # commands to send, then stop
 
 
 def on_encoders(msg: JointState) -> None:
@@ -30,10 +29,11 @@ def on_encoders(msg: JointState) -> None:
     last.update(ns=ns, q=q, left=last["left"] - 1)
     command.publish(JointState(header=msg.header, name=motors, effort=list(hold + kp * (target - q) - kd * qd)))
 
-
 rclpy.init()
 node = rclpy.create_node("my_controller")
 command = node.create_publisher(JointState, "torque_command", 10)
+while command.get_subscription_count() < int(LISTENERS):  # plant, observer: discovery takes a moment, and a
+    rclpy.spin_once(node, timeout_sec=0.1)  # command sent before a reader matched is lost to it
 node.create_subscription(JointState, "measured_joint_states", on_encoders, 10)
 while last["left"] > 0 and rclpy.ok():
     rclpy.spin_once(node, timeout_sec=0.1)

@@ -145,6 +145,46 @@ def test_parameter_files_agree() -> None:
     assert node["observer"] == _params(CONFIG / "observer.yaml")["observer"]
 
 
+def test_machine_observer_files_differ_from_the_generic_only_in_observer_values() -> None:
+    """config/observer_<machine>.yaml (tuned for a shipped machine) is config/observer_node.yaml with
+    other values of some observer.* parameters: the same node parameters, the same observer keys
+    and types (floats as floats), and it loads for its machine; its header says how it was tuned."""
+    from elastic_pm_dyn.kinematics.mechanism import Mechanism
+    from elastic_pm_dyn.model.loader import load_model
+    from elastic_pm_dyn.observer import Observer
+    from elastic_pm_dyn.observer.config import load_config
+    generic = _params(NODE_FILE)
+    files = sorted(p for p in CONFIG.glob("observer_*.yaml") if p != NODE_FILE)
+    assert {p.name for p in files} >= {"observer_five_bar.yaml", "observer_triglide.yaml", "observer_hexa.yaml"}
+    for path in files:
+        model = CONFIG / f"{path.stem.removeprefix('observer_')}.yaml"
+        assert model.is_file(), path
+        own = _params(path)
+        assert {**own, "observer": None} == {**generic, "observer": None}, path
+        mine, base = flatten(own["observer"]), flatten(generic["observer"])
+        assert mine.keys() == base.keys(), path
+        assert all(type(mine[k]) is type(base[k]) for k in base), path
+        assert any(mine[k] != base[k] for k in base), path
+        assert "elastic-pm-dyn tune --model" in path.read_text(), path
+        Observer(Mechanism(load_model(model)), load_config(path))  # valid for its machine
+
+
+def test_a_machines_own_observer_file_is_found_beside_its_model(tmp_path: Path) -> None:
+    """observer_config_for (ros-demo --observer, the user-loop test): observer_<model stem>.yaml
+    beside the model file, else the generic node file; a model of the same name elsewhere is
+    another machine and does not get it."""
+    require("rclpy")
+    from elastic_pm_dyn.ros.params import observer_config_for
+    model = tmp_path / "my_machine.yaml"
+    assert observer_config_for(model) == NODE_FILE  # none beside it
+    (tmp_path / "observer_my_machine.yaml").write_text("")
+    assert observer_config_for(model) == tmp_path / "observer_my_machine.yaml"
+    assert observer_config_for(str(model)) == tmp_path / "observer_my_machine.yaml"
+    for name in ("hexa.yaml", "five_bar.urdf"):
+        assert observer_config_for(tmp_path / name) == NODE_FILE
+    assert observer_config_for("") == observer_config_for(CONFIG / "five_bar.yaml")  # the packaged five-bar
+
+
 def test_node_publishes_the_plant_nodes_observer_estimates(rec: Any, five_bar: Any) -> None:
     require("rclpy")
     ours, logged, values = _run(NODE_FILE, "observer", rec)

@@ -51,7 +51,7 @@ from elastic_pm_dyn.observer.testing.evaluation import OpenLoop, offline_run, qu
 from elastic_pm_dyn.observer.testing.scenarios import Noise, Recording
 from elastic_pm_dyn.ros.demo import fresh_bag
 from elastic_pm_dyn.ros.local_nodes import run_domain_id
-from elastic_pm_dyn.ros.params import share_path
+from elastic_pm_dyn.ros.params import observer_config_for, share_path
 from elastic_pm_dyn.ros.processes import (
     NodeProcess,
     NodeProcessError,
@@ -88,7 +88,9 @@ class LoopOptions:
     elastic_dof_per_chain: int | None = None
     seed: int = 1  # sensor noise and disturbance
     duration: float = 2.0  # [s] of loop
-    observer_config: Path | None = None  # observer parameter file (default config/observer_node.yaml)
+    # observer parameter file; None: the machine's own (observer_<model stem>.yaml beside the model, as
+    # config/observer_triglide.yaml), else config/observer_node.yaml (:func:`observer_config_for`)
+    observer_config: Path | None = None
     kp: list[float] | None = None  # [N m/rad] None: from the machine's inertia (:func:`default_gains`)
     kd: list[float] | None = None
     bandwidth: float = 2.0  # [Hz] of the default gains
@@ -112,6 +114,10 @@ class LoopOptions:
         if self.plant_sensors:
             return dict(TOPICS)
         return {**TOPICS, "encoders": TOPICS["truth"], "imu": None}
+
+    def observer_file(self) -> Path:
+        """The observer parameter file of this run (``observer_config``, else the machine's own or the generic)."""
+        return self.observer_config or observer_config_for(self.model)
 
     @property
     def sensors(self) -> list[str]:
@@ -205,6 +211,7 @@ def run_loop_demo(out: Path, opts: LoopOptions) -> dict:
     opts = replace(opts, domain_id=run_domain_id(opts.domain_id))  # a bad ROS_DOMAIN_ID: one line, nothing written
     bag = fresh_bag(out)
     mech = Mechanism(load_model(opts.model, opts.elastic_dof_per_chain))
+    print(f"  observer parameters: {opts.observer_file()}")
     wall = time.monotonic()
     _run_nodes(out, bag, mech, opts)
     wall = time.monotonic() - wall
@@ -231,7 +238,7 @@ def node_arguments(bag: Path, mech: Mechanism, opts: LoopOptions) -> dict[str, l
     model = ["-p", f"model:={opts.model}"]
     dof = (_p("elastic_dof_per_chain", int(opts.elastic_dof_per_chain))
            if opts.elastic_dof_per_chain is not None else [])
-    cfg_path = opts.observer_config or share_path("config", "observer_node.yaml")
+    cfg_path = opts.observer_file()
     topics = opts.topics()
     # config/plant_sensors.yaml: encoders and accelerometer on, a flat disturbance; this run's numbers
     sensors = [*_p("sensors.seed", int(opts.seed)),
@@ -510,7 +517,7 @@ def analyse_loop(out: Path, bag: Path, mech: Mechanism, opts: LoopOptions, wall:
         d = data[TOPICS["disturbance"]]
         ok = np.isin(stamps, d.ns)
         dist[ok] = _at(d, stamps[ok], "effort", active)
-    cfg = load_config(opts.observer_config or share_path("config", "observer_node.yaml"))
+    cfg = load_config(opts.observer_file())
     rec = Recording(mech, t, stamps, tau, dist, q, qd, np.zeros((len(t), 3)), F, encoder,
                     np.zeros((len(t), 3)), np.zeros_like(F), Noise(encoder=ENCODER_STDDEV, accelerometer=IMU_STDDEV),
                     label="ros loop")
@@ -555,6 +562,7 @@ def analyse_loop(out: Path, bag: Path, mech: Mechanism, opts: LoopOptions, wall:
         "model": str(opts.model), "elastic_dof_per_chain": opts.elastic_dof_per_chain, "seed": opts.seed,
         "duration_s": opts.duration, "bag": str(bag), "run_wall_time_s": round(wall, 3),
         "options": {k: (str(v) if isinstance(v, Path) else v) for k, v in asdict(opts).items()},
+        "observer_config": str(opts.observer_file()),
         "messages": {topic: len(s.t) for topic, s in series.items()},
         "loop_periods": len(stamps),
         "estimates": len(est.ns),

@@ -194,6 +194,16 @@ def share_path(*parts: str) -> Path:
     return Path(__file__).resolve().parents[2].joinpath(*parts)
 
 
+def observer_config_for(model: str | Path) -> Path:
+    """The observer parameter file for the machine of ``model``: ``observer_<model file stem>.yaml``
+    beside the model file when there is one (the shipped machines' own, tuned for them: its header
+    says how), else the package's generic ``config/observer_node.yaml``. ``model`` empty: the packaged
+    five-bar (as the ``model`` parameter)."""
+    path = Path(model).expanduser() if str(model) else share_path("config", "five_bar.yaml")
+    own = path.with_name(f"observer_{path.stem}.yaml")
+    return own if own.is_file() else share_path("config", "observer_node.yaml")
+
+
 def model_path(value: str) -> Path:
     """The ``model`` parameter: a file path, or empty for the packaged five-bar."""
     path = Path(value).expanduser() if value else share_path("config", "five_bar.yaml")
