@@ -302,7 +302,7 @@ def _run_nodes(out: Path, bag: Path, mech: Mechanism, opts: LoopOptions) -> None
             # loop starts once the recorder has the plant's start state.
             wait_for_recording([opts.topics()["truth"]], domain_id, opts.timeout, procs)
             print("  every node subscribed, the recorder receiving")
-            how = kick.start_loop(opts.timeout, procs)
+            how = kick.start_loop(opts.timeout, procs[:3])  # the controller may have finished already
             print(f"  loop running ({how})")
             kick.watch(controller, procs[:3], opts.timeout, logs)
         code = wait_for_exit(controller, procs[:3], opts.timeout)

@@ -65,7 +65,7 @@ from elastic_pm_dyn.ros.markers import MechanismMarkers
 from elastic_pm_dyn.ros.messages import EstimateMessages, stamp
 from elastic_pm_dyn.ros.observer_session import ObserverSession, Outcome, observer_config, parameter_message
 from elastic_pm_dyn.ros.params import COMMAND_JOINTS, Param, ParameterError, read_parameters
-from elastic_pm_dyn.ros.qos import DIAGNOSTICS_QOS, OBSERVER_INPUT_QOS, STATE_QOS, VIEWER_QOS
+from elastic_pm_dyn.ros.qos import DIAGNOSTICS_QOS, OBSERVER_INPUT_QOS, STATE_OUT_QOS, VIEWER_QOS
 from elastic_pm_dyn.ros.throttle import KindThrottle
 
 WARN_EVERY = 1.0  # [s] throttle of repeated warnings, per kind
@@ -121,10 +121,12 @@ class ObserverMode:
         # not a second observer (or plant in observer mode) where one runs: estimates would interleave
         refuse_if_taken(node, [resolved_topics(node, p, ["topics.joint_states"])["topics.joint_states"]],
                         getattr(node, "created", 0.0))
-        self.pub_joint_states = node.create_publisher(JointState, p["topics.joint_states"], STATE_QOS)
-        self.pub_branch_forces = node.create_publisher(BranchForces, p["topics.branch_forces"], STATE_QOS)
-        self.pub_ee_pose = node.create_publisher(PoseStamped, p["topics.ee_pose"], STATE_QOS)
-        self.pub_stddev = node.create_publisher(JointState, p["topics.joint_states_stddev"], STATE_QOS)
+        # the plant's state writers' QoS: 1 s of history from which reliable delivery repairs a reader
+        # that lags (a recorder on a loaded machine lost 227 estimates from the 100-deep one)
+        self.pub_joint_states = node.create_publisher(JointState, p["topics.joint_states"], STATE_OUT_QOS)
+        self.pub_branch_forces = node.create_publisher(BranchForces, p["topics.branch_forces"], STATE_OUT_QOS)
+        self.pub_ee_pose = node.create_publisher(PoseStamped, p["topics.ee_pose"], STATE_OUT_QOS)
+        self.pub_stddev = node.create_publisher(JointState, p["topics.joint_states_stddev"], STATE_OUT_QOS)
         self.pub_markers = node.create_publisher(MarkerArray, p["topics.markers"], VIEWER_QOS)
         self.pub_diagnostics = node.create_publisher(DiagnosticArray, "/diagnostics", DIAGNOSTICS_QOS)
 
