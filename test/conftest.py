@@ -71,6 +71,9 @@ def pytest_addoption(parser: pytest.Parser) -> None:
     parser.addoption("--fleet-long", action="store_true", default=False,
                      help="test_fleet: also the Dask LocalCluster and the Ctrl-C-then-resume runs (~30 s more; "
                           "or ELASTIC_PM_DYN_FLEET=long)")
+    parser.addoption("--loop-soak", action="store_true", default=False,
+                     help="test_user_loop: also the realtime loop beside two CPU hogs (~50 s; or "
+                          "ELASTIC_PM_DYN_LOOP=soak)")
 
 
 def pytest_configure(config: pytest.Config) -> None:
@@ -83,6 +86,13 @@ def fleet_long(request: pytest.FixtureRequest) -> None:
     """Skip unless --fleet-long (or ELASTIC_PM_DYN_FLEET=long): the batch tests that start clusters or processes."""
     if not (request.config.getoption("--fleet-long") or os.environ.get("ELASTIC_PM_DYN_FLEET") == "long"):
         pytest.skip("a long batch test: run with --fleet-long")
+
+
+@pytest.fixture
+def loop_soak(request: pytest.FixtureRequest) -> None:
+    """Skip unless --loop-soak (or ELASTIC_PM_DYN_LOOP=soak): loops run beside CPU hogs."""
+    if not (request.config.getoption("--loop-soak") or os.environ.get("ELASTIC_PM_DYN_LOOP") == "soak"):
+        pytest.skip("a soak of the loop under load: run with --loop-soak")
 
 
 def fuzz_settings(examples: int) -> settings:

@@ -133,7 +133,7 @@ def cpu_hogs(n: int) -> list[subprocess.Popen]:
                    "and the observer (commands applied at their stamps, the plant applied them on arrival) "
                    "diverged to NaN after 15 s; the stamps stay on the grid and the factor is reported",
                    strict=False)
-def test_user_controller_in_realtime_beside_two_cpu_hogs(tmp_path: Path) -> None:
+def test_user_controller_in_realtime_beside_two_cpu_hogs(loop_soak: None, tmp_path: Path) -> None:
     """Realtime: the plant advances on its own clock, slowed when it cannot keep up (never skipping
     a period); every state of the loop gets its estimate, the stamps stay on the 1 ms grid and the
     plant reports its real-time factor."""
