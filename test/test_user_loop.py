@@ -129,9 +129,9 @@ def cpu_hogs(n: int) -> list[subprocess.Popen]:
     return [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(n)]
 
 
-@pytest.mark.xfail(reason="issue #37, open: beside two CPU hogs the controller answers about one state in five, "
-                   "and the observer (commands applied at their stamps, the plant applied them on arrival) "
-                   "diverged to NaN after 15 s; the stamps stay on the grid and the factor is reported",
+@pytest.mark.xfail(reason="issue #37, open: beside two CPU hogs the observer lags the realtime plant by 0.3 s, "
+                   "its filter's time runs ahead of samples still queued (late by 0.3 s: not used), and 47-65 % "
+                   "of the loop's states get an estimate; the stamps stay on the grid and the factor is reported",
                    strict=False)
 def test_user_controller_in_realtime_beside_two_cpu_hogs(loop_soak: None, tmp_path: Path) -> None:
     """Realtime: the plant advances on its own clock, slowed when it cannot keep up (never skipping
@@ -146,7 +146,8 @@ def test_user_controller_in_realtime_beside_two_cpu_hogs(loop_soak: None, tmp_pa
 
     hogs = cpu_hogs(2)
     try:
-        bag = run_user_loop(tmp_path, CONFIG / "five_bar.yaml", DOMAINS["realtime"],
+        # the controller first: a realtime plant runs from its start, with or without commands
+        bag = run_user_loop(tmp_path, CONFIG / "five_bar.yaml", DOMAINS["realtime"], controller_first=True,
                             plant_args=("-p", "sync_mode:=realtime", "-p", "diagnostics_rate:=5.0"), analyse=False)
     finally:
         for h in hogs:
