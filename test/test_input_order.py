@@ -120,3 +120,19 @@ def test_an_unset_stamp_of_a_controller_slower_than_the_plant_is_the_newest_stat
         if k in (0, 10, 20):
             order.push("command", 0, None, 0.0)
     assert order.topics["command"].last_ns == 20 * P  # it left out periods: not a lockstep answer
+
+
+def test_a_topic_that_delivers_is_behind_not_gone() -> None:
+    """The wall-time bound gives up only on a silent topic: commands that keep coming, late (this
+    node's own queues hold them while it catches up), are waited for however long that takes."""
+    order = InputOrder(dict(RANK), "joint_state", max_wait=0.5, max_future_ns=10**9)
+    order.push("joint_state", 0, None, 0.0)
+    assert len(order.pop_ready(0.0)) == 1
+    for k in range(1, 30):
+        order.push("joint_state", k * P, None, 0.0)  # the plant ran ahead
+    for i in range(20):  # commands of the early periods trickle in, one every 0.1 s
+        order.push("command", i * P, None, 0.1 * (i + 1))
+        taken = order.pop_ready(0.1 * (i + 1))
+        assert all(ns <= (i + 1) * P for _, ns, _ in taken)  # never a state ahead of its command
+    assert order.stats.waited_out == 0
+    assert [ns for kind, ns, _ in order.pop_ready(10.0) if kind == "joint_state"][:1] == [21 * P]  # silent now

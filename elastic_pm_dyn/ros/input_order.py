@@ -22,14 +22,14 @@ message is taken once every other topic has shown that it holds nothing earlier.
 
 The wait is bounded: a topic that has left out a sample period before (a slower sensor, a
 controller slower than the plant; a lockstep controller answers every period) is not waited for
-once a message stamped 1.5 sample periods later is waiting, and no topic once a message has
-waited ``max_wait`` seconds of wall
-time (then the topic is not waited for until it delivers again: a stopped controller, the
-last state of a run). A sample topic is waited for only after its first message, the command
-topic from the start (the samples after the first stamp need the command that held the
-machine there). The same sample
-received twice (a lockstep plant publishes its first state again until a command comes) is
-taken once. At most ``max_pending`` messages wait; beyond, the earliest goes.
+once a message stamped 1.5 sample periods later is waiting, and no topic that has been silent
+for ``max_wait`` seconds of wall time once a message has waited that long (then the topic is not
+waited for until it delivers again: a stopped controller, the last state of a run; a topic that
+delivers is behind, not gone, e.g. in this node's own queues while it catches up). A sample
+topic is waited for only after its first message, the command topic from the start (the samples
+after the first stamp need the command that held the machine there). The same sample received
+twice (a lockstep plant publishes its first state again until a command comes) is taken once. At
+most ``max_pending`` messages wait; beyond, the earliest goes.
 """
 
 from __future__ import annotations
@@ -51,6 +51,7 @@ class _Topic:
     period_ns: int | None = None  # its sample period (the smallest stamp step seen)
     stalled: bool = False  # not waited for until it delivers again
     skips: bool = False  # has left out a sample period: not waited for past HORIZON
+    last_push: float = float("-inf")  # wall time [s] of its latest message
 
 
 @dataclass
@@ -111,6 +112,7 @@ class InputOrder:
         if topic.last_ns is not None and self.period_ns is not None and ns - topic.last_ns >= HORIZON * self.period_ns:
             topic.skips = True  # a slower sensor or controller (a lockstep one answers every period)
         topic.last_ns = ns
+        topic.last_push = now
         topic.stalled = False
         topic.pending.append(((ns, topic.rank), now, item))
         depth = self.depth()
@@ -151,11 +153,15 @@ class InputOrder:
             kind, (key, arrival, _) = head
             blockers = self._blockers(kind, key)
             if blockers:
-                if now - arrival > self.max_wait:
+                # only a topic silent for max_wait is given up on: one that delivers is behind, not gone
+                # (this node's own queues hold its messages while it catches up)
+                silent = [b for b in blockers if now - self.topics[b].last_push > self.max_wait]
+                if now - arrival > self.max_wait and silent:
                     self.stats.waited_out += 1
-                    for b in blockers:
+                    for b in silent:
                         self.topics[b].stalled = True
-                elif self.depth() > self.max_pending:
+                    continue  # the others may still block
+                if self.depth() > self.max_pending:
                     self.stats.forced += 1
                 else:
                     return out
