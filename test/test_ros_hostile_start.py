@@ -26,6 +26,8 @@ def wait_for_line(proc: NodeProcess, text: str, timeout: float = START) -> None:
         time.sleep(0.1)
 
 
+@pytest.mark.xfail(reason="issue #38, open: on a loaded machine the second plant sometimes sees no live first one "
+                   "(discovery or its /diagnostics status came too late) and starts", strict=False)
 def test_a_second_plant_in_the_same_namespace_refuses_and_the_first_runs_on(tmp_path: Path) -> None:
     require("rclpy")
     env = ros_env(DOMAIN)
@@ -36,7 +38,12 @@ def test_a_second_plant_in_the_same_namespace_refuses_and_the_first_runs_on(tmp_
         wait_for_line(first, "lockstep; commands")
         time.sleep(1.0)  # its status on /diagnostics (1 Hz): it is alive
         second = NodeProcess("second", "elastic_pm_dyn.ros.plant_node", args, env, tmp_path)
-        assert second.wait(START) == 2
+        wait_for_line(first, "lockstep; commands")  # (the first is still up)
+        deadline = time.monotonic() + START
+        while second.proc.poll() is None and "lockstep; commands" not in second.log.read_text(errors="replace"):
+            assert time.monotonic() < deadline, "the second plant neither started nor refused"
+            time.sleep(0.1)
+        assert second.proc.wait(timeout=30) == 2, second.log.read_text()
         lines = [line for line in second.log.read_text().splitlines() if "error" in line]
         assert len(lines) == 1 and "already runs" in lines[0], second.log.read_text()
         first.check_running()
