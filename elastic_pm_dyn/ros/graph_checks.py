@@ -27,19 +27,21 @@ ALIVE_WAIT = 5.0  # [s] for a status of a node seen in the graph (our nodes repo
 POLL = 0.05  # [s]
 
 
+def resolve_topic(node: Any, parameter: str, topic: Any) -> str:
+    """The fully qualified name of ``topic`` (the value of ``parameter``); ParameterError (one line)
+    when it is no topic name."""
+    try:
+        if not isinstance(topic, str) or not topic.strip():
+            raise RuntimeError("empty")
+        return node.resolve_topic_name(topic)
+    except RuntimeError as err:  # rclpy's RCLError: "failed to resolve name: <why>, at <source>"
+        why = str(err).removeprefix("failed to resolve name: ").split(", at /")[0]
+        raise ParameterError(f"parameter '{parameter}': {topic!r} is no topic name ({why})") from None
+
+
 def resolved_topics(node: Any, p: dict[str, Any], names: Iterable[str]) -> dict[str, str]:
     """Parameter name -> fully qualified topic, for the topic parameters ``names`` of ``p``."""
-    out = {}
-    for name in names:
-        topic = p[name]
-        try:
-            if not isinstance(topic, str) or not topic.strip():
-                raise RuntimeError("empty")
-            out[name] = node.resolve_topic_name(topic)
-        except RuntimeError as err:  # rclpy's RCLError: "failed to resolve name: <why>, at <source>"
-            why = str(err).removeprefix("failed to resolve name: ").split(", at /")[0]
-            raise ParameterError(f"parameter '{name}': {topic!r} is no topic name ({why})") from None
-    return out
+    return {name: resolve_topic(node, name, p[name]) for name in names}
 
 
 def _others(node: Any, topics: list[str]) -> set[str]:

@@ -69,6 +69,7 @@ from elastic_pm_dyn.bags.queued_writer import QueuedWriter
 from elastic_pm_dyn.bags.typestore import register_msg_text
 from elastic_pm_dyn.bags.writer import STORAGES, BagWriter
 from elastic_pm_dyn.errors import InputError
+from elastic_pm_dyn.ros.graph_checks import resolve_topic
 from elastic_pm_dyn.ros.losses import TopicLosses
 from elastic_pm_dyn.ros.node_main import ManagedNode, run_node
 from elastic_pm_dyn.ros.params import Param, ParameterError, read_parameters, reject_unknown
@@ -194,11 +195,7 @@ class RecorderNode(ManagedNode):
 
     def _resolve(self, parameter: str, topic: str) -> str:
         """The fully qualified name of ``topic``; ParameterError (one line) when it is no topic name."""
-        try:
-            return self.resolve_topic_name(topic)
-        except RuntimeError as err:  # rclpy's RCLError: "failed to resolve name: <why>, at <rcl source>"
-            why = str(err).removeprefix("failed to resolve name: ").split(", at /")[0]
-            raise ParameterError(f"parameter '{parameter}': {topic!r} is no topic name ({why})") from None
+        return resolve_topic(self, parameter, topic)
 
     @property
     def connections(self) -> dict[str, Any]:
