@@ -26,7 +26,7 @@ from launch_ros.substitutions import FindPackageShare
 PACKAGE = "elastic_pm_dyn"
 TOPICS = ["/joint_states", "/branch_forces", "/ee_pose", "/measured_joint_states", "/ee_imu", "/disturbance",
           "/observer/joint_states", "/observer/branch_forces", "/observer/ee_pose", "/torque_command",
-          "/reference_joint_states"]
+          "/applied_torque", "/reference_joint_states"]
 
 
 def generate_launch_description() -> LaunchDescription:

@@ -66,3 +66,55 @@ def test_reset_drops_a_command_held_from_ahead(five_bar, rec) -> None:
     # At most the few the stream needs to contradict the state ahead; not 50 (was: all late).
     assert sum(published) >= 50 - CONTRADICTED_AFTER
     assert np.isfinite(session.estimate().q).all()
+
+
+def test_the_restart_after_a_contradicted_stamp_takes_the_motor_rates_from_the_samples(five_bar, rec) -> None:
+    """The restart at the third late joint state differences the motor rates over the joint states
+    before it (the machine may be moving fast), not "motors at rest"."""
+    session = _session(five_bar)
+    k_moving = int(np.argmax(np.abs(rec.qd[:, five_bar.active]).max(axis=1)))  # the fastest moment
+    k0 = max(k_moving - 60, 0)
+    assert all(_period(session, rec, k) for k in range(k0, k0 + 50))
+    _period(session, rec, k0 + 50, shift=AHEAD)
+    restart = k0 + 50 + CONTRADICTED_AFTER
+    for k in range(k0 + 51, restart + 1):
+        _period(session, rec, k)
+    _, message, _ = session.report()
+    assert "contradicted" in message
+    rate = session.estimate().qd[five_bar.active]
+    true = rec.qd[restart, five_bar.active]
+    assert np.abs(true).max() > 0.1  # [rad/s] a machine that moves
+    # differenced over one 1 ms period of 2e-5 rad encoders: within ~0.05 rad/s, not off by the whole rate
+    assert np.abs(rate - true).max() < 0.2 * np.abs(true).max()
+
+
+@pytest.mark.parametrize("restart", [True, False])
+def test_a_fault_restarts_the_filter_from_the_next_joint_state(five_bar, rec, monkeypatch, restart) -> None:
+    """A live observer whose filter faults (here: its covariance step raises, as one that lost positive
+    definiteness does) publishes again from the next measured joint state, with rates differenced
+    over the one before; with restart_on_fault false it stays stopped until ~/reset."""
+    from elastic_pm_dyn.observer import ObserverFault
+
+    session = _session(five_bar)
+    session.restart_on_fault = restart
+    assert all(_period(session, rec, k) for k in range(60))
+    real = session.obs.update_joint_states
+
+    def fault(*args, **kwargs):
+        session.obs.fault = "covariance lost positive definiteness at t = 0.06 s"
+        raise ObserverFault(session.obs.fault)
+    monkeypatch.setattr(session.obs, "update_joint_states", fault)
+    out = session.joint_state(int(rec.stamp_ns[60]), rec.active_names, rec.encoder[60])
+    assert not out.publish and "observer stopped" in out.stopped
+    monkeypatch.setattr(session.obs, "update_joint_states", real)
+    published = [_period(session, rec, k) for k in range(61, 80)]
+    _, message, values = session.report()
+    if not restart:
+        assert not any(published) and values["restarts_after_fault"] == "0"
+        return
+    assert all(published) and values["restarts_after_fault"] == "1"
+    assert "restarts after a fault" in message
+    est = session.estimate()
+    q_meas = dict(zip(rec.active_names, rec.encoder[79], strict=True))
+    got = dict(zip(five_bar.joint_names, est.q, strict=True))
+    assert max(abs(got[n] - q_meas[n]) for n in rec.active_names) < 1e-3

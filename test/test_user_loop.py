@@ -38,8 +38,9 @@ F_RATIO = {"five_bar": 0.5, "triglide": 0.5, "hexa": 0.65}
 OPEN_LOOP = {"five_bar": 0.6, "triglide": 1.0, "hexa": 0.8}
 DOMAINS = {"five_bar": domain_id(96), "triglide": domain_id(97), "hexa": domain_id(93), "first": domain_id(99),
            "realtime": domain_id(94)}
-TOPICS = ["/joint_states", "/branch_forces", "/ee_pose", "/torque_command", "/measured_joint_states", "/ee_imu",
-          "/disturbance", "/observer/joint_states", "/observer/branch_forces", "/observer/ee_pose", "/diagnostics"]
+TOPICS = ["/joint_states", "/branch_forces", "/ee_pose", "/torque_command", "/applied_torque", "/measured_joint_states",
+          "/ee_imu", "/disturbance", "/observer/joint_states", "/observer/branch_forces", "/observer/ee_pose",
+          "/diagnostics"]
 
 
 def run_user_loop(out: Path, model: Path, domain: int, controller_first: bool = False,
@@ -122,6 +123,27 @@ def test_user_controller_started_first(tmp_path: Path) -> None:
     s = run_user_loop(tmp_path, CONFIG / "five_bar.yaml", DOMAINS["first"], controller_first=True)
     assert s["plant_states_in_loop"] >= PERIODS, s
     assert s["plant_states_without_estimate"] <= 0.01 * s["plant_states_in_loop"], s
+    # lockstep: the torque the plant says it applied over each period is the command of its stamp
+    efforts = read_efforts(tmp_path / "bag", ("/torque_command", "/applied_torque"))
+    commands, applied = efforts["/torque_command"], efforts["/applied_torque"]
+    assert len(applied) >= PERIODS and set(commands) == set(applied)
+    assert all(commands[ns] == applied[ns] for ns in commands)
+
+
+def read_efforts(bag: Path, topics: tuple[str, ...]) -> dict[str, dict[int, list[float]]]:
+    """stamp [ns] -> effort of each JointState topic of ``bag``."""
+    from rosbags.typesys import Stores, get_typestore
+
+    from elastic_pm_dyn.bags.msgtypes import stamp_ns
+    from elastic_pm_dyn.bags.reader import open_bag
+
+    typestore = get_typestore(Stores.ROS2_JAZZY)
+    out: dict[str, dict[int, list[float]]] = {t: {} for t in topics}
+    with open_bag(bag) as b:
+        for conn, _, raw in b.messages([c for c in b.connections if c.topic in topics]):
+            msg = typestore.deserialize_cdr(raw, conn.msgtype)
+            out[conn.topic][stamp_ns(msg.header.stamp)] = list(msg.effort)
+    return out
 
 
 def cpu_hogs(n: int) -> list[subprocess.Popen]:
@@ -168,6 +190,8 @@ def test_user_controller_in_realtime_beside_two_cpu_hogs(loop_soak: None, tmp_pa
     loop = states[(states >= commands[0]) & (states <= commands[-1])]  # the states the controller answered
     assert len(loop) >= PERIODS - 1
     assert set(np.diff(states).tolist()) == {1_000_000}  # on the grid: no period skipped
+    applied = np.array(sorted(read_efforts(bag, ("/applied_torque",))["/applied_torque"]))
+    assert np.all(np.isin(loop[:-1], applied))  # what acted over each period of the loop, said by the plant
     estimated = np.isin(loop, stamps["/observer/joint_states"])
     assert estimated.mean() >= 0.99, f"{np.sum(~estimated)} of {len(loop)} states without an estimate"
-    assert factors and all(0 < f <= 1.05 for f in factors)
+    assert factors and factors[-1] > 0 and all(0 <= f <= 1.05 for f in factors)  # 0 before the first period

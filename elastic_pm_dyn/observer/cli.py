@@ -79,6 +79,8 @@ def _add_inputs(p: argparse.ArgumentParser, out_help: str, config_help: str) -> 
     p.add_argument("--sensors", nargs="+", choices=("encoders", "imu", "branch_forces"),
                    help="sensor set (overrides the file's observer.sensors)")
     p.add_argument("--torque-topic", help="torque commands (default /torque_command)")
+    p.add_argument("--applied-topic", help="the torque the drives applied, used instead of the commands from its "
+                   "first message on (default /applied_torque; '' = never)")
     p.add_argument("--joint-topic", help="measured joint states (default /measured_joint_states)")
     p.add_argument("--imu-topic", help="accelerometer (default /ee_imu)")
     p.add_argument("--branch-topic", help="measured branch forces (default /measured_branch_forces)")
@@ -102,9 +104,10 @@ def _config(args: argparse.Namespace):
         except (yaml.YAMLError, RecursionError, ValueError) as exc:  # as yaml12.load_file: "!!int 1.5" is a ValueError
             reason = getattr(exc, "problem", None) or " ".join(str(exc).split())
             raise InputError(f"--set {shown}: not a valid YAML value: {reason[:200]}") from None
-    for key, attr in (("torque_command", "torque_topic"), ("measured_joint_states", "joint_topic"),
-                      ("ee_imu", "imu_topic"), ("measured_branch_forces", "branch_topic")):
-        if getattr(args, attr):
+    for key, attr in (("torque_command", "torque_topic"), ("applied_torque", "applied_topic"),
+                      ("measured_joint_states", "joint_topic"), ("ee_imu", "imu_topic"),
+                      ("measured_branch_forces", "branch_topic")):
+        if getattr(args, attr) is not None and (getattr(args, attr) or key == "applied_torque"):
             params[f"topics.{key}"] = getattr(args, attr)
     source = str(path) if path else "<defaults>"
     if set_names:  # a bad --set value is not the config file's fault

@@ -100,6 +100,9 @@ DEFAULT_PARAMETERS: dict[str, Any] = {
     "timing.max_future": 1.0,  # [s] a stamp further ahead of the filter is not used ("future"); .inf: no limit
     # --- topics (live node; defaults of the offline command)
     "topics.torque_command": "torque_command",
+    # the torque the drives applied, stamped at the start of its period (the plant node publishes it);
+    # where it comes it is the torque input and torque_command is not used any more; "" = never
+    "topics.applied_torque": "applied_torque",
     "topics.measured_joint_states": "measured_joint_states",
     "topics.ee_imu": "ee_imu",
     "topics.measured_branch_forces": "measured_branch_forces",
@@ -185,6 +188,7 @@ class Topics:
     measured_joint_states: str
     ee_imu: str
     measured_branch_forces: str
+    applied_torque: str = ""
 
 
 @dataclass
@@ -245,7 +249,7 @@ class ObserverConfig:
             timing=TimingConfig(p["timing.stamp_tolerance"], p["timing.command_timeout"],
                                 max_future=p["timing.max_future"]),
             topics=Topics(p["topics.torque_command"], p["topics.measured_joint_states"], p["topics.ee_imu"],
-                          p["topics.measured_branch_forces"]),
+                          p["topics.measured_branch_forces"], p["topics.applied_torque"]),
             observability_horizon=p["observability.horizon"],
             command_delay=p["command_delay"],
             source=source, parameters=p,

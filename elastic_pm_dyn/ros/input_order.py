@@ -20,16 +20,19 @@ message is taken once every other topic has shown that it holds nothing earlier.
   command stamped t_k or later. A command stamped before what was already taken is taken at
   once (the observer applies it from its current time).
 
-The wait is bounded: a topic that has left out a sample period before (a slower sensor, a
-controller slower than the plant; a lockstep controller answers every period) is not waited for
-once a message stamped 1.5 sample periods later is waiting, and no topic that has been silent
-for ``max_wait`` seconds of wall time once a message has waited that long (then the topic is not
-waited for until it delivers again: a stopped controller, the last state of a run; a topic that
-delivers is behind, not gone, e.g. in this node's own queues while it catches up). A sample
-topic is waited for only after its first message, the command topic from the start (the samples
-after the first stamp need the command that held the machine there). The same sample received
-twice (a lockstep plant publishes its first state again until a command comes) is taken once. At
-most ``max_pending`` messages wait; beyond, the earliest goes.
+The wait is bounded: a topic that leaves out sample periods (2 of its latest 20 stamp steps: a
+slower sensor, a controller slower than the plant; a lockstep controller answers every period,
+and a message lost once, say from a reader queue that overflowed while this node was stalled,
+does not count) is not waited for once a message stamped 1.5 sample periods later is waiting,
+and no topic that has been silent for ``max_wait`` seconds of wall time once a message has
+waited that long, both counted while this node ran (a stall of the node itself, more than
+``STALL`` between two polls, restarts the count) (then the topic is not waited for until it
+delivers again: a stopped controller, the last state of a run; a topic that delivers is behind,
+not gone, e.g. in this node's own queues while it catches up). A sample topic is waited for
+only after its first message, the command topic from the start (the samples after the first
+stamp need the command that held the machine there). The same sample received twice (a lockstep
+plant publishes its first state again until a command comes) is taken once. At most
+``max_pending`` messages wait; beyond, the earliest goes.
 """
 
 from __future__ import annotations
@@ -39,7 +42,10 @@ from dataclasses import dataclass, field
 from typing import Any
 
 BEFORE, PRIMARY, COMMAND, AFTER = 0, 1, 2, 3  # ranks within one stamp
+STALL = 0.2  # [s] between two calls of pop_ready (the node polls every ~0.05 s): the node itself did not run
 HORIZON = 1.5  # sample periods: a topic with nothing pending is skipped once a message this much later waits
+RECENT_STEPS = 20  # a topic skips periods when at least SKIPS_AMONG of its latest RECENT_STEPS stamp steps
+SKIPS_AMONG = 2  # left one out (a slower sensor or controller); a message lost now and then is no reason
 
 
 @dataclass
@@ -50,7 +56,9 @@ class _Topic:
     covers: tuple[int, int] | None = None  # its next message's key is at least this
     period_ns: int | None = None  # its sample period (the smallest stamp step seen)
     stalled: bool = False  # not waited for until it delivers again
-    skips: bool = False  # has left out a sample period: not waited for past HORIZON
+    skips: bool = False  # leaves out sample periods (see SKIPS_AMONG): not waited for past HORIZON
+    steps: deque[bool] = field(default_factory=lambda: deque(maxlen=RECENT_STEPS))  # latest steps: a period left out?
+    always_skips: bool = False  # a controller found answering less than every period
     last_push: float = float("-inf")  # wall time [s] of its latest message
 
 
@@ -76,6 +84,8 @@ class InputOrder:
             self.topics["command"].covers = (-1, COMMAND)  # command of t_0 (a holding torque, say)
         self.primary = primary
         self.max_wait = max_wait
+        self.last_poll = float("-inf")  # wall time [s] of the latest pop_ready
+        self.awake_since = float("-inf")  # since then the node has run without a stall: silence counts from here
         self.max_future_ns = max_future_ns
         self.max_pending = max_pending
         self.period_ns: int | None = None  # the primary topic's sample period, from its stamps
@@ -109,8 +119,11 @@ class InputOrder:
             # its next message: a period later (periodic samples), at least a later stamp
             topic.covers = (ns + topic.period_ns, topic.rank) if topic.period_ns else (ns, AFTER + 1)
             self.newest_ns = ns if self.newest_ns is None else max(self.newest_ns, ns)
-        if topic.last_ns is not None and self.period_ns is not None and ns - topic.last_ns >= HORIZON * self.period_ns:
-            topic.skips = True  # a slower sensor or controller (a lockstep one answers every period)
+        if topic.last_ns is not None and self.period_ns is not None and ns > topic.last_ns:
+            # a slower sensor or controller (a lockstep one answers every period); not a message lost
+            # once (a reader queue that overflowed while this node was stalled)
+            topic.steps.append(ns - topic.last_ns >= HORIZON * self.period_ns)
+            topic.skips = topic.always_skips or sum(topic.steps) >= SKIPS_AMONG
         topic.last_ns = ns
         topic.last_push = now
         topic.stalled = False
@@ -135,7 +148,7 @@ class InputOrder:
             return self.primaries[0]
         after = [s for s in self.primaries if s > previous]
         if len(after) > 3:  # more states than a lockstep plant makes ahead of a command on its way here
-            command.skips = True
+            command.skips = command.always_skips = True
             return newest
         if after:
             return after[0]
@@ -146,6 +159,9 @@ class InputOrder:
     def pop_ready(self, now: float) -> list[tuple[str, int, Any]]:
         """The messages that may be taken now, in stamp order: (kind, stamp, item)."""
         out, self._flushed = self._flushed, []
+        if now - self.last_poll > STALL:
+            self.awake_since = now
+        self.last_poll = now
         while True:
             head = self._earliest()
             if head is None:
@@ -155,8 +171,11 @@ class InputOrder:
             if blockers:
                 # only a topic silent for max_wait is given up on: one that delivers is behind, not gone
                 # (this node's own queues hold its messages while it catches up)
-                silent = [b for b in blockers if now - self.topics[b].last_push > self.max_wait]
-                if now - arrival > self.max_wait and silent:
+                # and only silence while this node ran: after a stall (descheduled, a long update) the
+                # messages of that time still wait in its reader queues, delivered one callback at a time
+                since = self.awake_since
+                silent = [b for b in blockers if now - max(self.topics[b].last_push, since) > self.max_wait]
+                if now - max(arrival, since) > self.max_wait and silent:
                     self.stats.waited_out += 1
                     for b in silent:
                         self.topics[b].stalled = True
@@ -166,6 +185,13 @@ class InputOrder:
                 else:
                     return out
             out.append(self._take(kind))
+
+    def discard(self, kind: str) -> int:
+        """Drop what ``kind`` holds (another source replaces it); returns how many."""
+        topic = self.topics[kind]
+        n = len(topic.pending)
+        self.topics[kind] = _Topic(topic.rank, covers=topic.covers)  # the new source starts afresh
+        return n
 
     def flush(self) -> list[tuple[str, int, Any]]:
         """Everything waiting, in stamp order (shutdown, reset)."""

@@ -67,6 +67,8 @@ ESTIMATE_PARAMS = [
           "stamp); then it goes without, and the topic it waited for is not waited for until it delivers again",
           positive=True, runtime=True),
     Param("lockstep_order", True, "replaced by input_order (true: stamp, false: arrival)"),
+    Param("restart_on_fault", True, "a fault of the filter (covariance or state not finite, a singular model) "
+          "restarts it from the next measured joint state; false: it stays stopped until ~/reset", runtime=True),
 ]
 
 

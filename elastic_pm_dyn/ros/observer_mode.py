@@ -95,6 +95,7 @@ class ObserverMode:
             self.session = ObserverSession(mech, cfg, p[COMMAND_JOINTS])
         except InputError as err:  # e.g. an unknown joint or branch name
             raise ParameterError(parameter_message(err)) from None
+        self.session.restart_on_fault = p["restart_on_fault"]
         self.cfg = cfg
         self.model_name = mech.model.name
         self.messages = EstimateMessages(mech, p["frames.base"])
@@ -138,6 +139,11 @@ class ObserverMode:
         if "branch_forces" in cfg.sensors and cfg.branch_forces.source == "branch_forces":
             inputs.append((BranchForces, topics.measured_branch_forces, self._input("branch_forces")))
         inputs.append((JointState, topics.measured_joint_states, self._input("joint_state")))
+        # the torque the drives applied (the plant's applied_torque): once it comes, the torque input
+        self.applied_since: int | None = None  # stamp [ns] of its first message
+        self.superseded = 0  # torque commands not used since (the applied torque says what acted)
+        if topics.applied_torque:
+            inputs.insert(1, (JointState, topics.applied_torque, self._on_applied))
         for msg_type, topic, callback in inputs:  # a copy each: rclpy writes the overrides into the profile
             node.create_subscription(msg_type, topic, callback, copy.copy(OBSERVER_INPUT_QOS),
                                      qos_overriding_options=QoSOverridingOptions.with_default_policies())
@@ -168,6 +174,9 @@ class ObserverMode:
             except InputError as err:  # on_runtime_change names the parameter itself
                 return parameter_message(err).removeprefix(f"parameter '{name}': ")
             self.cfg = cfg
+            return None
+        if name == "restart_on_fault":
+            self.session.restart_on_fault = value
             return None
         if name == "input_wait":
             if self.order is not None:
@@ -200,8 +209,28 @@ class ObserverMode:
                 self.handlers[kind](msg)
 
     def _on_command(self, msg: JointState | Float64MultiArray) -> None:
+        if self.applied_since is not None:
+            self.superseded += 1
+            return
         # no header (Float64MultiArray): the arrival time on the node's clock
         ns = stamp_ns(msg.header.stamp) if isinstance(msg, JointState) else self.node.get_clock().now().nanoseconds
+        self._queue_command(msg, ns)
+
+    def _on_applied(self, msg: JointState) -> None:
+        """The torque that acted over the period from its stamp: the plant applies a command that
+        comes late from its next period on, not from its stamp (realtime), and holds or zeroes
+        one that does not come; the filter predicts with what acted."""
+        ns = stamp_ns(msg.header.stamp)
+        if self.applied_since is None:
+            self.applied_since = ns
+            if self.order is not None:
+                self.order.discard("command")  # the commands queued so far: the applied torque says what acted
+            self.node.get_logger().info(
+                f"torque input: '{self.cfg.topics.applied_torque}' (the torque applied, from t = {ns * 1e-9:.6f} s "
+                f"on); '{self.cfg.topics.torque_command}' is not used any more")
+        self._queue_command(msg, ns)
+
+    def _queue_command(self, msg: JointState | Float64MultiArray, ns: int) -> None:
         if self.order is None:
             self._take_command(msg, ns)
             return
@@ -272,6 +301,9 @@ class ObserverMode:
         if findings:
             log.warning("; ".join(findings.values()), throttle_duration_sec=FINDINGS_EVERY)
         level, message, values = self.session.report()
+        values["torque_input"] = (self.cfg.topics.torque_command if self.applied_since is None
+                                  else self.cfg.topics.applied_torque)
+        values["torque_commands_superseded"] = str(self.superseded)
         if self.order is not None:
             values |= self._order_values()
         status = DiagnosticStatus(name=f"{self.node.get_fully_qualified_name()}: observer", hardware_id=self.model_name,

@@ -20,7 +20,10 @@ wants the accelerometer of t_k in the estimate of t_k sends it before the joint 
 
 Faults (:class:`~elastic_pm_dyn.observer.schedule.ekf.ObserverFault`: singular model, state or
 covariance not finite) stop the filter: messages are refused (counted), nothing is
-published, diagnostics say ERROR until :meth:`ObserverSession.reset`.
+published, diagnostics say ERROR until :meth:`ObserverSession.reset`, or, with
+``restart_on_fault`` (the default), until the next measured joint state, from which the filter
+restarts (motor rates differenced over the one before; ``restarts_after_fault`` counted). The
+offline pass has no such restart: a recording that faults the filter is a finding to look at.
 
 Time: the filter counts seconds from the first stamp (:attr:`ObserverStream.origin_ns`, in
 the diagnostics), the estimates are published at the exact header stamps. A message stamped
@@ -126,6 +129,8 @@ class ObserverSession:
         self.received = dict.fromkeys(KINDS, 0)
         self.published = 0
         self.faults = 0  # times the filter stopped
+        self.restart_on_fault = True  # a stopped filter restarts from the next joint state (else: ~/reset)
+        self.restarts_after_fault = 0
         self.refused = 0  # messages refused while stopped
         self.update_times: list[float] = []  # [s] observer time per message, since the last report
         self.cycle_times: list[float] = []  # [s] whole callback (the node adds them), since the last report
@@ -162,11 +167,19 @@ class ObserverSession:
 
     def joint_state(self, ns: int, names: Sequence[str], position: Sequence[float], velocity: Sequence[float] = (),
                     effort: Sequence[float] = ()) -> Outcome:
+        if self.obs.fault is not None and self.restart_on_fault:
+            restarted = self._restart_after_fault(ns, names, position, velocity)
+            if restarted is not None:
+                return restarted
         results, out = self._run("joint_state", ns,
                                  lambda: self.stream.on_joint_state(ns, names, position, velocity, effort))
         late = any(r.reason == "late" for r in results or ())
         if late and self._contradicted(ns):
-            self._joint_states.clear()  # the states ahead of the stream go with the time they set
+            # the states ahead of the stream go with the time they set; an earlier one stays, to
+            # difference the motor rates (the machine may be moving fast: "at rest" would be far off)
+            kept = [js for js in self._joint_states if js.ns < ns]
+            self._joint_states.clear()
+            self._joint_states.extend(kept)
             self._remember(ns, names, position, velocity)
             text = self.reset()
             self._late_run.clear()
@@ -179,6 +192,26 @@ class ObserverSession:
         if not any(r.reason in _NOT_KEPT for r in results or ()):  # an outlier is no state to reset to
             self._remember(ns, names, position, velocity)
         return self._finish("joint_state", ns, results, out)
+
+    def _restart_after_fault(self, ns: int, names: Sequence[str], position: Sequence[float],
+                             velocity: Sequence[float]) -> Outcome | None:
+        """A stopped filter starts again from this joint state (motor rates differenced over the one
+        before): the estimate of a machine that left what the filter linearises well (a five-bar
+        flung through its singular poses) comes back as soon as the samples allow. None if it cannot
+        (not every motor position, no closed pose there): the next joint state tries again."""
+        fault = self.obs.fault
+        self._remember(ns, names, position, velocity)
+        if not self._joint_states or self._joint_states[-1].ns != ns:
+            return None
+        text = self.reset()
+        if self.obs.fault is not None or not self.obs.initialised:
+            return None
+        self.restarts_after_fault += 1
+        self.received["joint_state"] += 1
+        out = Outcome()
+        out.add("restart", f"restarted after a fault ({fault}): {text}")
+        self._window["restarts after a fault"] += 1
+        return self._finish("joint_state", ns, [], out)
 
     def _contradicted(self, ns: int) -> bool:
         """A late joint state, the CONTRADICTED_AFTER-th in a row, each after the one before: the
@@ -216,10 +249,12 @@ class ObserverSession:
         except ObserverFault as err:
             if stopped:
                 self.refused += 1
-                out.add(f"{kind} refused", f"{kind} message refused: the observer stopped ({err}); call ~/reset")
+                then = "the next measured joint state restarts it" if self.restart_on_fault else "call ~/reset"
+                out.add(f"{kind} refused", f"{kind} message refused: the observer stopped ({err}); {then}")
             else:
                 self.faults += 1
-                out.stopped = f"observer stopped: {err}; call ~/reset"
+                out.stopped = f"observer stopped: {err}; " + (
+                    "it restarts from the next measured joint state" if self.restart_on_fault else "call ~/reset")
         except InputError as err:
             self._window[f"{kind} messages rejected"] += 1
             out.add(f"{kind} rejected", f"{kind} message rejected: {err}")
@@ -297,6 +332,7 @@ class ObserverSession:
         values |= {
             "estimates_published": str(self.published), "commands_rejected": str(stream.bad_commands),
             "last_command_error": stream.last_error, "faults": str(self.faults),
+            "restarts_after_fault": str(self.restarts_after_fault),
             "refused_while_stopped": str(self.refused),
             "update_time_mean_us": f"{_mean(self.update_times) * 1e6:.1f}",
             "update_time_max_us": f"{_max(self.update_times) * 1e6:.1f}",

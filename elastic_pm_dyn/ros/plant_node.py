@@ -47,6 +47,10 @@ Torque held over a period: the last valid command, or zero when it is older than
 ``command_timeout`` on the plant's clock: simulated time in fast and realtime ``slow`` (a
 stall that stops the plant's clock does not age the command: the plant applies it when it
 goes on), wall time in realtime ``skip`` (its stamps are the wall clock); lockstep waits.
+That torque goes out on ``topics.applied_torque`` as each period is stepped, stamped at the
+period's start, before the state it led to: what a drive reports. In realtime a command that
+arrives late acts from the next tick, not from its stamp; an observer that predicts with the
+applied torque follows the plant however late the controller answers.
 
 Simulated sensors (``sensors.*``) and an unknown disturbance torque on the motors
 (``disturbance.*``): :mod:`~elastic_pm_dyn.ros.plant_sensors` (all off by default).
@@ -73,6 +77,7 @@ from std_msgs.msg import Float64MultiArray, Header
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
 
+from elastic_pm_dyn.bags import cdr
 from elastic_pm_dyn.bags.msgtypes import NS
 from elastic_pm_dyn.dynamics.direct import FORMULATIONS
 from elastic_pm_dyn.errors import InputError, SingularConfigurationError
@@ -81,7 +86,7 @@ from elastic_pm_dyn.ros.graph_checks import refuse_if_taken, resolved_topics
 from elastic_pm_dyn.ros.losses import SequenceGaps
 from elastic_pm_dyn.ros.machine_params import DESCRIPTION_PARAMS, ESTIMATE_PARAMS, MACHINE_PARAMS, load_machine
 from elastic_pm_dyn.ros.markers import MechanismMarkers
-from elastic_pm_dyn.ros.messages import PlantMessages, stamp
+from elastic_pm_dyn.ros.messages import PlantMessages, SerializedMessage, stamp
 from elastic_pm_dyn.ros.node_main import ManagedNode, run_node, stopping
 from elastic_pm_dyn.ros.params import (
     COMMAND_JOINTS,
@@ -146,6 +151,9 @@ PARAMS = [
           "time in fast and realtime with overrun slow, wall time with overrun skip; unused in lockstep)",
           positive=True, runtime=True),
     Param("topics.command", "torque_command", "torque command topic"),
+    Param("topics.applied_torque", "applied_torque", "sensor_msgs/JointState, effort = the motor torque the plant "
+          "applied over the period that starts at the stamp (the command, one held, or zero when stale; a drive's "
+          "report), published as each period is stepped; the observer prefers it to torque_command"),
     Param("topics.clock", "clock", "rosgraph_msgs/Clock in fast, lockstep and realtime with overrun slow "
           "(the plant's clock); relative: <namespace>/clock (a node with use_sim_time in that namespace "
           "remaps /clock:=clock)"),
@@ -173,7 +181,7 @@ PARAMS = [
 ]
 # Parameters that only one mode uses (a warning lists the ones given to the other mode); and observer.*
 ONLY = {"plant": ("formulation", "integrator", "dt", "start", "stabilization", "publish_rate", "sync_mode",
-                  "command_timeout", "topics.command", "topics.clock", "hardware_id",
+                  "command_timeout", "topics.command", "topics.applied_torque", "topics.clock", "hardware_id",
                   *(s.name for s in PARAMS if s.name.startswith(("lockstep.", "realtime."))),
                   *(s.name for s in SENSOR_PARAMS), *(s.name for s in DISTURBANCE_PARAMS)),
         "observer": tuple(s.name for s in ESTIMATE_PARAMS)}
@@ -255,6 +263,9 @@ class PlantNode(ManagedNode):
         self.pub_markers = self.create_publisher(MarkerArray, p["topics.markers"], VIEWER_QOS)
         self.pub_diagnostics = self.create_publisher(DiagnosticArray, p["topics.diagnostics"], DIAGNOSTICS_QOS)
         self.pub_clock = self.create_publisher(ClockMsg, p["topics.clock"], CLOCK_QOS) if self.own_clock else None
+        self.pub_applied = self.create_publisher(JointState, p["topics.applied_torque"], STATE_OUT_QOS)
+        motors = list(mech.active_names)
+        self.applied = SerializedMessage(lambda a: cdr.encode_joint_state(0, motors, *a), (0, 0, len(motors)))
         msg_type = JointState if p["command_type"] == "joint_state" else Float64MultiArray
         self.command_sub = self.create_subscription(
             msg_type, p["topics.command"], lambda msg, info: self._on_command(msg, info),  # two args: with info
@@ -301,10 +312,10 @@ class PlantNode(ManagedNode):
         extra = ""
         if self.sync_mode == "realtime":
             self.step_timer = self.create_timer(period, self._on_realtime_tick, clock=self.steady)
-            applied = prepare(self.get_logger(), p["realtime.cpu_affinity"], p["realtime.priority"],
+            prepared = prepare(self.get_logger(), p["realtime.cpu_affinity"], p["realtime.priority"],
                               p["realtime.keep_gc_out"])
             self.keep_gc_out = p["realtime.keep_gc_out"]
-            extra = f" ({', '.join(applied)})" if applied else ""
+            extra = f" ({', '.join(prepared)})" if prepared else ""
         elif self.sync_mode == "fast":
             self.step_timer = self.create_timer(0.0, self._on_fast_tick, clock=self.steady)
         else:
@@ -559,6 +570,7 @@ class PlantNode(ManagedNode):
         command of this period arrived, if it is a new one (latency, fresh-command share)."""
         t0 = time.perf_counter()
         held = self._held_disturbance()
+        start_ns = self._stamp_ns()
         try:
             if self.sensors is not None and self.sensors.after:  # a(t_k+): under the command that starts now
                 self.sensors.publish_imu(self._stamp_ns(), self.plant.motor_torque(tau, held))
@@ -573,6 +585,10 @@ class PlantNode(ManagedNode):
             self.warn.warning("step failed", f"period not advanced: {type(err).__name__}: {err}")
             return False
         t1 = time.perf_counter()
+        # what acted over the period, before the state it led to (an observer predicts with it)
+        self.applied.set_stamp(*divmod(start_ns, NS))
+        self.applied.arrays[2][:] = tau
+        self.pub_applied.publish(self.applied.raw())
         self._publish_state()
         t2 = time.perf_counter()
         self.stats.add(t1 - t0, t2 - t0)

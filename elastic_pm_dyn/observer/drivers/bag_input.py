@@ -37,8 +37,8 @@ from elastic_pm_dyn.errors import InputError
 from elastic_pm_dyn.observer.config import ObserverConfig
 
 # Accepted message types of each kind of input.
-EXPECTED = {"command": (JOINT_STATE, FLOAT64_ARRAY), "joint_state": (JOINT_STATE,), "imu": (IMU,),
-            "branch_forces": (BRANCH_FORCES,)}
+EXPECTED = {"command": (JOINT_STATE, FLOAT64_ARRAY), "applied": (JOINT_STATE,), "joint_state": (JOINT_STATE,),
+            "imu": (IMU,), "branch_forces": (BRANCH_FORCES,)}
 
 
 @dataclass
@@ -47,6 +47,7 @@ class Topics:
     measured_joint_states: str = "/measured_joint_states"
     ee_imu: str = "/ee_imu"
     measured_branch_forces: str = "/measured_branch_forces"
+    applied_torque: str = "/applied_torque"  # "": never
 
     @classmethod
     def from_config(cls, cfg: ObserverConfig) -> Topics:
@@ -54,7 +55,7 @@ class Topics:
             return name if name.startswith("/") else "/" + name
         t = cfg.topics
         return cls(slash(t.torque_command), slash(t.measured_joint_states), slash(t.ee_imu),
-                   slash(t.measured_branch_forces))
+                   slash(t.measured_branch_forces), slash(t.applied_torque) if t.applied_torque else "")
 
 
 @dataclass
@@ -126,17 +127,20 @@ def iter_events(bag: Path, topics: Topics, cfg: ObserverConfig, counts: dict, ch
     """:func:`read_events` in batches of ``chunk`` events (bag order); ``counts`` (per kind)
     filled in as they are read; before each message, waits for ``gate`` (if given) to be set."""
     wanted = {topics.torque_command: "command", topics.measured_joint_states: "joint_state"}
+    if topics.applied_torque:
+        wanted[topics.applied_torque] = "applied"
     if "imu" in cfg.sensors:
         wanted[topics.ee_imu] = "imu"
     if "branch_forces" in cfg.sensors and cfg.branch_forces.source == "branch_forces":
         wanted[topics.measured_branch_forces] = "branch_forces"
     events: list[Event] = []
-    counts.update({k: 0 for k in wanted.values()})
+    counts.update({k: 0 for k in wanted.values() if k != "applied"})  # applied: counted only if present
     with open_bag(bag) as reader:
         reader.require_messages()
         conns = [c for c in reader.connections if c.topic in wanted]
         found = {c.topic for c in conns}
-        for topic in (topics.torque_command, topics.measured_joint_states):
+        has_applied = topics.applied_torque in found
+        for topic in (topics.applied_torque if has_applied else topics.torque_command, topics.measured_joint_states):
             if topic not in found:
                 have = ", ".join(sorted({c.topic for c in reader.connections})) or "none"
                 raise InputError(f"{bag}: no topic {topic} (topics: {have}); see --torque-topic/--joint-topic")
@@ -146,10 +150,17 @@ def iter_events(bag: Path, topics: Topics, cfg: ObserverConfig, counts: dict, ch
                                  f"{' or '.join(EXPECTED[wanted[c.topic]])}")
         dec = reader.decoder()
         order = StampOrder(bag)
+        switched = False
         for i, (conn, t_recv, raw) in enumerate(reader.messages(conns)):
             if gate is not None and not gate.is_set():
                 gate.wait()
             kind = wanted[conn.topic]
+            if kind == "applied":  # the torque that acted: the torque input from its first message on, as
+                counts["applied"] = counts.get("applied", 0) + 1  # the live node takes it (no command after it)
+                kind, switched = "command", True
+            elif kind == "command" and switched:
+                counts["superseded"] = counts.get("superseded", 0) + 1
+                continue
             stamp, data = _decode(dec, conn.msgtype, kind, t_recv, raw)
             order.check(conn.topic, stamp)
             events.append(Event(stamp, kind, data, i))
@@ -163,11 +174,15 @@ def iter_events(bag: Path, topics: Topics, cfg: ObserverConfig, counts: dict, ch
 
 def recording_to_bag(rec, path: str | Path, use: tuple[str, ...] = ("encoders", "imu", "branch_forces"),
                      storage: str = "mcap", topics: Topics | None = None, imu_frame: str = "ee_imu",
-                     receive_ns: dict[str, np.ndarray] | None = None) -> None:
+                     receive_ns: dict[str, np.ndarray] | None = None, commands: np.ndarray | None = None,
+                     applied: bool = False) -> None:
     """Write a simulated :class:`~elastic_pm_dyn.observer.testing.scenarios.Recording` as the bag a
     robot would give: per sample the measurements stamped ``rec.stamp_ns[k]``, then the
     command of t_k. ``receive_ns``: the receive time [ns] per sample of each kind
-    ("encoders", "imu", "branch_forces", "command"); a kind not given: its stamps."""
+    ("encoders", "imu", "branch_forces", "command"); a kind not given: its stamps. ``commands``:
+    the torque_command values written (default ``rec.tau_cmd``); ``applied``: also the torque
+    that acted over each period (``rec.acting``) on ``topics.applied_torque``, stamped at the
+    period's start and received just before the next sample, as the plant node publishes it."""
     topics = topics or Topics()
     stamps = np.asarray(rec.stamp_ns, dtype=np.int64)
     recv = {kind: np.asarray((receive_ns or {}).get(kind, stamps), dtype=np.int64)
@@ -180,6 +195,8 @@ def recording_to_bag(rec, path: str | Path, use: tuple[str, ...] = ("encoders", 
         T, H, JS, BF, Imu = types[TIME], types[HEADER], types[JOINT_STATE], types[BRANCH_FORCES], types[IMU]
         V3, Q = types[VECTOR3], types[QUATERNION]
         c_cmd = w.add_connection(topics.torque_command, JOINT_STATE)
+        c_applied = w.add_connection(topics.applied_torque, JOINT_STATE) if applied else None
+        tau = rec.tau_cmd if commands is None else np.asarray(commands, dtype=float)
         c_js = w.add_connection(topics.measured_joint_states, JOINT_STATE)
         c_imu = w.add_connection(topics.ee_imu, IMU) if "imu" in use else None
         c_bf = w.add_connection(topics.measured_branch_forces, BRANCH_FORCES) if "branch_forces" in use else None
@@ -201,4 +218,9 @@ def recording_to_bag(rec, path: str | Path, use: tuple[str, ...] = ("encoders", 
                     header=hdr, name=list(rec.branch_names), force=rec.branch[k], deflection=np.zeros(0),
                     deflection_rate=np.zeros(0), force_stddev=np.zeros(0)))
             w.write_message(c_cmd, int(recv["command"][k]), JS(header=hdr, name=names, position=np.zeros(0),
-                                                               velocity=np.zeros(0), effort=rec.tau_cmd[k]))
+                                                               velocity=np.zeros(0), effort=tau[k]))
+            if c_applied is not None:
+                step = int(stamps[-1] - stamps[-2]) if len(stamps) > 1 else 2
+                nxt = int(recv["encoders"][k + 1]) if k + 1 < len(stamps) else int(recv["encoders"][k]) + step
+                w.write_message(c_applied, nxt - 1, JS(
+                    header=hdr, name=names, position=np.zeros(0), velocity=np.zeros(0), effort=rec.acting[k]))
