@@ -100,3 +100,36 @@ def test_plant_session_steps_resets_and_sets_state(model) -> None:
     assert plant.fault is not None and plant.k == 7
     with pytest.raises(SingularConfigurationError):  # stays stopped until reset
         plant.step(tau)
+
+
+def test_a_state_topic_is_claimed_once_per_host_and_domain(tmp_path, monkeypatch) -> None:
+    """Two plants in one namespace on one host: the second is refused at once, naming the first,
+    whatever discovery has seen yet; another domain or topic is free, and the claim ends with its holder."""
+    import subprocess
+    import sys
+    from types import SimpleNamespace
+
+    from elastic_pm_dyn.ros.graph_checks import claim_on_host
+    from elastic_pm_dyn.ros.params import ParameterError
+
+    monkeypatch.setenv("XDG_RUNTIME_DIR", str(tmp_path))
+
+    def node(name: str, domain: int) -> SimpleNamespace:
+        return SimpleNamespace(context=SimpleNamespace(get_domain_id=lambda: domain),
+                               get_fully_qualified_name=lambda: name)
+
+    held = claim_on_host(node("/r1/plant", 7), ["/r1/joint_states"])
+    with pytest.raises(ParameterError, match=r"^/r1/plant \(pid \d+\) already runs on this host in ROS domain 7"):
+        claim_on_host(node("/r1/plant", 7), ["/r1/joint_states"])
+    claim_on_host(node("/r1/plant", 8), ["/r1/joint_states"])  # another domain
+    claim_on_host(node("/r2/plant", 7), ["/r2/joint_states"])  # another namespace
+    # another process is refused too (flock holds across processes), until the holder lets go
+    code = ("import sys, types; from elastic_pm_dyn.ros.graph_checks import claim_on_host\n"
+            "n = types.SimpleNamespace(context=types.SimpleNamespace(get_domain_id=lambda: 7), "
+            "get_fully_qualified_name=lambda: '/r1/other')\n"
+            "try:\n    claim_on_host(n, ['/r1/joint_states'])\nexcept Exception as e:\n    print(e); sys.exit(2)\n")
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert run.returncode == 2 and "/r1/plant" in run.stdout
+    for f in held:
+        f.close()
+    assert subprocess.run([sys.executable, "-c", code], capture_output=True, timeout=120).returncode == 0

@@ -26,8 +26,6 @@ def wait_for_line(proc: NodeProcess, text: str, timeout: float = START) -> None:
         time.sleep(0.1)
 
 
-@pytest.mark.xfail(reason="issue #38, open: on a loaded machine the second plant sometimes sees no live first one "
-                   "(discovery or its /diagnostics status came too late) and starts", strict=False)
 def test_a_second_plant_in_the_same_namespace_refuses_and_the_first_runs_on(tmp_path: Path) -> None:
     require("rclpy")
     env = ros_env(DOMAIN)

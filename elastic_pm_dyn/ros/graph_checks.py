@@ -6,7 +6,10 @@
 - :func:`refuse_if_taken`: a node that stands for a machine (the plant, an observer) does not
   start where one already runs: the same node name in the same namespace, or another writer of
   its state topic (two plants in ``/r1`` interleave their states on ``/r1/joint_states`` and both
-  serve ``/r1/plant/step``). Discovery takes a moment, so the check looks until the node has been
+  serve ``/r1/plant/step``). On one host that is certain at once: each such node holds an
+  exclusive lock (``flock``) on a file named by its ROS domain and state topic
+  (:func:`claim_on_host`), which the kernel releases when the process ends however it ends.
+  Across hosts only the graph can tell, and discovery takes a moment, so the check looks until the node has been
   in the graph for :data:`DISCOVERY_WAIT` (the model's loading usually covers it). The graph also
   shows, for a while, a node that has just stopped (one killed without a goodbye: up to the DDS
   lease, ~20 s), so a node seen there counts only if it is alive: it publishes its status on
@@ -15,6 +18,10 @@
 
 from __future__ import annotations
 
+import fcntl
+import os
+import re
+import tempfile
 import time
 from collections.abc import Iterable
 from typing import Any
@@ -82,11 +89,49 @@ def _alive(node: Any, names: set[str], wait: float) -> set[str]:
     return names & heard
 
 
+def lock_dir() -> str:
+    """Where the host's claims live: the user's runtime directory, else the temporary one."""
+    base = os.environ.get("XDG_RUNTIME_DIR") or tempfile.gettempdir()
+    return os.path.join(base, f"elastic_pm_dyn-{os.getuid()}")
+
+
+def claim_on_host(node: Any, topics: Iterable[str]) -> list[Any]:
+    """Exclusive locks on ``topics`` (fully qualified) in this node's ROS domain, held as long as
+    the returned files stay open (the node keeps them); ParameterError (one line, naming the holder)
+    if a process of this host holds one."""
+    domain = node.context.get_domain_id()
+    folder = os.path.join(lock_dir(), f"domain-{domain}")
+    os.makedirs(folder, mode=0o700, exist_ok=True)
+    held = []
+    for topic in topics:
+        path = os.path.join(folder, re.sub(r"[^\w.-]", "_", topic.strip("/")) + ".lock")
+        f = open(path, "a+", encoding="utf-8")  # noqa: SIM115 (kept open: the lock lives with it)
+        try:
+            fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            f.seek(0)
+            holder = f.read().strip() or "another process"
+            f.close()
+            for g in held:
+                g.close()
+            raise ParameterError(f"{holder} already runs on this host in ROS domain {domain} and publishes "
+                                 f"{topic}: not starting a second one beside it (another namespace: "
+                                 "-r __ns:=/r2, or stop the first)") from None
+        f.seek(0)
+        f.truncate()
+        f.write(f"{node.get_fully_qualified_name()} (pid {os.getpid()})")
+        f.flush()
+        held.append(f)
+    return held
+
+
 def refuse_if_taken(node: Any, topics: Iterable[str], since: float, wait: float = DISCOVERY_WAIT) -> None:
-    """ParameterError (one line) if another node of this name and namespace, or another writer of
-    one of ``topics`` (fully qualified), shows in the graph before ``since + wait`` (monotonic)
-    and is alive (see the module doc); a silent one is one warning."""
+    """ParameterError (one line) if a process of this host holds ``topics`` (:func:`claim_on_host`;
+    the node then holds them, in ``node.host_claims``), or if another node of this name and
+    namespace, or another writer of one of ``topics`` (fully qualified), shows in the graph before
+    ``since + wait`` (monotonic) and is alive (see the module doc); a silent one is one warning."""
     topics = list(topics)
+    node.host_claims = [*getattr(node, "host_claims", []), *claim_on_host(node, topics)]
     # at least MIN_LOOK of looking now: a loaded machine's discovery may lag the node's own start-up
     deadline = max(since + wait, time.monotonic() + MIN_LOOK)
     while not (others := _others(node, topics)) and time.monotonic() < deadline:

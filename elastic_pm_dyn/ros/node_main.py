@@ -50,6 +50,12 @@ class ManagedNode(Node):
     def close(self) -> None:
         """Release resources before the node is destroyed (called once, also on signals)."""
 
+    def destroy_node(self) -> None:
+        for f in getattr(self, "host_claims", []):  # graph_checks.claim_on_host: another may start now
+            f.close()
+        self.host_claims = []
+        super().destroy_node()
+
 
 def run_node(program: str, factory: Callable[[], ManagedNode], args: list[str] | None = None) -> int:
     """Run one node in its own process; returns the exit status."""
