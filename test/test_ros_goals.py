@@ -239,3 +239,63 @@ def test_rate_and_goal_sizes_are_bounded(ros: RosHarness) -> None:
                                                                        for _ in range(n)]))
     ros.spin_for(0.5)
     assert node.ff.goal is None and node.ff.reference is None  # refused in their callbacks, before any work
+
+
+def test_sigint_ends_a_node_computing_its_elastic_line_at_once(tmp_path: Path) -> None:
+    """The elastic line of ``source: line`` is computed beside the node too: the node is up (its
+    services and Ctrl-C answer) while a long line computes, and it starts the line once ready."""
+    require("rclpy")
+    from elastic_pm_dyn.ros.processes import NodeProcess, ros_env
+    proc = NodeProcess("feedforward", "elastic_pm_dyn.ros.feedforward_node",
+                       ["-p", "method:=elastic", "-p", "line.move:=60.0", "-p", "wait_for_subscribers:=0"],
+                       ros_env(domain_id(13)), tmp_path)
+    try:
+        deadline = time.monotonic() + 300.0
+        while "source line" not in proc.log.read_text():
+            proc.check_running()
+            assert time.monotonic() < deadline, "the node did not start"
+            time.sleep(0.1)
+        time.sleep(1.0)
+        start = time.monotonic()
+        proc.proc.send_signal(signal.SIGINT)
+        code = proc.wait(30.0)
+        took = time.monotonic() - start
+    finally:
+        if proc.proc.poll() is None:
+            os.killpg(proc.proc.pid, signal.SIGKILL)
+    log = proc.log.read_text()
+    assert code == 0, log
+    assert took < 10.0, log  # the line's elastic inverse takes about a minute
+    assert "reference ready" not in log and "started" not in log  # up long before its line was
+
+
+def test_an_elastic_line_starts_once_computed(tmp_path: Path) -> None:
+    require("rclpy")
+    from elastic_pm_dyn.ros.processes import NodeProcess, ros_env
+    proc = NodeProcess("feedforward", "elastic_pm_dyn.ros.feedforward_node",
+                       ["-p", "method:=elastic", "-p", "wait_for_subscribers:=0", "-p", "exit_when_done:=true"],
+                       ros_env(domain_id(13)), tmp_path)
+    try:
+        code = proc.wait(600.0)
+    finally:
+        if proc.proc.poll() is None:
+            os.killpg(proc.proc.pid, signal.SIGKILL)
+    log = proc.log.read_text()
+    assert code == 0, log
+    ready, started, finished = (log.index(w) for w in ("reference ready", "started", "reference finished"))
+    assert ready < started < finished
+
+
+def test_an_elastic_line_it_refuses_ends_the_node_with_one_line(tmp_path: Path) -> None:
+    require("rclpy")
+    from elastic_pm_dyn.ros.processes import NodeProcess, ros_env
+    proc = NodeProcess("feedforward", "elastic_pm_dyn.ros.feedforward_node",
+                       ["-p", "method:=elastic", "-p", "line.end:=[1.5, 1.5]", "-p", "wait_for_subscribers:=0"],
+                       ros_env(domain_id(13)), tmp_path)
+    try:
+        code = proc.wait(600.0)
+    finally:
+        if proc.proc.poll() is None:
+            os.killpg(proc.proc.pid, signal.SIGKILL)
+    errors = [line for line in proc.log.read_text().splitlines() if "ERROR" in line]
+    assert code == 2 and len(errors) == 1 and "parameters 'line.*' with method elastic" in errors[0], errors

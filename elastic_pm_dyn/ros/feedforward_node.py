@@ -28,7 +28,9 @@ callback (a bad one: one line) and its reference computed in a child process bes
 command stream (:mod:`~elastic_pm_dyn.ros.goal_worker`): meanwhile the current reference goes
 on (after its end its end pose is held, the last torque published again), which the node
 says once; a newer goal supersedes one still being computed; Ctrl-C or SIGTERM kills the
-computation at once (the node stops within its spin timeout).
+computation at once (the node stops within its spin timeout). The elastic line of ``source:
+line`` is computed the same way from start-up, and starts once ready (autostart or ``~/start``);
+a line it refuses ends the node with that line (exit status 2), as a bad parameter does.
 ``header.stamp`` (:mod:`~elastic_pm_dyn.ros.goal_stamps`): 0 is now, i.e. when its reference
 is ready, from its first point; any other stamp is its start on the node's clock (wall
 time, simulated time with use_sim_time, with ``trigger: state`` the plant states' stamps),
@@ -94,10 +96,16 @@ from elastic_pm_dyn.motion.waypoints import MAX_WAYPOINTS
 from elastic_pm_dyn.ros.cartesian_goals import goal_path
 from elastic_pm_dyn.ros.commands import CommandDecoder
 from elastic_pm_dyn.ros.goal_stamps import goal_start, late_start
-from elastic_pm_dyn.ros.goal_worker import GoalJob, cartesian_reference, joint_reference, prestart
+from elastic_pm_dyn.ros.goal_worker import (
+    GoalJob,
+    cartesian_reference,
+    elastic_line_reference,
+    joint_reference,
+    prestart,
+)
 from elastic_pm_dyn.ros.losses import SequenceGaps
 from elastic_pm_dyn.ros.messages import joint_state, torque_command
-from elastic_pm_dyn.ros.node_main import ManagedNode, run_node, stopping
+from elastic_pm_dyn.ros.node_main import EXIT_START_FAILED, ManagedNode, run_node, stopping
 from elastic_pm_dyn.ros.params import (
     COMMAND_JOINTS,
     Param,
@@ -197,8 +205,17 @@ class FeedforwardNode(ManagedNode):
                 line = ShapedPath(line, path_shaper(self.model, line, p["shaper"]))
             except InputError as err:
                 raise ParameterError(f"parameter 'method': shaped: {err}") from None
-        self.line = (_elastic(self.model, line, self.rate, rigid.joint_names)
-                     if line is not None and p["method"] == "elastic" else
+        # the elastic line: computed in a child process (seconds to minutes of library calls that a
+        # Ctrl-C could not interrupt here); it starts once ready (module doc: Goals)
+        self.line_job: GoalJob | None = None
+        if line is not None and p["method"] == "elastic":
+            prestart()
+            what = f"elastic line {np.asarray(line.start).tolist()} -> {np.asarray(line.end).tolist()} m"
+            self.line_job = GoalJob(what, None,
+                                    partial(elastic_line_reference, self.model, line, self.rate, rigid.joint_names),
+                                    stopping)
+            self.line_job.start()
+        self.line = (None if self.line_job is not None else
                      LineReference(rigid_feedforward(self.model), line, self.rate) if line is not None else
                      HoldReference(rigid_feedforward(self.model), p["hold.duration"]) if self.source == "hold"
                      else None)
@@ -338,8 +355,25 @@ class FeedforwardNode(ManagedNode):
         self.goal = goal
         goal.start()
 
+    def _poll_line(self) -> None:
+        """The elastic line, once computed: it starts as the line does (autostart or ~/start); a
+        line it refuses ends the node with that line, as a bad parameter does at start-up."""
+        job = self.line_job
+        if job is None or not job.done.is_set():
+            return
+        self.line_job = None
+        if job.reference is None:
+            if not job.cancelled:
+                self.get_logger().error(f"parameters 'line.*' with method elastic: {job.error}")
+                self.exit_status = EXIT_START_FAILED
+            self.done = True
+            return
+        self.line = job.reference
+        self.get_logger().info(f"{job.what}: reference ready after {time.monotonic() - job.received:.3g} s")
+
     def _poll_goal(self) -> None:
         """Take the goal's reference once it is ready (or say why there is none)."""
+        self._poll_line()
         goal = self.goal
         if goal is None or not goal.done.is_set():
             return
@@ -374,8 +408,9 @@ class FeedforwardNode(ManagedNode):
 
     def close(self) -> None:
         """A goal still computing is cancelled: its child process is killed."""
-        if self.goal is not None:
-            self.goal.stop(JOIN_WAIT)
+        for job in (self.goal, self.line_job):
+            if job is not None:
+                job.stop(JOIN_WAIT)
 
     def _on_encoders(self, msg: JointState) -> None:
         ns = stamp_ns(msg.header.stamp)
@@ -474,7 +509,7 @@ class FeedforwardNode(ManagedNode):
         digital controller samples its reference), whatever its jitter; an instant already
         answered (two ticks close together) is not sent again.
         """
-        if self.want_start:
+        if self.want_start and self.line is not None:  # (an elastic line: once computed)
             self.want_start = False
             self.reference = self.line
             self.start_ns = ns
@@ -517,14 +552,6 @@ class FeedforwardNode(ManagedNode):
         self.last_ns = ns
         self.sent += 1
         return True
-
-
-def _elastic(model, line: Line | QuinticLine, rate: float, joint_names: list[str]) -> ElasticLineReference:
-    """The elastic inverse of the line, computed now; a line it refuses is a parameter error."""
-    try:
-        return ElasticLineReference(model, line, rate, joint_names)
-    except InputError as err:
-        raise ParameterError(f"parameters 'line.*' with method elastic: {err}") from None
 
 
 def _line(p: dict[str, Any], n_coordinates: int) -> Line | QuinticLine:

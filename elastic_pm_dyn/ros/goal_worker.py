@@ -24,7 +24,7 @@ import numpy as np
 from elastic_pm_dyn.errors import ElasticPmDynError
 from elastic_pm_dyn.model.description import Model
 from elastic_pm_dyn.motion.feedforward import rigid_feedforward
-from elastic_pm_dyn.motion.references import JointReference
+from elastic_pm_dyn.motion.references import ElasticLineReference, JointReference
 from elastic_pm_dyn.ros.cartesian_goals import goal_reference
 
 CONTEXT = "forkserver"
@@ -47,6 +47,10 @@ def prestart() -> None:
 def cartesian_reference(model: Model, path: Any, method: str, rate: float, shaper: str,
                         joint_names: Sequence[str]) -> Any:
     return goal_reference(model, path, method, rate, shaper, joint_names)
+
+
+def elastic_line_reference(model: Model, line: Any, rate: float, joint_names: Sequence[str]) -> ElasticLineReference:
+    return ElasticLineReference(model, line, rate, list(joint_names))
 
 
 def joint_reference(model: Model, joint_names: Sequence[str], times: Sequence[float],

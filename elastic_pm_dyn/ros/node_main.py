@@ -42,6 +42,7 @@ class ManagedNode(Node):
     """A node run by :func:`run_node`: set ``done`` to end the process, override ``close``."""
 
     done = False
+    exit_status = 0  # what the process ends with once done (EXIT_START_FAILED: a start-up that failed late)
 
     def __init__(self, *args: Any, **kwargs: Any):
         self.created = time.monotonic()  # when it joined the graph (graph_checks waits for discovery from here)
@@ -93,7 +94,7 @@ def run_node(program: str, factory: Callable[[], ManagedNode], args: list[str] |
             node.close()
             executor.remove_node(node)
             node.destroy_node()
-        return 0
+        return node.exit_status
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
