@@ -11,7 +11,7 @@ from pathlib import Path
 
 from elastic_pm_dyn.output_files import atomic_file, write_text
 
-FIRST = ("id", "kind", "status", "error", "robot", "date", "label", "wall_s", "attempt")
+FIRST = ("id", "kind", "status", "error", "robot", "date", "label", "wall_s", "attempt", "warnings")
 
 
 def rows(records: Sequence[dict]) -> list[dict]:
@@ -19,7 +19,8 @@ def rows(records: Sequence[dict]) -> list[dict]:
     out = []
     for r in records:
         row = {**(r.get("item") or {}), "id": r["id"], "kind": r["kind"], "status": r["status"],
-               "error": r.get("error") or "", "wall_s": r.get("wall_s"), "attempt": r.get("attempt")}
+               "error": r.get("error") or "", "wall_s": r.get("wall_s"), "attempt": r.get("attempt"),
+               "warnings": r.get("warnings") or ""}
         row.update(r.get("figures") or {})
         out.append(row)
     return out
