@@ -95,6 +95,7 @@ def _collect(client, futures: dict, out: Path, on_record: OnRecord, retries: int
     pending = dict(futures)
     by_key = {str(f.key): it for f, it in pending.items()}
     held: dict[str, list[str]] = {}
+    told: set[tuple[str, int]] = set()  # (item, attempt) whose lost worker is logged
     while pending:
         with contextlib.suppress(TimeoutError):
             wait(list(pending), timeout=LOOK_S, return_when="FIRST_COMPLETED")
@@ -102,9 +103,20 @@ def _collect(client, futures: dict, out: Path, on_record: OnRecord, retries: int
             it = pending.pop(fut)
             record = _record(fut, it, out, retries)
             fut.release()  # the scheduler forgets the result: nothing to recompute when a worker dies
+            _tell_lost(out, it, watch, told)  # those a look missed (a worker lost between two looks)
             on_record(record)
         left = {it.id for it in pending.values()}
-        held = _look(client, held, {k: it for k, it in by_key.items() if it.id in left}, out, watch)
+        held = _look(client, held, {k: it for k, it in by_key.items() if it.id in left}, out, watch, told)
+
+
+def _tell_lost(out: Path, item: Item, watch: Watch, told: set[tuple[str, int]]) -> None:
+    """A line for each earlier start of ``item`` (its worker lost) not logged yet."""
+    starts = store.attempts(out, item)
+    for n, line in enumerate(starts[:-1] if store.timed_out(out, item) is None else starts, start=1):
+        if (item.id, n) not in told:
+            told.add((item.id, n))
+            watch.say(f"elastic-pm-dyn: worker pid {line.replace(' ', ' on ', 1)} was lost holding item {item.id} "
+                      f"(attempt {n})")
 
 
 def _record(fut, item: Item, out: Path, retries: int) -> dict:
@@ -123,7 +135,8 @@ def _record(fut, item: Item, out: Path, retries: int) -> dict:
         return record
 
 
-def _look(client, held: dict[str, list[str]], running: dict[str, Item], out: Path, watch: Watch) -> dict:
+def _look(client, held: dict[str, list[str]], running: dict[str, Item], out: Path, watch: Watch,
+          told: set[tuple[str, int]]) -> dict:
     """What each worker holds now; a worker of the last look that is gone is logged with the
     unfinished items it held (its half-written folders removed)."""
     try:
@@ -140,8 +153,10 @@ def _look(client, held: dict[str, list[str]], running: dict[str, Item], out: Pat
             store.remove_temporaries(out, it.id, store.last_pid(out, it))
             limit = store.timed_out(out, it)
             why = f"killed its item after {limit:g} s (timed out)" if limit else "died"
-            watch.say(f"elastic-pm-dyn: worker {address} {why} holding item {it.id} (attempt "
-                      f"{len(store.attempts(out, it))}): the scheduler runs it again or gives it up")
+            attempt = len(store.attempts(out, it))
+            told.add((it.id, attempt))
+            watch.say(f"elastic-pm-dyn: worker {address} {why} holding item {it.id} (attempt {attempt}): the "
+                      "scheduler runs it again or gives it up")
     watch.running(sum(len(k) for k in now.values()))
     return now
 
