@@ -148,7 +148,7 @@ def _look(client, held: dict[str, list[str]], running: dict[str, Item], out: Pat
             continue
         for key in keys:
             it = running.get(key)
-            if it is None:
+            if it is None or not store.attempts(out, it):  # finished, or queued there and never started
                 continue
             store.remove_temporaries(out, it.id, store.last_pid(out, it))
             limit = store.timed_out(out, it)
