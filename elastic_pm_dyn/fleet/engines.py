@@ -94,8 +94,7 @@ def _collect(client, futures: dict, out: Path, on_record: OnRecord, retries: int
     from distributed import wait
     pending = dict(futures)
     by_key = {str(f.key): it for f, it in pending.items()}
-    held: dict[str, list[str]] = {}
-    told: set[tuple[str, int]] = set()  # (item, attempt) whose lost worker is logged
+    workers = _Workers(client, out, watch)
     while pending:
         with contextlib.suppress(TimeoutError):
             wait(list(pending), timeout=LOOK_S, return_when="FIRST_COMPLETED")
@@ -103,20 +102,10 @@ def _collect(client, futures: dict, out: Path, on_record: OnRecord, retries: int
             it = pending.pop(fut)
             record = _record(fut, it, out, retries)
             fut.release()  # the scheduler forgets the result: nothing to recompute when a worker dies
-            _tell_lost(out, it, watch, told)  # those a look missed (a worker lost between two looks)
+            workers.tell_lost(it)  # those a look missed (a worker lost between two looks)
             on_record(record)
         left = {it.id for it in pending.values()}
-        held = _look(client, held, {k: it for k, it in by_key.items() if it.id in left}, out, watch, told)
-
-
-def _tell_lost(out: Path, item: Item, watch: Watch, told: set[tuple[str, int]]) -> None:
-    """A line for each earlier start of ``item`` (its worker lost) not logged yet."""
-    starts = store.attempts(out, item)
-    for n, line in enumerate(starts[:-1] if store.timed_out(out, item) is None else starts, start=1):
-        if (item.id, n) not in told:
-            told.add((item.id, n))
-            watch.say(f"elastic-pm-dyn: worker pid {line.replace(' ', ' on ', 1)} was lost holding item {item.id} "
-                      f"(attempt {n})")
+        workers.look({k: it for k, it in by_key.items() if it.id in left})
 
 
 def _record(fut, item: Item, out: Path, retries: int) -> dict:
@@ -135,30 +124,63 @@ def _record(fut, item: Item, out: Path, retries: int) -> dict:
         return record
 
 
-def _look(client, held: dict[str, list[str]], running: dict[str, Item], out: Path, watch: Watch,
-          told: set[tuple[str, int]]) -> dict:
-    """What each worker holds now; a worker of the last look that is gone is logged with the
-    unfinished items it held (its half-written folders removed)."""
-    try:
-        now = {str(a): [str(k) for k in keys] for a, keys in client.processing().items()}
-    except Exception:  # the scheduler busy or gone: the next look, or the results, will tell
-        return held
-    for address, keys in held.items():
-        if address in now:
-            continue
-        for key in keys:
-            it = running.get(key)
-            if it is None or not store.attempts(out, it):  # finished, or queued there and never started
-                continue
-            store.remove_temporaries(out, it.id, store.last_pid(out, it))
-            limit = store.timed_out(out, it)
-            why = f"killed its item after {limit:g} s (timed out)" if limit else "died"
-            attempt = len(store.attempts(out, it))
-            told.add((it.id, attempt))
-            watch.say(f"elastic-pm-dyn: worker {address} {why} holding item {it.id} (attempt {attempt}): the "
-                      "scheduler runs it again or gives it up")
-    watch.running(sum(len(k) for k in now.values()))
-    return now
+def _whoami() -> str:
+    """A worker's "pid host", as its items' start lines in OUT/attempts/ name it."""
+    import os
+    import socket
+    return f"{os.getpid()} {socket.gethostname()}"
+
+
+class _Workers:
+    """What each worker held at the last look, and which worker processes they are: a worker
+    gone since is logged with the items it was running (and its half-written folders
+    removed); each lost start of an item is told once."""
+
+    def __init__(self, client, out: Path, watch: Watch):
+        self.client, self.out, self.watch = client, out, watch
+        self.held: dict[str, list[str]] = {}
+        self.who: dict[str, str] = {}  # address -> "pid host"
+        self.told: set[tuple[str, int]] = set()  # (item, attempt)
+
+    def look(self, running: dict[str, Item]) -> None:
+        try:
+            now = {str(a): [str(k) for k in keys] for a, keys in self.client.processing().items()}
+            new = [a for a in now if a not in self.who]
+            if new:
+                self.who.update({str(a): w for a, w in self.client.run(_whoami, workers=new).items()})
+        except Exception:  # the scheduler busy or gone: the next look, or the results, will tell
+            return
+        for address, keys in self.held.items():
+            if address not in now:
+                for key in keys:
+                    if key in running:
+                        self._lost(address, running[key])
+        self.held = now
+        self.watch.running(sum(len(k) for k in now.values()))
+
+    def _lost(self, address: str, item: Item) -> None:
+        starts = store.attempts(self.out, item)
+        mine = [n for n, line in enumerate(starts, start=1) if line == self.who.get(address)]
+        if not mine:  # queued there and never started, or a worker not seen yet: its record tells
+            return
+        attempt = mine[-1]
+        self.told.add((item.id, attempt))
+        pid = int(starts[attempt - 1].split()[0])
+        if starts[attempt - 1].split(" ", 1)[1] == _whoami().split(" ", 1)[1]:  # a pid of this host
+            store.remove_temporaries(self.out, item.id, pid)
+        limit = store.timed_out(self.out, item) if attempt == len(starts) else None
+        why = f"killed its item after {limit:g} s (timed out)" if limit else "died"
+        self.watch.say(f"elastic-pm-dyn: worker {address} (pid {starts[attempt - 1].replace(' ', ' on ', 1)}) {why} "
+                       f"holding item {item.id} (attempt {attempt}): the scheduler runs it again or gives it up")
+
+    def tell_lost(self, item: Item) -> None:
+        """A line for each earlier start of ``item`` (its worker lost) not logged yet."""
+        starts = store.attempts(self.out, item)
+        for n, line in enumerate(starts[:-1] if store.timed_out(self.out, item) is None else starts, start=1):
+            if (item.id, n) not in self.told:
+                self.told.add((item.id, n))
+                self.watch.say(f"elastic-pm-dyn: worker pid {line.replace(' ', ' on ', 1)} was lost holding item "
+                               f"{item.id} (attempt {n})")
 
 
 def engine(cluster: str | None = None, workers: int | None = None) -> LocalPool | DaskEngine:
