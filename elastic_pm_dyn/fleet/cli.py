@@ -6,7 +6,8 @@
     elastic-pm-dyn batch simulate --study study.yaml --out runs/study --jobs 8
 
 Exit status: 0 every item done; 1 some item failed (each one line on stderr and a row in
-the table); 2 a user mistake; 130 Ctrl-C (finished items kept: run it again to finish).
+the table); 2 a user mistake, or another batch running on --out; 130 Ctrl-C (finished
+items kept: run it again to finish).
 """
 
 from __future__ import annotations
@@ -42,7 +43,8 @@ def cmd_batch(args: argparse.Namespace) -> int:
     try:
         res = batch(args.kind, args.inputs, args.out, model=args.model, options=_options(args.option),
                     study=args.study, jobs=args.jobs, cluster=args.cluster, retries=args.retries,
-                    progress=not args.no_progress, plots_on=not args.no_plots)
+                    item_timeout_s=args.item_timeout, wait=args.wait, progress=not args.no_progress,
+                    every=args.heartbeat, plots_on=not args.no_plots)
     except KeyboardInterrupt:  # batch() said what is kept and what is left
         return EXIT_INTERRUPTED
     c = res.counts
@@ -73,7 +75,15 @@ def register_cli(subparsers) -> argparse.ArgumentParser:
     engine.add_argument("--jobs", type=int, help="local worker processes (default: every core)")
     engine.add_argument("--cluster", metavar="ADDRESS",
                         help="run on Dask distributed: local:N (a LocalCluster of N workers) or a scheduler address")
-    p.add_argument("--retries", type=int, default=2, help="re-runs of an item whose worker was killed (default 2)")
+    p.add_argument("--retries", type=int, default=2,
+                   help="re-runs of an item whose worker was killed or timed out (default 2)")
+    p.add_argument("--item-timeout", type=float, metavar="SECONDS",
+                   help="kill an item's worker after this long (default: 120 s + 30 s per second of its recording "
+                        "and pass over it: hung or stopped workers only)")
+    p.add_argument("--wait", action="store_true",
+                   help="another batch running on --out: wait for it to end (default: refuse)")
+    p.add_argument("--heartbeat", type=float, default=10.0, metavar="SECONDS",
+                   help="a progress line this often when stderr is a log or a pipe (default 10)")
     p.add_argument("--no-plots", action="store_true", help="the table only")
     p.add_argument("--no-progress", action="store_true", help="no progress line on stderr")
     p.set_defaults(func=cmd_batch)

@@ -91,11 +91,16 @@ def _stamp(path: str) -> list:
 
 
 def is_bag(path: Path) -> bool:
-    """A rosbag2 folder (metadata.yaml or storage files in it) or a bare .mcap/.db3 file."""
+    """A rosbag2 folder (metadata.yaml, or storage files and no sub-folders) or a bare .mcap/.db3 file."""
     if path.is_file():
         return path.suffix in BAG_SUFFIXES
-    return path.is_dir() and ((path / "metadata.yaml").is_file()
-                              or any(f.suffix in BAG_SUFFIXES for f in path.iterdir() if f.is_file()))
+    if not path.is_dir():
+        return False
+    if (path / "metadata.yaml").is_file():
+        return True
+    children = [c for c in path.iterdir() if not c.name.startswith(".")]
+    # storage files beside folders are strays of a fleet folder (each its own item), not one bag
+    return any(f.suffix in BAG_SUFFIXES and f.is_file() for f in children) and not any(c.is_dir() for c in children)
 
 
 def _sources_in(path: Path, kind: str) -> list[Path]:

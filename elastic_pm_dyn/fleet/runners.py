@@ -35,7 +35,7 @@ from typing import NoReturn
 import numpy as np
 
 from elastic_pm_dyn.errors import ElasticPmDynError, InputError
-from elastic_pm_dyn.fleet import store
+from elastic_pm_dyn.fleet import store, verdict, watchdog
 from elastic_pm_dyn.fleet.items import Item
 from elastic_pm_dyn.output_files import atomic_dir, write_text
 
@@ -58,14 +58,19 @@ class _Parser(argparse.ArgumentParser):
         raise InputError(one_line(message or f"{self.prog}: exit {status}"))
 
 
-def _command(argv: list[str]) -> argparse.Namespace:
+def command_parser() -> argparse.ArgumentParser:
+    """``elastic-pm-dyn`` with the observe, tune and analyze subcommands, mistakes as InputError."""
     from elastic_pm_dyn.analysis.cli import register_cli as register_analysis
     from elastic_pm_dyn.observer.cli import register_cli as register_observer
     parser = _Parser(prog="elastic-pm-dyn")
-    sub = parser.add_subparsers(dest="command", required=True)
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
     register_observer(sub)
     register_analysis(sub)
-    return parser.parse_args(argv)
+    return parser
+
+
+def _command(argv: list[str]) -> argparse.Namespace:
+    return command_parser().parse_args(argv)
 
 
 def _run_command(argv: list[str]) -> None:
@@ -96,6 +101,7 @@ def leaves(d: Mapping, prefix: str = "") -> dict[str, float | int | str | bool |
 def _observe(item: Item, work: Path) -> dict:
     _run_command(["observe", "--model", item.model, "--bag", item.source, "--out", str(work), *item.argv_options()])
     summary = store.read_json(work / "summary.json") or {}
+    verdict.check_observe(summary)
     figures = {k: v for k, v in leaves(summary).items() if not isinstance(v, str)}
     health = summary.get("health")
     if isinstance(health, list) and health and isinstance(health[0], int):
@@ -113,6 +119,7 @@ def _tune(item: Item, work: Path, log: io.StringIO) -> dict:
     if "--threads" not in options:  # the pool already fills the cores; a pass per thread would oversubscribe
         options += ["--threads", "1"]
     _run_command(["tune", "--model", item.model, "--bag", item.source, "--out", str(out), *options])
+    verdict.check_tune(log.getvalue())
     figures: dict = {}
     match = NLL.search(log.getvalue())
     if match:
@@ -129,12 +136,14 @@ def _tune(item: Item, work: Path, log: io.StringIO) -> dict:
 def _analyze(item: Item, work: Path) -> dict:
     _run_command(["analyze", item.source, "--model", item.model, "--out", str(work), *item.argv_options()])
     summary = store.read_json(work / "summary.json") or {}
+    from elastic_pm_dyn.model.loader import load_model
+    verdict.check_analyze(summary, load_model(item.model).active_names)
     runs = summary.get("runs") or {}
     figures = leaves(next(iter(runs.values()))) if len(runs) == 1 else leaves(runs)
     return {k: v for k, v in figures.items() if not isinstance(v, str)}
 
 
-def _simulation_parser() -> argparse.ArgumentParser:
+def simulation_parser() -> argparse.ArgumentParser:
     """``elastic-pm-dyn simulate``'s options (the item gives model, torques and output)."""
     from elastic_pm_dyn.dynamics.direct import FORMULATIONS
     from elastic_pm_dyn.sim.simulator import INTEGRATORS, STABILIZATIONS
@@ -171,7 +180,7 @@ def _simulate(item: Item, work: Path) -> dict:
     from elastic_pm_dyn.model.loader import load_model
     from elastic_pm_dyn.sim.simulator import Simulator
     from elastic_pm_dyn.sim.torque import load_torque_csv
-    a = _simulation_parser().parse_args(item.argv_options())
+    a = simulation_parser().parse_args(item.argv_options())
     mech = Mechanism(load_model(item.model, a.elastic_dof_per_chain, a.closures, a.fix_base, a.servos_as_motors))
     sim = Simulator(mech, _options(a.method, a.integrator, a.dt, a.rtol, a.atol, a.stabilization, a.sample))
     torque = load_torque_csv(item.source, mech.active_names, a.hold)
@@ -284,9 +293,23 @@ def _one_line_warning(message, category, filename, lineno, line=None) -> str:
     return f"elastic-pm-dyn: warning: {message}\n"
 
 
-def run_item(item: Item, out: str | Path, attempt: int = 1) -> dict:
-    """Run ``item`` into ``out/items/<id>`` (complete or not at all); its record (see the module docstring)."""
+def run_item(item: Item, out: str | Path, attempt: int | None = 1, timeout: float | None = None) -> dict:
+    """Run ``item`` into ``out/items/<id>`` (complete or not at all); its record (see the module docstring).
+
+    An item already complete in ``out`` is not run again: its record comes from disk (an
+    engine that re-runs a task whose result it lost, as Dask does when a worker dies).
+    ``attempt`` None: counted in ``out`` (an engine that retries by itself); ``timeout``: the
+    process kills itself when the item runs longer (an engine that cannot see a hung task)."""
     out = Path(out)
+    done = store.complete(out, item)
+    if done is not None:
+        return {**done, "reused": True}
+    attempt = store.begin_attempt(out, item) if attempt is None else attempt
+    with watchdog.armed(timeout, lambda: store.note_timeout(out, item, timeout)):
+        return _run(item, out, attempt)
+
+
+def _run(item: Item, out: Path, attempt: int) -> dict:
     target = store.item_dir(out, item)
     base = {"id": item.id, "kind": item.kind, "key": item.key, "attempt": attempt, "host": socket.gethostname(),
             "pid": os.getpid()}
@@ -301,7 +324,7 @@ def run_item(item: Item, out: str | Path, attempt: int = 1) -> dict:
                 warnings.formatwarning = _one_line_warning
                 figures = _figures(item, work, log)
             record = {**base, "status": "ok", "error": None, "wall_s": time.perf_counter() - start,
-                      "figures": _clean(figures), "item": item.row()}
+                      "warnings": verdict.warnings_of(log.getvalue()), "figures": _clean(figures), "item": item.row()}
             (work / "log.txt").write_text(log.getvalue())
             write_text(work / store.RECORD, json.dumps(record, indent=1, default=str) + "\n")
             if target.exists():  # an older result of other inputs: this one replaces it
@@ -312,6 +335,7 @@ def run_item(item: Item, out: str | Path, attempt: int = 1) -> dict:
         raise
     except (Exception, SystemExit) as err:
         record = {**base, "status": "failed", "error": _error_line(err, log.getvalue()),
+                  "warnings": verdict.warnings_of(log.getvalue()),
                   "wall_s": time.perf_counter() - start, "figures": {}, "item": item.row(),
                   "log": log.getvalue()[-4000:],
                   "traceback": None if isinstance(err, ElasticPmDynError | _CommandFailed)

@@ -11,7 +11,7 @@ from pathlib import Path
 
 from elastic_pm_dyn.output_files import atomic_file, write_text
 
-FIRST = ("id", "kind", "status", "error", "robot", "date", "label", "wall_s", "attempt")
+FIRST = ("id", "kind", "status", "error", "robot", "date", "label", "wall_s", "attempt", "warnings")
 
 
 def rows(records: Sequence[dict]) -> list[dict]:
@@ -19,7 +19,8 @@ def rows(records: Sequence[dict]) -> list[dict]:
     out = []
     for r in records:
         row = {**(r.get("item") or {}), "id": r["id"], "kind": r["kind"], "status": r["status"],
-               "error": r.get("error") or "", "wall_s": r.get("wall_s"), "attempt": r.get("attempt")}
+               "error": r.get("error") or "", "wall_s": r.get("wall_s"), "attempt": r.get("attempt"),
+               "warnings": r.get("warnings") or ""}
         row.update(r.get("figures") or {})
         out.append(row)
     return out
@@ -33,10 +34,17 @@ def columns(table: Sequence[dict]) -> list[str]:
     return first + sorted(c for c in seen if c not in FIRST)
 
 
-def _text(v: object) -> str:
+def text(v: object) -> str:
+    """A cell: empty for None and NaN, every double as it round-trips."""
     if v is None or (isinstance(v, float) and math.isnan(v)):
         return ""
-    return repr(v) if isinstance(v, float) else str(v)  # repr: every double round-trips
+    return repr(v) if isinstance(v, float) else str(v)
+
+
+def csv_line(cells: Sequence[str]) -> str:
+    buf = io.StringIO()
+    csv.writer(buf, lineterminator="\n").writerow(cells)
+    return buf.getvalue()
 
 
 def write_csv(path: Path, table: Sequence[dict]) -> None:
@@ -45,7 +53,7 @@ def write_csv(path: Path, table: Sequence[dict]) -> None:
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(names)
     for row in table:
-        w.writerow([_text(row.get(c)) for c in names])
+        w.writerow([text(row.get(c)) for c in names])
     write_text(path, buf.getvalue())
 
 
@@ -58,7 +66,7 @@ def _column(values: list) -> list:
         return values
     if all(isinstance(v, int | float) and not isinstance(v, bool) for v in present):
         return [None if v is None else float(v) for v in values]
-    return [None if v is None else _text(v) for v in values]
+    return [None if v is None else text(v) for v in values]
 
 
 def write_parquet(path: Path, table: Sequence[dict]) -> bool:

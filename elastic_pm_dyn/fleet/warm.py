@@ -46,14 +46,14 @@ def _mechanism(model: str, closures: str | None = None):
 
 def _simulate(item: Item) -> None:
     """The item's simulation, cut to a few milliseconds, into a scratch folder."""
-    from elastic_pm_dyn.fleet.runners import _figures, _simulation_parser
+    from elastic_pm_dyn.fleet.runners import _figures, simulation_parser
     if item.study:
         p = dict(item.study)
         dt = float(p.get("dt", 1e-4))
         short = {**p, "move": max(20 * dt, 5e-3), "hold": 2e-3}
         tiny = replace(item, study=tuple(sorted(short.items())))
     else:
-        a = _simulation_parser().parse_args(item.argv_options())
+        a = simulation_parser().parse_args(item.argv_options())
         tiny = replace(item, options=(*item.options, ("duration", repr(max(20 * a.dt, 2 * a.sample)))))
     with tempfile.TemporaryDirectory(prefix="epd-warm-") as scratch:
         _figures(tiny, Path(scratch), io.StringIO())
