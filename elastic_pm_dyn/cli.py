@@ -402,19 +402,19 @@ def _add_ros_args(p: argparse.ArgumentParser) -> None:
 
 
 def cmd_plant(args: argparse.Namespace) -> int:
-    from elastic_pm_dyn.ros.plant_node import main as plant_main
+    from elastic_pm_dyn.ros.plant.node import main as plant_main
     overrides = {k: v for k, v in (("sync_mode", args.sync), ("model", args.model)) if v}
     return plant_main(_ros_argv(args.params_file, overrides, args.ros_args))
 
 
 def cmd_observer(args: argparse.Namespace) -> int:
-    from elastic_pm_dyn.ros.observer_node import main as observer_main
+    from elastic_pm_dyn.ros.observer.node import main as observer_main
     overrides = {"model": args.model} if args.model else {}
     return observer_main(_ros_argv(args.params_file, overrides, args.ros_args))
 
 
 def cmd_record(args: argparse.Namespace) -> int:
-    from elastic_pm_dyn.ros.recorder import main as recorder_main
+    from elastic_pm_dyn.ros.recorder.node import main as recorder_main
     overrides = {"output": args.out, "storage": args.storage}
     if args.topics:
         overrides["topics"] = "[" + ", ".join(args.topics) + "]"
@@ -430,8 +430,8 @@ def cmd_bag_repair(args: argparse.Namespace) -> int:
 
 def cmd_ros_demo(args: argparse.Namespace) -> int:
     from elastic_pm_dyn.errors import InputError
-    from elastic_pm_dyn.ros.demo import run_ros_demo
-    from elastic_pm_dyn.ros.processes import NodeProcessError
+    from elastic_pm_dyn.ros.demos.demo import run_ros_demo
+    from elastic_pm_dyn.ros.demos.processes import NodeProcessError
     loop_only = [f"--{n.replace('_', '-')}" for n in ("elastic_dof_per_chain", "seed", "duration", "observer_config",
                                                       "kp", "kd") if getattr(args, n) is not None]
     if args.observer and args.feedforward != "rigid":
@@ -440,7 +440,7 @@ def cmd_ros_demo(args: argparse.Namespace) -> int:
         raise InputError(f"{', '.join(loop_only)}: only with --observer (the closed loop)")
     try:
         if args.observer:
-            from elastic_pm_dyn.ros.loop_demo import LoopOptions, run_loop_demo
+            from elastic_pm_dyn.ros.demos.loop_demo import LoopOptions, run_loop_demo
             if args.sync != "lockstep":
                 raise InputError("--observer runs in lockstep only")
             opts = LoopOptions(Path(args.model), args.elastic_dof_per_chain, 1 if args.seed is None else args.seed,

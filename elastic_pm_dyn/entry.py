@@ -49,19 +49,19 @@ def cli(argv: list[str] | None = None) -> int:
 
 
 def plant_node(argv: list[str] | None = None) -> int:
-    return run("plant_node", "elastic_pm_dyn.ros.plant_node:main", argv)
+    return run("plant_node", "elastic_pm_dyn.ros.plant.node:main", argv)
 
 
 def observer_node(argv: list[str] | None = None) -> int:
-    return run("observer_node", "elastic_pm_dyn.ros.observer_node:main", argv)
+    return run("observer_node", "elastic_pm_dyn.ros.observer.node:main", argv)
 
 
 def feedforward_node(argv: list[str] | None = None) -> int:
-    return run("feedforward_node", "elastic_pm_dyn.ros.feedforward_node:main", argv)
+    return run("feedforward_node", "elastic_pm_dyn.ros.feedforward.node:main", argv)
 
 
 def recorder_node(argv: list[str] | None = None) -> int:
-    return run("recorder_node", "elastic_pm_dyn.ros.recorder:main", argv)
+    return run("recorder_node", "elastic_pm_dyn.ros.recorder.node:main", argv)
 
 
 PROGRAMS = {"elastic-pm-dyn": cli, "plant_node": plant_node, "observer_node": observer_node,

@@ -12,7 +12,7 @@ the wiring: docs/nodes.md, "Closing the loop"). Writes the bag, plots and logs t
 
 from pathlib import Path
 
-from elastic_pm_dyn.ros.loop_demo import LoopOptions, run_loop_demo
+from elastic_pm_dyn.ros.demos.loop_demo import LoopOptions, run_loop_demo
 
 MODEL = Path(__file__).resolve().parents[1] / "config" / "five_bar.yaml"
 DURATION, SEED = 0.5, 1  # [s] of loop; seed of the sensor noise and the disturbance

@@ -11,7 +11,7 @@ from pathlib import Path
 import rclpy
 from sensor_msgs.msg import JointState
 
-from elastic_pm_dyn.ros.local_nodes import LocalNodes
+from elastic_pm_dyn.ros.demos.local_nodes import LocalNodes
 
 PERIODS, START, TIMEOUT = 200, 900.0, 60.0  # control periods of 1 ms; give up after [s] (a cold start compiles)
 stamps, repeats = [], []  # the new states' stamps; the stamps seen again

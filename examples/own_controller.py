@@ -10,7 +10,7 @@ from sensor_msgs.msg import JointState
 
 import elastic_pm_dyn as epd
 from elastic_pm_dyn.dynamics.statics import holding_torques, rest_state
-from elastic_pm_dyn.ros.loop_demo import default_gains  # kp = m w^2, kd = 2 zeta m w at 2 Hz
+from elastic_pm_dyn.ros.demos.loop_demo import default_gains  # kp = m w^2, kd = 2 zeta m w at 2 Hz
 
 MODEL, PERIODS, LISTENERS = (sys.argv[1:] + ["config/five_bar.yaml", "1000", "2"][len(sys.argv) - 1:])[:3]
 mech = epd.Mechanism(epd.load_model(MODEL))

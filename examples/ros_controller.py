@@ -11,7 +11,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile
 from sensor_msgs.msg import JointState
 
 import elastic_pm_dyn as epd
-from elastic_pm_dyn.ros.local_nodes import LocalNodes
+from elastic_pm_dyn.ros.demos.local_nodes import LocalNodes
 
 MODEL = Path(__file__).resolve().parents[1] / "config" / "five_bar.yaml"
 PERIODS, KP, KD, START, TIMEOUT = 500, 40.0, 1.0, 900.0, 60.0  # 1 ms each, [N m/rad], [N m s/rad], give up [s]

@@ -13,7 +13,7 @@ import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from rosgraph_msgs.msg import Clock
 
-from elastic_pm_dyn.ros.local_nodes import LocalNodes
+from elastic_pm_dyn.ros.demos.local_nodes import LocalNodes
 
 NAMESPACES, STAMPS, TIMEOUT = ("r1", "r2"), 5, 900.0  # clock stamps to wait for; give up after [s] (cold: compiles)
 clocks, status = {ns: [] for ns in NAMESPACES}, {}  # stamps per namespace; hardware_id per status name

@@ -9,7 +9,7 @@ lockstep, encoders, accelerometer, a flat 2-200 Hz unknown torque) publishes the
 sensors; the observer publishes its estimates under ``observer/`` and takes its inputs in offline
 observe's order (``input_order: stamp``, the default); the controller (config/feedforward.yaml: the
 reference line, rigid feedforward) adds a PD on ``measured_joint_states`` and answers each estimate;
-the recorder writes every topic. ``python -m elastic_pm_dyn.ros.loop_demo`` starts the loop once
+the recorder writes every topic. ``python -m elastic_pm_dyn.ros.demos.loop_demo`` starts the loop once
 every node is up (the plant publishes its t = 0 state and samples again until the first command).
 The launch ends a second after the controller has finished the reference. The default gains are the
 five-bar's (a 5 Hz loop); another machine: its model and, without a point line, ``source:=hold``.
@@ -54,7 +54,7 @@ def generate_launch_description() -> LaunchDescription:
     recorder = Node(package=PACKAGE, executable="recorder_node", name="recorder", output="screen",
                     parameters=[PathJoinSubstitution([config, "recorder.yaml"]),
                                 {"output": LaunchConfiguration("bag"), "topics": TOPICS}])
-    start = ExecuteProcess(cmd=["python3", "-m", "elastic_pm_dyn.ros.loop_demo"], output="screen")
+    start = ExecuteProcess(cmd=["python3", "-m", "elastic_pm_dyn.ros.demos.loop_demo"], output="screen")
 
     return LaunchDescription([
         DeclareLaunchArgument("model", default_value="", description="model YAML; empty = the five-bar"),

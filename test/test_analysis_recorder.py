@@ -29,7 +29,7 @@ def test_recorder_bag_is_analyzed(tmp_path):
     from sensor_msgs.msg import JointState
     from std_msgs.msg import Header
 
-    from elastic_pm_dyn.ros.recorder import RecorderNode
+    from elastic_pm_dyn.ros.recorder.node import RecorderNode
 
     run = synthetic_run(force_rate=2000.0)
     bag = tmp_path / "bag"

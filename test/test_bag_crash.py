@@ -41,11 +41,11 @@ def test_sigkilled_recorder_keeps_all_but_the_last_second(storage: str, tmp_path
     from rosbags.rosbag2 import Reader
     from sensor_msgs.msg import JointState
 
-    from elastic_pm_dyn.ros.processes import NodeProcess, ros_env
+    from elastic_pm_dyn.ros.demos.processes import NodeProcess, ros_env
 
     domain = domain_id(5)
     bag = tmp_path / "bag"
-    recorder = NodeProcess("recorder", "elastic_pm_dyn.ros.recorder",
+    recorder = NodeProcess("recorder", "elastic_pm_dyn.ros.recorder.node",
                            ["-p", f"output:={bag}", "-p", f"storage:={storage}", "-p", "topics:=[/joint_states]"],
                            ros_env(domain), tmp_path / "logs")
     h = RosHarness(domain)

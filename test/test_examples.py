@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 from ros_harness import domain_id, require
 
-from elastic_pm_dyn.ros.processes import ros_env  # ROS_DOMAIN_ID set, discovery on this machine
+from elastic_pm_dyn.ros.demos.processes import ros_env  # ROS_DOMAIN_ID set, discovery on this machine
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 
@@ -107,7 +107,7 @@ def test_analyze_bag(observed: tuple[Path, str], tmp_path: Path) -> None:
 
 def test_ros_examples_take_their_domain_from_ros_domain_id(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
     from elastic_pm_dyn.errors import InputError
-    from elastic_pm_dyn.ros.local_nodes import LocalNodes
+    from elastic_pm_dyn.ros.demos.local_nodes import LocalNodes
 
     monkeypatch.delenv("ROS_DOMAIN_ID", raising=False)
     assert LocalNodes(tmp_path).domain_id == 0  # ROS 2's default

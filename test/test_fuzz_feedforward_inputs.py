@@ -24,7 +24,7 @@ from hypothesis import strategies as st
 from elastic_pm_dyn import cli
 from elastic_pm_dyn.errors import InputError
 from elastic_pm_dyn.motion.waypoints import MAX_WAYPOINTS, read_waypoints
-from elastic_pm_dyn.ros.goal_stamps import NS, STAMP_FUTURE, STAMP_PAST, goal_start, late_start
+from elastic_pm_dyn.ros.feedforward.goal_stamps import NS, STAMP_FUTURE, STAMP_PAST, goal_start, late_start
 
 CONFIG = Path(__file__).resolve().parent.parent / "config"
 FIVE_BAR = CONFIG / "five_bar.yaml"
@@ -170,7 +170,7 @@ def goal_messages(draw: st.DrawFn) -> Any:
 @given(data=st.data())
 def test_a_cartesian_goal_is_a_path_or_one_line(data: st.DataObject) -> None:
     pytest.importorskip("trajectory_msgs")
-    from elastic_pm_dyn.ros.cartesian_goals import MAX_SAMPLES, MIN_PERIODS, goal_path
+    from elastic_pm_dyn.ros.feedforward.cartesian_goals import MAX_SAMPLES, MIN_PERIODS, goal_path
     msg = data.draw(goal_messages())
     try:
         path = goal_path(msg, _five_bar(), "world", data.draw(st.sampled_from([2, 4])), 1000.0)

@@ -43,7 +43,7 @@ operations = st.lists(st.one_of(commands, commands, set_states, motor_states, st
 def plant() -> Any:
     from rclpy.parameter import Parameter
 
-    from elastic_pm_dyn.ros.plant_node import PlantNode
+    from elastic_pm_dyn.ros.plant.node import PlantNode
     h = RosHarness(domain_id(17))
     node = h.add(PlantNode(context=h.context, parameter_overrides=[Parameter("sync_mode", value="lockstep")]))
     published: list[tuple[np.ndarray, float]] = []

@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 from ros_harness import RosHarness, domain_id, require
 
 from elastic_pm_dyn.ros.params import ParameterError
-from elastic_pm_dyn.ros.plant_sensors import DISTURBANCE_PARAMS, SENSOR_PARAMS, sensor_spec, spectrum_disturbance
+from elastic_pm_dyn.ros.plant.sensors import DISTURBANCE_PARAMS, SENSOR_PARAMS, sensor_spec, spectrum_disturbance
 
 DOMAIN = domain_id(4)
 numbers = st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.sampled_from([0.0, -1.0, 1e-300, 1e300]),
@@ -78,8 +78,8 @@ RUNTIME_VALUES = st.one_of(numbers, integers, st.booleans(), st.text(max_size=8)
 @pytest.fixture(scope="module")
 def live() -> Any:
     require("rclpy")
-    from elastic_pm_dyn.ros.observer_node import ObserverNode
-    from elastic_pm_dyn.ros.plant_node import PlantNode
+    from elastic_pm_dyn.ros.observer.node import ObserverNode
+    from elastic_pm_dyn.ros.plant.node import PlantNode
     h = RosHarness(DOMAIN)
     try:
         plant = h.add(PlantNode(context=h.context, parameter_overrides=_overrides({"sync_mode": "lockstep"})))
@@ -126,8 +126,9 @@ def test_runtime_parameters_are_taken_or_refused_in_one_line(live: Any, which: s
 
 
 def _runtime_names(which: str) -> set[str]:
-    from elastic_pm_dyn.ros import observer_node, plant_node
-    from elastic_pm_dyn.ros.observer_mode import OBSERVER_PARAMS
+    import elastic_pm_dyn.ros.observer.node as observer_node
+    import elastic_pm_dyn.ros.plant.node as plant_node
+    from elastic_pm_dyn.ros.observer.mode import OBSERVER_PARAMS
     specs = plant_node.PARAMS if which == "plant" else [*observer_node.PARAMS, *OBSERVER_PARAMS]
     return {s.name for s in specs if s.runtime}
 

@@ -126,7 +126,7 @@ def test_plant_node_with_a_binary_model_prints_one_line_and_exits_2(tmp_path) ->
     p = tmp_path / "garbage.yaml"
     p.write_bytes(bytes(range(256)) * 4)
     env = {**os.environ, "ROS_DOMAIN_ID": str(domain_id(20))}
-    proc = subprocess.run([sys.executable, "-m", "elastic_pm_dyn.ros.plant_node", "--ros-args", "-p", f"model:={p}"],
+    proc = subprocess.run([sys.executable, "-m", "elastic_pm_dyn.ros.plant.node", "--ros-args", "-p", f"model:={p}"],
                           capture_output=True, text=True, timeout=120, env=env)
     assert proc.returncode == 2, proc.stderr[-2000:]
     assert proc.stderr.count("\n") == 1 and "Traceback" not in proc.stderr

@@ -1,4 +1,4 @@
-"""The observer node's stamp-order merge (ros/input_order.py) on arrival orders a live loop produces.
+"""The observer node's stamp-order merge (ros/observer/input_order.py) on arrival orders a live loop produces.
 
 A lockstep loop's messages reach the observer in many orders: each topic first in, first out, but
 a command may come after the samples it led to, the encoders of t_k before the accelerometer of
@@ -14,7 +14,7 @@ import random
 import numpy as np
 import pytest
 
-from elastic_pm_dyn.ros.input_order import BEFORE, COMMAND, PRIMARY, InputOrder
+from elastic_pm_dyn.ros.observer.input_order import BEFORE, COMMAND, PRIMARY, InputOrder
 
 P = 1_000_000  # [ns] 1 kHz
 RANK = {"imu": BEFORE, "joint_state": PRIMARY, "command": COMMAND}

@@ -143,7 +143,7 @@ def test_observer_sub_packages_import_only_downwards() -> None:
 # The observer's test data and scores against truth (observer.testing) stay out of the product's
 # path: only the demo that shows estimate against truth uses them.
 TESTING = f"{PACKAGE}.observer.testing"
-USES_TESTING = {f"{PACKAGE}.ros.loop_demo"}
+USES_TESTING = {f"{PACKAGE}.ros.demos.loop_demo"}
 
 
 def test_the_product_does_not_import_the_observers_test_data() -> None:

@@ -134,7 +134,7 @@ def ros():
 def make_plant(h: RosHarness, **params: Any) -> Any:
     from rclpy.parameter import Parameter
 
-    from elastic_pm_dyn.ros.plant_node import PlantNode
+    from elastic_pm_dyn.ros.plant.node import PlantNode
     overrides = [Parameter(k, value=v) for k, v in params.items()]
     return h.add(PlantNode(context=h.context, parameter_overrides=overrides))
 
@@ -229,10 +229,10 @@ def test_plant_process_answers_nan_within_a_period_and_recovers(tmp_path: Path) 
     from std_srvs.srv import Trigger
 
     from elastic_pm_dyn.bags.msgtypes import stamp_ns
-    from elastic_pm_dyn.ros.processes import NodeProcess, ros_env
+    from elastic_pm_dyn.ros.demos.processes import NodeProcess, ros_env
     from elastic_pm_dyn.ros.qos import COMMAND_QOS, STATE_QOS
     domain = domain_id(29)
-    plant = NodeProcess("plant", "elastic_pm_dyn.ros.plant_node", ["-p", "sync_mode:=lockstep"],
+    plant = NodeProcess("plant", "elastic_pm_dyn.ros.plant.node", ["-p", "sync_mode:=lockstep"],
                         ros_env(domain), tmp_path)
     h = RosHarness(domain)
     try:
@@ -288,7 +288,7 @@ def test_observer_services_answer_every_request_and_warnings_are_per_kind(capfd:
     from std_srvs.srv import Trigger
 
     from elastic_pm_dyn.ros.messages import stamp
-    from elastic_pm_dyn.ros.observer_node import ObserverNode
+    from elastic_pm_dyn.ros.observer.node import ObserverNode
     h = RosHarness(domain_id(26))
     try:
         node = h.add(ObserverNode(context=h.context,

@@ -14,7 +14,7 @@ import pytest
 
 from elastic_pm_dyn.observer import ObserverConfig
 from elastic_pm_dyn.observer.testing.scenarios import manoeuvre_recording
-from elastic_pm_dyn.ros.observer_session import CONTRADICTED_AFTER, ObserverSession
+from elastic_pm_dyn.ros.observer.session import CONTRADICTED_AFTER, ObserverSession
 
 AHEAD = 500_000_000  # [ns] inside max_future (1 s)
 

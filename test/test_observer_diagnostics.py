@@ -24,7 +24,7 @@ import pytest
 from elastic_pm_dyn.observer import ObserverConfig
 from elastic_pm_dyn.observer.offline import observe_bag
 from elastic_pm_dyn.observer.testing.recordings import RecordingSpec, generate, write_bag
-from elastic_pm_dyn.ros.observer_session import ObserverSession
+from elastic_pm_dyn.ros.observer.session import ObserverSession
 
 USE = ("encoders", "imu")
 BASE = RecordingSpec(duration=0.2, spectrum="pink", disturbance_rms=0.02)  # the manoeuvre's move

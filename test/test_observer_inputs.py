@@ -23,7 +23,7 @@ from elastic_pm_dyn.observer.drivers.stream import ObserverStream
 from elastic_pm_dyn.observer.offline import observe_bag
 from elastic_pm_dyn.observer.schedule.ekf import Observer
 from elastic_pm_dyn.observer.testing.scenarios import manoeuvre_recording
-from elastic_pm_dyn.ros.observer_session import ObserverSession
+from elastic_pm_dyn.ros.observer.session import ObserverSession
 
 CONFIG = Path(__file__).resolve().parent.parent / "config"
 

@@ -24,7 +24,7 @@ from elastic_pm_dyn.observer.drivers.stream import ObserverStream
 from elastic_pm_dyn.observer.schedule.ekf import TIMING_SWITCH_EVIDENCE
 from elastic_pm_dyn.observer.testing.evaluation import feed, open_loop, score
 from elastic_pm_dyn.observer.testing.scenarios import manoeuvre_recording
-from elastic_pm_dyn.ros.observer_session import ObserverSession
+from elastic_pm_dyn.ros.observer.session import ObserverSession
 
 USE = ("encoders", "imu")
 

@@ -131,7 +131,7 @@ def test_live_node_reads_the_tuned_file(tmp_path) -> None:
     """The plant node in mode observer takes a tuned file with --params-file, types intact."""
     from ros_harness import RosHarness, domain_id, require
     require("rclpy")
-    from elastic_pm_dyn.ros.plant_node import PlantNode
+    from elastic_pm_dyn.ros.plant.node import PlantNode
     base = CONFIG / "plant_observer.yaml"
     params = dict(load_config(base).parameters)
     params.update({"process.disturbance_stddev": 0.3, "imu.stddev": [0.005], "command_delay": 1e-3,

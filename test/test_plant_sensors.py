@@ -293,7 +293,7 @@ def test_lockstep_sensor_topics_and_timing(ros: RosHarness, mech: Mechanism) -> 
     from sensor_msgs.msg import Imu, JointState
 
     from elastic_pm_dyn.bags.msgtypes import stamp_ns
-    from elastic_pm_dyn.ros.plant_node import PlantNode
+    from elastic_pm_dyn.ros.plant.node import PlantNode
     from elastic_pm_dyn.ros.qos import COMMAND_QOS, STATE_QOS
 
     params = {"sync_mode": "lockstep", "gravity": list(G), "sensors.encoders.enabled": True,
@@ -373,7 +373,7 @@ def test_lockstep_disturbance_input_acts_as_a_command(ros: RosHarness, mech: Mec
     from sensor_msgs.msg import JointState
 
     from elastic_pm_dyn.bags.msgtypes import stamp_ns
-    from elastic_pm_dyn.ros.plant_node import PlantNode
+    from elastic_pm_dyn.ros.plant.node import PlantNode
     from elastic_pm_dyn.ros.qos import COMMAND_QOS, STATE_QOS
 
     def plant_node(**params: Any) -> Any:
@@ -397,10 +397,10 @@ def test_lockstep_disturbance_input_acts_as_a_command(ros: RosHarness, mech: Mec
     d = np.array([0.05, -0.08])
     ros.wait_until(lambda: dist.get_subscription_count() > 0, 10.0, "the disturbance subscription")
     dist.publish(JointState(name=names, effort=list(d)))
-    ros.wait_until(lambda: plant.disturbance_command is not None, 5.0, "the disturbance received")
+    ros.wait_until(lambda: plant.hold.disturbance is not None, 5.0, "the disturbance received")
     dist.publish(JointState(name=names, effort=[float("nan"), 0.0]))
     ros.spin_for(0.1)
-    np.testing.assert_array_equal(plant.disturbance_command, d)  # the NaN one rejected
+    np.testing.assert_array_equal(plant.hold.disturbance, d)  # the NaN one rejected
     n = 10
     states: dict[int, np.ndarray] = {}
 
@@ -422,8 +422,8 @@ def test_plant_and_observer_apply_the_same_model_overrides(ros: RosHarness) -> N
     require("rclpy")
     from rclpy.parameter import Parameter
 
-    from elastic_pm_dyn.ros.observer_node import ObserverNode
-    from elastic_pm_dyn.ros.plant_node import PlantNode
+    from elastic_pm_dyn.ros.observer.node import ObserverNode
+    from elastic_pm_dyn.ros.plant.node import PlantNode
 
     base = Mechanism(load_model(CONFIG / "triglide.yaml"))
     params = [Parameter("model", value=str(CONFIG / "triglide.yaml")), Parameter("elastic_dof_per_chain", value=2),

@@ -120,7 +120,7 @@ def test_lockstep_node_publishes_the_expected_messages() -> None:
     from rosgraph_msgs.msg import Clock
     from sensor_msgs.msg import JointState
 
-    from elastic_pm_dyn.ros.plant_node import PlantNode
+    from elastic_pm_dyn.ros.plant.node import PlantNode
     from elastic_pm_dyn.ros.qos import CLOCK_QOS, COMMAND_QOS, STATE_QOS
     n = 40
     rng = np.random.default_rng(3)

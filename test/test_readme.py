@@ -59,10 +59,10 @@ def test_snippet_runs(page: Path, k: int, workdir: Path) -> None:
         run(code, workdir)
         return
     require("rclpy")
-    from elastic_pm_dyn.ros.processes import NodeProcess, ros_env
+    from elastic_pm_dyn.ros.demos.processes import NodeProcess, ros_env
 
     env = ros_env(domain_id(41))
-    plant = NodeProcess("plant", "elastic_pm_dyn.ros.plant_node", ["-p", "sync_mode:=lockstep"], env,
+    plant = NodeProcess("plant", "elastic_pm_dyn.ros.plant.node", ["-p", "sync_mode:=lockstep"], env,
                         workdir / "logs")
     try:
         out = run(code, workdir, env)

@@ -1,11 +1,11 @@
-"""The realtime plant's schedule (elastic_pm_dyn.ros.realtime_schedule) with made-up wall times:
+"""The realtime plant's schedule (elastic_pm_dyn.ros.plant.realtime_schedule) with made-up wall times:
 on time, a hiccup caught up, an overrun that slows the clock (slow) or jumps the stamps (skip)."""
 
 from __future__ import annotations
 
 import pytest
 
-from elastic_pm_dyn.ros.realtime_schedule import RealtimeSchedule, Tick
+from elastic_pm_dyn.ros.plant.realtime_schedule import RealtimeSchedule, Tick
 
 T = 0.25  # [s] the period (exact in binary: the wall times below are exact)
 

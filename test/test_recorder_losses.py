@@ -133,7 +133,7 @@ def test_queued_writer_creation_error_is_raised_to_the_caller(tmp_path: Path) ->
 
 def test_subscription_depth_covers_the_lag_at_the_rate_and_the_publishers_history() -> None:
     require("rclpy")  # recorder.py imports rclpy
-    from elastic_pm_dyn.ros.recorder import MAX_DEPTH, subscription_depth
+    from elastic_pm_dyn.ros.recorder.node import MAX_DEPTH, subscription_depth
     assert subscription_depth(1000.0, 2.0, []) == 2000  # 2 s behind a 1 kHz topic
     assert subscription_depth(10.0, 0.1, []) == 10  # never below 10
     assert subscription_depth(100.0, 1.0, [100, 5000]) == 5000  # a transient-local history arrives at once

@@ -44,11 +44,11 @@ def _counts(bag: Path) -> dict[str, int]:
 
 def test_every_restarted_recorder_records(tmp_path: Path) -> None:
     require("rclpy")
-    from elastic_pm_dyn.ros.processes import NodeProcess, ros_env
+    from elastic_pm_dyn.ros.demos.processes import NodeProcess, ros_env
 
     env = ros_env(domain_id(44))
     topics = "topics:=[" + ",".join(TOPICS) + "]"
-    plant = NodeProcess("plant", "elastic_pm_dyn.ros.plant_node", ["-p", "sync_mode:=realtime"], env, tmp_path / "logs")
+    plant = NodeProcess("plant", "elastic_pm_dyn.ros.plant.node", ["-p", "sync_mode:=realtime"], env, tmp_path / "logs")
     recorders = []
     try:
         _wait_for(plant, "robot_description")
@@ -57,7 +57,7 @@ def test_every_restarted_recorder_records(tmp_path: Path) -> None:
             for storage in ("mcap", "sqlite3") if cycle % 2 == 0 else ("sqlite3", "mcap"):
                 k += 1
                 bag = tmp_path / f"bag{k}"
-                rec = NodeProcess(f"recorder{k}", "elastic_pm_dyn.ros.recorder",
+                rec = NodeProcess(f"recorder{k}", "elastic_pm_dyn.ros.recorder.node",
                                   ["-p", f"output:={bag}", "-p", f"storage:={storage}", "-p", topics],
                                   env, tmp_path / "logs")
                 recorders.append(rec)
@@ -83,7 +83,7 @@ def test_a_matched_but_silent_topic_is_reported(tmp_path: Path, monkeypatch: pyt
     from rclpy.parameter import Parameter
     from std_msgs.msg import String
 
-    from elastic_pm_dyn.ros import recorder as recorder_module
+    import elastic_pm_dyn.ros.recorder.node as recorder_module
     from elastic_pm_dyn.ros.qos import DIAGNOSTICS_QOS
 
     monkeypatch.setattr(recorder_module, "SILENT_AFTER", 0.5)
@@ -135,8 +135,8 @@ def test_a_topic_subscribed_anew_records_through_a_second_participant(tmp_path: 
     from rclpy.parameter import Parameter
     from std_msgs.msg import String
 
+    import elastic_pm_dyn.ros.recorder.node as recorder_module
     from elastic_pm_dyn.bags.reader import open_bag
-    from elastic_pm_dyn.ros import recorder as recorder_module
 
     h = RosHarness(domain_id(50))
     try:

@@ -59,7 +59,7 @@ class _Listener:
 def _plant(h: RosHarness, **params: Any) -> Any:
     from rclpy.parameter import Parameter
 
-    from elastic_pm_dyn.ros.plant_node import PlantNode
+    from elastic_pm_dyn.ros.plant.node import PlantNode
     overrides = [Parameter(k.replace("__", "."), value=v) for k, v in params.items()]
     return h.add(PlantNode(context=h.context, parameter_overrides=overrides))
 
@@ -67,8 +67,8 @@ def _plant(h: RosHarness, **params: Any) -> Any:
 # ------------------------------------------------------------------ a plant process
 def test_a_late_subscriber_gets_the_urdf_of_a_plant_process(tmp_path: Path) -> None:
     require("rclpy")
-    from elastic_pm_dyn.ros.processes import NodeProcess, ros_env
-    plant = NodeProcess("plant", "elastic_pm_dyn.ros.plant_node", ["-p", "sync_mode:=lockstep"],
+    from elastic_pm_dyn.ros.demos.processes import NodeProcess, ros_env
+    plant = NodeProcess("plant", "elastic_pm_dyn.ros.plant.node", ["-p", "sync_mode:=lockstep"],
                         ros_env(DOMAIN), tmp_path)
     h = RosHarness(DOMAIN)
     try:
@@ -226,7 +226,7 @@ def test_launch_file_gives_its_nodes_the_plants_urdf_and_frame(monkeypatch: pyte
 def test_the_observer_node_publishes_the_written_urdf(ros: RosHarness) -> None:
     """The observer's own executable publishes the description as the plant does, under its own
     name (beside a plant's /robot_description)."""
-    from elastic_pm_dyn.ros.observer_node import ObserverNode
+    from elastic_pm_dyn.ros.observer.node import ObserverNode
     ros.add(ObserverNode(context=ros.context))
     ros.spin_for(0.1)
     viewer = _Listener(ros, "/observer/robot_description")

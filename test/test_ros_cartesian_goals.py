@@ -54,7 +54,7 @@ def five_bar_goal(**kw: Any) -> Any:
 
 
 def test_hexa_goal_is_the_platform_pose_in_urdf_rpy() -> None:
-    from elastic_pm_dyn.ros.cartesian_goals import goal_waypoints
+    from elastic_pm_dyn.ros.feedforward.cartesian_goals import goal_waypoints
     model = load_model(HEXA)
     # yaw 5 deg about z, then pitch 2 deg: R = Rz(yaw) Ry(pitch), written as a quaternion by hand
     yaw, pitch = np.radians(5.0), np.radians(2.0)
@@ -95,7 +95,7 @@ def test_hexa_goal_is_the_platform_pose_in_urdf_rpy() -> None:
      "out of the plane"),
 ])
 def test_bad_goal_is_one_line(model_file: Path, msg: Any, words: str) -> None:
-    from elastic_pm_dyn.ros.cartesian_goals import goal_path
+    from elastic_pm_dyn.ros.feedforward.cartesian_goals import goal_path
     with pytest.raises(InputError) as err:
         goal_path(msg(), load_model(model_file), "world", 2, 1000.0)
     assert words in str(err.value) and "\n" not in str(err.value)
@@ -112,7 +112,7 @@ def _node(h: RosHarness, **params: Any) -> Any:
     require("rclpy")
     from rclpy.parameter import Parameter
 
-    from elastic_pm_dyn.ros.feedforward_node import FeedforwardNode
+    from elastic_pm_dyn.ros.feedforward.node import FeedforwardNode
     overrides = [Parameter(k.replace("__", "."), value=v) for k, v in params.items()]
     return h.add(FeedforwardNode(context=h.context, parameter_overrides=overrides))
 
@@ -171,7 +171,7 @@ def test_moving_waypoints_with_zero_rates_are_the_rest_to_rest_path_and_pass_giv
     """Hermite segments of degree 2 r + 1 with zero rates are the rest-to-rest law per segment;
     a twist at a waypoint is the path's rate there; a yaw rate is the angular twist about z."""
     from elastic_pm_dyn.motion.waypoints import MovingWaypointPath, WaypointPath
-    from elastic_pm_dyn.ros.cartesian_goals import goal_path, goal_waypoints
+    from elastic_pm_dyn.ros.feedforward.cartesian_goals import goal_path, goal_waypoints
     times = np.array([0.0, 0.1, 0.25])
     points = np.array([[-0.05, 0.35], [0.0, 0.42], [0.05, 0.45]])
     zero = np.zeros_like(points)
@@ -201,7 +201,7 @@ def test_elastic_torques_of_a_goal_with_moving_waypoints_keep_the_plant_on_it() 
     drive the elastic five-bar along it to 1e-7 m."""
     from elastic_pm_dyn.kinematics.mechanism import Mechanism
     from elastic_pm_dyn.motion.feedforward import elastic_line_motion
-    from elastic_pm_dyn.ros.cartesian_goals import goal_path
+    from elastic_pm_dyn.ros.feedforward.cartesian_goals import goal_path
     from elastic_pm_dyn.sim.simulator import SimulationOptions, Simulator
     from elastic_pm_dyn.sim.torque import FunctionTorque
     model = load_model(FIVE_BAR)

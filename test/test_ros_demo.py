@@ -57,8 +57,8 @@ def test_ros_demo_reports_a_node_that_cannot_start(tmp_path: Path) -> None:
 
 def test_ros_demo_domain_is_the_option_else_ros_domain_id_else_private(monkeypatch: pytest.MonkeyPatch) -> None:
     from elastic_pm_dyn.errors import InputError
-    from elastic_pm_dyn.ros.local_nodes import run_domain_id
-    from elastic_pm_dyn.ros.processes import private_domain_id
+    from elastic_pm_dyn.ros.demos.local_nodes import run_domain_id
+    from elastic_pm_dyn.ros.demos.processes import private_domain_id
 
     monkeypatch.delenv("ROS_DOMAIN_ID", raising=False)
     assert run_domain_id() == private_domain_id()

@@ -37,8 +37,8 @@ def make(h: RosHarness, cls_name: str, **params: Any) -> Any:
     require("rclpy")
     from rclpy.parameter import Parameter
 
-    from elastic_pm_dyn.ros.feedforward_node import FeedforwardNode
-    from elastic_pm_dyn.ros.plant_node import PlantNode
+    from elastic_pm_dyn.ros.feedforward.node import FeedforwardNode
+    from elastic_pm_dyn.ros.plant.node import PlantNode
     cls = {"plant": PlantNode, "feedforward": FeedforwardNode}[cls_name]
     overrides = [Parameter(k.replace("__", "."), value=v) for k, v in params.items()]
     return h.add(cls(context=h.context, parameter_overrides=overrides))
@@ -222,7 +222,7 @@ def test_fast_plant_clock_drives_feedforward_with_use_sim_time(ros: RosHarness) 
 
 def test_line_parameters_default_to_the_reference_manoeuvre() -> None:
     require("rclpy")
-    from elastic_pm_dyn.ros.feedforward_node import PARAMS
+    from elastic_pm_dyn.ros.feedforward.node import PARAMS
 
     defaults = {p.name: p.default for p in PARAMS}
     m = REFERENCE_MANOEUVRE

@@ -22,7 +22,7 @@ from ros_harness import RosHarness, domain_id, require
 from test_ros_cartesian_goals import FIVE_BAR_POSES, goal
 
 from elastic_pm_dyn.errors import InputError
-from elastic_pm_dyn.ros.goal_stamps import NS, STAMP_FUTURE, STAMP_PAST, goal_start, late_start
+from elastic_pm_dyn.ros.feedforward.goal_stamps import NS, STAMP_FUTURE, STAMP_PAST, goal_start, late_start
 
 ACTIVE = ["left_motor", "right_motor"]
 WALL = 1_780_000_000 * NS  # [ns] a wall-clock now (2026)
@@ -70,7 +70,7 @@ class Node:
         from sensor_msgs.msg import JointState
         from trajectory_msgs.msg import JointTrajectory, MultiDOFJointTrajectory
 
-        from elastic_pm_dyn.ros.feedforward_node import FeedforwardNode
+        from elastic_pm_dyn.ros.feedforward.node import FeedforwardNode
         from elastic_pm_dyn.ros.qos import COMMAND_QOS
         self.h = h
         overrides = [Parameter(k.replace("__", "."), value=v)
@@ -197,10 +197,10 @@ def test_sigint_ends_a_node_computing_a_long_goal_at_once(tmp_path: Path) -> Non
     require("rclpy")
     from trajectory_msgs.msg import MultiDOFJointTrajectory
 
-    from elastic_pm_dyn.ros.processes import NodeProcess, ros_env
+    from elastic_pm_dyn.ros.demos.processes import NodeProcess, ros_env
     from elastic_pm_dyn.ros.qos import COMMAND_QOS
     domain = domain_id(13)
-    proc = NodeProcess("feedforward", "elastic_pm_dyn.ros.feedforward_node",
+    proc = NodeProcess("feedforward", "elastic_pm_dyn.ros.feedforward.node",
                        ["-p", "source:=trajectory", "-p", "method:=elastic", "-p", "wait_for_subscribers:=0"],
                        ros_env(domain), tmp_path)
     h = RosHarness(domain)
@@ -245,8 +245,8 @@ def test_sigint_ends_a_node_computing_its_elastic_line_at_once(tmp_path: Path) -
     """The elastic line of ``source: line`` is computed beside the node too: the node is up (its
     services and Ctrl-C answer) while a long line computes, and it starts the line once ready."""
     require("rclpy")
-    from elastic_pm_dyn.ros.processes import NodeProcess, ros_env
-    proc = NodeProcess("feedforward", "elastic_pm_dyn.ros.feedforward_node",
+    from elastic_pm_dyn.ros.demos.processes import NodeProcess, ros_env
+    proc = NodeProcess("feedforward", "elastic_pm_dyn.ros.feedforward.node",
                        ["-p", "method:=elastic", "-p", "line.move:=60.0", "-p", "wait_for_subscribers:=0"],
                        ros_env(domain_id(13)), tmp_path)
     try:
@@ -271,8 +271,8 @@ def test_sigint_ends_a_node_computing_its_elastic_line_at_once(tmp_path: Path) -
 
 def test_an_elastic_line_starts_once_computed(tmp_path: Path) -> None:
     require("rclpy")
-    from elastic_pm_dyn.ros.processes import NodeProcess, ros_env
-    proc = NodeProcess("feedforward", "elastic_pm_dyn.ros.feedforward_node",
+    from elastic_pm_dyn.ros.demos.processes import NodeProcess, ros_env
+    proc = NodeProcess("feedforward", "elastic_pm_dyn.ros.feedforward.node",
                        ["-p", "method:=elastic", "-p", "wait_for_subscribers:=0", "-p", "exit_when_done:=true"],
                        ros_env(domain_id(13)), tmp_path)
     try:
@@ -288,8 +288,8 @@ def test_an_elastic_line_starts_once_computed(tmp_path: Path) -> None:
 
 def test_an_elastic_line_it_refuses_ends_the_node_with_one_line(tmp_path: Path) -> None:
     require("rclpy")
-    from elastic_pm_dyn.ros.processes import NodeProcess, ros_env
-    proc = NodeProcess("feedforward", "elastic_pm_dyn.ros.feedforward_node",
+    from elastic_pm_dyn.ros.demos.processes import NodeProcess, ros_env
+    proc = NodeProcess("feedforward", "elastic_pm_dyn.ros.feedforward.node",
                        ["-p", "method:=elastic", "-p", "line.end:=[1.5, 1.5]", "-p", "wait_for_subscribers:=0"],
                        ros_env(domain_id(13)), tmp_path)
     try:

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 from ros_harness import domain_id, require
 
-from elastic_pm_dyn.ros.processes import NodeProcess, ros_env
+from elastic_pm_dyn.ros.demos.processes import NodeProcess, ros_env
 
 CONFIG = Path(__file__).resolve().parents[1] / "config"
 START = 900.0  # [s] a cold start compiles the kernels
@@ -30,12 +30,12 @@ def test_a_second_plant_in_the_same_namespace_refuses_and_the_first_runs_on(tmp_
     require("rclpy")
     env = ros_env(DOMAIN)
     args = ["-r", "__ns:=/r1", "-p", "sync_mode:=lockstep"]
-    first = NodeProcess("first", "elastic_pm_dyn.ros.plant_node", args, env, tmp_path)
+    first = NodeProcess("first", "elastic_pm_dyn.ros.plant.node", args, env, tmp_path)
     second = None
     try:
         wait_for_line(first, "lockstep; commands")
         time.sleep(1.0)  # its status on /diagnostics (1 Hz): it is alive
-        second = NodeProcess("second", "elastic_pm_dyn.ros.plant_node", args, env, tmp_path)
+        second = NodeProcess("second", "elastic_pm_dyn.ros.plant.node", args, env, tmp_path)
         wait_for_line(first, "lockstep; commands")  # (the first is still up)
         deadline = time.monotonic() + START
         while second.proc.poll() is None and "lockstep; commands" not in second.log.read_text(errors="replace"):
@@ -46,7 +46,7 @@ def test_a_second_plant_in_the_same_namespace_refuses_and_the_first_runs_on(tmp_
         assert len(lines) == 1 and "already runs" in lines[0], second.log.read_text()
         first.check_running()
         # elsewhere it starts
-        third = NodeProcess("third", "elastic_pm_dyn.ros.plant_node", ["-r", "__ns:=/r2", *args[2:]], env, tmp_path)
+        third = NodeProcess("third", "elastic_pm_dyn.ros.plant.node", ["-r", "__ns:=/r2", *args[2:]], env, tmp_path)
         try:
             wait_for_line(third, "lockstep; commands")
         finally:
@@ -65,7 +65,7 @@ def test_a_long_step_ends_on_ctrl_c(tmp_path: Path) -> None:
     from ros_harness import RosHarness
     from std_srvs.srv import Trigger
 
-    plant = NodeProcess("plant", "elastic_pm_dyn.ros.plant_node", ["-p", "sync_mode:=lockstep"],
+    plant = NodeProcess("plant", "elastic_pm_dyn.ros.plant.node", ["-p", "sync_mode:=lockstep"],
                         ros_env(domain_id(3)), tmp_path)
     h = RosHarness(domain_id(3))
     try:
@@ -101,7 +101,7 @@ def test_a_long_step_ends_on_ctrl_c(tmp_path: Path) -> None:
 ])
 def test_absurd_settings_are_one_line_at_start_up(tmp_path: Path, override: str, words: str) -> None:
     require("rclpy")
-    plant = NodeProcess("plant", "elastic_pm_dyn.ros.plant_node",
+    plant = NodeProcess("plant", "elastic_pm_dyn.ros.plant.node",
                         ["--params-file", str(CONFIG / "plant_sensors.yaml"), "-p", override],
                         ros_env(DOMAIN), tmp_path)
     assert plant.wait(START) == 2

@@ -30,7 +30,7 @@ def _setup(ros: RosHarness, publisher_depth: int) -> tuple[Any, Any, list[int], 
     from rclpy.qos import QoSProfile
     from sensor_msgs.msg import JointState
 
-    from elastic_pm_dyn.ros.plant_node import PlantNode
+    from elastic_pm_dyn.ros.plant.node import PlantNode
     from elastic_pm_dyn.ros.qos import COMMAND_QOS, DIAGNOSTICS_QOS, STATE_QOS
 
     plant = ros.add(PlantNode(context=ros.context, parameter_overrides=[

@@ -49,7 +49,7 @@ def test_closed_loop_five_bar_lockstep(tmp_path: Path) -> None:
     plant state, the live estimates equal observe over the bag, the figures finite."""
     require("rclpy")
     require("rosbags")
-    from elastic_pm_dyn.ros.loop_demo import LoopOptions, run_loop_demo
+    from elastic_pm_dyn.ros.demos.loop_demo import LoopOptions, run_loop_demo
     out = tmp_path / "loop"
     opts = LoopOptions(REPO / "config" / "five_bar.yaml", duration=0.25, seed=3, timeout=300.0,
                        domain_id=domain_id(71))
@@ -81,6 +81,6 @@ def test_launch_file_names_installed_executables_and_configs() -> None:
     assert {"plant_node", "observer_node", "feedforward_node", "recorder_node"} <= scripts & strings
     for name in ("plant_sensors.yaml", "observer_node.yaml", "feedforward.yaml", "recorder.yaml"):
         assert name in strings and (REPO / "config" / name).is_file()
-    assert "elastic_pm_dyn.ros.loop_demo" in strings  # the loop's start, python -m
-    from elastic_pm_dyn.ros.loop_demo import TOPICS
+    assert "elastic_pm_dyn.ros.demos.loop_demo" in strings  # the loop's start, python -m
+    from elastic_pm_dyn.ros.demos.loop_demo import TOPICS
     assert set(TOPICS.values()) <= strings | {"/disturbance"}

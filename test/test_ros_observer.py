@@ -49,7 +49,7 @@ def make_observer(h: RosHarness, **params: Any) -> Any:
     """The plant node from config/plant_observer.yaml with all three sensors and fast diagnostics."""
     from rclpy.parameter import Parameter
 
-    from elastic_pm_dyn.ros.plant_node import PlantNode
+    from elastic_pm_dyn.ros.plant.node import PlantNode
     params = {"observer.sensors": SENSORS, "diagnostics_rate": 50.0, **params}
     overrides = [Parameter(k.replace("__", "."), value=v) for k, v in params.items()]
     return h.add(PlantNode(context=h.context, parameter_overrides=overrides))
@@ -253,7 +253,8 @@ def test_fault_and_divergence_are_errors_reset_recovers(ros: RosHarness, rec: An
     from elastic_pm_dyn_msgs.srv import SetJointState
     from sensor_msgs.msg import JointState
     from std_srvs.srv import Trigger
-    plant = make_observer(ros, observer__gating__max_consecutive_rejections=5, observer__gating__recover_after=0)
+    plant = make_observer(ros, observer__gating__max_consecutive_rejections=5, observer__gating__recover_after=0,
+                          restart_on_fault=False)  # stopped until ~/reset (the restart: test_observer_clock)
     feeder = Feeder(ros, plant, rec)
     session = plant.observer.session
     reset = feeder.node.create_client(Trigger, "/plant/reset")
@@ -329,7 +330,7 @@ def test_node_process_refuses_to_start_with_one_line() -> None:
     require("rclpy")
     env = dict(os.environ, ROS_DOMAIN_ID=str(DOMAIN), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     proc = subprocess.run(
-        [sys.executable, "-m", "elastic_pm_dyn.ros.plant_node", "--ros-args", "--params-file", str(PARAMS_FILE),
+        [sys.executable, "-m", "elastic_pm_dyn.ros.plant.node", "--ros-args", "--params-file", str(PARAMS_FILE),
          "-p", "observer.imu.stddev:=[-0.02]"], env=env, capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2
     assert proc.stderr.strip().splitlines() == [

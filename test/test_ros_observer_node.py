@@ -80,8 +80,8 @@ def _run(params_file: Path, node_class: str, rec: Any,
         from std_msgs.msg import Header
 
         from elastic_pm_dyn.ros.messages import stamp
-        from elastic_pm_dyn.ros.observer_node import ObserverNode
-        from elastic_pm_dyn.ros.plant_node import PlantNode
+        from elastic_pm_dyn.ros.observer.node import ObserverNode
+        from elastic_pm_dyn.ros.plant.node import PlantNode
         from elastic_pm_dyn.ros.qos import DIAGNOSTICS_QOS, OBSERVER_INPUT_QOS, STATE_QOS
         overrides = [Parameter(k, value=v) for k, v in
                      {"observer.sensors": SENSORS, "diagnostics_rate": 50.0, **params}.items()]
@@ -237,10 +237,10 @@ def _one_line_error(argv: list[str]) -> subprocess.CompletedProcess:
 
 
 @pytest.mark.parametrize(("argv", "line"), [
-    (["elastic_pm_dyn.ros.observer_node", "--ros-args", "--params-file", str(NODE_FILE),
+    (["elastic_pm_dyn.ros.observer.node", "--ros-args", "--params-file", str(NODE_FILE),
       "-p", "observer.imu.stddev:=[-0.02]"],
      "observer_node: error: parameter 'observer.imu.stddev': needs one or more values > 0, got [-0.02]"),
-    (["elastic_pm_dyn.ros.observer_node", "--ros-args", "--params-file", str(NODE_FILE), "-p", "sync_mode:=fast"],
+    (["elastic_pm_dyn.ros.observer.node", "--ros-args", "--params-file", str(NODE_FILE), "-p", "sync_mode:=fast"],
      "observer_node: error: unknown parameter(s) sync_mode (known: "),
     (["elastic_pm_dyn", "observer", "--params-file", str(NODE_FILE), "--ros-args",
       "-p", "observer.gating.probabilty:=0.99"],

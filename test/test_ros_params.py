@@ -28,9 +28,9 @@ def _flatten(tree: dict, prefix: str = "") -> dict[str, Any]:
 
 def _node_class(name: str) -> type:
     require("rclpy")
-    from elastic_pm_dyn.ros.feedforward_node import FeedforwardNode
-    from elastic_pm_dyn.ros.plant_node import PlantNode
-    from elastic_pm_dyn.ros.recorder import RecorderNode
+    from elastic_pm_dyn.ros.feedforward.node import FeedforwardNode
+    from elastic_pm_dyn.ros.plant.node import PlantNode
+    from elastic_pm_dyn.ros.recorder.node import RecorderNode
     return {"plant": PlantNode, "plant_sensors": PlantNode, "feedforward": FeedforwardNode,
             "recorder": RecorderNode}[name]
 
@@ -116,7 +116,7 @@ def test_node_process_refuses_to_start_with_one_line(tmp_path: Path) -> None:
     require("rclpy")
     env = dict(os.environ, ROS_DOMAIN_ID=str(DOMAIN), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     proc = subprocess.run(
-        [sys.executable, "-m", "elastic_pm_dyn.ros.plant_node", "--ros-args", "--params-file",
+        [sys.executable, "-m", "elastic_pm_dyn.ros.plant.node", "--ros-args", "--params-file",
          str(CONFIG / "plant.yaml"), "-p", "publish_rate:=1000"],
         env=env, capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2
@@ -125,7 +125,7 @@ def test_node_process_refuses_to_start_with_one_line(tmp_path: Path) -> None:
                      "got integer 1000"]
     bad_file = tmp_path / "bad.yaml"
     bad_file.write_text("/**:\n  ros__parameters:\n    command_joints: [1, a]\n")
-    proc = subprocess.run([sys.executable, "-m", "elastic_pm_dyn.ros.plant_node", "--ros-args",
+    proc = subprocess.run([sys.executable, "-m", "elastic_pm_dyn.ros.plant.node", "--ros-args",
                            "--params-file", str(bad_file)], env=env, capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2
     assert proc.stderr.strip().splitlines()[-1].startswith("plant_node: error: ROS arguments rejected:")
@@ -158,7 +158,7 @@ def test_observer_parameters_change_through_the_parameter_client() -> None:
     require("rclpy")
     from rclpy.parameter import Parameter
 
-    from elastic_pm_dyn.ros.observer_node import ObserverNode
+    from elastic_pm_dyn.ros.observer.node import ObserverNode
     h = RosHarness(DOMAIN)
     try:
         node = h.add(ObserverNode(context=h.context, parameter_overrides=[
@@ -191,7 +191,7 @@ def test_plant_parameters_change_through_the_parameter_client() -> None:
     require("rclpy")
     from rclpy.parameter import Parameter
 
-    from elastic_pm_dyn.ros.plant_node import PlantNode
+    from elastic_pm_dyn.ros.plant.node import PlantNode
     h = RosHarness(DOMAIN)
     try:
         plant = h.add(PlantNode(context=h.context, parameter_overrides=[
@@ -200,7 +200,7 @@ def test_plant_parameters_change_through_the_parameter_client() -> None:
         ok = remote.set(command_timeout=0.05, disturbance__timeout=0.02, marker_rate=10.0,
                         diagnostics_rate=100.0, lockstep__waiting_republish_period=0.25)
         assert all(r.successful for r in ok), [r.reason for r in ok]
-        assert (plant.timeout, plant.disturbance_timeout, plant.republish_period) == (0.05, 0.02, 0.25)
+        assert (plant.hold.timeout, plant.hold.disturbance_timeout, plant.republish_period) == (0.05, 0.02, 0.25)
         assert plant.marker_timer.timer_period_ns == 100_000_000
         assert plant.diagnostics_timer.timer_period_ns == 10_000_000
         assert plant.get_parameter("disturbance.timeout").value == 0.02
@@ -211,6 +211,6 @@ def test_plant_parameters_change_through_the_parameter_client() -> None:
         assert _refused(negative, "parameter 'disturbance.timeout' must be a positive number")
         (fixed,) = remote.set(disturbance__rms=1.0)
         assert not fixed.successful  # read-only: the spectrum is set up at start-up
-        assert plant.disturbance_timeout == 0.02 and plant.diagnostics_timer.timer_period_ns == 10_000_000
+        assert plant.hold.disturbance_timeout == 0.02 and plant.diagnostics_timer.timer_period_ns == 10_000_000
     finally:
         h.close()

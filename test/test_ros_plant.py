@@ -49,7 +49,7 @@ def ros():
 def make_plant(h: RosHarness, **params: Any) -> Any:
     from rclpy.parameter import Parameter
 
-    from elastic_pm_dyn.ros.plant_node import PlantNode
+    from elastic_pm_dyn.ros.plant.node import PlantNode
     overrides = [Parameter(k.replace("__", "."), value=v) for k, v in params.items()]
     return h.add(PlantNode(context=h.context, parameter_overrides=overrides))
 

@@ -35,7 +35,7 @@ def ros():
 def make_plant(h: RosHarness, **params: Any) -> Any:
     from rclpy.parameter import Parameter
 
-    from elastic_pm_dyn.ros.plant_node import PlantNode
+    from elastic_pm_dyn.ros.plant.node import PlantNode
     overrides = [Parameter(k.replace("__", "."), value=v) for k, v in params.items()]
     return h.add(PlantNode(context=h.context, parameter_overrides=overrides))
 
@@ -146,21 +146,26 @@ def test_overrun_skip_lets_the_stamps_jump(ros: RosHarness) -> None:
 
 @pytest.mark.parametrize("overrun", ["slow", "skip"])
 def test_a_stall_ages_the_command_on_the_plant_clock(ros: RosHarness, overrun: str) -> None:
-    """0.5 s without the executor (the plant's clock stops in slow): the command held before
-    is still applied after it in slow (0.2 s timeout on the plant's clock), not in skip (wall)."""
-    plant = make_plant(ros, sync_mode="realtime", publish_rate=RATE, command_timeout=0.2,
+    """0.5 s without the executor (the plant's clock stops in slow): in slow the command's age grows
+    only with the plant's clock, which the stall stopped (so a command held before it is still
+    applied after it); in skip it grows with the wall clock (0.2 s timeout: zero torque after)."""
+    slow = overrun == "slow"
+    plant = make_plant(ros, sync_mode="realtime", publish_rate=RATE, command_timeout=60.0 if slow else 0.2,
                        realtime__keep_gc_out=False, realtime__overrun=overrun, **OPTIONS)
     out = Listener(ros)
     ros.wait_until(lambda: out.pub.get_subscription_count() > 0 and plant.plant.k > 20, 60.0, "the plant running")
     out.send()
     ros.wait_until(lambda: out.states and np.array_equal(out.effort(), TAU), 10.0, "the command applied")
     stale = plant.stats.stale
+    age, t = plant.hold.age(plant._command_clock()), plant.plant.t
     time.sleep(0.5)  # the executor does not run
     k = plant.plant.k
     ros.wait_until(lambda: plant.plant.k > k + 20, 30.0, "20 periods after the stall")
     last = plant._stamp_ns()
     ros.wait_until(lambda: out.states[-1][0] >= last, 10.0, "the states after the stall")
-    if overrun == "slow":
+    if slow:
+        # exactly the plant's time since (a loaded machine's own delays included), not the stall's 0.5 s
+        assert plant.hold.age(plant._command_clock()) - age == pytest.approx(plant.plant.t - t, abs=1e-9)
         assert plant.stats.stale == stale
         np.testing.assert_array_equal(out.effort(), TAU)
         assert plant.stats.slowed_periods >= 400  # the stall's periods: the clock stopped, not skipped

@@ -25,9 +25,9 @@ def test_recorded_branch_forces_deserialize_with_rosbags(storage: str, tmp_path:
     from sensor_msgs.msg import JointState
 
     from elastic_pm_dyn.bags.series import read_series
-    from elastic_pm_dyn.ros.plant_node import PlantNode
+    from elastic_pm_dyn.ros.plant.node import PlantNode
     from elastic_pm_dyn.ros.qos import COMMAND_QOS, STATE_QOS
-    from elastic_pm_dyn.ros.recorder import RecorderNode
+    from elastic_pm_dyn.ros.recorder.node import RecorderNode
 
     bag = tmp_path / "bag"
     h = RosHarness(domain_id(86))
@@ -102,8 +102,8 @@ def test_namespaced_recorder_records_its_namespace(tmp_path: Path) -> None:
     from rclpy.parameter import Parameter
 
     from elastic_pm_dyn.bags.series import read_series
-    from elastic_pm_dyn.ros.plant_node import PlantNode
-    from elastic_pm_dyn.ros.recorder import RecorderNode
+    from elastic_pm_dyn.ros.plant.node import PlantNode
+    from elastic_pm_dyn.ros.recorder.node import RecorderNode
 
     bag = tmp_path / "bag"
     h = RosHarness(domain_id(86))
@@ -137,7 +137,7 @@ def test_recorder_says_which_topics_have_no_publisher(tmp_path: Path) -> None:
     from rclpy.parameter import Parameter
     from std_msgs.msg import String
 
-    from elastic_pm_dyn.ros.recorder import RecorderNode
+    from elastic_pm_dyn.ros.recorder.node import RecorderNode
     h = RosHarness(domain_id(86))
     try:
         statuses = _recorder_status(h)

@@ -19,8 +19,8 @@ def test_first_messages_of_a_run_are_in_the_bag(tmp_path: Path) -> None:
     from sensor_msgs.msg import JointState
 
     from elastic_pm_dyn.bags.series import read_series
-    from elastic_pm_dyn.ros.plant_node import PlantNode
-    from elastic_pm_dyn.ros.recorder import DEMO_TYPES, RecorderNode
+    from elastic_pm_dyn.ros.plant.node import PlantNode
+    from elastic_pm_dyn.ros.recorder.node import DEMO_TYPES, RecorderNode
 
     bag = tmp_path / "bag"
     h = RosHarness(domain_id(89))
@@ -58,9 +58,9 @@ def test_fast_plant_with_a_state_triggered_feedforward_every_command_is_in_the_b
     require("rclpy")
     from rclpy.parameter import Parameter
 
-    from elastic_pm_dyn.ros.feedforward_node import FeedforwardNode
-    from elastic_pm_dyn.ros.plant_node import PlantNode
-    from elastic_pm_dyn.ros.recorder import DEMO_TYPES, RecorderNode
+    from elastic_pm_dyn.ros.feedforward.node import FeedforwardNode
+    from elastic_pm_dyn.ros.plant.node import PlantNode
+    from elastic_pm_dyn.ros.recorder.node import DEMO_TYPES, RecorderNode
 
     h = RosHarness(domain_id(92))
     try:

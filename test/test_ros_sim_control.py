@@ -35,7 +35,7 @@ def ros():
 def make_plant(h: RosHarness, namespace: str = "", **params: Any) -> Any:
     from rclpy.parameter import Parameter
 
-    from elastic_pm_dyn.ros.plant_node import PlantNode
+    from elastic_pm_dyn.ros.plant.node import PlantNode
     overrides = [Parameter(k.replace("__", "."), value=v) for k, v in params.items()]
     return h.add(PlantNode(context=h.context, parameter_overrides=overrides, namespace=namespace))
 
@@ -123,7 +123,7 @@ def test_pause_step_unpause_exact_periods(ros: RosHarness, sync_mode: str) -> No
     if sync_mode == "lockstep":
         for _ in range(3):  # queued while paused: the step takes them first, then holds the last one
             pub.publish(command())
-        ros.wait_until(lambda: len(plant.queue) == 3, 10.0, "three commands queued while paused")
+        ros.wait_until(lambda: len(plant.hold.queue) == 3, 10.0, "three commands queued while paused")
     ros.spin_for(0.2)
     assert plant.plant.k == k0 and len(stamps) == n_before  # paused: no period, no state
     response = ros.call(step, StepPeriods.Request(periods=7))
@@ -182,13 +182,13 @@ def test_runtime_command_timeout(ros: RosHarness) -> None:
     assert not wrong_type.successful and "must be a float" in wrong_type.reason
     fixed = plant.set_parameters([Parameter("publish_rate", value=500.0)])[0]
     assert not fixed.successful
-    assert plant.timeout == 0.1  # unchanged by the refusals
+    assert plant.hold.timeout == 0.1  # unchanged by the refusals
 
     # A short timeout: one command, then zero torque after 2 ms of simulated time.
     assert plant.set_parameters([Parameter("command_timeout", value=0.002)])[0].successful
     assert plant.get_parameter("command_timeout").value == 0.002
     pub.publish(command())
-    ros.wait_until(lambda: plant.command is not None, 10.0, "the command")
+    ros.wait_until(lambda: plant.hold.command is not None, 10.0, "the command")
     k0, stale0 = plant.plant.k, plant.stats.stale
     ros.wait_until(lambda: plant.plant.k > k0 + 100, 30.0, "100 periods")
     assert plant.stats.stale - stale0 >= (plant.plant.k - k0) - 5  # stale after ~2 periods
@@ -225,7 +225,7 @@ def test_coarse_rk4_step_is_said() -> None:
     from elastic_pm_dyn.kinematics.assembly import initial_state
     from elastic_pm_dyn.kinematics.mechanism import Mechanism
     from elastic_pm_dyn.model.loader import load_model
-    from elastic_pm_dyn.ros.step_check import rk4_step_warning
+    from elastic_pm_dyn.ros.plant.step_check import rk4_step_warning
     # README: the Triglide at n_ek = 2 has modes up to ~4.8 kHz: RK4 at 1e-4 s is not stable there
     mech = Mechanism(load_model(CONFIG / "triglide.yaml", elastic_dof_per_chain=2))
     q = initial_state(mech)
@@ -239,7 +239,7 @@ def test_coarse_rk4_step_is_said() -> None:
 def test_observer_rates_change_at_run_time_the_rest_is_refused(ros: RosHarness) -> None:
     from rclpy.parameter import Parameter
 
-    from elastic_pm_dyn.ros.observer_node import ObserverNode
+    from elastic_pm_dyn.ros.observer.node import ObserverNode
     node = ros.add(ObserverNode(context=ros.context))
     ok = node.set_parameters([Parameter("diagnostics_rate", value=5.0)])[0]
     assert ok.successful and node.get_parameter("diagnostics_rate").value == 5.0
@@ -256,7 +256,7 @@ def test_observer_noise_and_gate_change_at_run_time(ros: RosHarness) -> None:
     from rclpy.parameter import Parameter
     from scipy.stats import chi2
 
-    from elastic_pm_dyn.ros.observer_node import ObserverNode
+    from elastic_pm_dyn.ros.observer.node import ObserverNode
     node = ros.add(ObserverNode(context=ros.context, parameter_overrides=[
         Parameter("observer.sensors", value=["encoders", "imu"])]))
     obs = node.observer.session.obs

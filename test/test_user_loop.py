@@ -7,7 +7,7 @@ config/plant_sensors.yaml, the observer from the machine's shipped observer file
 only the model changed), a recorder, then the controller, which reads only the encoder topic and
 was started after the plant published its first state: the plant publishes it again until the
 first command, so nothing needs a kick or a reset. The bag is scored as ``ros-demo --observer``
-scores its own loop (ros/loop_demo.py: analyse_loop): every plant state of the loop has its
+scores its own loop (ros/demos/loop_demo.py: analyse_loop): every plant state of the loop has its
 estimate, the branch-force error against the true forces' elastic part, and the live estimates
 equal offline ``observe`` over the same recording. A controller started before the plant starts
 the loop too.
@@ -49,9 +49,9 @@ def run_user_loop(out: Path, model: Path, domain: int, controller_first: bool = 
     (``analyse`` False: the bag)."""
     import time
 
-    from elastic_pm_dyn.ros.loop_demo import LoopOptions, analyse_loop
+    from elastic_pm_dyn.ros.demos.loop_demo import LoopOptions, analyse_loop
+    from elastic_pm_dyn.ros.demos.processes import NodeProcess, ros_env, wait_for_recording
     from elastic_pm_dyn.ros.params import observer_config_for
-    from elastic_pm_dyn.ros.processes import NodeProcess, ros_env, wait_for_recording
 
     env = ros_env(domain)
     logs, bag = out / "logs", out / "bag"
@@ -64,7 +64,7 @@ def run_user_loop(out: Path, model: Path, domain: int, controller_first: bool = 
                                     stdout=(logs / "controller.log").open("w"), stderr=subprocess.STDOUT)
 
         def observer() -> None:  # started, and up: its subscriptions made (it says so in one line)
-            procs.append(NodeProcess("observer", "elastic_pm_dyn.ros.observer_node",
+            procs.append(NodeProcess("observer", "elastic_pm_dyn.ros.observer.node",
                                      ["--params-file", str(observer_config_for(model)), "-p", f"model:={model}"],
                                      env, logs))
             deadline = time.monotonic() + START
@@ -74,13 +74,13 @@ def run_user_loop(out: Path, model: Path, domain: int, controller_first: bool = 
                 time.sleep(0.1)
 
         logs.mkdir(parents=True, exist_ok=True)
-        procs.append(NodeProcess("recorder", "elastic_pm_dyn.ros.recorder",
+        procs.append(NodeProcess("recorder", "elastic_pm_dyn.ros.recorder.node",
                                  ["--params-file", str(CONFIG / "recorder.yaml"), "-p", f"output:={bag}",
                                   "-p", f"topics:=[{', '.join(TOPICS)}]"], env, logs))
         if controller_first:
             controller = user_controller()
             observer()
-        procs.append(NodeProcess("plant", "elastic_pm_dyn.ros.plant_node",
+        procs.append(NodeProcess("plant", "elastic_pm_dyn.ros.plant.node",
                                  ["--params-file", str(CONFIG / "plant_sensors.yaml"), "-p", f"model:={model}",
                                   *plant_args], env, logs))
         wait_for_recording(["/joint_states"], domain, START, procs)

@@ -5,7 +5,7 @@
     .venv/bin/python bench/benchmarks/bench_plant.py --model five_bar triglide:2 hexa:2 --integrator rk4 etd2 \
         --duration 8 --repeats 3          # fast mode at 1 kHz only, per machine and integrator, interleaved
 
-The plant node runs as its own process (``python -m elastic_pm_dyn.ros.plant_node``) on a
+The plant node runs as its own process (``python -m elastic_pm_dyn.ros.plant.node``) on a
 private loopback domain, five-bar, SCDD + RK4 dt = 1e-4 s (10 kHz) + projection, no
 command (zero torque: the physics costs the same). This process subscribes like a
 controller would (SingleThreadedExecutor) and measures:
@@ -38,7 +38,7 @@ from common import REPO
 from tools.plant_runs import MACHINES, WARM_UP, CpuWindow, Probe, _start_plant, model_file, run_fast
 
 from elastic_pm_dyn.analysis.metrics import stream_stats
-from elastic_pm_dyn.ros.processes import private_domain_id
+from elastic_pm_dyn.ros.demos.processes import private_domain_id
 
 TARGET = {"rate_hz": 990.0, "period_std_ms": 0.3, "fast_rtf": 5.0}
 

@@ -45,7 +45,7 @@ import common
 from common import REPO
 from tools.plant_runs import MACHINES, model_file, run_fast
 
-from elastic_pm_dyn.ros.processes import private_domain_id
+from elastic_pm_dyn.ros.demos.processes import private_domain_id
 
 BEFORE = "ebfe74fb1abc00050e9b6b5befd96ff0fc5dffc6"  # the last commit with the object publish path
 BLOCK = 100  # periods per timed block

@@ -36,7 +36,7 @@ sys.path.insert(0, str(REPO / "bench"))  # common, tools
 
 from tools.plant_runs import WARM_UP, CpuWindow, Probe  # noqa: E402
 
-from elastic_pm_dyn.ros.processes import NodeProcess, private_domain_id, ros_env  # noqa: E402
+from elastic_pm_dyn.ros.demos.processes import NodeProcess, private_domain_id, ros_env  # noqa: E402
 
 
 class Controller(Probe):
@@ -58,7 +58,7 @@ def run(duration: float, cpus: list[int], priority: int, log_dir: Path, domain: 
             "-p", "publish_rate:=1000.0", "-p", "diagnostics_rate:=1.0", "-p", f"realtime.priority:={priority}"]
     if cpus:
         args += ["-p", f"realtime.cpu_affinity:={cpus}"]
-    plant = NodeProcess("plant_realtime", "elastic_pm_dyn.ros.plant_node", args, ros_env(domain), log_dir)
+    plant = NodeProcess("plant_realtime", "elastic_pm_dyn.ros.plant.node", args, ros_env(domain), log_dir)
     probe = Controller(domain)
     try:
         probe.spin(WARM_UP)

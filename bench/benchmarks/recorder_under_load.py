@@ -26,7 +26,7 @@ from pathlib import Path
 import yaml
 
 from elastic_pm_dyn.bags.reader import open_bag
-from elastic_pm_dyn.ros.processes import NodeProcess, private_domain_id, ros_env
+from elastic_pm_dyn.ros.demos.processes import NodeProcess, private_domain_id, ros_env
 
 TOPICS = ["/numbered", "/joint_states", "/branch_forces", "/ee_pose"]
 RATE = 1000.0  # [Hz] of the numbered stream
@@ -52,12 +52,12 @@ def main() -> None:
     ap.add_argument("--seconds", type=float, default=60.0)
     ap.add_argument("--hogs", type=int, default=2)
     ap.add_argument("--storage", default="mcap", choices=("mcap", "sqlite3"))
-    ap.add_argument("--recorder-module", default="elastic_pm_dyn.ros.recorder")
+    ap.add_argument("--recorder-module", default="elastic_pm_dyn.ros.recorder.node")
     ap.add_argument("--out", type=Path, default=None)
     a = ap.parse_args()
     out = a.out or Path(tempfile.mkdtemp(prefix="recorder_load_"))
     env = ros_env(private_domain_id())
-    plant = NodeProcess("plant", "elastic_pm_dyn.ros.plant_node", ["-p", "sync_mode:=realtime"], env, out / "logs")
+    plant = NodeProcess("plant", "elastic_pm_dyn.ros.plant.node", ["-p", "sync_mode:=realtime"], env, out / "logs")
     hogs = [multiprocessing.Process(target=_hog, daemon=True) for _ in range(a.hogs)]
     rec = None
     try:

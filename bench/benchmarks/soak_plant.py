@@ -3,7 +3,7 @@
     nice -n 10 .venv/bin/python bench/benchmarks/soak_plant.py                # 10 minutes
     .venv/bin/python bench/benchmarks/soak_plant.py --minutes 1
 
-The plant node runs as its own process (``python -m elastic_pm_dyn.ros.plant_node``) on a
+The plant node runs as its own process (``python -m elastic_pm_dyn.ros.plant.node``) on a
 private loopback domain: five-bar, SCDD + RK4 dt = 1e-4 s + projection, ``sync_mode: fast``,
 ``publish_rate: 1000.0``. This process is the controller: it answers every 10th state on
 ``joint_states`` (a 100 Hz controller: answering all of them, 2-5 kHz in fast mode, would
@@ -38,7 +38,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # bench/: common, 
 from common import REPO
 from tools.plant_runs import Probe
 
-from elastic_pm_dyn.ros.processes import NodeProcess, private_domain_id, ros_env
+from elastic_pm_dyn.ros.demos.processes import NodeProcess, private_domain_id, ros_env
 
 START_TIMEOUT = 300.0  # [s] until the plant's first report
 WARM_UP = 5.0  # [s] after it; RSS is measured from its end
@@ -112,7 +112,7 @@ def soak(minutes: float, log_dir: Path, domain: int) -> dict:
     args = ["--params-file", str(REPO / "config" / "plant.yaml"), "-p", "sync_mode:=fast",
             "-p", "publish_rate:=1000.0", "-p", "dt:=0.0001", "-p", "formulation:=scdd",
             "-p", "stabilization:=projection", "-p", "diagnostics_rate:=1.0"]
-    plant = NodeProcess("plant_soak", "elastic_pm_dyn.ros.plant_node", args, ros_env(domain), log_dir)
+    plant = NodeProcess("plant_soak", "elastic_pm_dyn.ros.plant.node", args, ros_env(domain), log_dir)
     ctl = Controller(domain)
     rss: list[tuple[float, float]] = []
     try:

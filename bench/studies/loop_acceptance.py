@@ -59,7 +59,7 @@ def tune_on(run_dir: Path, mech, base: Path, out: Path, opts, seconds: float | N
 def run_machine(name: str, args: argparse.Namespace) -> dict:
     from elastic_pm_dyn.kinematics.mechanism import Mechanism
     from elastic_pm_dyn.model.loader import load_model
-    from elastic_pm_dyn.ros.loop_demo import LoopOptions, run_loop_demo
+    from elastic_pm_dyn.ros.demos.loop_demo import LoopOptions, run_loop_demo
     model, dof = MACHINES[name]
     model = REPO / "config" / model
     mech = Mechanism(load_model(model, dof))

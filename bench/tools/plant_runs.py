@@ -21,7 +21,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # bench/: common
 from common import REPO
 
-from elastic_pm_dyn.ros.processes import NodeProcess, ros_env
+from elastic_pm_dyn.ros.demos.processes import NodeProcess, ros_env
 
 WARM_UP = 3.0  # [s] after start-up: discovery, first diagnostics
 START_TIMEOUT = 180.0  # [s] fast mode: the window starts after the first /diagnostics
@@ -113,12 +113,12 @@ def _start_plant(sync: str, publish_rate: float, log_dir: Path, domain: int, mod
     env = ros_env(domain)
     name = f"plant_{sync}_{publish_rate:g}{label}"
     if source is None:
-        return NodeProcess(name, "elastic_pm_dyn.ros.plant_node", args, env, log_dir)
+        return NodeProcess(name, "elastic_pm_dyn.ros.plant.node", args, env, log_dir)
     env["PYTHONPATH"] = os.pathsep.join([str(source), env.get("PYTHONPATH", "")])
     here = os.getcwd()
     os.chdir(source)  # python -m puts the working directory first on sys.path
     try:
-        return NodeProcess(name, "elastic_pm_dyn.ros.plant_node", args, env, log_dir)
+        return NodeProcess(name, "elastic_pm_dyn.ros.plant.node", args, env, log_dir)
     finally:
         os.chdir(here)
 

@@ -24,7 +24,7 @@ import re
 import tempfile
 import time
 from collections.abc import Iterable
-from typing import Any
+from typing import Any, ClassVar
 
 from elastic_pm_dyn.ros.params import ParameterError
 
@@ -95,16 +95,39 @@ def lock_dir() -> str:
     return os.path.join(base, f"elastic_pm_dyn-{os.getuid()}")
 
 
-def claim_on_host(node: Any, topics: Iterable[str]) -> list[Any]:
-    """Exclusive locks on ``topics`` (fully qualified) in this node's ROS domain, held as long as
-    the returned files stay open (the node keeps them); ParameterError (one line, naming the holder)
-    if a process of this host holds one."""
+class HostClaim:
+    """One claimed lock file, shared by the nodes of this process that claimed it (see
+    :func:`claim_on_host`); the lock goes when the last of them releases it."""
+
+    held: ClassVar[dict[str, HostClaim]] = {}  # path -> the claim of this process
+
+    def __init__(self, path: str, file: Any):
+        self.path, self.file, self.users = path, file, 1
+
+    def release(self) -> None:
+        self.users -= 1
+        if self.users == 0:
+            self.file.close()
+            HostClaim.held.pop(self.path, None)
+
+
+def claim_on_host(node: Any, topics: Iterable[str]) -> list[HostClaim]:
+    """Exclusive locks on ``topics`` (fully qualified) in this node's ROS domain, held until each
+    returned claim is released (the node does so when destroyed; the kernel when the process
+    ends); ParameterError (one line, naming the holder) if another process of this host holds
+    one. Nodes of one process (a test harness, a component container) share the process's
+    claim: among them only the graph check tells."""
     domain = node.context.get_domain_id()
     folder = os.path.join(lock_dir(), f"domain-{domain}")
     os.makedirs(folder, mode=0o700, exist_ok=True)
-    held = []
+    claims: list[HostClaim] = []
     for topic in topics:
         path = os.path.join(folder, re.sub(r"[^\w.-]", "_", topic.strip("/")) + ".lock")
+        if path in HostClaim.held:
+            claim = HostClaim.held[path]
+            claim.users += 1
+            claims.append(claim)
+            continue
         f = open(path, "a+", encoding="utf-8")  # noqa: SIM115 (kept open: the lock lives with it)
         try:
             fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
@@ -112,8 +135,8 @@ def claim_on_host(node: Any, topics: Iterable[str]) -> list[Any]:
             f.seek(0)
             holder = f.read().strip() or "another process"
             f.close()
-            for g in held:
-                g.close()
+            for c in claims:
+                c.release()
             raise ParameterError(f"{holder} already runs on this host in ROS domain {domain} and publishes "
                                  f"{topic}: not starting a second one beside it (another namespace: "
                                  "-r __ns:=/r2, or stop the first)") from None
@@ -121,8 +144,9 @@ def claim_on_host(node: Any, topics: Iterable[str]) -> list[Any]:
         f.truncate()
         f.write(f"{node.get_fully_qualified_name()} (pid {os.getpid()})")
         f.flush()
-        held.append(f)
-    return held
+        HostClaim.held[path] = claim = HostClaim(path, f)
+        claims.append(claim)
+    return claims
 
 
 def refuse_if_taken(node: Any, topics: Iterable[str], since: float, wait: float = DISCOVERY_WAIT) -> None:

@@ -52,8 +52,8 @@ class ManagedNode(Node):
         """Release resources before the node is destroyed (called once, also on signals)."""
 
     def destroy_node(self) -> None:
-        for f in getattr(self, "host_claims", []):  # graph_checks.claim_on_host: another may start now
-            f.close()
+        for claim in getattr(self, "host_claims", []):  # graph_checks.claim_on_host: another may start now
+            claim.release()
         self.host_claims = []
         super().destroy_node()
 

@@ -16,7 +16,7 @@ first one (an integer-ns origin, so epoch stamps keep their nanoseconds) and eve
 is published at the exact stamp of its message. A message stamped more than
 ``observer.timing.max_future`` ahead of the filter is not used (counted as ``future``); one
 ahead by less that the next joint states contradict (three late in a row) restarts the filter
-from them (:class:`~elastic_pm_dyn.ros.observer_session.ObserverSession`), and
+from them (:class:`~elastic_pm_dyn.ros.observer.session.ObserverSession`), and
 a joint state with duplicate names, without a measured joint or with no joint of the model
 is not used either (counted per reason); one throttled warning line each, the counts in
 ``/diagnostics``.
@@ -33,7 +33,7 @@ those causes (a throttled warning). ``~/reset`` restarts the filter from
 the latest measured joint state it used (never from one stamped too far ahead),
 ``~/set_state`` from a given one.
 
-The callbacks convert messages and call :class:`~elastic_pm_dyn.ros.observer_session.ObserverSession`
+The callbacks convert messages and call :class:`~elastic_pm_dyn.ros.observer.session.ObserverSession`
 (no physics here). They never overlap: the node runs in a single-threaded executor.
 """
 
@@ -60,10 +60,10 @@ from elastic_pm_dyn.errors import InputError
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.observer.config import DEFAULT_PARAMETERS, PREFIX, RUNTIME_PARAMETERS
 from elastic_pm_dyn.ros.graph_checks import refuse_if_taken, resolved_topics
-from elastic_pm_dyn.ros.input_order import AFTER, BEFORE, COMMAND, PRIMARY, InputOrder
 from elastic_pm_dyn.ros.markers import MechanismMarkers
 from elastic_pm_dyn.ros.messages import EstimateMessages, stamp
-from elastic_pm_dyn.ros.observer_session import ObserverSession, Outcome, observer_config, parameter_message
+from elastic_pm_dyn.ros.observer.input_order import AFTER, BEFORE, COMMAND, PRIMARY, InputOrder
+from elastic_pm_dyn.ros.observer.session import ObserverSession, Outcome, observer_config, parameter_message
 from elastic_pm_dyn.ros.params import COMMAND_JOINTS, Param, ParameterError, read_parameters
 from elastic_pm_dyn.ros.qos import DIAGNOSTICS_QOS, OBSERVER_INPUT_QOS, STATE_OUT_QOS, VIEWER_QOS
 from elastic_pm_dyn.ros.throttle import KindThrottle
@@ -103,7 +103,7 @@ class ObserverMode:
         self.last_stamp = 0  # [ns] of the latest published estimate
         self.timing_logged = 0  # sample timing decisions logged so far
         self.warn = KindThrottle(node, WARN_EVERY)
-        # input_order stamp: the inputs in stamp order across topics (ros/input_order.py), as offline
+        # input_order stamp: the inputs in stamp order across topics (ros/observer/input_order.py), as offline
         # observe takes them; lockstep_order is its older name
         order = p["input_order"]
         if "lockstep_order" in getattr(node, "_parameter_overrides", {}):

@@ -3,7 +3,7 @@
 Sync modes (parameter ``sync_mode``):
 - ``realtime``: a steady-clock timer at ``publish_rate`` advances one control period per
   tick (catching up at most ``realtime.max_catch_up`` periods after a late tick, each counted
-  and logged as late). A plant further behind (:mod:`~elastic_pm_dyn.ros.realtime_schedule`),
+  and logged as late). A plant further behind (:mod:`~elastic_pm_dyn.ros.plant.realtime_schedule`),
   with ``realtime.overrun``:
 
   - ``slow`` (default): slows its clock, as Gazebo does. The stamps are the plant's own
@@ -38,10 +38,10 @@ condition) advance the :class:`~elastic_pm_dyn.sim.plant.Plant`. Nothing a messa
 service request holds makes the node die: a fault stops integration at the last good
 state, ``~/reset`` and ``~/set_state`` recover, and a request that cannot be served is
 answered ``success: false`` with the reason. Warnings are throttled per kind. With ``mode: observer``
-the node does not simulate: :class:`~elastic_pm_dyn.ros.observer_mode.ObserverMode`
+the node does not simulate: :class:`~elastic_pm_dyn.ros.observer.mode.ObserverMode`
 subscribes to commands and measurements and publishes the state observer's estimates on
 the same output topics (the sync parameters then do not apply): the observer node
-(``observer_node``, :mod:`~elastic_pm_dyn.ros.observer_node`) under the plant's name, with
+(``observer_node``, :mod:`~elastic_pm_dyn.ros.observer.node`) under the plant's name, with
 the same parameters (:mod:`~elastic_pm_dyn.ros.machine_params`, ``observer.*``).
 Torque held over a period: the last valid command, or zero when it is older than
 ``command_timeout`` on the plant's clock: simulated time in fast and realtime ``slow`` (a
@@ -53,12 +53,11 @@ arrives late acts from the next tick, not from its stamp; an observer that predi
 applied torque follows the plant however late the controller answers.
 
 Simulated sensors (``sensors.*``) and an unknown disturbance torque on the motors
-(``disturbance.*``): :mod:`~elastic_pm_dyn.ros.plant_sensors` (all off by default).
+(``disturbance.*``): :mod:`~elastic_pm_dyn.ros.plant.sensors` (all off by default).
 """
 
 from __future__ import annotations
 
-import collections
 import dataclasses
 import sys
 import time
@@ -96,7 +95,10 @@ from elastic_pm_dyn.ros.params import (
     read_parameters,
     reject_unknown,
 )
-from elastic_pm_dyn.ros.plant_sensors import (
+from elastic_pm_dyn.ros.plant.command_hold import CommandHold
+from elastic_pm_dyn.ros.plant.realtime import collect_young, prepare, restore
+from elastic_pm_dyn.ros.plant.realtime_schedule import OVERRUNS, RealtimeSchedule
+from elastic_pm_dyn.ros.plant.sensors import (
     DISTURBANCE_PARAMS,
     SENSOR_PARAMS,
     SensorOutputs,
@@ -104,7 +106,8 @@ from elastic_pm_dyn.ros.plant_sensors import (
     sensor_spec,
     spectrum_disturbance,
 )
-from elastic_pm_dyn.ros.plant_stats import PlantStats
+from elastic_pm_dyn.ros.plant.stats import PlantStats
+from elastic_pm_dyn.ros.plant.step_check import rk4_step_warning
 from elastic_pm_dyn.ros.qos import (
     CLOCK_QOS,
     COMMAND_QOS,
@@ -113,10 +116,7 @@ from elastic_pm_dyn.ros.qos import (
     STATE_OUT_QOS,
     VIEWER_QOS,
 )
-from elastic_pm_dyn.ros.realtime import collect_young, prepare, restore
-from elastic_pm_dyn.ros.realtime_schedule import OVERRUNS, RealtimeSchedule
 from elastic_pm_dyn.ros.robot_description import publish_robot_description
-from elastic_pm_dyn.ros.step_check import rk4_step_warning
 from elastic_pm_dyn.ros.throttle import KindThrottle
 from elastic_pm_dyn.sim.plant import START_STATES, Plant
 from elastic_pm_dyn.sim.simulator import INTEGRATORS, STABILIZATIONS, SimulationOptions
@@ -206,7 +206,7 @@ class PlantNode(ManagedNode):
         mech, self.decoder = load_machine(self, p)
         self._warn_unused()
         if self.mode == "observer":
-            from elastic_pm_dyn.ros.observer_mode import OBSERVER_PARAMS, ObserverMode
+            from elastic_pm_dyn.ros.observer.mode import OBSERVER_PARAMS, ObserverMode
             self.observer = ObserverMode(self, mech, p)
             on_runtime_change(self, [*PARAMS, *OBSERVER_PARAMS], self.observer.apply_parameter)
         else:
@@ -241,7 +241,6 @@ class PlantNode(ManagedNode):
             if coarse:
                 self.get_logger().warning(coarse)
         self.period_ns = round(period * NS)
-        self.timeout = p["command_timeout"]
         self.formulation = p["formulation"]
         self.overrun: str = p["realtime.overrun"]
         self.schedule = RealtimeSchedule(period, p["realtime.max_catch_up"], self.overrun)
@@ -273,14 +272,13 @@ class PlantNode(ManagedNode):
         self.command_gaps = SequenceGaps()  # commands that never reached the callback (overwritten)
         # Sensors and disturbance: nothing of them exists unless configured (the topics stay as they were).
         self.sensors = SensorOutputs(self, self.plant, spec, p) if spec.any else None
-        self.disturbance_input: bool = p["disturbance.input"]
-        self.disturbance_timeout = p["disturbance.timeout"]
-        self.disturbance_command: np.ndarray | None = None  # the last valid disturbance_torque
-        self.disturbance_time = 0.0  # when it arrived (the command clock)
+        # Commands (and the disturbance input): the callbacks give them, the stepping takes the torque.
+        self.hold = CommandHold(len(mech.active), self.sync_mode == "lockstep", p["command_timeout"],
+                                p["disturbance.input"], p["disturbance.timeout"])
         self.pub_disturbance = None
-        if self.disturbance_input or self.plant.disturbance is not None:
+        if p["disturbance.input"] or self.plant.disturbance is not None:
             self.pub_disturbance = self.create_publisher(JointState, p["topics.disturbance"], STATE_OUT_QOS)
-        if self.disturbance_input:
+        if p["disturbance.input"]:
             self.create_subscription(msg_type, p["topics.disturbance_torque"], self._on_disturbance, COMMAND_QOS)
         self.create_service(Trigger, "~/reset", self._on_reset)
         self.create_service(SetJointState, "~/set_state", self._on_set_state)
@@ -288,15 +286,8 @@ class PlantNode(ManagedNode):
         self.create_service(Trigger, "~/unpause", self._on_unpause)
         self.create_service(StepPeriods, "~/step", self._on_step)
 
-        # Command state: the callbacks write these, the stepping reads them.
-        self.command: np.ndarray | None = None
-        self.command_time = 0.0  # when it arrived: monotonic [s] (realtime) or simulated [s] (fast)
-        self.command_arrival: float | None = None  # monotonic [s] of a command no period has used yet
-        # lockstep: (torque, arrival [monotonic s]) per command, in order
-        self.queue: collections.deque[tuple[np.ndarray, float]] = collections.deque()
         self.stats = PlantStats()
         self.paused = False
-        self.awaiting_first = True  # lockstep: no command since start, reset or set_state
         self.last_command_wall = time.monotonic()
         self.waiting_logged = 0.0
         self.matched_since: float | None = None  # lockstep: a volatile state subscriber there since (monotonic)
@@ -337,9 +328,9 @@ class PlantNode(ManagedNode):
     def _apply_parameter(self, name: str, value: Any) -> str | None:
         """Take a runtime parameter (already checked); a reason when it cannot be taken."""
         if name == "command_timeout":
-            self.timeout = value
+            self.hold.timeout = value
         elif name == "disturbance.timeout":
-            self.disturbance_timeout = value
+            self.hold.disturbance_timeout = value
         elif name == "marker_rate":
             self.destroy_timer(self.marker_timer)
             self.marker_timer = self.create_timer(1.0 / value, self._publish_markers, clock=self.steady)
@@ -369,25 +360,16 @@ class PlantNode(ManagedNode):
             if self.sync_mode == "lockstep":  # answered all the same: the last valid command holds
                 self.warn.warning(getattr(err, "kind", "rejected"),
                                   f"command rejected: {err}; holding the last valid one for the period")
-                held = self.command if self.command is not None else np.zeros(len(self.plant.tau))
-                self._queue(held, arrival)
+                self.hold.take_rejected(arrival)
+                self.lockstep_trigger.trigger()
             else:
                 self.warn.warning(getattr(err, "kind", "rejected"), f"command rejected: {err}")
             return
         self.stats.accepted += 1
-        if self.command is None:
+        if self.hold.take(tau, arrival, self._command_clock()):
             self.get_logger().info("first torque command received")
-        self.command = tau
         if self.sync_mode == "lockstep":
-            self._queue(tau, arrival)
-        else:
-            self.command_time = self._command_clock()
-            self.command_arrival = arrival
-
-    def _queue(self, tau: np.ndarray, arrival: float) -> None:
-        self.awaiting_first = False
-        self.queue.append((tau, arrival))
-        self.lockstep_trigger.trigger()
+            self.lockstep_trigger.trigger()
 
     def _count_overwritten(self, seq: int | None) -> None:
         """Lockstep answers every command it gets: one that a queue overwrote is reported, never silent."""
@@ -405,21 +387,7 @@ class PlantNode(ManagedNode):
             self.warn.warning("disturbance " + getattr(err, "kind", "rejected"),
                               f"disturbance torque rejected: {err}; the last valid one holds")
             return
-        self.disturbance_command = d
-        self.disturbance_time = self._disturbance_clock()
-
-    def _disturbance_clock(self) -> float:
-        return self.plant.t if self.own_clock else time.monotonic()
-
-    def _held_disturbance(self) -> np.ndarray | None:
-        """The disturbance_torque for the next period: the last valid one, zero when stale; None
-        without the input (the plant then integrates the command alone, as before)."""
-        if not self.disturbance_input:
-            return None
-        if (self.disturbance_command is not None
-                and self._disturbance_clock() - self.disturbance_time <= self.disturbance_timeout):
-            return self.disturbance_command
-        return np.zeros(len(self.plant.tau))
+        self.hold.take_disturbance(d, self._command_clock())
 
     def _command_clock(self) -> float:
         """The clock a command's age is measured on: the stamps' (simulated time unless they are the wall clock)."""
@@ -427,14 +395,13 @@ class PlantNode(ManagedNode):
 
     def _held_torque(self) -> np.ndarray:
         """The torque for the next period in realtime/fast: the command, or zero when stale."""
-        if self.command is not None:
-            age = self._command_clock() - self.command_time
-            if age <= self.timeout:
-                return self.command
-            self.warn.warning("stale", f"last torque command is {age:.3g} s old (timeout {self.timeout:g} s): "
-                              "applying zero torque")
-        self.stats.stale += 1
-        return np.zeros(len(self.plant.tau))
+        tau, stale_age = self.hold.held(self._command_clock())
+        if stale_age is not None:
+            self.warn.warning("stale", f"last torque command is {stale_age:.3g} s old (timeout "
+                              f"{self.hold.timeout:g} s): applying zero torque")
+        if stale_age is not None or self.hold.command is None:
+            self.stats.stale += 1
+        return tau
 
     # --------------------------------------------------------------- services
     def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
@@ -529,18 +496,12 @@ class PlantNode(ManagedNode):
     def _step_torque(self) -> tuple[np.ndarray, float | None]:
         """~/step: the torque of one period and its command's arrival (None: no new command)."""
         if self.sync_mode != "lockstep":
-            return self._held_torque(), self._take_arrival()
-        if self.queue:
-            return self.queue.popleft()
-        held = self.command if self.command is not None else np.zeros(len(self.plant.tau))
-        return held, None
+            return self._held_torque(), self.hold.take_arrival()
+        return self.hold.next_queued()
 
     def _restarted(self) -> None:
         """After reset/set_state: forget old commands, resume stepping, show the new state."""
-        self.command = None
-        self.command_arrival = None
-        self.queue.clear()
-        self.awaiting_first = True
+        self.hold.restart()
         self._resume(publish=True)
 
     def _resume(self, publish: bool = False) -> None:
@@ -556,20 +517,15 @@ class PlantNode(ManagedNode):
             self.schedule.stop()  # a fresh schedule; its first tick publishes the state
         elif publish:
             self._publish_state()
-        if self.sync_mode == "lockstep" and self.queue:
+        if self.sync_mode == "lockstep" and self.hold.queue:
             self.lockstep_trigger.trigger()
 
     # ---------------------------------------------------------------- stepping
-    def _take_arrival(self) -> float | None:
-        """Arrival time of a command no period has used yet (it is used now), else None."""
-        arrival, self.command_arrival = self.command_arrival, None
-        return arrival
-
     def _step(self, tau: np.ndarray, arrival: float | None = None) -> bool:
         """Advance one period and publish; False when integration stopped. ``arrival``: when the
         command of this period arrived, if it is a new one (latency, fresh-command share)."""
         t0 = time.perf_counter()
-        held = self._held_disturbance()
+        held = self.hold.held_disturbance(self._command_clock())
         start_ns = self._stamp_ns()
         try:
             if self.sensors is not None and self.sensors.after:  # a(t_k+): under the command that starts now
@@ -627,13 +583,13 @@ class PlantNode(ManagedNode):
                               f"{tick.lateness * 1e3:.2f} ms late ({s.late_periods} late so far; cycle_load in "
                               "/diagnostics)")
         for _ in range(tick.due):
-            if not self._step(self._held_torque(), self._take_arrival()):
+            if not self._step(self._held_torque(), self.hold.take_arrival()):
                 return
 
     def _on_fast_tick(self) -> None:
         end = time.perf_counter() + FAST_SLICE
         while time.perf_counter() < end:
-            if not self._step(self._held_torque(), self._take_arrival()):
+            if not self._step(self._held_torque(), self.hold.take_arrival()):
                 return
 
     def _on_lockstep(self) -> None:
@@ -642,8 +598,8 @@ class PlantNode(ManagedNode):
         while integration is stopped (ERROR in /diagnostics until ~/reset or ~/set_state) the
         last good state is published again, with its own stamp (time does not advance).
         Paused: the commands wait in the queue (~/step or ~/unpause takes them)."""
-        while self.queue and not self.paused:
-            tau, arrival = self.queue.popleft()
+        while self.hold.queue and not self.paused:
+            tau, arrival = self.hold.queue.popleft()
             if self.plant.fault is not None:
                 self.stats.rejected += 1
                 self.warn.warning("stopped", f"command ignored, integration stopped: {self.plant.fault}; "
@@ -660,7 +616,7 @@ class PlantNode(ManagedNode):
         transient-local one got the state when it matched), once it has been there for a whole
         republish period and the state is that old: a controller that answers within the period
         never sees a state twice."""
-        if not self.awaiting_first or self.paused:
+        if not self.hold.awaiting_first or self.paused:
             return
         now = time.monotonic()
         if not any(r.qos_profile.durability == DurabilityPolicy.VOLATILE
@@ -729,9 +685,9 @@ class PlantNode(ManagedNode):
 
     def _waiting(self) -> str:
         """Lockstep: what the plant waits for, if it waits (empty otherwise)."""
-        if self.sync_mode != "lockstep" or self.queue or self.plant.fault is not None:
+        if self.sync_mode != "lockstep" or self.hold.queue or self.plant.fault is not None:
             return ""
-        if self.awaiting_first:
+        if self.hold.awaiting_first:
             return (f"waiting for the first command (state of t = {self.plant.t:.6g} s re-published every "
                     f"{self.republish_period:g} s while a volatile subscriber is there)")
         idle = time.monotonic() - self.last_command_wall
@@ -746,8 +702,8 @@ class PlantNode(ManagedNode):
         if self.keep_gc_out:  # between periods: the collection's time shows in gc_time_ms, not in a period
             s.gc_time = collect_young()
         wall = time.monotonic()
-        age = (f"{self._command_clock() - self.command_time:.6g}" if self.command is not None
-               and self.sync_mode != "lockstep" else "")
+        command_age = self.hold.age(self._command_clock())
+        age = f"{command_age:.6g}" if command_age is not None else ""
         status = DiagnosticStatus(name=f"{self.get_fully_qualified_name()}: plant", hardware_id=self.hardware_id)
         if plant.fault is not None:
             status.level, status.message = DiagnosticStatus.ERROR, f"integration stopped: {plant.fault}"

@@ -32,14 +32,14 @@ from elastic_pm_dyn.model.loader import load_model
 from elastic_pm_dyn.motion.feedforward import elastic_line_torques, line_torques
 from elastic_pm_dyn.motion.manoeuvre import REFERENCE_MANOEUVRE
 from elastic_pm_dyn.motion.trajectory import Line, QuinticLine
-from elastic_pm_dyn.ros.local_nodes import run_domain_id
-from elastic_pm_dyn.ros.params import share_path
-from elastic_pm_dyn.ros.processes import (
+from elastic_pm_dyn.ros.demos.local_nodes import run_domain_id
+from elastic_pm_dyn.ros.demos.processes import (
     NodeProcess,
     ros_env,
     wait_for_exit,
     wait_for_recording,
 )
+from elastic_pm_dyn.ros.params import share_path
 from elastic_pm_dyn.sim.simulator import SimulationOptions, Simulator
 from elastic_pm_dyn.sim.torque import TorqueTable
 
@@ -108,15 +108,15 @@ def _run_nodes(out: Path, bag: Path, model_path: Path, sync: str, storage: str, 
                 "-p", f"storage:={storage}"]
     procs: list[NodeProcess] = []
     try:
-        procs.append(NodeProcess("plant", "elastic_pm_dyn.ros.plant_node", plant_args, env, logs))
-        procs.append(NodeProcess("recorder", "elastic_pm_dyn.ros.recorder", rec_args, env, logs))
+        procs.append(NodeProcess("plant", "elastic_pm_dyn.ros.plant.node", plant_args, env, logs))
+        procs.append(NodeProcess("recorder", "elastic_pm_dyn.ros.recorder.node", rec_args, env, logs))
         print(f"  plant ({sync}) and recorder started on ROS domain {domain_id}; logs in {logs}")
         # The manoeuvre starts once the recorder has received the plant's messages (it then also
         # waits for the feedforward's topics: wait_for_subscribers = 2 on torque_command). The
         # plant publishes its start state until the first command; a subscription in the graph
         # alone once recorded nothing (issue #29), so the graph is not what is waited for.
         wait_for_recording(PLANT_TOPICS, domain_id, timeout, procs)
-        ff = NodeProcess("feedforward", "elastic_pm_dyn.ros.feedforward_node", ff_args, env, logs)
+        ff = NodeProcess("feedforward", "elastic_pm_dyn.ros.feedforward.node", ff_args, env, logs)
         procs.append(ff)
         print("  recorder ready; feedforward started")
         code = wait_for_exit(ff, procs[:2], timeout)

@@ -74,7 +74,7 @@ from elastic_pm_dyn.ros.losses import TopicLosses
 from elastic_pm_dyn.ros.node_main import ManagedNode, run_node
 from elastic_pm_dyn.ros.params import Param, ParameterError, read_parameters, reject_unknown
 from elastic_pm_dyn.ros.qos import DIAGNOSTICS_QOS
-from elastic_pm_dyn.ros.second_participant import SecondParticipant
+from elastic_pm_dyn.ros.recorder.second_participant import SecondParticipant
 
 DEMO_TOPICS = ["/joint_states", "/branch_forces", "/ee_pose", "/torque_command", "/reference_joint_states"]
 DEMO_TYPES = ["/joint_states sensor_msgs/msg/JointState", "/branch_forces elastic_pm_dyn_msgs/msg/BranchForces",
@@ -316,7 +316,7 @@ class RecorderNode(ManagedNode):
         """A new reader for a topic that is matched but silent, in a new DDS participant: Fast DDS
         can leave a reader that its writer never serves, and then every new reader of the same
         participant too, while other participants' readers are served (issue #29; see
-        :mod:`~elastic_pm_dyn.ros.second_participant`). The k-th new subscription of any topic is
+        :mod:`~elastic_pm_dyn.ros.recorder.second_participant`). The k-th new subscription of any topic is
         made in the k-th extra participant, so at most :data:`MAX_RESUBSCRIBE` are ever made."""
         # The old reader stays subscribed (its node keeps it): if the publisher was only silent it
         # serves that one at once, while the new participant's reader may take a second to match

@@ -23,7 +23,7 @@ from types import TracebackType
 from typing import Any
 
 from elastic_pm_dyn.errors import InputError
-from elastic_pm_dyn.ros.processes import NodeProcess, NodeProcessError, private_domain_id, ros_env
+from elastic_pm_dyn.ros.demos.processes import NodeProcess, NodeProcessError, private_domain_id, ros_env
 
 MAX_DOMAIN_ID = 232  # the highest ROS_DOMAIN_ID whose DDS ports fit on Linux (ROS 2 docs, "The ROS_DOMAIN_ID")
 
@@ -41,7 +41,7 @@ def domain_from_env() -> int:
 def run_domain_id(given: int | None = None) -> int:
     """The domain of a run that starts its own nodes (``ros-demo``): ``given`` (``--domain-id``),
     else ``ROS_DOMAIN_ID`` when it is set (the shell's ROS 2 tools then see the run), else a
-    private one (:func:`~elastic_pm_dyn.ros.processes.private_domain_id`: no other run hears it)."""
+    private one (:func:`~elastic_pm_dyn.ros.demos.processes.private_domain_id`: no other run hears it)."""
     if given is not None:
         if not 0 <= given <= MAX_DOMAIN_ID:
             raise InputError(f"domain id must be a whole number 0-{MAX_DOMAIN_ID}, got {given}")
@@ -75,7 +75,7 @@ class LocalNodes:
         rclpy.init(domain_id=self.domain_id)
         return self
 
-    def start(self, name: str, ros_args: list[str], module: str = "elastic_pm_dyn.ros.plant_node") -> NodeProcess:
+    def start(self, name: str, ros_args: list[str], module: str = "elastic_pm_dyn.ros.plant.node") -> NodeProcess:
         """Start ``module`` (default: the plant) with ``ros_args`` (``-p``, ``-r`` ...); ``name`` names its log."""
         env = ros_env(self.domain_id)
         env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"]

@@ -15,7 +15,7 @@ goals (empty: quintic for rigid, nonic, C^4, for elastic). Desired motion (param
   rules (cubic with velocities, quintic with accelerations too), positions alone as
   rest-to-rest 9th-order segments (logged once; :class:`~elastic_pm_dyn.motion.trajectory.JointSpline`);
 - ``trajectory`` also takes Cartesian goals: trajectory_msgs/MultiDOFJointTrajectory of the end
-  effector or platform on ``topics.cartesian_trajectory`` (:mod:`~elastic_pm_dyn.ros.cartesian_goals`):
+  effector or platform on ``topics.cartesian_trajectory`` (:mod:`~elastic_pm_dyn.ros.feedforward.cartesian_goals`):
   rest-to-rest segments through its poses, computed with ``method`` (rigid, elastic, shaped) when
   the goal arrives; a JointTrajectory takes the rigid method only;
 - ``hold``: the model's start pose at rest for ``hold.duration`` seconds, with the torques
@@ -25,13 +25,13 @@ After the end the final pose is held (its static torque keeps being published).
 
 Goals (JointTrajectory, MultiDOFJointTrajectory) and their stamps. A goal is checked in its
 callback (a bad one: one line) and its reference computed in a child process beside the
-command stream (:mod:`~elastic_pm_dyn.ros.goal_worker`): meanwhile the current reference goes
+command stream (:mod:`~elastic_pm_dyn.ros.feedforward.goal_worker`): meanwhile the current reference goes
 on (after its end its end pose is held, the last torque published again), which the node
 says once; a newer goal supersedes one still being computed; Ctrl-C or SIGTERM kills the
 computation at once (the node stops within its spin timeout). The elastic line of ``source:
 line`` is computed the same way from start-up, and starts once ready (autostart or ``~/start``);
 a line it refuses ends the node with that line (exit status 2), as a bad parameter does.
-``header.stamp`` (:mod:`~elastic_pm_dyn.ros.goal_stamps`): 0 is now, i.e. when its reference
+``header.stamp`` (:mod:`~elastic_pm_dyn.ros.feedforward.goal_stamps`): 0 is now, i.e. when its reference
 is ready, from its first point; any other stamp is its start on the node's clock (wall
 time, simulated time with use_sim_time, with ``trigger: state`` the plant states' stamps),
 refused in one line beyond 5 s before or 60 s after the node's now; a start that has passed
@@ -93,10 +93,10 @@ from elastic_pm_dyn.motion.shaping import SHAPERS, ShapedPath
 from elastic_pm_dyn.motion.time_laws import LAWS, law_order
 from elastic_pm_dyn.motion.trajectory import Line, QuinticLine, make_line
 from elastic_pm_dyn.motion.waypoints import MAX_WAYPOINTS
-from elastic_pm_dyn.ros.cartesian_goals import goal_path
 from elastic_pm_dyn.ros.commands import CommandDecoder
-from elastic_pm_dyn.ros.goal_stamps import goal_start, late_start
-from elastic_pm_dyn.ros.goal_worker import (
+from elastic_pm_dyn.ros.feedforward.cartesian_goals import goal_path
+from elastic_pm_dyn.ros.feedforward.goal_stamps import goal_start, late_start
+from elastic_pm_dyn.ros.feedforward.goal_worker import (
     GoalJob,
     cartesian_reference,
     elastic_line_reference,
@@ -338,7 +338,7 @@ class FeedforwardNode(ManagedNode):
 
     def _start_of(self, stamp: Any) -> int | None:
         """A goal's start [ns] on the node's clock (None: now); InputError outside the window
-        (:func:`~elastic_pm_dyn.ros.goal_stamps.goal_start`)."""
+        (:func:`~elastic_pm_dyn.ros.feedforward.goal_stamps.goal_start`)."""
         now, clock = self._goal_clock()
         return goal_start(stamp_ns(stamp), now, clock)
 

@@ -19,8 +19,8 @@ from typing import Any
 
 from elastic_pm_dyn.errors import ElasticPmDynError
 
-ENTRY = {"elastic_pm_dyn.ros.plant_node": "plant_node", "elastic_pm_dyn.ros.observer_node": "observer_node",
-         "elastic_pm_dyn.ros.feedforward_node": "feedforward_node", "elastic_pm_dyn.ros.recorder": "recorder_node"}
+ENTRY = {"elastic_pm_dyn.ros.plant.node": "plant_node", "elastic_pm_dyn.ros.observer.node": "observer_node",
+         "elastic_pm_dyn.ros.feedforward.node": "feedforward_node", "elastic_pm_dyn.ros.recorder.node": "recorder_node"}
 STOP_SIGNALS = ((signal.SIGINT, 10.0), (signal.SIGTERM, 3.0), (signal.SIGKILL, 3.0))  # (signal, wait [s])
 
 

@@ -7,7 +7,7 @@ Torque commands and measurements in, estimated states out, as the plant node's m
 under the node's own name (``~/joint_states``, ``~/branch_forces``, ``~/ee_pose``,
 ``~/markers``: /observer/joint_states ... beside a plant in the same namespace), so RViz and the
 analysis read them as a plant's: what it subscribes to, publishes and serves
-is :mod:`~elastic_pm_dyn.ros.observer_mode`'s. The plant node with ``mode: observer`` runs
+is :mod:`~elastic_pm_dyn.ros.observer.mode`'s. The plant node with ``mode: observer`` runs
 the same code with the same parameters
 (:data:`~elastic_pm_dyn.ros.machine_params.MACHINE_PARAMS`,
 :data:`~elastic_pm_dyn.ros.machine_params.ESTIMATE_PARAMS`, ``command_joints`` and every
@@ -23,7 +23,7 @@ from typing import Any
 
 from elastic_pm_dyn.ros.machine_params import DESCRIPTION_PARAMS, ESTIMATE_PARAMS, MACHINE_PARAMS, load_machine
 from elastic_pm_dyn.ros.node_main import ManagedNode, run_node
-from elastic_pm_dyn.ros.observer_mode import OBSERVER_PARAMS, ObserverMode
+from elastic_pm_dyn.ros.observer.mode import OBSERVER_PARAMS, ObserverMode
 from elastic_pm_dyn.ros.params import COMMAND_JOINTS, Param, on_runtime_change, read_parameters, reject_unknown
 from elastic_pm_dyn.ros.robot_description import publish_robot_description
 

@@ -25,7 +25,7 @@ from elastic_pm_dyn.errors import ElasticPmDynError
 from elastic_pm_dyn.model.description import Model
 from elastic_pm_dyn.motion.feedforward import rigid_feedforward
 from elastic_pm_dyn.motion.references import ElasticLineReference, JointReference
-from elastic_pm_dyn.ros.cartesian_goals import goal_reference
+from elastic_pm_dyn.ros.feedforward.cartesian_goals import goal_reference
 
 CONTEXT = "forkserver"
 POLL = 0.05  # [s] how often the waiting thread looks at its cancel flag

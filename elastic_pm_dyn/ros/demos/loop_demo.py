@@ -49,16 +49,16 @@ from elastic_pm_dyn.observer.config import load_config
 from elastic_pm_dyn.observer.offline import observe_bag
 from elastic_pm_dyn.observer.testing.evaluation import OpenLoop, offline_run, quasi_static_series, score
 from elastic_pm_dyn.observer.testing.scenarios import Noise, Recording
-from elastic_pm_dyn.ros.demo import fresh_bag
-from elastic_pm_dyn.ros.local_nodes import run_domain_id
-from elastic_pm_dyn.ros.params import observer_config_for, share_path
-from elastic_pm_dyn.ros.processes import (
+from elastic_pm_dyn.ros.demos.demo import fresh_bag
+from elastic_pm_dyn.ros.demos.local_nodes import run_domain_id
+from elastic_pm_dyn.ros.demos.processes import (
     NodeProcess,
     NodeProcessError,
     ros_env,
     wait_for_exit,
     wait_for_recording,
 )
+from elastic_pm_dyn.ros.params import observer_config_for, share_path
 from elastic_pm_dyn.sim.simulator import SimulationOptions, Simulator
 from elastic_pm_dyn.sim.torque import TorqueTable
 
@@ -290,10 +290,10 @@ def _run_nodes(out: Path, bag: Path, mech: Mechanism, opts: LoopOptions) -> None
     previous = signal.signal(signal.SIGTERM, _interrupt)  # a terminated run stops its nodes too
     try:
         # The plant publishes its t = 0 state at start-up, and again until the first command.
-        procs.append(NodeProcess("plant", "elastic_pm_dyn.ros.plant_node", args["plant"], env, logs))
-        procs.append(NodeProcess("recorder", "elastic_pm_dyn.ros.recorder", args["recorder"], env, logs))
-        procs.append(NodeProcess("observer", "elastic_pm_dyn.ros.observer_node", args["observer"], env, logs))
-        controller = NodeProcess("controller", "elastic_pm_dyn.ros.feedforward_node", args["controller"], env, logs)
+        procs.append(NodeProcess("plant", "elastic_pm_dyn.ros.plant.node", args["plant"], env, logs))
+        procs.append(NodeProcess("recorder", "elastic_pm_dyn.ros.recorder.node", args["recorder"], env, logs))
+        procs.append(NodeProcess("observer", "elastic_pm_dyn.ros.observer.node", args["observer"], env, logs))
+        controller = NodeProcess("controller", "elastic_pm_dyn.ros.feedforward.node", args["controller"], env, logs)
         procs.append(controller)
         print(f"  plant (lockstep), recorder, observer and controller started on ROS domain {domain_id}; "
               f"logs in {logs}")
@@ -725,13 +725,14 @@ def _plots(out: Path, mech: Mechanism, t: np.ndarray, F: np.ndarray, F_live: np.
 
 
 def start_loop_main(argv: list[str] | None = None) -> int:
-    """``python -m elastic_pm_dyn.ros.loop_demo``: start a closed loop that a launch file brought
+    """``python -m elastic_pm_dyn.ros.demos.loop_demo``: start a closed loop that a launch file brought
     up (launch/closed_loop.launch.py) on this ROS domain: wait for every node and for the loop to
     start (from the plant's t = 0 state, which it publishes again until the first command), exit."""
     import argparse
     import os
     import sys
-    p = argparse.ArgumentParser(prog="python -m elastic_pm_dyn.ros.loop_demo", description=start_loop_main.__doc__)
+    p = argparse.ArgumentParser(prog="python -m elastic_pm_dyn.ros.demos.loop_demo",
+                                description=start_loop_main.__doc__)
     p.add_argument("--timeout", type=float, default=300.0, help="[s] for the nodes to come up and the loop to start")
     args = p.parse_args(argv)
     try:
