@@ -600,7 +600,16 @@ def _one_line_warning(message, category, filename, lineno, line=None) -> str:
     return f"elastic-pm-dyn: warning: {message}\n"
 
 
+def _names_never_fail_a_terminal() -> None:
+    """A joint name a terminal's encoding cannot show (CJK on a Latin-1 console) is printed
+    escaped (\\u5de6), not a UnicodeEncodeError traceback: files are written in UTF-8 whatever it is."""
+    for stream in (sys.stdout, sys.stderr):
+        if hasattr(stream, "reconfigure") and (stream.encoding or "").lower().replace("-", "") != "utf8":
+            stream.reconfigure(errors="backslashreplace")
+
+
 def main(argv: list[str] | None = None) -> int:
+    _names_never_fail_a_terminal()
     parser = build_parser()
     args = parser.parse_args(argv)
     func: Callable[[argparse.Namespace], int] = args.func

@@ -253,4 +253,6 @@ def write_torque_csv(path: str | Path, times: np.ndarray, values: np.ndarray, na
     """Write a table that :func:`load_torque_csv` reads back exactly (17 digits); complete or not at all."""
     data = np.column_stack([times, values])
     with atomic_file(path) as tmp:
-        np.savetxt(tmp, data, delimiter=",", header=",".join(["t", *names]), comments="", fmt="%.17g")
+        # numpy encodes a file's header as Latin-1 unless told: names are UTF-8 as the reader reads them
+        np.savetxt(tmp, data, delimiter=",", header=",".join(["t", *names]), comments="", fmt="%.17g",
+                   encoding="utf-8")
