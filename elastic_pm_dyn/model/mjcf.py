@@ -51,6 +51,7 @@ from elastic_pm_dyn.model.kinematic_tree import (
     TreeLink,
     Where,
 )
+from elastic_pm_dyn.model.mjcf_dropped import dropped_lines
 from elastic_pm_dyn.model.xml_source import XmlSource
 
 _EQ_KINDS = {0: "3d", 1: "6d"}  # mjEQ_CONNECT, mjEQ_WELD
@@ -59,9 +60,13 @@ TRN_JOINT, TRN_JOINTINPARENT, TRN_TENDON = 0, 1, 3  # mjTRN_*: on a hinge or sli
 WRAP_JOINT = 1  # mjWRAP_JOINT: a fixed tendon's terms
 
 
+TIGHT_TENDON_RANGE = 0.01  # a fixed tendon's range narrower than this is a coupling (ToddlerBot's waist: 0.001)
+
+
 def read_mjcf(path: str | Path, fix_base: bool = False, servos_as_motors: bool = False) -> KinematicTree:
     """The file's tree; ``fix_base`` welds the bodies of free joints to the world,
-    ``servos_as_motors`` takes a servo's joint for a motor's (module doc)."""
+    ``servos_as_motors`` takes a servo's joint for a motor's (module doc). What MuJoCo would
+    do with the file and the tree leaves out is one warning line per kind (:mod:`mjcf_dropped`)."""
     file = str(path)
     src = XmlSource.from_file(path)
     _check_values(src)
@@ -69,9 +74,14 @@ def read_mjcf(path: str | Path, fix_base: bool = False, servos_as_motors: bool =
     lines = _element_lines(src)
     mujoco = _mujoco(file)
     m = compile_mjcf(path, fix_base)
-    tree = _Tree(m, mujoco, file, lines, servos_as_motors).build(src.root.get("model") or Path(path).stem)
+    reader = _Tree(m, mujoco, file, lines, servos_as_motors)
+    tree = reader.build(src.root.get("model") or Path(path).stem)
     if not fix_base:  # MuJoCo pads a short keyframe with qpos0: a start pose the user did not write
         _check_keyframe(src, m.nq, file)
+    names = {"joint": reader.joint_names, "tendon": reader.tendon_names, "body": reader.body_names,
+             "actuator": [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_ACTUATOR, a) or f"actuator{a}" for a in range(m.nu)]}
+    for line in dropped_lines(m, mujoco, names, reader.coupled_tendons, servo_law_kept=False):
+        warnings.warn(f"{file}: {line}", stacklevel=2)
     return tree
 
 
@@ -249,6 +259,7 @@ class _Tree:
         self.obj = obj
         self.tendon_motors: list[TendonMotor] = []
         self.couplings: list[CouplingSpec] = []
+        self.coupled_tendons: set[int] = set()
 
     def where(self, tag: str, name: str) -> Where:
         return Where(self.file, f"{tag} {name!r}", self.lines.get((tag, name)))
@@ -302,9 +313,36 @@ class _Tree:
         # spring whose springref lies elsewhere starts there preloaded, as in MuJoCo.
         qpos = m.key_qpos[0] if m.nkey else m.qpos0
         start = {self.joint_names[j]: float(qpos[m.jnt_qposadr[j]]) for j in range(m.njnt) if m.jnt_type[j] in (2, 3)}
+        closures = self._closures(shift)
+        self._tight_tendons(qpos)
         return KinematicTree(name=name, file=self.file, links=links, joints=joints,
-            closures=self._closures(shift), gravity=np.array(m.opt.gravity, dtype=float), start=start,
+            closures=closures, gravity=np.array(m.opt.gravity, dtype=float), start=start,
             couplings=self.couplings, tendon_motors=self.tendon_motors)
+
+    def _tight_tendons(self, qpos: np.ndarray) -> None:
+        """A limited fixed tendon whose range is narrower than TIGHT_TENDON_RANGE couples its
+        joints (ToddlerBot's waist differential): a coupling row holding its length where the
+        start pose puts it, clamped into the range; the backlash within the range is dropped,
+        with a line saying so."""
+        m = self.m
+        if int(m.opt.disableflags) & int(self.mj.mjtDisableBit.mjDSBL_LIMIT):
+            return
+        for t in range(m.ntendon):
+            lo, hi = (float(x) for x in m.tendon_range[t])
+            if not m.tendon_limited[t] or hi - lo >= TIGHT_TENDON_RANGE:
+                continue
+            name = self.tendon_names[t]
+            where = self.where("fixed", name)
+            terms = self._tendon_terms(t, where)
+            coef = dict(terms)
+            length = sum(c * float(qpos[m.jnt_qposadr[self.joint_names.index(j)]]) for j, c in coef.items())
+            held = min(max(length, lo), hi)
+            self.couplings.append(CouplingSpec(terms, held, where))
+            self.coupled_tendons.add(t)
+            warnings.warn(f"{self.file}:{where.line}: tendon {name!r}: its range [{lo:.4g}, {hi:.4g}] is narrower "
+                          f"than {TIGHT_TENDON_RANGE:g}: taken as a coupling holding its length at {held:.6g} "
+                          f"(the start pose's, in the range); the backlash of {hi - lo:.3g} is left out",
+                          stacklevel=3)
 
     def _tendon_terms(self, t: int, where: Where) -> tuple[tuple[str, float], ...]:
         """A fixed tendon's (joint name, coefficient) terms: its length is their sum times q."""
