@@ -71,7 +71,8 @@ def _load(args: argparse.Namespace):
     """The model the command names: a model YAML, a URDF (+ closure sidecar) or an MJCF."""
     from elastic_pm_dyn.model.loader import load_model
     return load_model(args.model, getattr(args, "elastic_dof_per_chain", None), getattr(args, "closures", None),
-                      getattr(args, "fix_base", False), getattr(args, "servos_as_motors", False))
+                      getattr(args, "fix_base", False), getattr(args, "servos_as_motors", False),
+                      closure_tol=getattr(args, "closure_tol", None))
 
 
 def _add_model(p: argparse.ArgumentParser, positional: bool = False, dof: bool = False) -> None:
@@ -88,6 +89,9 @@ def _add_model(p: argparse.ArgumentParser, positional: bool = False, dof: bool =
     p.add_argument("--servos-as-motors", action="store_true",
                    help="MJCF: a joint driven by a servo (<position>, <velocity>, <general> ...) is a motor: its "
                         "torque is the input, the servo law (kp, kv) is left out")
+    p.add_argument("--closure-tol", type=float, default=None, metavar="M",
+                   help="URDF, MJCF: loops the file's geometry closes only within this (m, rad; default 1e-6, 0: "
+                        "exactly) load, their anchors moved to close, with a warning")
     if dof:
         p.add_argument("--elastic-dof-per-chain", type=int, default=None,
                        help="override the model's discretisation of flexible links")

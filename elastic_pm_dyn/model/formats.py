@@ -30,8 +30,10 @@ def model_format(path: str | Path) -> str:
 
 
 def read_robot_file(path: str | Path, kind: str, closures: str | Path | None = None,
-                    fix_base: bool = False, servos_as_motors: bool = False) -> Model:
+                    fix_base: bool = False, servos_as_motors: bool = False, closure_tol: float | None = None) -> Model:
     from elastic_pm_dyn.model.from_tree import build_model
+    from elastic_pm_dyn.model.loose_closures import CLOSURE_TOL
+    tol = CLOSURE_TOL if closure_tol is None else closure_tol
     if kind == URDF:
         from elastic_pm_dyn.model.urdf import read_urdf
         tree = read_urdf(path)
@@ -39,8 +41,8 @@ def read_robot_file(path: str | Path, kind: str, closures: str | Path | None = N
         if sidecar_path is None:
             raise ModelError(str(path), "", f"a URDF needs its loop closures and motors: a {SIDECAR_NAME} next to it "
                              "or a closures file (closed_loop, type, name_mot)")
-        return build_model(tree, read_sidecar(sidecar_path))
+        return build_model(tree, read_sidecar(sidecar_path), tol)
     from elastic_pm_dyn.model.mjcf import read_mjcf
     if closures is not None:
         raise ModelError(str(closures), "", f"an MJCF holds its own closures (<equality>); no sidecar for {path}")
-    return build_model(read_mjcf(path, fix_base, servos_as_motors))
+    return build_model(read_mjcf(path, fix_base, servos_as_motors), None, tol)
