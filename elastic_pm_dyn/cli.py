@@ -251,7 +251,9 @@ def cmd_check(args: argparse.Namespace) -> int:
         print(f"  coupling: {sum_text} = {constant:.9g} (a closure row)")
     for motor, terms in model.transmissions:
         on = ", ".join(f"{name} with {c:g} u" for name, c in terms)
-        print(f"  transmission: motor {motor}'s input u (a fixed tendon's force) drives {on}")
+        print(f"  transmission: motor {motor}'s input u (a fixed tendon's force, a servo's ctrl) drives {on}")
+    for motor, low, high in model.input_ranges:
+        print(f"  input range: motor {motor}'s input u clamped to [{low:g}, {high:g}] (a servo's ctrlrange)")
     for line in _dropped_rows(model):
         print(line)
     q = initial_state(mech)

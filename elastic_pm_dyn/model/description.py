@@ -266,6 +266,8 @@ class Model:
     # per motor whose input acts on more than its own joint (an MJCF fixed tendon): (motor joint,
     # ((joint, generalised force per unit input), ...)); a motor not listed drives its joint alone
     transmissions: tuple[tuple[str, tuple[tuple[str, float], ...]], ...] = ()
+    # per motor whose input is clamped (an MJCF servo's ctrlrange): (motor joint, low, high)
+    input_ranges: tuple[tuple[str, float, float], ...] = ()
 
     # --- joint bookkeeping in tree order (chains stacked, joints in chain order) ---
     @property

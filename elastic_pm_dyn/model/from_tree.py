@@ -58,6 +58,7 @@ from elastic_pm_dyn.model.locked_motors import constrained_motors
 from elastic_pm_dyn.model.loop_springs import springs_fixed_by_loops
 from elastic_pm_dyn.model.loose_closures import CLOSURE_TOL, close_loose_loops
 from elastic_pm_dyn.model.nearest_name import nearest
+from elastic_pm_dyn.model.servo_law import with_servo_laws
 from elastic_pm_dyn.model.yaml_reader import parse_branches, parse_initial
 
 DEFAULT_GRAVITY = (0.0, 0.0, -9.81)  # a URDF has none; Pinocchio's and Gazebo's default
@@ -121,6 +122,7 @@ def build_model(tree: KinematicTree, sidecar: Sidecar | None = None, closure_tol
     transmissions = _tendon_transmissions(tree, model)
     if transmissions:
         model = replace(model, transmissions=transmissions)
+    model = with_servo_laws(model, tree.servos)  # on the transmissions: a tendon servo's arm is its column
     _check_counts(tree, model, sidecar, closures)
     if not independent:  # found independent at the assembled pose: freeing joints keeps them so
         _check_repeated(model, closures)

@@ -46,6 +46,7 @@ from elastic_pm_dyn.model.kinematic_tree import (
     ClosureSpec,
     CouplingSpec,
     KinematicTree,
+    ServoLaw,
     TendonMotor,
     TreeJoint,
     TreeLink,
@@ -58,6 +59,7 @@ _EQ_KINDS = {0: "3d", 1: "6d"}  # mjEQ_CONNECT, mjEQ_WELD
 EQ_JOINT, EQ_TENDON = 2, 3  # mjEQ_JOINT, mjEQ_TENDON: linear couplings where the polycoef is
 TRN_JOINT, TRN_JOINTINPARENT, TRN_TENDON = 0, 1, 3  # mjTRN_*: on a hinge or slide the first two are one
 WRAP_JOINT = 1  # mjWRAP_JOINT: a fixed tendon's terms
+GAIN_FIXED, BIAS_NONE, BIAS_AFFINE = 0, 0, 1  # mjGAIN_FIXED, mjBIAS_NONE, mjBIAS_AFFINE
 
 
 TIGHT_TENDON_RANGE = 0.01  # a fixed tendon's range narrower than this is a coupling (ToddlerBot's waist: 0.001)
@@ -79,8 +81,8 @@ def read_mjcf(path: str | Path, fix_base: bool = False, servos_as_motors: bool =
     if not fix_base:  # MuJoCo pads a short keyframe with qpos0: a start pose the user did not write
         _check_keyframe(src, m.nq, file)
     names = {"joint": reader.joint_names, "tendon": reader.tendon_names, "body": reader.body_names,
-             "actuator": [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_ACTUATOR, a) or f"actuator{a}" for a in range(m.nu)]}
-    for line in dropped_lines(m, mujoco, names, reader.coupled_tendons, servo_law_kept=False):
+             "actuator": reader.actuator_names}
+    for line in dropped_lines(m, mujoco, names, reader.coupled_tendons, reader.kept_laws):
         warnings.warn(f"{file}: {line}", stacklevel=2)
     return tree
 
@@ -260,6 +262,9 @@ class _Tree:
         self.tendon_motors: list[TendonMotor] = []
         self.couplings: list[CouplingSpec] = []
         self.coupled_tendons: set[int] = set()
+        self.actuator_names = [mujoco.mj_id2name(m, obj.mjOBJ_ACTUATOR, a) or f"actuator{a}" for a in range(m.nu)]
+        self.servos: list[ServoLaw] = []
+        self.kept_laws: set[int] = set()  # actuators whose law (and ctrl range) the machine keeps
 
     def where(self, tag: str, name: str) -> Where:
         return Where(self.file, f"{tag} {name!r}", self.lines.get((tag, name)))
@@ -317,7 +322,7 @@ class _Tree:
         self._tight_tendons(qpos)
         return KinematicTree(name=name, file=self.file, links=links, joints=joints,
             closures=closures, gravity=np.array(m.opt.gravity, dtype=float), start=start,
-            couplings=self.couplings, tendon_motors=self.tendon_motors)
+            couplings=self.couplings, tendon_motors=self.tendon_motors, servos=self.servos)
 
     def _tight_tendons(self, qpos: np.ndarray) -> None:
         """A limited fixed tendon whose range is narrower than TIGHT_TENDON_RANGE couples its
@@ -401,22 +406,26 @@ class _Tree:
                          rest=float(m.qpos_spring[qadr]), armature=float(m.dof_armature[dadr]), actuated=j in motors)
 
     def _motors(self) -> set[int]:
-        """Joints driven by a <motor> (a joint transmission with no bias: torque = gear * ctrl), or
-        by any joint actuator with ``servos_as_motors``."""
+        """Joints driven by an actuator. A <motor> (gain 1, no bias) takes the joint's torque as its
+        input; a servo (any other fixed gain, an affine bias) keeps MuJoCo's law, its input the
+        ctrl (:class:`ServoLaw`), unless ``servos_as_motors``: then it is a motor too."""
         m = self.m
         out = set()
+        driven: dict[int, list[str]] = {}
         for a in range(m.nu):
-            name = self.mj.mj_id2name(m, self.obj.mjOBJ_ACTUATOR, a) or f"actuator{a}"
+            name = self.actuator_names[a]
             tags = ("motor", "general", "position", "velocity", "intvelocity", "damper", "cylinder", "muscle")
             where = Where(self.file, f"actuator {name!r}",
                           next((self.lines[(t, name)] for t in tags if (t, name) in self.lines), None))
             if m.actuator_trntype[a] not in (TRN_JOINT, TRN_JOINTINPARENT, TRN_TENDON):
                 raise where.error("not supported yet: an actuator on a site, body or slider-crank (only joints and "
                                   "fixed tendons)")
-            if not self.servos_as_motors and (m.actuator_biastype[a] != 0 or m.actuator_gaintype[a] != 0):
-                raise where.error("not supported yet: an actuator other than a <motor> (a servo); "
-                                  "servos_as_motors=True (check/simulate --servos-as-motors) takes its joint for "
-                                  "a motor's, the servo law left out")
+            servo = m.actuator_biastype[a] != 0 or m.actuator_gaintype[a] != 0 or m.actuator_gainprm[a, 0] != 1.0
+            if servo and not self.servos_as_motors and (m.actuator_gaintype[a] != GAIN_FIXED
+                                                        or m.actuator_biastype[a] not in (BIAS_NONE, BIAS_AFFINE)):
+                raise where.error("not supported yet: an actuator whose gain is not fixed or whose bias is not "
+                                  "affine (a muscle, a user law); servos_as_motors=True (check/simulate "
+                                  "--servos-as-motors) takes its joint for a motor's, its law left out")
             if m.actuator_trntype[a] == TRN_TENDON:
                 # a motor on a fixed tendon: the tendon's first joint is the motor's, its force acts on all
                 terms = self._tendon_terms(int(m.actuator_trnid[a, 0]), where)
@@ -426,9 +435,26 @@ class _Tree:
                 j = self.joint_names.index(terms[0][0])
             else:
                 j = int(m.actuator_trnid[a, 0])
+                terms = ((self.joint_names[j], 1.0),)
+            if servo and not self.servos_as_motors:
+                limited = bool(m.actuator_ctrllimited[a]) and \
+                    not int(m.opt.disableflags) & int(self.mj.mjtDisableBit.mjDSBL_CLAMPCTRL)
+                self.servos.append(ServoLaw(self.joint_names[j], float(m.actuator_gear[a, 0]),
+                                            float(m.actuator_gainprm[a, 0]),
+                                            tuple(float(x) for x in m.actuator_biasprm[a, :3]),
+                                            tuple(float(x) for x in m.actuator_ctrlrange[a]) if limited else None,
+                                            terms, where))
+                self.kept_laws.add(a)
             # several actuators on one joint (a servo's position and velocity parts) drive it as
             # one motor: its input is their torques' sum
+            driven.setdefault(j, []).append(name)
             out.add(j)
+        for j, names in driven.items():
+            if len(names) > 1 and any(s.joint == self.joint_names[j] for s in self.servos):
+                raise self.where("joint", self.joint_names[j]).error(
+                    f"not supported yet: several actuators ({', '.join(names)}) on one joint, a servo among them: one "
+                    "input per motor; servos_as_motors=True (--servos-as-motors) takes them for one motor whose torque "
+                    "is their sum")
         return out
 
     def _coupling(self, e: int, kind: int, where: Where) -> CouplingSpec:

@@ -27,11 +27,10 @@ def _range(lo: float, hi: float) -> str:
     return f"[{lo:.4g}, {hi:.4g}]"
 
 
-def dropped_lines(m, mujoco, names: dict[str, list[str]], coupled_tendons: set[int],
-                  servo_law_kept: bool) -> list[str]:
+def dropped_lines(m, mujoco, names: dict[str, list[str]], coupled_tendons: set[int], kept_laws: set[int]) -> list[str]:
     """The lines for the compiled model ``m``; ``names`` holds the joint, tendon, actuator and
     body names by index, ``coupled_tendons`` the tendons whose range became a coupling,
-    ``servo_law_kept`` whether the servos' law (gain, bias) is in the machine."""
+    ``kept_laws`` the actuators whose law (gain, bias, ctrl range) is in the machine."""
     off = int(m.opt.disableflags)
     bit = mujoco.mjtDisableBit
     joints, tendons, actuators, bodies = names["joint"], names["tendon"], names["actuator"], names["body"]
@@ -52,12 +51,13 @@ def dropped_lines(m, mujoco, names: dict[str, list[str]], coupled_tendons: set[i
         dry = [f"{tendons[t]} {m.tendon_frictionloss[t]:.4g}" for t in range(m.ntendon) if m.tendon_frictionloss[t]]
         if dry:
             out.append(f"tendon friction loss is left out: {listed(dry)}")
-    if not servo_law_kept:
-        servos = [actuators[a] for a in range(m.nu) if m.actuator_gaintype[a] != 0 or m.actuator_biastype[a] != 0]
-        if servos:
-            out.append(f"the servos' law (force = gain ctrl + bias0 + bias1 q + bias2 qd) is left out, their "
-                       f"joints are motors whose torque is the input (servos_as_motors): {listed(servos)}")
-    ctrl = [f"{actuators[a]} {_range(*m.actuator_ctrlrange[a])}" for a in range(m.nu) if m.actuator_ctrllimited[a]]
+    servos = [actuators[a] for a in range(m.nu) if a not in kept_laws and
+              (m.actuator_gaintype[a] != 0 or m.actuator_biastype[a] != 0 or m.actuator_gainprm[a, 0] != 1.0)]
+    if servos:
+        out.append(f"the servos' law (force = gain ctrl + bias0 + bias1 q + bias2 qd) is left out, their "
+                   f"joints are motors whose torque is the input (servos_as_motors): {listed(servos)}")
+    ctrl = [f"{actuators[a]} {_range(*m.actuator_ctrlrange[a])}" for a in range(m.nu)
+            if m.actuator_ctrllimited[a] and a not in kept_laws]
     if ctrl and not off & int(bit.mjDSBL_CLAMPCTRL):
         out.append(f"control ranges are not applied (inputs are not clamped): {listed(ctrl)}")
     force = [f"{actuators[a]} {_range(*m.actuator_forcerange[a])}" for a in range(m.nu) if m.actuator_forcelimited[a]]
