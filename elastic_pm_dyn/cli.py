@@ -72,7 +72,7 @@ def _load(args: argparse.Namespace):
     from elastic_pm_dyn.model.loader import load_model
     return load_model(args.model, getattr(args, "elastic_dof_per_chain", None), getattr(args, "closures", None),
                       getattr(args, "fix_base", False), getattr(args, "servos_as_motors", False),
-                      closure_tol=getattr(args, "closure_tol", None))
+                      closure_tol=getattr(args, "closure_tol", None), slip_speed=getattr(args, "slip_speed", None))
 
 
 def _add_model(p: argparse.ArgumentParser, positional: bool = False, dof: bool = False) -> None:
@@ -92,6 +92,9 @@ def _add_model(p: argparse.ArgumentParser, positional: bool = False, dof: bool =
     p.add_argument("--closure-tol", type=float, default=None, metavar="M",
                    help="URDF, MJCF: loops the file's geometry closes only within this (m, rad; default 1e-6, 0: "
                         "exactly) load, their anchors moved to close, with a warning")
+    p.add_argument("--slip-speed", type=float, default=None, metavar="V",
+                   help="dry friction (MJCF frictionloss, URDF friction) regularised as F tanh(qd / V) (m/s, rad/s; "
+                        "default 1e-3): smaller sticks better, and needs a smaller RK4 step")
     if dof:
         p.add_argument("--elastic-dof-per-chain", type=int, default=None,
                        help="override the model's discretisation of flexible links")

@@ -63,6 +63,8 @@ def pack(model: Model) -> ModelArrays:
             jf[k, L.JF_DAMPING] = j.damping
             jf[k, L.JF_FRICTION] = j.friction
             jf[k, L.JF_REST] = j.rest
+            jf[k, L.JF_COULOMB] = j.coulomb
+            jf[k, L.JF_SLIP] = j.slip
             ji[k, :L.JI_PARENT] = (L.TYPE_CODES[j.type], L.ROLE_CODES[j.role], ci)
             k += 1
         starts.append(k)

@@ -296,17 +296,19 @@ def _expand(j: TreeJoint, R: np.ndarray, p: np.ndarray, motors: set[str],
             # a driven joint with a parallel spring (MJCF stiffness on a motor's joint): the motor's
             # coordinate carries the spring, its damper as the joint's viscous friction
             return [Joint(name=j.name, type=j.type, role=role, axis=j.axis, origin_xyz=p, origin_rpy=rpy,
-                          stiffness=c, rest=rest, friction=d, rotor_inertia=rotor.get(j.name, 0.0))]
+                          stiffness=c, rest=rest, friction=d, rotor_inertia=rotor.get(j.name, 0.0),
+                          coulomb=j.frictionloss)]
         return [Joint(name=j.name, type=j.type, role=role, axis=j.axis, origin_xyz=p, origin_rpy=rpy,
                       stiffness=c, damping=d, rest=rest, friction=0.0 if role == ELASTIC else j.damping,
-                      rotor_inertia=rotor.get(j.name, 0.0))]
+                      rotor_inertia=rotor.get(j.name, 0.0), coulomb=j.frictionloss)]
     if j.type == BALL:
         # Three revolutes about the joint frame's x, y, z (singular where the middle one
         # reaches +-90 degrees: a start pose away from that is the user's to choose).
         axes = [("x", np.array([1.0, 0, 0])), ("y", np.array([0, 1.0, 0])), ("z", np.array([0, 0, 1.0]))]
-        if j.damping > 0:
+        if j.damping > 0 or j.frictionloss > 0:
             w = j.where
-            warnings.warn(f"{w.file}:{w.line}: joint {j.name!r}: a ball's damping acts here on each of its three "
+            what = " and ".join(k for k, v in (("damping", j.damping), ("friction loss", j.frictionloss)) if v)
+            warnings.warn(f"{w.file}:{w.line}: joint {j.name!r}: a ball's {what} acts here on each of its three "
                           "angles' rates, not on its angular velocity as in MuJoCo (the two differ as the ball turns "
                           "away from its reference: 5e-7 rad over 0.2 s on Cassie's achilles rods)", stacklevel=2)
     elif j.type == CARDAN:  # the names Gepetto's loader gives them: <joint>_X, <joint>_Y for CARDAN
@@ -317,7 +319,7 @@ def _expand(j: TreeJoint, R: np.ndarray, p: np.ndarray, motors: set[str],
     for k, (suffix, axis) in enumerate(axes):
         out.append(Joint(name=f"{j.name}_{suffix}", type=REVOLUTE, role=PASSIVE, axis=np.asarray(axis, dtype=float),
                          origin_xyz=p if k == 0 else np.zeros(3), origin_rpy=rpy if k == 0 else np.zeros(3),
-                         friction=j.damping))
+                         friction=j.damping, coulomb=j.frictionloss))
     return out
 
 

@@ -60,6 +60,7 @@ class TreeJoint:
     rest: float = 0.0  # the spring's unloaded position
     armature: float = 0.0  # rotor inertia
     actuated: bool = False  # driven by a motor (MJCF <motor>)
+    frictionloss: float = 0.0  # dry (Coulomb) friction (MJCF frictionloss, URDF <dynamics friction>)
 
 
 @dataclass(frozen=True)

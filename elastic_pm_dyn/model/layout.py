@@ -16,7 +16,9 @@ JF_STIFFNESS = 29
 JF_DAMPING = 30
 JF_FRICTION = 31
 JF_REST = 32
-JF_WIDTH = 33
+JF_COULOMB = 33  # dry (Coulomb) friction force [N or N m], regularised over JF_SLIP
+JF_SLIP = 34  # its slip speed v_s: the force is JF_COULOMB tanh(qd / v_s) [m/s or rad/s]
+JF_WIDTH = 35
 
 # Columns of the per-joint int record ``ji``.
 JI_TYPE = 0  # 0 revolute, 1 prismatic

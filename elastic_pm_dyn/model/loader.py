@@ -37,7 +37,8 @@ _JOINT_KEYS = {"name", "type", "role", "axis", "origin", "body", "stiffness", "d
 
 def load_model(path: str | Path, elastic_dof_per_chain: int | None = None,
                closures: str | Path | None = None, fix_base: bool = False, servos_as_motors: bool = False,
-               gravity: Sequence[float] | None = None, closure_tol: float | None = None) -> Model:
+               gravity: Sequence[float] | None = None, closure_tol: float | None = None,
+               slip_speed: float | None = None) -> Model:
     """Read and validate a model file: a model YAML, a URDF or an MJCF.
 
     The format follows from the suffix (.yaml/.yml, .urdf, .xml/.mjcf) and, for any other,
@@ -49,7 +50,8 @@ def load_model(path: str | Path, elastic_dof_per_chain: int | None = None,
     ``servos_as_motors`` (MJCF only) takes the joints of servos (``<position>`` ...) for motors.
     ``gravity`` (3 numbers, world frame [m/s^2]) replaces the file's gravity, whatever the format.
     ``closure_tol`` (URDF, MJCF; default 1e-6 m, rad; 0: exact only): loops the file's geometry
-    closes only within it load, their anchors moved to close, with a warning.
+    closes only within it load, their anchors moved to close, with a warning. ``slip_speed``
+    (default 1e-3 m/s, rad/s): the speed over which dry friction is regularised, F tanh(qd / v_s).
     """
     if closure_tol is not None and not (np.isfinite(closure_tol) and closure_tol >= 0):
         raise ModelError(str(path), "closure_tol", f"must be a finite number >= 0 (m, rad), got {closure_tol!r}")
@@ -59,6 +61,11 @@ def load_model(path: str | Path, elastic_dof_per_chain: int | None = None,
             model = model.with_gravity(gravity)
         except ValueError as err:
             raise ModelError(str(path), "gravity", f"override: {err}") from None
+    if slip_speed is not None:
+        try:
+            model = model.with_slip_speed(slip_speed)
+        except ValueError as err:
+            raise ModelError(str(path), "slip_speed", str(err)) from None
     _check_physics(model, str(path))
     return model
 

@@ -391,7 +391,7 @@ class _Tree:
             if m.jnt_stiffness[j] > 0 or j in motors:
                 raise where.error("not supported yet: a ball joint with a spring or a motor")
             return TreeJoint(name, BALL, parent, child, R, p, np.array([0.0, 0.0, 1.0]), where,
-                             damping=float(m.dof_damping[dadr]))
+                             damping=float(m.dof_damping[dadr]), frictionloss=self._frictionloss(dadr))
         axis = m.jnt_axis[j] / np.linalg.norm(m.jnt_axis[j])
         ref = float(m.qpos0[qadr])
         if ref != 0.0:
@@ -403,7 +403,13 @@ class _Tree:
                 p = p - R @ axis * ref
         return TreeJoint(name, REVOLUTE if kind == 3 else PRISMATIC, parent, child, R, p, axis, where,
                          damping=float(m.dof_damping[dadr]), stiffness=float(m.jnt_stiffness[j]),
-                         rest=float(m.qpos_spring[qadr]), armature=float(m.dof_armature[dadr]), actuated=j in motors)
+                         rest=float(m.qpos_spring[qadr]), armature=float(m.dof_armature[dadr]), actuated=j in motors,
+                         frictionloss=self._frictionloss(dadr))
+
+    def _frictionloss(self, dof: int) -> float:
+        """The dof's friction loss, none where the file's <flag frictionloss="disable"> turns it off."""
+        off = int(self.m.opt.disableflags) & int(self.mj.mjtDisableBit.mjDSBL_FRICTIONLOSS)
+        return 0.0 if off else float(self.m.dof_frictionloss[dof])
 
     def _motors(self) -> set[int]:
         """Joints driven by an actuator. A <motor> (gain 1, no bias) takes the joint's torque as its

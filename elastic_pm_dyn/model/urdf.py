@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from elastic_pm_dyn.model.description import Body, rpy_to_matrix
+from elastic_pm_dyn.model.description import SLIP_SPEED, Body, rpy_to_matrix
 from elastic_pm_dyn.model.kinematic_tree import (
     FIXED,
     PRISMATIC,
@@ -84,7 +84,8 @@ def _dropped(src: XmlSource, root: ET.Element) -> list[str]:
     if efforts:
         out.append(f"effort and velocity limits are not applied (inputs are not clamped): {listed(efforts)}")
     if friction:
-        out.append(f"<dynamics friction> (dry, Coulomb friction) is left out: {listed(friction)}")
+        out.append(f"<dynamics friction> is dry (Coulomb) friction regularised over a slip speed of {SLIP_SPEED:g} "
+                   f"(m/s, rad/s: F tanh(qd / v_s)): {listed(friction)}")
     reductions = [el.get("name") or f"line {src.line(el)}" for el in root.findall("transmission")]
     if reductions:
         out.append(f"<transmission>s are not read (inputs are joint torques, reductions left out): "
@@ -200,11 +201,14 @@ def _joint(src: XmlSource, el: ET.Element, links: dict[str, TreeLink]) -> TreeJo
     norm = float(np.linalg.norm(axis))
     if _JOINT_TYPES[kind] != FIXED and norm < 1e-12:
         raise src.error(axis_el, "axis must not be zero", what)
-    damping = 0.0
+    damping = friction = 0.0
     dyn = el.find("dynamics")
     if dyn is not None:
         damping = float(numbers(src, dyn, "damping", 1, [0.0], what)[0])
-        if damping < 0:
-            raise src.error(dyn, f"damping must be >= 0, got {damping:g}", what)
+        friction = float(numbers(src, dyn, "friction", 1, [0.0], what)[0])
+        for key, value in (("damping", damping), ("friction", friction)):
+            if value < 0:
+                raise src.error(dyn, f"{key} must be >= 0, got {value:g}", what)
     return TreeJoint(name=name, type=_JOINT_TYPES[kind], parent=ends[0], child=ends[1], origin_R=R, origin_p=p,
-                     axis=axis / norm if norm > 0 else axis, where=_where(src, el), damping=damping)
+                     axis=axis / norm if norm > 0 else axis, where=_where(src, el), damping=damping,
+                     frictionloss=friction)
