@@ -77,12 +77,12 @@ def _load(args: argparse.Namespace):
 
 def _add_model(p: argparse.ArgumentParser, positional: bool = False, dof: bool = False) -> None:
     """The model arguments: the file, a URDF's closure sidecar, and (``dof``) the flexible links' discretisation."""
-    what = "model: YAML, URDF (+ closure sidecar) or MJCF"
+    what = "model: YAML, URDF (+ closure sidecar), MJCF or SDFormat (.sdf)"
     if positional:
         p.add_argument("model", help=what)
     else:
         p.add_argument("--model", required=True, help=what)
-    p.add_argument("--closures", help="closure sidecar of a URDF model (default: robot.yaml next to it)")
+    p.add_argument("--closures", help="closure sidecar of a URDF (or SDFormat) model (default: robot.yaml next to it)")
     p.add_argument("--fix-base", action="store_true",
                    help="MJCF: weld each body on a free joint (a floating base) to the world where the file puts "
                         "it; the free joint's keyframe entries are dropped")

@@ -39,11 +39,12 @@ def load_model(path: str | Path, elastic_dof_per_chain: int | None = None,
                closures: str | Path | None = None, fix_base: bool = False, servos_as_motors: bool = False,
                gravity: Sequence[float] | None = None, closure_tol: float | None = None,
                slip_speed: float | None = None) -> Model:
-    """Read and validate a model file: a model YAML, a URDF or an MJCF.
+    """Read and validate a model file: a model YAML, a URDF, an MJCF or an SDFormat file.
 
-    The format follows from the suffix (.yaml/.yml, .urdf, .xml/.mjcf) and, for any other,
-    from the content (an XML root ``<robot>`` or ``<mujoco>``). A URDF takes its loop
-    closures from a sidecar: ``closures``, else ``robot.yaml`` next to it.
+    The format follows from the suffix (.yaml/.yml, .urdf, .xml/.mjcf, .sdf) and, for any other,
+    from the content (an XML root ``<robot>``, ``<mujoco>`` or ``<sdf>``). A URDF takes its loop
+    closures from a sidecar: ``closures``, else ``robot.yaml`` next to it (an SDFormat file may
+    have one too: closures, motors and springs beyond its own).
     ``elastic_dof_per_chain`` overrides a YAML's value: how many lumped elastic joints
     each ``flexible_link`` is discretised into (URDF and MJCF have none). ``fix_base`` (MJCF
     only) welds the bodies of free joints to the world where the file puts them;
