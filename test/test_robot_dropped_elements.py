@@ -150,3 +150,11 @@ def test_tight_tendon_ranges_couple_the_waist_as_mujoco_holds_them():
           f"max |q - q_mujoco| {err:.2e} rad")
     assert moved > 0.05
     assert err < 1e-6
+
+
+def test_a_geared_motor_says_its_input_is_the_torque(tmp_path):
+    text = ARM.read_text().replace('<velocity name="elbow_servo" joint="elbow" kv="2" ctrlrange="-3 3"/>',
+                                   '<motor name="elbow_motor" joint="elbow" gear="50"/>')
+    path = tmp_path / "arm.xml"
+    path.write_text(text)
+    assert "elbow_motor 50" in _one(_lines(path), "motors' gear is not applied")

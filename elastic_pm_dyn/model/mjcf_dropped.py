@@ -59,6 +59,11 @@ def dropped_lines(m, mujoco, names: dict[str, list[str]], coupled_tendons: set[i
     if servos:
         out.append(f"the servos' law (force = gain ctrl + bias0 + bias1 q + bias2 qd) is left out, their "
                    f"joints are motors whose torque is the input (servos_as_motors): {listed(servos)}")
+    geared = [f"{actuators[a]} {m.actuator_gear[a, 0]:.4g}" for a in range(m.nu)
+              if a not in kept_laws and m.actuator_gear[a, 0] != 1.0]
+    if geared:
+        out.append(f"motors' gear is not applied: their input is the joint's torque (the tendon's force), "
+                   f"not MuJoCo's ctrl (torque = gear ctrl): {listed(geared)}")
     ctrl = [f"{actuators[a]} {_range(*m.actuator_ctrlrange[a])}" for a in range(m.nu)
             if m.actuator_ctrllimited[a] and a not in kept_laws]
     if ctrl and not off & int(bit.mjDSBL_CLAMPCTRL):
