@@ -77,3 +77,29 @@ def test_two_motors_on_one_four_bar_are_named_as_tied(tmp_path):
     path.write_text(FOUR_BAR_TWO_MOTORS)
     line, _ = _refusal(path)
     assert "the loops tie motors crank, rocker (they move only together" in line
+
+
+def test_a_joint_nothing_holds_is_named_at_its_own_line(tmp_path):
+    """ToddlerBot's waist as published nests the gear motors in the pelvis; with its roll
+    tendon's range widened past a coupling's, beside a four-bar, the roll joint is held by
+    nothing: the line points at it, not at the four-bar's connect."""
+    import re
+    waist = Path(__file__).resolve().parent / "robots" / "menagerie_style" / "waist.xml"
+    text = waist.read_text().replace('range="0 0.001"', 'range="-0.5 0.5"')
+    gears = re.findall(r'    <body name="gear_\d".*?</body>\n', text, flags=re.S)
+    for gear in gears:
+        text = text.replace(gear, "")
+    torso = '<inertial pos="0.01 0.02 0.08" mass="0.6" diaginertia="2e-3 2e-3 1e-3"/>\n'
+    text = text.replace(torso, torso + "".join(gears))  # the gears ride on the torso, as ToddlerBot's
+    four_bar = FOUR_BAR_TWO_MOTORS.split("<worldbody>")[1].split("</worldbody>")[0]
+    text = text.replace("  </worldbody>", four_bar + '  </worldbody>\n  <equality><connect body1="coupler" '
+                        'body2="rocker" anchor="0.3 0 0"/></equality>')
+    text = text.replace('<motor name="waist_act_2" joint="waist_act_2"/>',
+                        '<motor name="waist_act_2" joint="waist_act_2"/>\n    <motor joint="crank"/>')
+    text = text.replace('<key qpos="0.2 -0.1 0 0"/>', '<key qpos="0 0 0.2 -0.1 0 0 0"/>')
+    path = tmp_path / "waist.xml"
+    path.write_text(text)
+    line, _ = _refusal(path)
+    joint_line = text.splitlines().index('        <joint name="waist_roll" axis="1 0 0"/>') + 1
+    assert line.startswith(f"{path}:{joint_line}: joint 'waist_roll': under-actuated"), line
+    assert "held waist_roll (on no loop" in line

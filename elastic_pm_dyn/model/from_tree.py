@@ -599,8 +599,11 @@ def _check_counts(tree: KinematicTree, model: Model, sidecar: Sidecar | None, cl
             loops = [k for k in loops_of(model, loose) if k < len(closures)]
             if loops and sidecar is None:
                 where = closures[loops[0]].where
+            elif not loops:  # on no loop: the line points at the joint itself, not at an unrelated closure
+                where = next((j.where for j in tree.joints if j.name == loose[0]), where)
             named = [f"{closures[k].where.element} (line {closures[k].where.line})" for k in loops[:3]]
-            on = f" (on {', '.join(named)}{', ...' if len(loops) > 3 else ''})" if loops else ""
+            on = f" (on {', '.join(named)}{', ...' if len(loops) > 3 else ''})" if loops else \
+                " (on no loop: nothing the machine keeps holds them)"
             raise where.error(f"under-actuated: the closures give {m} equations but the legs have {n_passive} "
                               f"passive joints, and with the motors held {', '.join(loose[:4])}"
                               f"{', ...' if len(loose) > 4 else ''}{on} still move: a motor missing, or a loop "

@@ -62,7 +62,7 @@ WRAP_JOINT = 1  # mjWRAP_JOINT: a fixed tendon's terms
 GAIN_FIXED, BIAS_NONE, BIAS_AFFINE = 0, 0, 1  # mjGAIN_FIXED, mjBIAS_NONE, mjBIAS_AFFINE
 
 
-TIGHT_TENDON_RANGE = 0.01  # a fixed tendon's range narrower than this is a coupling (ToddlerBot's waist: 0.001)
+TIGHT_TENDON_RANGE = 0.1  # a fixed tendon's range narrower than this is a coupling (ToddlerBot's waist: 0.002, 0.06)
 
 
 def read_mjcf(path: str | Path, fix_base: bool = False, servos_as_motors: bool = False) -> KinematicTree:
