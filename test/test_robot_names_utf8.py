@@ -89,3 +89,28 @@ def test_a_refusal_names_the_joint_as_written(tmp_path, capsys):
     assert main(["simulate", "--model", str(model), "--torques", str(torques), "--duration", "0.001",
                  "--out", str(tmp_path / "o.csv")]) == 2
     assert "δεξιός_κινητήρα" in capsys.readouterr().err
+
+
+def test_names_go_through_a_bag_and_its_csv_export(tmp_path):
+    """A joint state with the names, written by the package's bag writer, read back and
+    exported: the names are the same strings, the CSV header UTF-8."""
+    from bag_factory import Messages
+
+    from elastic_pm_dyn.analysis.export import export_bag
+    from elastic_pm_dyn.bags.msgtypes import JOINT_STATE
+    from elastic_pm_dyn.bags.reader import open_bag
+    from elastic_pm_dyn.bags.typestore import make_typestore
+    from elastic_pm_dyn.bags.writer import BagWriter
+    names = list(NAMES.values())
+    ts = make_typestore()
+    bag = tmp_path / "バッグ"
+    with BagWriter(bag, "mcap", ts) as w:
+        conn = w.add_connection("/joint_states", JOINT_STATE)
+        for k in range(3):
+            w.write_message(conn, 10**9 + k * 10**6, Messages(ts).joint_state(k * 1e-3, names, [0.1 * k] * 4))
+    with open_bag(bag) as reader:
+        read = [msg.name for _, _, msg in reader.decoded([c for c in reader.connections])]
+    assert read == [names] * 3
+    exported = export_bag(bag, tmp_path / "csv")
+    header = exported[0].file.read_bytes().decode("utf-8").splitlines()[0]
+    assert "position.左肘" in header and "position.left_sĥerical_free_foot" in header
