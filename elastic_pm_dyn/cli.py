@@ -228,7 +228,7 @@ def _waypoint_feedforward(args: argparse.Namespace, model, rate: float) -> int:
 
 
 def cmd_check(args: argparse.Namespace) -> int:
-    from elastic_pm_dyn.dynamics.linear import elastic_modes
+    from elastic_pm_dyn.dynamics.linear import dry_friction_step, elastic_modes
     from elastic_pm_dyn.kinematics.assembly import initial_state
     from elastic_pm_dyn.kinematics.mechanism import Mechanism
     model = _load(args)
@@ -288,6 +288,10 @@ def cmd_check(args: argparse.Namespace) -> int:
         _print_integrator_steps(mech, q, dt_max)
     else:
         print("no elastic joints: no elastic modes")
+    dry = dry_friction_step(mech, q)
+    if dry is not None:
+        print(f"dry friction (F tanh(qd / v_s)): fixed-step RK4 needs dt < about {dry[0]:.3g} s (joint {dry[1]}: "
+              "F / v_s over its inertia); a larger --slip-speed relaxes it, a smaller one sticks better")
     return 0
 
 

@@ -126,3 +126,23 @@ def test_a_pendulum_sticks_within_the_regularisations_creep(tmp_path):
     peer = _mujoco(path, ["hinge"], np.zeros(1), np.zeros((1, 1)), len(run.t))
     print(f"MuJoCo (solref 2e-5) moved {peer[-1, 0]:.3g} rad")
     assert abs(peer[-1, 0]) < 2e-5
+
+
+def test_check_says_the_rk4_step_dry_friction_allows(tmp_path):
+    """The sticking pendulum: RK4 at half the step `check` gives follows DOP853 (1e-10 rad); at four
+    times it the stiff slip band makes it chatter (8e-5 rad)."""
+    from elastic_pm_dyn.dynamics.linear import dry_friction_step
+    path = tmp_path / "pendulum.xml"
+    path.write_text(PENDULUM.format(F=0.8))
+    mech = Mechanism(_load(path))
+    q0 = initial_state(mech)
+    limit, joint = dry_friction_step(mech, q0)
+    assert joint == "hinge"
+    ref = simulate(mech, [0.0], 0.05, integrator="dop853", rtol=1e-11, atol=1e-13, sample=1e-3)
+    errors = []
+    for factor in (0.5, 4.0):
+        dt = 1e-3 / round(1e-3 / (factor * limit))
+        run = simulate(mech, [0.0], 0.05, integrator="rk4", dt=dt, sample=1e-3)
+        errors.append(float(np.abs(run.q - ref.q).max()))
+    print(f"RK4 step limit from dry friction {limit:.3g} s: error at half {errors[0]:.2e}, at 4x {errors[1]:.2e}")
+    assert errors[0] < 1e-8 < 1e-5 < errors[1]
