@@ -52,10 +52,11 @@ def close_loose_loops(model: Model, tol: float = CLOSURE_TOL) -> Model:
         return model  # a coupling row or a shared point stays open: the usual refusal
     names = model.joint_names
     start = np.array([model.initial.guess.get(j.name, j.rest) for j in model.joints], dtype=float)
-    pose = ", ".join(f"{names[i]} {q[i]:.9g}" for i in everything if abs(q[i] - start[i]) > 0 or i in passive)
+    moved_joints = sorted((i for i in everything if q[i] != start[i]), key=lambda i: -abs(q[i] - start[i]))
+    pose = ", ".join(f"{names[i]} {q[i]:.9g}" for i in moved_joints[:8]) + (", ..." if len(moved_joints) > 8 else "")
     warnings.warn(f"{model.source}: the loops close only to {residual:.3g} (m, rad) in the file's geometry, within "
                   f"the tolerance {tol:g}: their anchors moved by up to {shift:.3g} m to close them exactly at the "
-                  f"nearest pose, started there ({pose})", stacklevel=3)
+                  f"nearest pose, started there ({pose or 'no joint moved'})", stacklevel=3)
     guess = dict(model.initial.guess) | {name: float(v) for name, v in zip(names, q, strict=True)}
     return replace(shifted, initial=replace(model.initial, guess=guess))
 
