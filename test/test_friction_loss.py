@@ -146,3 +146,48 @@ def test_check_says_the_rk4_step_dry_friction_allows(tmp_path):
         errors.append(float(np.abs(run.q - ref.q).max()))
     print(f"RK4 step limit from dry friction {limit:.3g} s: error at half {errors[0]:.2e}, at 4x {errors[1]:.2e}")
     assert errors[0] < 1e-8 < 1e-5 < errors[1]
+
+
+def test_the_inverse_dynamics_compensates_friction_as_mujoco_needs(tmp_path):
+    """The servo arm with its friction loss on a smooth motion that keeps moving (no stick): the
+    inputs our inverse dynamics gives (the servos' ctrl, friction compensated) drive MuJoCo's arm
+    (friction loss tightened, the ctrl given at each step's midpoint) along the motion."""
+    from elastic_pm_dyn.dynamics.inverse import motor_torques
+    text = ARM.read_text().replace('<option gravity="0 0 -9.81" timestep="0.002"/>',
+                                   '<option gravity="0 0 -9.81"><flag limit="disable" contact="disable"/></option>')
+    text = text.replace(' forcerange="-8 8"', "").replace(' forcerange="-3 3"', "")
+    text = text.replace('ctrlrange="-1.5 1.5" ', "").replace(' ctrlrange="-3 3"', "").replace(' ctrlrange="-2 2"', "")
+    path = tmp_path / "arm.xml"
+    path.write_text(text)
+    mech = Mechanism(_load(path, slip_speed=1e-5))
+    q0, v0, a = np.array([0.3, -0.6, 0.4]), np.array([0.5, -0.8, 1.0]), np.array([2.0, 3.0, -1.5])
+
+    def motion(t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        return q0 + v0 * t + 0.5 * a * t * t, v0 + a * t, a  # no velocity crosses zero over 0.2 s
+
+    m = mujoco.MjModel.from_xml_path(str(path))
+    m.opt.timestep = 1e-5
+    m.opt.integrator = mujoco.mjtIntegrator.mjINT_RK4
+    m.dof_solref[:] = (2e-5, 1.0)
+    d = mujoco.MjData(m)
+    d.qpos[:], d.qvel[:] = q0, v0
+    worst, compensation = 0.0, 0.0
+    for k in range(20000):
+        t = (k + 0.5) * m.opt.timestep
+        u = motor_torques(mech, *motion(t))
+        d.ctrl[:] = u
+        mujoco.mj_step(m, d)
+        if (k + 1) % 1000 == 0:
+            worst = max(worst, float(np.abs(d.qpos - motion((k + 1) * m.opt.timestep)[0]).max()))
+    frictionless = Mechanism(_no_friction(mech.model))
+    compensation = float(np.abs(motor_torques(mech, *motion(0.1)) - motor_torques(frictionless, *motion(0.1))).max())
+    print(f"inverse dynamics with friction driving MuJoCo: max |q_mujoco - q_path| {worst:.2e} rad "
+          f"(friction's share of the ctrl {compensation:.3g})")
+    assert compensation > 1e-3  # the friction is in the inputs
+    assert worst < 1e-6
+
+
+def _no_friction(model):
+    from dataclasses import replace
+    return replace(model, chains=tuple(replace(c, joints=tuple(replace(j, coulomb=0.0) for j in c.joints))
+                                       for c in model.chains))
