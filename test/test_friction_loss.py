@@ -191,3 +191,12 @@ def _no_friction(model):
     from dataclasses import replace
     return replace(model, chains=tuple(replace(c, joints=tuple(replace(j, coulomb=0.0) for j in c.joints))
                                        for c in model.chains))
+
+
+def test_the_written_urdf_keeps_the_dry_friction(tmp_path):
+    from elastic_pm_dyn.model.urdf_writer import closure_sidecar, model_to_urdf
+    model = _load(ARM, servos_as_motors=True)
+    (tmp_path / "robot.urdf").write_text(model_to_urdf(model))
+    (tmp_path / "robot.yaml").write_text(closure_sidecar(model))
+    again = _load(tmp_path / "robot.urdf")
+    assert {j.name: j.coulomb for j in again.joints} == {j.name: j.coulomb for j in model.joints}
