@@ -230,3 +230,12 @@ def test_what_an_sdf_leaves_out_is_said_and_its_friction_kept(tmp_path):
     assert any("joint limits are not enforced" in w and "j [-1, 1]" in w for w in said), said
     assert any("<plugin>s are not run" in w and "ctrl" in w for w in said), said
     assert model.joints[0].coulomb == 0.2 and model.active_names == ["j"]  # Drake's reading: no effort, actuated
+
+
+def test_an_include_is_refused_in_one_line(tmp_path):
+    path = tmp_path / "robot.sdf"
+    path.write_text(MINIMAL.replace("JTYPE", "revolute").replace(
+        "EXTRA", '<joint name="k" type="fixed"><parent>a</parent><child>b</child></joint>'
+                 "<include><uri>model://gripper</uri></include>"))
+    with pytest.raises(ModelError, match=r"not supported yet: an <include>"):
+        _load(path)
