@@ -114,3 +114,13 @@ def test_names_go_through_a_bag_and_its_csv_export(tmp_path):
     exported = export_bag(bag, tmp_path / "csv")
     header = exported[0].file.read_bytes().decode("utf-8").splitlines()[0]
     assert "position.左肘" in header and "position.left_sĥerical_free_foot" in header
+
+
+def test_the_written_urdf_and_sidecar_hold_the_names_as_written(mjcf, tmp_path):
+    from elastic_pm_dyn.model.loader import load_model
+    from elastic_pm_dyn.model.urdf_writer import closure_sidecar, model_to_urdf
+    model = load_model(mjcf)
+    (tmp_path / "robot.urdf").write_text(model_to_urdf(model), encoding="utf-8")
+    (tmp_path / "robot.yaml").write_text(closure_sidecar(model), encoding="utf-8")
+    assert "left_sĥerical_free_foot" in (tmp_path / "robot.yaml").read_text(encoding="utf-8")  # not \u escapes
+    assert load_model(tmp_path / "robot.urdf").joint_names == model.joint_names

@@ -139,7 +139,7 @@ def closure_sidecar(model: Model) -> str:
         state["assembly_mode"] = {k: "positive" if v > 0 else "negative" for k, v in init.signs.items()}
     if state:
         data["initial_state"] = state
-    return yaml.safe_dump(data, sort_keys=False)
+    return yaml.safe_dump(data, sort_keys=False, allow_unicode=True)  # names as written, not escaped
 
 
 def _free(joint: Joint) -> bool:
