@@ -104,13 +104,37 @@ def test_the_arm_follows_its_servos_as_mujoco_does(tmp_path):
     assert err < 1e-6
 
 
-def test_the_robotiq_gripper_as_published_closes_as_mujoco_does(tmp_path):
+def test_force_ranges_clamp_the_servos_as_mujoco_does(tmp_path):
+    """The arm with its force ranges kept (the shoulder's 8 N m, the wrist's 3 N m): its servos
+    saturate under the same ctrl table (checked), and the run follows MuJoCo's."""
+    text = ARM.read_text().replace('<option gravity="0 0 -9.81" timestep="0.002"/>',
+                                   '<option gravity="0 0 -9.81"><flag frictionloss="disable" limit="disable" '
+                                   'contact="disable"/></option>')
+    path = tmp_path / "arm.xml"
+    path.write_text(text)
+    mech = Mechanism(_quiet_load(path))
+    assert mech.model.joints[0].force_range is not None and mech.model.joints[1].force_range is None
+    t = np.arange(0.0, 0.2, SAMPLE)
+    ctrl = np.column_stack([1.0 + 0.8 * np.sin(20 * t), 4.0 * np.cos(15 * t), -2.5 + 3 * t])
+    table = TorqueTable(t, ctrl)
+    q0 = initial_state(mech)
+    run = simulate(mech, table, 0.2, integrator="dop853", rtol=1e-11, atol=1e-13, sample=SAMPLE)
+    peer, force = _mujoco_run(path, mech.joint_names, q0, table, len(run.t))
+    err = float(np.abs(peer - run.q).max())
+    print(f"servo arm with force ranges against MuJoCo: largest |force| {force:.3g}, max |q - q_mujoco| {err:.2e} rad")
+    assert force == pytest.approx(8.0)  # the shoulder saturated
+    assert err < 1e-6
+
+
+@pytest.mark.parametrize(("first", "then", "saturates"), [(12.0, 6.0, False), (255.0, 255.0, True)],
+                         ids=["gentle", "full_grip"])
+def test_the_robotiq_gripper_as_published_closes_as_mujoco_does(tmp_path, first, then, saturates):
     """No flag: its <general> servo on the tendon 'split' (gain 0.3137, bias -100 L - 10 dL/dt) takes
-    ctrl 0..255; a grip command of 12 keeps the force inside its range (not applied here), checked."""
+    ctrl 0..255; a gentle grip keeps the force inside its 5 N range, a full one saturates it."""
     mech = Mechanism(_quiet_load(ROBOTIQ))
     assert mech.active_names == ["right_driver_joint"]
     t = np.arange(0.0, 0.2, SAMPLE)
-    table = TorqueTable(t, np.where(t < 0.1, 12.0, 6.0)[:, None])
+    table = TorqueTable(t, np.where(t < 0.1, first, then)[:, None])
     q0 = initial_state(mech)
     run = simulate(mech, table, 0.2, integrator="dop853", rtol=1e-11, atol=1e-13, sample=SAMPLE)
     text = ROBOTIQ.read_text().replace('<option cone="elliptic" impratio="10"/>',
@@ -121,10 +145,10 @@ def test_the_robotiq_gripper_as_published_closes_as_mujoco_does(tmp_path):
     peer, force = _mujoco_run(peer_file, mech.joint_names, q0, table, len(run.t), solref=2e-5)
     moved = float(np.abs(run.q - q0).max())
     err = float(np.abs(peer - run.q).max())
-    print(f"Robotiq 2F-85 as published against MuJoCo (tightened): moved {moved:.3g} rad, "
-          f"max |q - q_mujoco| {err:.2e} rad, largest actuator force {force:.3g} N")
-    assert force < 5.0  # its force range never bound
-    assert moved > 0.02  # the servo's spring (100 N per unit L) holds it near L = 0.3137 ctrl / 100
+    print(f"Robotiq 2F-85 as published against MuJoCo (tightened), ctrl {first:g} then {then:g}: moved {moved:.3g} "
+          f"rad, max |q - q_mujoco| {err:.2e} rad, largest actuator force {force:.3g} N")
+    assert (force == pytest.approx(5.0)) if saturates else force < 5.0
+    assert moved > 0.02  # the servo's spring (100 N per unit L) holds it near L = 0.3137 ctrl / 100, or 5 N
     assert err < 1e-6
 
 

@@ -78,6 +78,8 @@ class Joint:
     rotor_inertia: float = 0.0  # reflected rotor inertia (armature) [kg m^2 or kg]
     coulomb: float = 0.0  # dry (Coulomb) friction [N or N m]: coulomb tanh(qd / slip) opposes the motion
     slip: float = SLIP_SPEED  # the regularisation's slip speed [m/s or rad/s] (docs/robot_files.md)
+    # a servo's force range (MJCF forcerange): (G, K, C, rest, low, high), layout.JF_SERVO_G's terms
+    force_range: tuple[float, float, float, float, float, float] | None = None
 
     def origin_rotation(self) -> np.ndarray:
         return rpy_to_matrix(self.origin_rpy)

@@ -106,7 +106,7 @@ class ServoLaw:
     """MuJoCo's actuator law on a motor (a ``<position>``, ``<velocity>`` or ``<general>`` servo
     with a fixed gain and an affine bias): its force f = gain ctrl + bias0 + bias1 L + bias2 dL/dt,
     L = gear times the joint's coordinate (or the fixed tendon's length, ``terms``), acting as
-    gear f on it; ``ctrlrange`` clamps ctrl (None: unlimited)."""
+    gear f on it; ``ctrlrange`` clamps ctrl, ``forcerange`` f (None: unlimited)."""
 
     joint: str  # the motor's joint (a tendon's first)
     gear: float
@@ -115,6 +115,7 @@ class ServoLaw:
     ctrlrange: tuple[float, float] | None
     terms: tuple[tuple[str, float], ...]  # (joint, coefficient) of L / gear: the joint alone, or the tendon's
     where: Where
+    forcerange: tuple[float, float] | None = None  # clamps f (None: unlimited)
 
 
 @dataclass

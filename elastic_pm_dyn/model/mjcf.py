@@ -449,7 +449,9 @@ class _Tree:
                                             float(m.actuator_gainprm[a, 0]),
                                             tuple(float(x) for x in m.actuator_biasprm[a, :3]),
                                             tuple(float(x) for x in m.actuator_ctrlrange[a]) if limited else None,
-                                            terms, where))
+                                            terms, where,
+                                            tuple(float(x) for x in m.actuator_forcerange[a])
+                                            if m.actuator_forcelimited[a] else None))
                 self.kept_laws.add(a)
             # several actuators on one joint (a servo's position and velocity parts) drive it as
             # one motor: its input is their torques' sum

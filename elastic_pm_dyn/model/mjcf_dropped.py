@@ -68,7 +68,8 @@ def dropped_lines(m, mujoco, names: dict[str, list[str]], coupled_tendons: set[i
             if m.actuator_ctrllimited[a] and a not in kept_laws]
     if ctrl and not off & int(bit.mjDSBL_CLAMPCTRL):
         out.append(f"control ranges are not applied (inputs are not clamped): {listed(ctrl)}")
-    force = [f"{actuators[a]} {_range(*m.actuator_forcerange[a])}" for a in range(m.nu) if m.actuator_forcelimited[a]]
+    force = [f"{actuators[a]} {_range(*m.actuator_forcerange[a])}" for a in range(m.nu)
+             if m.actuator_forcelimited[a] and a not in kept_laws]
     force += [f"joint {joints[j]} {_range(*m.jnt_actfrcrange[j])}" for j in range(m.njnt) if m.jnt_actfrclimited[j]]
     if force:
         out.append(f"actuator force ranges are not applied (forces are not clamped): {listed(force)}")

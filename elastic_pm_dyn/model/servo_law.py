@@ -8,11 +8,13 @@ couplings; L_c the couplings' constant), the joints feeling gear w f. Where w ac
 motor's own coordinate only, that is exactly: a spring of stiffness -b1 gear^2 w^2 on the motor
 (its rest where the constant part balances it), a viscous friction -b2 gear^2 w^2, and the input
 ctrl reaching the joint as gear gain w ctrl (a column of the transmission B). The ctrl range
-clamps the input (:attr:`Model.input_ranges`); the force range is not applied (a line says so).
+clamps the input (:attr:`Model.input_ranges`); the force range clamps f in the dynamics
+(:attr:`Joint.force_range`, as MuJoCo clamps it), where w is the motor's coordinate alone.
 """
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import replace
 
 import numpy as np
@@ -54,7 +56,14 @@ def with_servo_laws(model: Model, servos: list[ServoLaw]) -> Model:
             raise s.where.error(f"not supported yet: a servo bias of constant force ({const:g}) with no spring "
                                 "to hold it (bias0 without bias1)")
         rest = (j.stiffness * j.rest + const) / stiffness if stiffness else j.rest
-        joints[s.joint] = replace(j, stiffness=stiffness, rest=rest, friction=j.friction + c)
+        clamp = None
+        if s.forcerange is not None:
+            if others:  # a tendon servo acting on several coordinates: no one joint's force to clamp
+                warnings.warn(f"{s.where.file}:{s.where.line}: {s.where.element}: its force range is not applied (its "
+                              f"tendon acts on {', '.join(others)} too)", stacklevel=3)
+            else:  # the servo's own spring and damper, with the constant force they balance at its rest
+                clamp = (g * wa, k, c, const / k if k else 0.0, *s.forcerange)
+        joints[s.joint] = replace(j, stiffness=stiffness, rest=rest, friction=j.friction + c, force_range=clamp)
         transmissions[s.joint] = tuple((names[i], float(g * s.gain * w[i])) for i in np.flatnonzero(w))
         if s.ctrlrange is not None:
             ranges.append((s.joint, *s.ctrlrange))
