@@ -256,7 +256,8 @@ def cmd_check(args: argparse.Namespace) -> int:
         on = ", ".join(f"{name} with {c:g} u" for name, c in terms)
         print(f"  transmission: motor {motor}'s input u (a fixed tendon's force, a servo's ctrl) drives {on}")
     for motor, low, high in model.input_ranges:
-        print(f"  input range: motor {motor}'s input u clamped to [{low:g}, {high:g}] (a servo's ctrlrange)")
+        print(f"  input range: motor {motor}'s input u clamped to [{low:g}, {high:g}] (a servo's ctrlrange, a "
+              "motor's ctrl and force ranges)")
     for line in _dropped_rows(model):
         print(line)
     q = initial_state(mech)

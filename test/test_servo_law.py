@@ -171,3 +171,27 @@ def test_the_plant_clamps_a_servo_command(tmp_path):
     plant = Plant(mech, SimulationOptions(integrator="rk4", dt=1e-4), 1e-3)
     plant.step(np.array([9.0, -9.0, 0.0]))
     assert plant.tau.tolist() == [1.5, -3.0, 0.0]
+
+
+def test_a_plain_motors_ranges_clamp_its_torque_as_mujoco_does(tmp_path):
+    """A <motor> with gear 2, ctrlrange +-1 and forcerange +-1.5: its input, the torque gear ctrl,
+    is clamped to +-2 and to 2 * 1.5; asked for 5 N m it gives 2, as MuJoCo under ctrl 2.5 gives."""
+    text = ARM.read_text().replace('<option gravity="0 0 -9.81" timestep="0.002"/>',
+                                   '<option gravity="0 0 -9.81"><flag frictionloss="disable" limit="disable" '
+                                   'contact="disable"/></option>')
+    text = text.replace('<velocity name="elbow_servo" joint="elbow" kv="2" ctrlrange="-3 3"/>',
+                        '<motor name="elbow_motor" joint="elbow" gear="2" ctrlrange="-1 1" forcerange="-1.5 1.5"/>')
+    path = tmp_path / "arm.xml"
+    path.write_text(text)
+    model = _quiet_load(path)
+    assert ("elbow", -2.0, 2.0) in model.input_ranges
+    mech = Mechanism(model)
+    t = np.arange(0.0, 0.2, SAMPLE)
+    ours = np.column_stack([np.full_like(t, 0.5), np.full_like(t, 5.0), np.full_like(t, -0.3)])
+    run = simulate(mech, TorqueTable(t, ours), 0.2, integrator="dop853", rtol=1e-11, atol=1e-13, sample=SAMPLE)
+    ctrl = ours.copy()
+    ctrl[:, 1] = 2.5  # MuJoCo's ctrl: the torque over the gear, past its range too
+    peer, _ = _mujoco_run(path, mech.joint_names, initial_state(mech), TorqueTable(t, ctrl), len(run.t))
+    err = float(np.abs(peer - run.q).max())
+    print(f"arm with a geared, ranged motor against MuJoCo: max |q - q_mujoco| {err:.2e} rad")
+    assert np.all(run.tau[:, 1] == 2.0) and err < 1e-6

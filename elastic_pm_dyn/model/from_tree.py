@@ -123,6 +123,8 @@ def build_model(tree: KinematicTree, sidecar: Sidecar | None = None, closure_tol
     if transmissions:
         model = replace(model, transmissions=transmissions)
     model = with_servo_laws(model, tree.servos)  # on the transmissions: a tendon servo's arm is its column
+    if tree.input_ranges:  # plain motors' ctrl and force ranges, as clamps of their torques
+        model = replace(model, input_ranges=model.input_ranges + tuple(tree.input_ranges))
     _check_counts(tree, model, sidecar, closures)
     if not independent:  # found independent at the assembled pose: freeing joints keeps them so
         _check_repeated(model, closures)

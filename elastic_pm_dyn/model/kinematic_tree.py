@@ -130,3 +130,4 @@ class KinematicTree:
     couplings: list[CouplingSpec] = field(default_factory=list)  # linear joint couplings (closure rows)
     tendon_motors: list[TendonMotor] = field(default_factory=list)  # motors on fixed tendons (MJCF)
     servos: list[ServoLaw] = field(default_factory=list)  # servos whose law the machine keeps (MJCF)
+    input_ranges: list[tuple[str, float, float]] = field(default_factory=list)  # motors' input clamps (MJCF)

@@ -82,7 +82,7 @@ def read_mjcf(path: str | Path, fix_base: bool = False, servos_as_motors: bool =
         _check_keyframe(src, m.nq, file)
     names = {"joint": reader.joint_names, "tendon": reader.tendon_names, "body": reader.body_names,
              "actuator": reader.actuator_names}
-    for line in dropped_lines(m, mujoco, names, reader.coupled_tendons, reader.kept_laws):
+    for line in dropped_lines(m, mujoco, names, reader.coupled_tendons, reader.kept_laws, reader.ranged_motors):
         warnings.warn(f"{file}: {line}", stacklevel=2)
     return tree
 
@@ -265,6 +265,9 @@ class _Tree:
         self.actuator_names = [mujoco.mj_id2name(m, obj.mjOBJ_ACTUATOR, a) or f"actuator{a}" for a in range(m.nu)]
         self.servos: list[ServoLaw] = []
         self.kept_laws: set[int] = set()  # actuators whose law (and ctrl range) the machine keeps
+        self.motor_ranges: list[tuple[int, str, float, float]] = []  # plain motors' ranges, as input clamps
+        self.input_ranges: list[tuple[str, float, float]] = []
+        self.ranged_motors: set[int] = set()
 
     def where(self, tag: str, name: str) -> Where:
         return Where(self.file, f"{tag} {name!r}", self.lines.get((tag, name)))
@@ -322,7 +325,8 @@ class _Tree:
         self._tight_tendons(qpos)
         return KinematicTree(name=name, file=self.file, links=links, joints=joints,
             closures=closures, gravity=np.array(m.opt.gravity, dtype=float), start=start,
-            couplings=self.couplings, tendon_motors=self.tendon_motors, servos=self.servos)
+            couplings=self.couplings, tendon_motors=self.tendon_motors, servos=self.servos,
+            input_ranges=self.input_ranges)
 
     def _tight_tendons(self, qpos: np.ndarray) -> None:
         """A limited fixed tendon whose range is narrower than TIGHT_TENDON_RANGE couples its
@@ -453,10 +457,16 @@ class _Tree:
                                             tuple(float(x) for x in m.actuator_forcerange[a])
                                             if m.actuator_forcelimited[a] else None))
                 self.kept_laws.add(a)
+            elif not servo:
+                self._motor_range(a, j)
             # several actuators on one joint (a servo's position and velocity parts) drive it as
             # one motor: its input is their torques' sum
             driven.setdefault(j, []).append(name)
             out.add(j)
+        shared = {self.joint_names[j] for j, names in driven.items() if len(names) > 1}
+        ranged = [r for r in self.motor_ranges if r[1] not in shared]  # a sum of inputs has no one range
+        self.ranged_motors = {a for a, *_ in ranged}
+        self.input_ranges = [(joint, low, high) for _, joint, low, high in ranged]
         for j, names in driven.items():
             if len(names) > 1 and any(s.joint == self.joint_names[j] for s in self.servos):
                 raise self.where("joint", self.joint_names[j]).error(
@@ -464,6 +474,21 @@ class _Tree:
                     "input per motor; servos_as_motors=True (--servos-as-motors) takes them for one motor whose torque "
                     "is their sum")
         return out
+
+    def _motor_range(self, a: int, j: int) -> None:
+        """A plain motor's ctrl and force ranges as a clamp of its input, the torque (the tendon's
+        force) gear * ctrl: exactly MuJoCo's, its force being gain 1 times ctrl with no bias."""
+        m = self.m
+        gear = float(m.actuator_gear[a, 0])
+        low, high = -np.inf, np.inf
+        if m.actuator_ctrllimited[a] and not int(m.opt.disableflags) & int(self.mj.mjtDisableBit.mjDSBL_CLAMPCTRL):
+            lo, hi = sorted(gear * float(x) for x in m.actuator_ctrlrange[a])
+            low, high = max(low, lo), min(high, hi)
+        if m.actuator_forcelimited[a]:
+            lo, hi = sorted(gear * float(x) for x in m.actuator_forcerange[a])
+            low, high = max(low, lo), min(high, hi)
+        if np.isfinite(low) or np.isfinite(high):
+            self.motor_ranges.append((a, self.joint_names[j], low, high))
 
     def _coupling(self, e: int, kind: int, where: Where) -> CouplingSpec:
         """A <joint> or <tendon> equality: x1 - x1_0 = p0 + p1 (x2 - x2_0) (x_0 at qpos0; no x2: x1 fixed

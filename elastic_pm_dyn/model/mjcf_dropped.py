@@ -29,10 +29,12 @@ def _range(lo: float, hi: float) -> str:
     return f"[{lo:.4g}, {hi:.4g}]"
 
 
-def dropped_lines(m, mujoco, names: dict[str, list[str]], coupled_tendons: set[int], kept_laws: set[int]) -> list[str]:
+def dropped_lines(m, mujoco, names: dict[str, list[str]], coupled_tendons: set[int], kept_laws: set[int],
+                  ranged_motors: set[int] = frozenset()) -> list[str]:
     """The lines for the compiled model ``m``; ``names`` holds the joint, tendon, actuator and
     body names by index, ``coupled_tendons`` the tendons whose range became a coupling,
-    ``kept_laws`` the actuators whose law (gain, bias, ctrl range) is in the machine."""
+    ``kept_laws`` the actuators whose law (gain, bias, ranges) is in the machine,
+    ``ranged_motors`` the plain motors whose ranges clamp their inputs."""
     off = int(m.opt.disableflags)
     bit = mujoco.mjtDisableBit
     joints, tendons, actuators, bodies = names["joint"], names["tendon"], names["actuator"], names["body"]
@@ -65,11 +67,11 @@ def dropped_lines(m, mujoco, names: dict[str, list[str]], coupled_tendons: set[i
         out.append(f"motors' gear is not applied: their input is the joint's torque (the tendon's force), "
                    f"not MuJoCo's ctrl (torque = gear ctrl): {listed(geared)}")
     ctrl = [f"{actuators[a]} {_range(*m.actuator_ctrlrange[a])}" for a in range(m.nu)
-            if m.actuator_ctrllimited[a] and a not in kept_laws]
+            if m.actuator_ctrllimited[a] and a not in kept_laws | ranged_motors]
     if ctrl and not off & int(bit.mjDSBL_CLAMPCTRL):
         out.append(f"control ranges are not applied (inputs are not clamped): {listed(ctrl)}")
     force = [f"{actuators[a]} {_range(*m.actuator_forcerange[a])}" for a in range(m.nu)
-             if m.actuator_forcelimited[a] and a not in kept_laws]
+             if m.actuator_forcelimited[a] and a not in kept_laws | ranged_motors]
     force += [f"joint {joints[j]} {_range(*m.jnt_actfrcrange[j])}" for j in range(m.njnt) if m.jnt_actfrclimited[j]]
     if force:
         out.append(f"actuator force ranges are not applied (forces are not clamped): {listed(force)}")
