@@ -29,11 +29,12 @@ setup(
         "rosbags>=0.11,<0.12",
     ],
     # pin: the Pinocchio cross-checks (and the benchmark); mujoco: reading MJCF models and
-    # their cross-check (and the benchmark); hypothesis: the property-based fuzz suite;
+    # their cross-check (and the benchmark); drake: the peer reading of SDFormat files (the
+    # reader itself needs nothing); hypothesis: the property-based fuzz suite;
     # batch: `elastic-pm-dyn batch --cluster` (Dask distributed) and the Parquet results table
     # (pyarrow); the tests run both.
-    extras_require={"test": ["pytest>=8", "ruff", "pin", "mujoco", "hypothesis>=6.100", "dask[distributed]>=2024.1",
-                             "pyarrow>=14"],
+    extras_require={"test": ["pytest>=8", "ruff", "pin", "mujoco", "drake", "hypothesis>=6.100",
+                             "dask[distributed]>=2024.1", "pyarrow>=14"],
                     "bench": ["pin", "mujoco", "dask[distributed]>=2024.1", "pyarrow>=14"],
                     "mjcf": ["mujoco"], "batch": ["dask[distributed]>=2024.1", "pyarrow>=14"]},
     zip_safe=False,

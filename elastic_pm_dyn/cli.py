@@ -71,23 +71,30 @@ def _load(args: argparse.Namespace):
     """The model the command names: a model YAML, a URDF (+ closure sidecar) or an MJCF."""
     from elastic_pm_dyn.model.loader import load_model
     return load_model(args.model, getattr(args, "elastic_dof_per_chain", None), getattr(args, "closures", None),
-                      getattr(args, "fix_base", False), getattr(args, "servos_as_motors", False))
+                      getattr(args, "fix_base", False), getattr(args, "servos_as_motors", False),
+                      closure_tol=getattr(args, "closure_tol", None), slip_speed=getattr(args, "slip_speed", None))
 
 
 def _add_model(p: argparse.ArgumentParser, positional: bool = False, dof: bool = False) -> None:
     """The model arguments: the file, a URDF's closure sidecar, and (``dof``) the flexible links' discretisation."""
-    what = "model: YAML, URDF (+ closure sidecar) or MJCF"
+    what = "model: YAML, URDF (+ closure sidecar), MJCF or SDFormat (.sdf)"
     if positional:
         p.add_argument("model", help=what)
     else:
         p.add_argument("--model", required=True, help=what)
-    p.add_argument("--closures", help="closure sidecar of a URDF model (default: robot.yaml next to it)")
+    p.add_argument("--closures", help="closure sidecar of a URDF (or SDFormat) model (default: robot.yaml next to it)")
     p.add_argument("--fix-base", action="store_true",
                    help="MJCF: weld each body on a free joint (a floating base) to the world where the file puts "
                         "it; the free joint's keyframe entries are dropped")
     p.add_argument("--servos-as-motors", action="store_true",
                    help="MJCF: a joint driven by a servo (<position>, <velocity>, <general> ...) is a motor: its "
                         "torque is the input, the servo law (kp, kv) is left out")
+    p.add_argument("--closure-tol", type=float, default=None, metavar="M",
+                   help="URDF, MJCF: loops the file's geometry closes only within this (m, rad; default 1e-6, 0: "
+                        "exactly) load, their anchors moved to close, with a warning")
+    p.add_argument("--slip-speed", type=float, default=None, metavar="V",
+                   help="dry friction (MJCF frictionloss, URDF friction) regularised as F tanh(qd / V) (m/s, rad/s; "
+                        "default 1e-3): smaller sticks better, and needs a smaller RK4 step")
     if dof:
         p.add_argument("--elastic-dof-per-chain", type=int, default=None,
                        help="override the model's discretisation of flexible links")
@@ -221,7 +228,7 @@ def _waypoint_feedforward(args: argparse.Namespace, model, rate: float) -> int:
 
 
 def cmd_check(args: argparse.Namespace) -> int:
-    from elastic_pm_dyn.dynamics.linear import elastic_modes
+    from elastic_pm_dyn.dynamics.linear import dry_friction_step, elastic_modes
     from elastic_pm_dyn.kinematics.assembly import initial_state
     from elastic_pm_dyn.kinematics.mechanism import Mechanism
     model = _load(args)
@@ -247,7 +254,10 @@ def cmd_check(args: argparse.Namespace) -> int:
         print(f"  coupling: {sum_text} = {constant:.9g} (a closure row)")
     for motor, terms in model.transmissions:
         on = ", ".join(f"{name} with {c:g} u" for name, c in terms)
-        print(f"  transmission: motor {motor}'s input u (a fixed tendon's force) drives {on}")
+        print(f"  transmission: motor {motor}'s input u (a fixed tendon's force, a servo's ctrl) drives {on}")
+    for motor, low, high in model.input_ranges:
+        print(f"  input range: motor {motor}'s input u clamped to [{low:g}, {high:g}] (a servo's ctrlrange, a "
+              "motor's ctrl and force ranges)")
     for line in _dropped_rows(model):
         print(line)
     q = initial_state(mech)
@@ -279,6 +289,10 @@ def cmd_check(args: argparse.Namespace) -> int:
         _print_integrator_steps(mech, q, dt_max)
     else:
         print("no elastic joints: no elastic modes")
+    dry = dry_friction_step(mech, q)
+    if dry is not None:
+        print(f"dry friction (F tanh(qd / v_s)): fixed-step RK4 needs dt < about {dry[0]:.3g} s (joint {dry[1]}: "
+              "F / v_s over its inertia); a larger --slip-speed relaxes it, a smaller one sticks better")
     return 0
 
 
@@ -600,7 +614,16 @@ def _one_line_warning(message, category, filename, lineno, line=None) -> str:
     return f"elastic-pm-dyn: warning: {message}\n"
 
 
+def _names_never_fail_a_terminal() -> None:
+    """A joint name a terminal's encoding cannot show (CJK on a Latin-1 console) is printed
+    escaped (\\u5de6), not a UnicodeEncodeError traceback: files are written in UTF-8 whatever it is."""
+    for stream in (sys.stdout, sys.stderr):
+        if hasattr(stream, "reconfigure") and (stream.encoding or "").lower().replace("-", "") != "utf8":
+            stream.reconfigure(errors="backslashreplace")
+
+
 def main(argv: list[str] | None = None) -> int:
+    _names_never_fail_a_terminal()
     parser = build_parser()
     args = parser.parse_args(argv)
     func: Callable[[argparse.Namespace], int] = args.func

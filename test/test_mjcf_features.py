@@ -202,11 +202,17 @@ def test_planar_machine_in_the_y_z_plane_moves_as_in_x_y(tmp_path):
     assert [h for h in r_yz.header() if h.startswith("ee_")] == ["ee_y", "ee_z"]
 
 
-def test_servo_is_refused_unless_taken_for_a_motor(tmp_path):
+def test_servo_loads_with_its_law_and_a_law_not_kept_is_refused_unless_taken_for_a_motor(tmp_path):
+    """A <position> servo keeps MuJoCo's law (test_servo_law.py checks it against MuJoCo); a gain
+    that is not fixed is refused in one line that names the flag taking it for a motor."""
     path = _write(tmp_path, FOUR_BAR_XY)
+    assert dict(load_model(path).transmissions) == {"crank": (("crank", 50.0),)}  # kp: the file default class
+    text = FOUR_BAR_XY.replace('<position name="crank" joint="crank"/>',
+                               '<general name="crank" joint="crank" gaintype="affine" gainprm="1 2 0"/>')
+    path = _write(tmp_path, text)
     with pytest.raises(ModelError) as err:
         load_model(path)
-    line = FOUR_BAR_XY.splitlines().index('    <position name="crank" joint="crank"/>') + 1
+    line = text.splitlines().index('    <general name="crank" joint="crank" gaintype="affine" gainprm="1 2 0"/>') + 1
     assert str(err.value).startswith(f"{path}:{line}: actuator 'crank': not supported yet"), str(err.value)
     assert "--servos-as-motors" in str(err.value)
     assert load_model(path, servos_as_motors=True).active_names == ["crank"]

@@ -124,10 +124,11 @@ MJCF_CASES = [
          '<motor name="left" joint="left_motor"/>', ''), '<joint name="left_motor" type="free"', "free joint"),
     ("weld", RIGID_MJCF.replace('<connect site1="closure_left" site2="closure_right"',
                                 '<weld name="w" site1="closure_left" site2="closure_right"'),
-     '<weld name="w"', "the closures give 3 equations but the legs have 2 passive joints"),
+     '<weld name="w"', "the loops lock motors left_motor, right_motor"),  # 3 equations for 2 passive joints
     ("compiler", MJCF.replace('stiffness="5.464e6"', 'stifness="5.464e6"', 1), 'stifness=', "MuJoCo:"),
-    ("servo", MJCF.replace('<motor name="right" joint="right_motor"/>', '<position name="right" joint="right_motor"/>'),
-     '<position name="right"', "not supported yet: an actuator other than a <motor>"),
+    ("servo", MJCF.replace('<motor name="right" joint="right_motor"/>',
+                           '<general name="right" joint="right_motor" gaintype="affine" gainprm="1 2 0"/>'),
+     '<general name="right"', "not supported yet: an actuator whose gain is not fixed"),
 ]
 
 

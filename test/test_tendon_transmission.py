@@ -209,6 +209,14 @@ def test_unsprung_tendon_joint_is_refused_as_under_actuated(tmp_path):
 
 
 # ----------------------------------------------------------------------------- UMI gripper
+
+def _no_dry_friction(model):
+    """The machine with its joints' friction loss off, as the MuJoCo peer here runs it."""
+    from dataclasses import replace
+    return replace(model, chains=tuple(replace(c, joints=tuple(replace(j, coulomb=0.0) for j in c.joints))
+                                       for c in model.chains))
+
+
 def _umi_mujoco(q0: np.ndarray, names: list[str], ctrl: dict[str, float], samples: int) -> np.ndarray:
     """MuJoCo on the same file, each actuator a force input (the servos' gain and bias and the
     control range cleared: ``servos_as_motors``), contacts, limits and friction loss off (our model
@@ -253,8 +261,9 @@ def test_umi_gripper_loads_with_its_tendon_spread_over_both_fingers():
 
 def test_umi_gripper_matches_mujoco_under_a_tendon_force():
     """0.2 s under gravity with the fingers' tendon pulled by 4 N and a small push on the x
-    slide and a torque on the rz hinge (it turns the fingers with it); every joint against MuJoCo's."""
-    mech = Mechanism(load_model(UMI, servos_as_motors=True))
+    slide and a torque on the rz hinge (it turns the fingers with it); every joint against MuJoCo's
+    (friction loss off in both: test_friction_loss.py has it)."""
+    mech = Mechanism(_no_dry_friction(load_model(UMI, servos_as_motors=True)))
     q0 = initial_state(mech)
     inputs = {"right_finger_joint": 4.0, "gripper_joint_x": 0.3, "gripper_joint_rz": 2.0}
     u = [inputs.get(n, 0.0) for n in mech.active_names]

@@ -143,7 +143,7 @@ def export_bag(bag: str | Path, out: str | Path, topics: Sequence[str] | None = 
                     row = flat[conn.topic].flatten(msg, conn.msgtype)
                     if conn.topic not in writers:
                         files[conn.topic] = current = out / csv_name(conn.topic)
-                        fh = (stage / csv_name(conn.topic)).open("w", newline="")
+                        fh = (stage / csv_name(conn.topic)).open("w", newline="", encoding="utf-8")
                         w = csv.writer(fh)
                         cols = list(row)
                         w.writerow(["receive_time_ns", *cols])

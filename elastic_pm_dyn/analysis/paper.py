@@ -132,4 +132,4 @@ def _write_series(out: Path, data: list[RunData]) -> None:
 def _csv(path: Path, head: list[str], cols: list[np.ndarray]) -> None:
     # Quote the names: run labels contain commas-free text but spaces and apostrophes (L-D'A).
     header = ",".join('"' + h.replace('"', '""') + '"' for h in head)
-    np.savetxt(path, np.column_stack(cols), delimiter=",", header=header, comments="", fmt="%.17g")
+    np.savetxt(path, np.column_stack(cols), delimiter=",", header=header, comments="", fmt="%.17g", encoding="utf-8")

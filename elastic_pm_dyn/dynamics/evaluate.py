@@ -23,7 +23,15 @@ from elastic_pm_dyn.dynamics.kernels import (
     scdd_work,
 )
 from elastic_pm_dyn.kinematics.kernels import all_closure_rows, point_buffers, tree_terms, tree_terms_into
-from elastic_pm_dyn.model.layout import JI_CHAIN
+from elastic_pm_dyn.model.layout import (
+    JF_FORCE_HI,
+    JF_FORCE_LO,
+    JF_SERVO_C,
+    JF_SERVO_G,
+    JF_SERVO_K,
+    JF_SERVO_REST,
+    JI_CHAIN,
+)
 from elastic_pm_dyn.small_linalg import matvec
 
 SCDD = 0
@@ -106,6 +114,7 @@ def accelerations(form, ma, q, qd, tau, baumgarte_alpha, baumgarte_beta, qdd_pre
     M, h = np.empty((n, n)), np.empty(n)
     J, a_pt, p_pt = point_buffers(ma.points, n)
     tree_terms(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_body, ma.gravity, q, qd, M, h, J, a_pt, p_pt)
+    servo_force_ranges(ma.jf, q, qd, tau, h)
     A, gamma, res = np.empty((m, n)), np.empty(m), np.empty(m)
     gap = _closure_terms(ma, q, qd, J, a_pt, p_pt, A, gamma, res, baumgarte_alpha, baumgarte_beta, np.empty(m))
     if form in (SCDD, SCDD_STACKED) and not (form == SCDD and ma.hub >= 0):
@@ -121,6 +130,7 @@ def accelerations_into(form, ma, q, qd, tau, baumgarte_alpha, baumgarte_beta, qd
     p_pt) and the closure rows (ws.A, gamma, res) of (q, qd) stay in ``ws`` for the caller."""
     tree_terms_into(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_body, ma.gravity, q, qd, ws.M, ws.h, ws.J,
                     ws.a_pt, ws.p_pt, ws.wz, ws.wo, ws.jv, ws.jw, ws.fr)
+    servo_force_ranges(ma.jf, q, qd, tau, ws.h)
     gap = _closure_terms(ma, q, qd, ws.J, ws.a_pt, ws.p_pt, ws.A, ws.gamma, ws.res, baumgarte_alpha, baumgarte_beta,
                          ws.bm)
     if form in (SCDD, SCDD_STACKED) and not (form == SCDD and ma.hub >= 0):
@@ -130,6 +140,19 @@ def accelerations_into(form, ma, q, qd, tau, baumgarte_alpha, baumgarte_beta, qd
         return scdd_platform_into(ws.M, ws.h, ws.A, ws.gamma, tau, ma.chain_start, ws.pc, ma.closure_pairs,
                                   ma.closure_axes.shape[0], ma.hub, qdd, lam, ws.pw), gap
     return _other_formulations(form, ma, ws.M, ws.h, ws.A, ws.gamma, tau, qdd_prev, qdd, lam), gap
+
+
+@njit(cache=True, inline="always")
+def servo_force_ranges(jf, q, qd, tau, h):
+    """A servo's force clamped to its range, as MuJoCo clamps it: its force f along its length
+    (the input's share tau over G, less its own spring and damper) beyond [low, high] gives back
+    the excess through h (tau - h drives the joint)."""
+    for k in range(jf.shape[0]):
+        g = jf[k, JF_SERVO_G]
+        if g != 0.0:
+            f = (tau[k] - jf[k, JF_SERVO_K] * (q[k] - jf[k, JF_SERVO_REST]) - jf[k, JF_SERVO_C] * qd[k]) / g
+            clamped = min(max(f, jf[k, JF_FORCE_LO]), jf[k, JF_FORCE_HI])
+            h[k] -= g * (clamped - f)
 
 
 @njit(cache=True, inline="always")

@@ -9,6 +9,7 @@ import scipy.linalg
 
 from elastic_pm_dyn.kinematics.assembly import solve_pose
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
+from elastic_pm_dyn.model.layout import JF_COULOMB, JF_SLIP
 
 
 @dataclass
@@ -91,3 +92,20 @@ def elastic_modes(mech: Mechanism, q: np.ndarray, clamp_motors: bool = True,
         lam = osc.pop(i)
         damped[k], ratio[k] = lam.imag / (2 * np.pi), -lam.real / abs(lam)
     return Modes(natural, damped, ratio, shapes, [names[i] for i in keep])
+
+
+RK4_REAL_LIMIT = 2.785  # RK4 is stable for a real eigenvalue -lambda while h lambda <= 2.785
+
+
+def dry_friction_step(mech: Mechanism, q: np.ndarray) -> tuple[float, str] | None:
+    """The fixed RK4 step the regularised dry friction allows (about): F / v_s is a viscous slope
+    within the slip band, over the joint's own inertia (the mass matrix's diagonal at q) a rate
+    lambda; (2.785 / the largest lambda, its joint), None without dry friction."""
+    jf = mech.arrays.jf
+    dry = np.flatnonzero(jf[:, JF_COULOMB] > 0)
+    if not len(dry):
+        return None
+    M = mech.terms(q).M
+    rates = jf[dry, JF_COULOMB] / (jf[dry, JF_SLIP] * np.diag(M)[dry])
+    k = int(np.argmax(rates))
+    return RK4_REAL_LIMIT / float(rates[k]), mech.joint_names[dry[k]]

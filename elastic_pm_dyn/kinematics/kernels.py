@@ -24,6 +24,7 @@ from elastic_pm_dyn.kinematics import vec3 as v
 from elastic_pm_dyn.model.layout import (
     JF_AXIS,
     JF_COM,
+    JF_COULOMB,
     JF_DAMPING,
     JF_FRICTION,
     JF_INERTIA,
@@ -32,6 +33,7 @@ from elastic_pm_dyn.model.layout import (
     JF_ORIGIN_R,
     JF_REST,
     JF_ROTOR,
+    JF_SLIP,
     JF_STIFFNESS,
     JI_KEEP,
     JI_PARENT,
@@ -118,13 +120,15 @@ def _body_loads(jf, k, m, g, R, o, w, al, ao):
 @njit(cache=True, inline="always")
 def _joint_elements(jf, s, e, q, qd, M, h):
     """What acts in the joints s..e-1 themselves: rotor inertia on M's diagonal (if M is not
-    empty); spring, damper and viscous friction forces in h."""
+    empty); spring, damper, viscous and dry (Coulomb, regularised: F tanh(qd / v_s)) friction forces in h."""
     mass = M.shape[0] > 0
     for k in range(s, e):
         if mass:
             M[k, k] += jf[k, JF_ROTOR]
         h[k] += jf[k, JF_STIFFNESS] * (q[k] - jf[k, JF_REST]) + \
             (jf[k, JF_DAMPING] + jf[k, JF_FRICTION]) * qd[k]
+        if jf[k, JF_COULOMB] != 0.0:
+            h[k] += jf[k, JF_COULOMB] * np.tanh(qd[k] / jf[k, JF_SLIP])
 
 
 @njit(cache=True, inline="always")

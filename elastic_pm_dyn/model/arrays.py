@@ -63,6 +63,10 @@ def pack(model: Model) -> ModelArrays:
             jf[k, L.JF_DAMPING] = j.damping
             jf[k, L.JF_FRICTION] = j.friction
             jf[k, L.JF_REST] = j.rest
+            jf[k, L.JF_COULOMB] = j.coulomb
+            jf[k, L.JF_SLIP] = j.slip
+            if j.force_range is not None:
+                jf[k, L.JF_SERVO_G:L.JF_FORCE_HI + 1] = j.force_range
             ji[k, :L.JI_PARENT] = (L.TYPE_CODES[j.type], L.ROLE_CODES[j.role], ci)
             k += 1
         starts.append(k)

@@ -55,6 +55,11 @@ class Body:
         return Body(self.mass, rotation @ self.com + offset, rotation @ self.inertia @ rotation.T)
 
 
+# Dry friction's slip speed: below it the regularised Coulomb force tanh(qd / v_s) is viscous-like
+# (a stick that creeps); measured against MuJoCo's friction loss in test/test_friction_loss.py.
+SLIP_SPEED = 1e-3
+
+
 @dataclass(frozen=True)
 class Joint:
     """One single-DOF joint of a serial chain and the body it carries."""
@@ -71,6 +76,10 @@ class Joint:
     rest: float = 0.0  # spring's unloaded position
     friction: float = 0.0  # viscous friction [N s/m or N m s/rad]
     rotor_inertia: float = 0.0  # reflected rotor inertia (armature) [kg m^2 or kg]
+    coulomb: float = 0.0  # dry (Coulomb) friction [N or N m]: coulomb tanh(qd / slip) opposes the motion
+    slip: float = SLIP_SPEED  # the regularisation's slip speed [m/s or rad/s] (docs/robot_files.md)
+    # a servo's force range (MJCF forcerange): (G, K, C, rest, low, high), layout.JF_SERVO_G's terms
+    force_range: tuple[float, float, float, float, float, float] | None = None
 
     def origin_rotation(self) -> np.ndarray:
         return rpy_to_matrix(self.origin_rpy)
@@ -266,6 +275,8 @@ class Model:
     # per motor whose input acts on more than its own joint (an MJCF fixed tendon): (motor joint,
     # ((joint, generalised force per unit input), ...)); a motor not listed drives its joint alone
     transmissions: tuple[tuple[str, tuple[tuple[str, float], ...]], ...] = ()
+    # per motor whose input is clamped (an MJCF servo's ctrlrange): (motor joint, low, high)
+    input_ranges: tuple[tuple[str, float, float], ...] = ()
 
     # --- joint bookkeeping in tree order (chains stacked, joints in chain order) ---
     @property
@@ -373,6 +384,14 @@ class Model:
         if g.shape != (3,) or not np.all(np.isfinite(g)):
             raise ValueError(f"gravity must be 3 finite numbers, got {list(np.atleast_1d(gravity))!r}")
         return replace(self, gravity=g.copy())
+
+    def with_slip_speed(self, speed: float) -> Model:
+        """The same machine with dry friction regularised over another slip speed [m/s or rad/s]:
+        smaller sticks better and makes the equations stiffer (docs/robot_files.md)."""
+        if not (np.isfinite(speed) and speed > 0):
+            raise ValueError(f"slip speed must be a finite number > 0, got {speed!r}")
+        chains = tuple(replace(c, joints=tuple(replace(j, slip=float(speed)) for j in c.joints)) for c in self.chains)
+        return replace(self, chains=chains)
 
     def with_stiffness_scaled(self, factor: float) -> Model:
         """The same machine with every elastic joint's stiffness times ``factor`` (a plant that

@@ -52,6 +52,12 @@ def _forward(model: Model, q: np.ndarray) -> tuple[list, list, list, list]:
     return p_joint, axes, R_body, p_body
 
 
+def forward_poses(model: Model, q: np.ndarray) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Each body's world rotation and origin at tree coordinates q, in tree order."""
+    _, _, R_body, p_body = _forward(model, q)
+    return R_body, p_body
+
+
 def _ancestors(parents: list[int], b: int) -> list[int]:
     out = []
     while b >= 0:

@@ -54,7 +54,11 @@ from elastic_pm_dyn.model.kinematic_tree import (
     TreeJoint,
     Where,
 )
+from elastic_pm_dyn.model.locked_motors import constrained_motors
 from elastic_pm_dyn.model.loop_springs import springs_fixed_by_loops
+from elastic_pm_dyn.model.loose_closures import CLOSURE_TOL, close_loose_loops
+from elastic_pm_dyn.model.nearest_name import nearest
+from elastic_pm_dyn.model.servo_law import with_servo_laws
 from elastic_pm_dyn.model.yaml_reader import parse_branches, parse_initial
 
 DEFAULT_GRAVITY = (0.0, 0.0, -9.81)  # a URDF has none; Pinocchio's and Gazebo's default
@@ -79,7 +83,9 @@ class _Frame:
     link: str
 
 
-def build_model(tree: KinematicTree, sidecar: Sidecar | None = None) -> Model:
+def build_model(tree: KinematicTree, sidecar: Sidecar | None = None, closure_tol: float = CLOSURE_TOL) -> Model:
+    """The Model of ``tree`` (+ a URDF's sidecar); loops the file's geometry closes only within
+    ``closure_tol`` (m, rad) load with their anchors moved to close (:mod:`loose_closures`)."""
     joints = _retyped(tree, sidecar)
     motors, elastic, rotor = _roles(tree, joints, sidecar)
     legs, frames = _legs(tree, joints, motors, elastic, rotor)
@@ -105,6 +111,7 @@ def build_model(tree: KinematicTree, sidecar: Sidecar | None = None) -> Model:
     model = Model(name=tree.name, chains=tuple(chains), closure=closure, gravity=gravity,
                   end_effector_mass=ee_mass, initial=initial, branches=branches, source=tree.file, planar=planar,
                   fixed_points=fixed)
+    model = close_loose_loops(model, closure_tol)  # before any search for a closed pose: none would close
     model = motors_to_a_closed_pose(model)  # every check below looks for a closed pose from the start
     model = springs_fixed_by_loops(model)  # before the rows are judged: it changes the passive joints
     model, independent = drop_still_rows(model)
@@ -115,6 +122,9 @@ def build_model(tree: KinematicTree, sidecar: Sidecar | None = None) -> Model:
     transmissions = _tendon_transmissions(tree, model)
     if transmissions:
         model = replace(model, transmissions=transmissions)
+    model = with_servo_laws(model, tree.servos)  # on the transmissions: a tendon servo's arm is its column
+    if tree.input_ranges:  # plain motors' ctrl and force ranges, as clamps of their torques
+        model = replace(model, input_ranges=model.input_ranges + tuple(tree.input_ranges))
     _check_counts(tree, model, sidecar, closures)
     if not independent:  # found independent at the assembled pose: freeing joints keeps them so
         _check_repeated(model, closures)
@@ -220,8 +230,8 @@ def _retyped(tree: KinematicTree, sidecar: Sidecar | None) -> list[TreeJoint]:
         if name not in by_name:
             # Gepetto's loader re-types the joints it meets and passes over the others (its
             # sidecars outlive URDF revisions); a typo then shows in the counts, if anywhere.
-            warnings.warn(f"{where.file}:{where.line}: {where.element}: no joint {name!r} in {tree.file}, "
-                          "passed over as Gepetto's loader does", stacklevel=2)
+            warnings.warn(f"{where.file}:{where.line}: {where.element}: no joint {name!r} in {tree.file}"
+                          f"{nearest(name, by_name)}, passed over as Gepetto's loader does", stacklevel=2)
     for name, (_, where) in sidecar.universal.items():
         if sidecar.retype.get(name, ("",))[0] != "UNIVERSAL":
             raise where.error(f"joint {name!r} has a second axis but is not typed UNIVERSAL in joint_type")
@@ -257,7 +267,7 @@ def _roles(tree: KinematicTree, joints: list[TreeJoint], sidecar: Sidecar | None
 
     def single_dof(name: str, where: Where, what: str) -> TreeJoint:
         if name not in by_name:
-            raise where.error(f"no joint {name!r} in {tree.file}")
+            raise where.error(f"no joint {name!r} in {tree.file}{nearest(name, by_name)}")
         j = by_name[name]
         if j.type not in (REVOLUTE, PRISMATIC):
             raise where.error(f"joint {name!r} is {j.type}: only a revolute or prismatic joint can be {what}")
@@ -288,17 +298,19 @@ def _expand(j: TreeJoint, R: np.ndarray, p: np.ndarray, motors: set[str],
             # a driven joint with a parallel spring (MJCF stiffness on a motor's joint): the motor's
             # coordinate carries the spring, its damper as the joint's viscous friction
             return [Joint(name=j.name, type=j.type, role=role, axis=j.axis, origin_xyz=p, origin_rpy=rpy,
-                          stiffness=c, rest=rest, friction=d, rotor_inertia=rotor.get(j.name, 0.0))]
+                          stiffness=c, rest=rest, friction=d, rotor_inertia=rotor.get(j.name, 0.0),
+                          coulomb=j.frictionloss)]
         return [Joint(name=j.name, type=j.type, role=role, axis=j.axis, origin_xyz=p, origin_rpy=rpy,
                       stiffness=c, damping=d, rest=rest, friction=0.0 if role == ELASTIC else j.damping,
-                      rotor_inertia=rotor.get(j.name, 0.0))]
+                      rotor_inertia=rotor.get(j.name, 0.0), coulomb=j.frictionloss)]
     if j.type == BALL:
         # Three revolutes about the joint frame's x, y, z (singular where the middle one
         # reaches +-90 degrees: a start pose away from that is the user's to choose).
         axes = [("x", np.array([1.0, 0, 0])), ("y", np.array([0, 1.0, 0])), ("z", np.array([0, 0, 1.0]))]
-        if j.damping > 0:
+        if j.damping > 0 or j.frictionloss > 0:
             w = j.where
-            warnings.warn(f"{w.file}:{w.line}: joint {j.name!r}: a ball's damping acts here on each of its three "
+            what = " and ".join(k for k, v in (("damping", j.damping), ("friction loss", j.frictionloss)) if v)
+            warnings.warn(f"{w.file}:{w.line}: joint {j.name!r}: a ball's {what} acts here on each of its three "
                           "angles' rates, not on its angular velocity as in MuJoCo (the two differ as the ball turns "
                           "away from its reference: 5e-7 rad over 0.2 s on Cassie's achilles rods)", stacklevel=2)
     elif j.type == CARDAN:  # the names Gepetto's loader gives them: <joint>_X, <joint>_Y for CARDAN
@@ -309,7 +321,7 @@ def _expand(j: TreeJoint, R: np.ndarray, p: np.ndarray, motors: set[str],
     for k, (suffix, axis) in enumerate(axes):
         out.append(Joint(name=f"{j.name}_{suffix}", type=REVOLUTE, role=PASSIVE, axis=np.asarray(axis, dtype=float),
                          origin_xyz=p if k == 0 else np.zeros(3), origin_rpy=rpy if k == 0 else np.zeros(3),
-                         friction=j.damping))
+                         friction=j.damping, coulomb=j.frictionloss))
     return out
 
 
@@ -378,7 +390,8 @@ def _frame(tree: KinematicTree, frames: dict[str, _Frame], name: str, where: Whe
     for j in tree.joints:
         if j.name == name:
             return frames[j.child]
-    raise where.error(f"no frame (link or joint) {name!r} in {tree.file}")
+    raise where.error(f"no frame (link or joint) {name!r} in {tree.file}"
+                      f"{nearest(name, list(frames) + [j.name for j in tree.joints])}")
 
 
 # ------------------------------------------------------------------------ planar
@@ -571,14 +584,28 @@ def _check_counts(tree: KinematicTree, model: Model, sidecar: Sidecar | None, cl
             raise where.error(f"the closures cannot all hold: with every joint free (motors too) the nearest pose "
                               f"still misses {worst}{', ...' if len(missed) > 4 else ''} (m, rad; a 6-D weld "
                               "where the loop only meets at a point?)")
+        locked, tied = constrained_motors(model) if n_passive < m and not unclosed else ([], [])
+        if locked or tied:  # the cause first: the passive count only follows from it
+            unmatched = [f"{n!r}{nearest(n, [j.name for j in tree.joints])}" for n in
+                         (sidecar.retype if sidecar is not None else {}) if n not in {j.name for j in tree.joints}]
+            typo = f"; the sidecar re-types no joint {', '.join(unmatched)}" if unmatched else ""
+            said = [f"lock motor{'s' if len(locked) > 1 else ''} {', '.join(locked)} (no motion they allow moves "
+                    f"{'them' if len(locked) > 1 else 'it'})"] if locked else []
+            said += [f"tie motors {', '.join(tied)} (they move only together: one cannot be driven without the "
+                     "others)"] if tied else []
+            raise where.error(f"the loops {' and '.join(said)}: {m} equations for {n_passive} passive joints (a "
+                              f"joint the machine has is missing, a ball written as a hinge?){typo}")
         loose = loose_joints(model) if n_passive > m and not unclosed else []
         if loose:  # first in the line: the cause
             # the loops those joints are on, by element and line (the file's own loop first)
             loops = [k for k in loops_of(model, loose) if k < len(closures)]
             if loops and sidecar is None:
                 where = closures[loops[0]].where
+            elif not loops:  # on no loop: the line points at the joint itself, not at an unrelated closure
+                where = next((j.where for j in tree.joints if j.name == loose[0]), where)
             named = [f"{closures[k].where.element} (line {closures[k].where.line})" for k in loops[:3]]
-            on = f" (on {', '.join(named)}{', ...' if len(loops) > 3 else ''})" if loops else ""
+            on = f" (on {', '.join(named)}{', ...' if len(loops) > 3 else ''})" if loops else \
+                " (on no loop: nothing the machine keeps holds them)"
             raise where.error(f"under-actuated: the closures give {m} equations but the legs have {n_passive} "
                               f"passive joints, and with the motors held {', '.join(loose[:4])}"
                               f"{', ...' if len(loose) > 4 else ''}{on} still move: a motor missing, or a loop "

@@ -60,6 +60,7 @@ class TreeJoint:
     rest: float = 0.0  # the spring's unloaded position
     armature: float = 0.0  # rotor inertia
     actuated: bool = False  # driven by a motor (MJCF <motor>)
+    frictionloss: float = 0.0  # dry (Coulomb) friction (MJCF frictionloss, URDF <dynamics friction>)
 
 
 @dataclass(frozen=True)
@@ -100,6 +101,23 @@ class TendonMotor:
     where: Where
 
 
+@dataclass(frozen=True)
+class ServoLaw:
+    """MuJoCo's actuator law on a motor (a ``<position>``, ``<velocity>`` or ``<general>`` servo
+    with a fixed gain and an affine bias): its force f = gain ctrl + bias0 + bias1 L + bias2 dL/dt,
+    L = gear times the joint's coordinate (or the fixed tendon's length, ``terms``), acting as
+    gear f on it; ``ctrlrange`` clamps ctrl, ``forcerange`` f (None: unlimited)."""
+
+    joint: str  # the motor's joint (a tendon's first)
+    gear: float
+    gain: float
+    bias: tuple[float, float, float]
+    ctrlrange: tuple[float, float] | None
+    terms: tuple[tuple[str, float], ...]  # (joint, coefficient) of L / gear: the joint alone, or the tendon's
+    where: Where
+    forcerange: tuple[float, float] | None = None  # clamps f (None: unlimited)
+
+
 @dataclass
 class KinematicTree:
     name: str
@@ -111,3 +129,5 @@ class KinematicTree:
     start: dict[str, float] = field(default_factory=dict)  # a start pose in the file (MJCF keyframe)
     couplings: list[CouplingSpec] = field(default_factory=list)  # linear joint couplings (closure rows)
     tendon_motors: list[TendonMotor] = field(default_factory=list)  # motors on fixed tendons (MJCF)
+    servos: list[ServoLaw] = field(default_factory=list)  # servos whose law the machine keeps (MJCF)
+    input_ranges: list[tuple[str, float, float]] = field(default_factory=list)  # motors' input clamps (MJCF)

@@ -16,7 +16,17 @@ JF_STIFFNESS = 29
 JF_DAMPING = 30
 JF_FRICTION = 31
 JF_REST = 32
-JF_WIDTH = 33
+JF_COULOMB = 33  # dry (Coulomb) friction force [N or N m], regularised over JF_SLIP
+JF_SLIP = 34  # its slip speed v_s: the force is JF_COULOMB tanh(qd / v_s) [m/s or rad/s]
+# A servo's force range (MJCF forcerange): the joint feels G f, f = (tau - K (q - REST) - C qd) / G
+# clamped to [LO, HI] (K, C, REST: the servo's own bias as a spring and damper); G = 0: none
+JF_SERVO_G = 35
+JF_SERVO_K = 36
+JF_SERVO_C = 37
+JF_SERVO_REST = 38
+JF_FORCE_LO = 39
+JF_FORCE_HI = 40
+JF_WIDTH = 41
 
 # Columns of the per-joint int record ``ji``.
 JI_TYPE = 0  # 0 revolute, 1 prismatic

@@ -37,24 +37,36 @@ _JOINT_KEYS = {"name", "type", "role", "axis", "origin", "body", "stiffness", "d
 
 def load_model(path: str | Path, elastic_dof_per_chain: int | None = None,
                closures: str | Path | None = None, fix_base: bool = False, servos_as_motors: bool = False,
-               gravity: Sequence[float] | None = None) -> Model:
-    """Read and validate a model file: a model YAML, a URDF or an MJCF.
+               gravity: Sequence[float] | None = None, closure_tol: float | None = None,
+               slip_speed: float | None = None) -> Model:
+    """Read and validate a model file: a model YAML, a URDF, an MJCF or an SDFormat file.
 
-    The format follows from the suffix (.yaml/.yml, .urdf, .xml/.mjcf) and, for any other,
-    from the content (an XML root ``<robot>`` or ``<mujoco>``). A URDF takes its loop
-    closures from a sidecar: ``closures``, else ``robot.yaml`` next to it.
+    The format follows from the suffix (.yaml/.yml, .urdf, .xml/.mjcf, .sdf) and, for any other,
+    from the content (an XML root ``<robot>``, ``<mujoco>`` or ``<sdf>``). A URDF takes its loop
+    closures from a sidecar: ``closures``, else ``robot.yaml`` next to it (an SDFormat file may
+    have one too: closures, motors and springs beyond its own).
     ``elastic_dof_per_chain`` overrides a YAML's value: how many lumped elastic joints
     each ``flexible_link`` is discretised into (URDF and MJCF have none). ``fix_base`` (MJCF
     only) welds the bodies of free joints to the world where the file puts them;
     ``servos_as_motors`` (MJCF only) takes the joints of servos (``<position>`` ...) for motors.
     ``gravity`` (3 numbers, world frame [m/s^2]) replaces the file's gravity, whatever the format.
+    ``closure_tol`` (URDF, MJCF; default 1e-6 m, rad; 0: exact only): loops the file's geometry
+    closes only within it load, their anchors moved to close, with a warning. ``slip_speed``
+    (default 1e-3 m/s, rad/s): the speed over which dry friction is regularised, F tanh(qd / v_s).
     """
-    model = _read_model(path, elastic_dof_per_chain, closures, fix_base, servos_as_motors)
+    if closure_tol is not None and not (np.isfinite(closure_tol) and closure_tol >= 0):
+        raise ModelError(str(path), "closure_tol", f"must be a finite number >= 0 (m, rad), got {closure_tol!r}")
+    model = _read_model(path, elastic_dof_per_chain, closures, fix_base, servos_as_motors, closure_tol)
     if gravity is not None:
         try:
             model = model.with_gravity(gravity)
         except ValueError as err:
             raise ModelError(str(path), "gravity", f"override: {err}") from None
+    if slip_speed is not None:
+        try:
+            model = model.with_slip_speed(slip_speed)
+        except ValueError as err:
+            raise ModelError(str(path), "slip_speed", str(err)) from None
     _check_physics(model, str(path))
     return model
 
@@ -79,7 +91,7 @@ def _check_physics(model: Model, file: str) -> None:
 
 
 def _read_model(path: str | Path, elastic_dof_per_chain: int | None, closures: str | Path | None, fix_base: bool,
-                servos_as_motors: bool) -> Model:
+                servos_as_motors: bool, closure_tol: float | None) -> Model:
     from elastic_pm_dyn.model.formats import MJCF, model_format, read_robot_file
     kind = model_format(path)
     if fix_base and kind != MJCF:
@@ -92,7 +104,7 @@ def _read_model(path: str | Path, elastic_dof_per_chain: int | None, closures: s
         if closures is not None:
             raise ModelError(str(closures), "", f"a closure sidecar belongs to a URDF, {path} is a model YAML")
         return parse_model(YamlSource.from_file(path), elastic_dof_per_chain)
-    return read_robot_file(path, kind, closures, fix_base, servos_as_motors)
+    return read_robot_file(path, kind, closures, fix_base, servos_as_motors, closure_tol)
 
 
 def parse_model(src: YamlSource, elastic_dof_per_chain: int | None = None) -> Model:

@@ -46,22 +46,29 @@ from elastic_pm_dyn.model.kinematic_tree import (
     ClosureSpec,
     CouplingSpec,
     KinematicTree,
+    ServoLaw,
     TendonMotor,
     TreeJoint,
     TreeLink,
     Where,
 )
+from elastic_pm_dyn.model.mjcf_dropped import dropped_lines
 from elastic_pm_dyn.model.xml_source import XmlSource
 
 _EQ_KINDS = {0: "3d", 1: "6d"}  # mjEQ_CONNECT, mjEQ_WELD
 EQ_JOINT, EQ_TENDON = 2, 3  # mjEQ_JOINT, mjEQ_TENDON: linear couplings where the polycoef is
 TRN_JOINT, TRN_JOINTINPARENT, TRN_TENDON = 0, 1, 3  # mjTRN_*: on a hinge or slide the first two are one
 WRAP_JOINT = 1  # mjWRAP_JOINT: a fixed tendon's terms
+GAIN_FIXED, BIAS_NONE, BIAS_AFFINE = 0, 0, 1  # mjGAIN_FIXED, mjBIAS_NONE, mjBIAS_AFFINE
+
+
+TIGHT_TENDON_RANGE = 0.1  # a fixed tendon's range narrower than this is a coupling (ToddlerBot's waist: 0.002, 0.06)
 
 
 def read_mjcf(path: str | Path, fix_base: bool = False, servos_as_motors: bool = False) -> KinematicTree:
     """The file's tree; ``fix_base`` welds the bodies of free joints to the world,
-    ``servos_as_motors`` takes a servo's joint for a motor's (module doc)."""
+    ``servos_as_motors`` takes a servo's joint for a motor's (module doc). What MuJoCo would
+    do with the file and the tree leaves out is one warning line per kind (:mod:`mjcf_dropped`)."""
     file = str(path)
     src = XmlSource.from_file(path)
     _check_values(src)
@@ -69,9 +76,14 @@ def read_mjcf(path: str | Path, fix_base: bool = False, servos_as_motors: bool =
     lines = _element_lines(src)
     mujoco = _mujoco(file)
     m = compile_mjcf(path, fix_base)
-    tree = _Tree(m, mujoco, file, lines, servos_as_motors).build(src.root.get("model") or Path(path).stem)
+    reader = _Tree(m, mujoco, file, lines, servos_as_motors)
+    tree = reader.build(src.root.get("model") or Path(path).stem)
     if not fix_base:  # MuJoCo pads a short keyframe with qpos0: a start pose the user did not write
         _check_keyframe(src, m.nq, file)
+    names = {"joint": reader.joint_names, "tendon": reader.tendon_names, "body": reader.body_names,
+             "actuator": reader.actuator_names}
+    for line in dropped_lines(m, mujoco, names, reader.coupled_tendons, reader.kept_laws, reader.ranged_motors):
+        warnings.warn(f"{file}: {line}", stacklevel=2)
     return tree
 
 
@@ -249,6 +261,13 @@ class _Tree:
         self.obj = obj
         self.tendon_motors: list[TendonMotor] = []
         self.couplings: list[CouplingSpec] = []
+        self.coupled_tendons: set[int] = set()
+        self.actuator_names = [mujoco.mj_id2name(m, obj.mjOBJ_ACTUATOR, a) or f"actuator{a}" for a in range(m.nu)]
+        self.servos: list[ServoLaw] = []
+        self.kept_laws: set[int] = set()  # actuators whose law (and ctrl range) the machine keeps
+        self.motor_ranges: list[tuple[int, str, float, float]] = []  # plain motors' ranges, as input clamps
+        self.input_ranges: list[tuple[str, float, float]] = []
+        self.ranged_motors: set[int] = set()
 
     def where(self, tag: str, name: str) -> Where:
         return Where(self.file, f"{tag} {name!r}", self.lines.get((tag, name)))
@@ -302,9 +321,37 @@ class _Tree:
         # spring whose springref lies elsewhere starts there preloaded, as in MuJoCo.
         qpos = m.key_qpos[0] if m.nkey else m.qpos0
         start = {self.joint_names[j]: float(qpos[m.jnt_qposadr[j]]) for j in range(m.njnt) if m.jnt_type[j] in (2, 3)}
+        closures = self._closures(shift)
+        self._tight_tendons(qpos)
         return KinematicTree(name=name, file=self.file, links=links, joints=joints,
-            closures=self._closures(shift), gravity=np.array(m.opt.gravity, dtype=float), start=start,
-            couplings=self.couplings, tendon_motors=self.tendon_motors)
+            closures=closures, gravity=np.array(m.opt.gravity, dtype=float), start=start,
+            couplings=self.couplings, tendon_motors=self.tendon_motors, servos=self.servos,
+            input_ranges=self.input_ranges)
+
+    def _tight_tendons(self, qpos: np.ndarray) -> None:
+        """A limited fixed tendon whose range is narrower than TIGHT_TENDON_RANGE couples its
+        joints (ToddlerBot's waist differential): a coupling row holding its length where the
+        start pose puts it, clamped into the range; the backlash within the range is dropped,
+        with a line saying so."""
+        m = self.m
+        if int(m.opt.disableflags) & int(self.mj.mjtDisableBit.mjDSBL_LIMIT):
+            return
+        for t in range(m.ntendon):
+            lo, hi = (float(x) for x in m.tendon_range[t])
+            if not m.tendon_limited[t] or hi - lo >= TIGHT_TENDON_RANGE:
+                continue
+            name = self.tendon_names[t]
+            where = self.where("fixed", name)
+            terms = self._tendon_terms(t, where)
+            coef = dict(terms)
+            length = sum(c * float(qpos[m.jnt_qposadr[self.joint_names.index(j)]]) for j, c in coef.items())
+            held = min(max(length, lo), hi)
+            self.couplings.append(CouplingSpec(terms, held, where))
+            self.coupled_tendons.add(t)
+            warnings.warn(f"{self.file}:{where.line}: tendon {name!r}: its range [{lo:.4g}, {hi:.4g}] is narrower "
+                          f"than {TIGHT_TENDON_RANGE:g}: taken as a coupling holding its length at {held:.6g} "
+                          f"(the start pose's, in the range); the backlash of {hi - lo:.3g} is left out",
+                          stacklevel=3)
 
     def _tendon_terms(self, t: int, where: Where) -> tuple[tuple[str, float], ...]:
         """A fixed tendon's (joint name, coefficient) terms: its length is their sum times q."""
@@ -348,7 +395,7 @@ class _Tree:
             if m.jnt_stiffness[j] > 0 or j in motors:
                 raise where.error("not supported yet: a ball joint with a spring or a motor")
             return TreeJoint(name, BALL, parent, child, R, p, np.array([0.0, 0.0, 1.0]), where,
-                             damping=float(m.dof_damping[dadr]))
+                             damping=float(m.dof_damping[dadr]), frictionloss=self._frictionloss(dadr))
         axis = m.jnt_axis[j] / np.linalg.norm(m.jnt_axis[j])
         ref = float(m.qpos0[qadr])
         if ref != 0.0:
@@ -360,25 +407,35 @@ class _Tree:
                 p = p - R @ axis * ref
         return TreeJoint(name, REVOLUTE if kind == 3 else PRISMATIC, parent, child, R, p, axis, where,
                          damping=float(m.dof_damping[dadr]), stiffness=float(m.jnt_stiffness[j]),
-                         rest=float(m.qpos_spring[qadr]), armature=float(m.dof_armature[dadr]), actuated=j in motors)
+                         rest=float(m.qpos_spring[qadr]), armature=float(m.dof_armature[dadr]), actuated=j in motors,
+                         frictionloss=self._frictionloss(dadr))
+
+    def _frictionloss(self, dof: int) -> float:
+        """The dof's friction loss, none where the file's <flag frictionloss="disable"> turns it off."""
+        off = int(self.m.opt.disableflags) & int(self.mj.mjtDisableBit.mjDSBL_FRICTIONLOSS)
+        return 0.0 if off else float(self.m.dof_frictionloss[dof])
 
     def _motors(self) -> set[int]:
-        """Joints driven by a <motor> (a joint transmission with no bias: torque = gear * ctrl), or
-        by any joint actuator with ``servos_as_motors``."""
+        """Joints driven by an actuator. A <motor> (gain 1, no bias) takes the joint's torque as its
+        input; a servo (any other fixed gain, an affine bias) keeps MuJoCo's law, its input the
+        ctrl (:class:`ServoLaw`), unless ``servos_as_motors``: then it is a motor too."""
         m = self.m
         out = set()
+        driven: dict[int, list[str]] = {}
         for a in range(m.nu):
-            name = self.mj.mj_id2name(m, self.obj.mjOBJ_ACTUATOR, a) or f"actuator{a}"
+            name = self.actuator_names[a]
             tags = ("motor", "general", "position", "velocity", "intvelocity", "damper", "cylinder", "muscle")
             where = Where(self.file, f"actuator {name!r}",
                           next((self.lines[(t, name)] for t in tags if (t, name) in self.lines), None))
             if m.actuator_trntype[a] not in (TRN_JOINT, TRN_JOINTINPARENT, TRN_TENDON):
                 raise where.error("not supported yet: an actuator on a site, body or slider-crank (only joints and "
                                   "fixed tendons)")
-            if not self.servos_as_motors and (m.actuator_biastype[a] != 0 or m.actuator_gaintype[a] != 0):
-                raise where.error("not supported yet: an actuator other than a <motor> (a servo); "
-                                  "servos_as_motors=True (check/simulate --servos-as-motors) takes its joint for "
-                                  "a motor's, the servo law left out")
+            servo = m.actuator_biastype[a] != 0 or m.actuator_gaintype[a] != 0 or m.actuator_gainprm[a, 0] != 1.0
+            if servo and not self.servos_as_motors and (m.actuator_gaintype[a] != GAIN_FIXED
+                                                        or m.actuator_biastype[a] not in (BIAS_NONE, BIAS_AFFINE)):
+                raise where.error("not supported yet: an actuator whose gain is not fixed or whose bias is not "
+                                  "affine (a muscle, a user law); servos_as_motors=True (check/simulate "
+                                  "--servos-as-motors) takes its joint for a motor's, its law left out")
             if m.actuator_trntype[a] == TRN_TENDON:
                 # a motor on a fixed tendon: the tendon's first joint is the motor's, its force acts on all
                 terms = self._tendon_terms(int(m.actuator_trnid[a, 0]), where)
@@ -388,10 +445,50 @@ class _Tree:
                 j = self.joint_names.index(terms[0][0])
             else:
                 j = int(m.actuator_trnid[a, 0])
+                terms = ((self.joint_names[j], 1.0),)
+            if servo and not self.servos_as_motors:
+                limited = bool(m.actuator_ctrllimited[a]) and \
+                    not int(m.opt.disableflags) & int(self.mj.mjtDisableBit.mjDSBL_CLAMPCTRL)
+                self.servos.append(ServoLaw(self.joint_names[j], float(m.actuator_gear[a, 0]),
+                                            float(m.actuator_gainprm[a, 0]),
+                                            tuple(float(x) for x in m.actuator_biasprm[a, :3]),
+                                            tuple(float(x) for x in m.actuator_ctrlrange[a]) if limited else None,
+                                            terms, where,
+                                            tuple(float(x) for x in m.actuator_forcerange[a])
+                                            if m.actuator_forcelimited[a] else None))
+                self.kept_laws.add(a)
+            elif not servo:
+                self._motor_range(a, j)
             # several actuators on one joint (a servo's position and velocity parts) drive it as
             # one motor: its input is their torques' sum
+            driven.setdefault(j, []).append(name)
             out.add(j)
+        shared = {self.joint_names[j] for j, names in driven.items() if len(names) > 1}
+        ranged = [r for r in self.motor_ranges if r[1] not in shared]  # a sum of inputs has no one range
+        self.ranged_motors = {a for a, *_ in ranged}
+        self.input_ranges = [(joint, low, high) for _, joint, low, high in ranged]
+        for j, names in driven.items():
+            if len(names) > 1 and any(s.joint == self.joint_names[j] for s in self.servos):
+                raise self.where("joint", self.joint_names[j]).error(
+                    f"not supported yet: several actuators ({', '.join(names)}) on one joint, a servo among them: one "
+                    "input per motor; servos_as_motors=True (--servos-as-motors) takes them for one motor whose torque "
+                    "is their sum")
         return out
+
+    def _motor_range(self, a: int, j: int) -> None:
+        """A plain motor's ctrl and force ranges as a clamp of its input, the torque (the tendon's
+        force) gear * ctrl: exactly MuJoCo's, its force being gain 1 times ctrl with no bias."""
+        m = self.m
+        gear = float(m.actuator_gear[a, 0])
+        low, high = -np.inf, np.inf
+        if m.actuator_ctrllimited[a] and not int(m.opt.disableflags) & int(self.mj.mjtDisableBit.mjDSBL_CLAMPCTRL):
+            lo, hi = sorted(gear * float(x) for x in m.actuator_ctrlrange[a])
+            low, high = max(low, lo), min(high, hi)
+        if m.actuator_forcelimited[a]:
+            lo, hi = sorted(gear * float(x) for x in m.actuator_forcerange[a])
+            low, high = max(low, lo), min(high, hi)
+        if np.isfinite(low) or np.isfinite(high):
+            self.motor_ranges.append((a, self.joint_names[j], low, high))
 
     def _coupling(self, e: int, kind: int, where: Where) -> CouplingSpec:
         """A <joint> or <tendon> equality: x1 - x1_0 = p0 + p1 (x2 - x2_0) (x_0 at qpos0; no x2: x1 fixed

@@ -3,18 +3,22 @@
 Read with the standard library's :mod:`xml.etree` (through :mod:`xml_source`, which keeps
 lines): a URDF is plain XML, and the dynamics need only links' inertials and joints'
 frames, so no URDF library is a dependency. Visuals, collisions, meshes (``package://``
-references are never opened), materials, transmissions and ``<gazebo>`` are ignored.
+references are never opened), materials, ``<safety_controller>`` and ``<calibration>`` do not
+act on the motion and are passed over; what would (joint limits, dry friction, transmissions'
+reductions, ``<gazebo>`` physics) and is left out is one warning line per kind, naming the
+elements.
 """
 
 from __future__ import annotations
 
 import math
+import warnings
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import numpy as np
 
-from elastic_pm_dyn.model.description import Body, rpy_to_matrix
+from elastic_pm_dyn.model.description import SLIP_SPEED, Body, rpy_to_matrix
 from elastic_pm_dyn.model.kinematic_tree import (
     FIXED,
     PRISMATIC,
@@ -25,6 +29,7 @@ from elastic_pm_dyn.model.kinematic_tree import (
     TreeLink,
     Where,
 )
+from elastic_pm_dyn.model.mjcf_dropped import listed
 from elastic_pm_dyn.model.xml_source import XmlSource, describe
 
 _JOINT_TYPES = {"revolute": REVOLUTE, "continuous": REVOLUTE, "prismatic": PRISMATIC, "fixed": FIXED}
@@ -52,8 +57,44 @@ def read_urdf(path: str | Path) -> KinematicTree:
         seen[joint.name] = joint.where.line
         joints.append(joint)
     couplings = [_mimic(src, el, seen) for el in root.findall("joint") if el.find("mimic") is not None]
+    for line in _dropped(src, root):
+        warnings.warn(f"{src.file}: {line}", stacklevel=2)
     return KinematicTree(name=root.get("name") or Path(path).stem, file=src.file, links=links, joints=joints,
                          couplings=couplings)
+
+
+def _dropped(src: XmlSource, root: ET.Element) -> list[str]:
+    """What the file says about the motion and the tree leaves out: one line per kind."""
+    out = []
+    limits, efforts, friction = [], [], []
+    for el in root.findall("joint"):
+        name = el.get("name")
+        limit = el.find("limit")
+        if limit is not None and el.get("type") in ("revolute", "prismatic") and \
+                (limit.get("lower") is not None or limit.get("upper") is not None):
+            limits.append(f"{name} [{limit.get('lower', '0')}, {limit.get('upper', '0')}]")
+        if limit is not None and (limit.get("effort") is not None or limit.get("velocity") is not None):
+            efforts.append(f"{name} (effort {limit.get('effort', '-')}, velocity {limit.get('velocity', '-')})")
+        dyn = el.find("dynamics")
+        if dyn is not None and float(numbers(src, dyn, "friction", 1, [0.0], describe(el))[0]) != 0.0:
+            friction.append(f"{name} {dyn.get('friction')}")
+    if limits:
+        out.append(f"joint limits are not enforced (the joints move through them): {listed(limits)} (line "
+                   f"{src.line(root.find('joint'))} on)")
+    if efforts:
+        out.append(f"effort and velocity limits are not applied (inputs are not clamped): {listed(efforts)}")
+    if friction:
+        out.append(f"<dynamics friction> is dry (Coulomb) friction regularised over a slip speed of {SLIP_SPEED:g} "
+                   f"(m/s, rad/s: F tanh(qd / v_s)): {listed(friction)}")
+    reductions = [el.get("name") or f"line {src.line(el)}" for el in root.findall("transmission")]
+    if reductions:
+        out.append(f"<transmission>s are not read (inputs are joint torques, reductions left out): "
+                   f"{listed(reductions)}")
+    gazebo = [el.get("reference") or "the robot" for el in root.findall("gazebo")]
+    if gazebo:
+        out.append(f"<gazebo> elements are not read (their contact, friction and damping left out): "
+                   f"{listed(gazebo)}")
+    return out
 
 
 def _mimic(src: XmlSource, el: ET.Element, joints: dict[str, int | None]) -> CouplingSpec:
@@ -160,11 +201,14 @@ def _joint(src: XmlSource, el: ET.Element, links: dict[str, TreeLink]) -> TreeJo
     norm = float(np.linalg.norm(axis))
     if _JOINT_TYPES[kind] != FIXED and norm < 1e-12:
         raise src.error(axis_el, "axis must not be zero", what)
-    damping = 0.0
+    damping = friction = 0.0
     dyn = el.find("dynamics")
     if dyn is not None:
         damping = float(numbers(src, dyn, "damping", 1, [0.0], what)[0])
-        if damping < 0:
-            raise src.error(dyn, f"damping must be >= 0, got {damping:g}", what)
+        friction = float(numbers(src, dyn, "friction", 1, [0.0], what)[0])
+        for key, value in (("damping", damping), ("friction", friction)):
+            if value < 0:
+                raise src.error(dyn, f"{key} must be >= 0, got {value:g}", what)
     return TreeJoint(name=name, type=_JOINT_TYPES[kind], parent=ends[0], child=ends[1], origin_R=R, origin_p=p,
-                     axis=axis / norm if norm > 0 else axis, where=_where(src, el), damping=damping)
+                     axis=axis / norm if norm > 0 else axis, where=_where(src, el), damping=damping,
+                     frictionloss=friction)

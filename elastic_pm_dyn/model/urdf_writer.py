@@ -55,8 +55,10 @@ def model_to_urdf(model: Model) -> str:
             if j.type == PRISMATIC:
                 out.append('    <limit lower="-1" upper="1" effort="1e6" velocity="1e3"/>')
             damping = j.damping if _free(j) else j.friction if j.role != ELASTIC else 0.0
-            if damping > 0:
-                out.append(f'    <dynamics damping="{float(damping)!r}"/>')
+            dynamics = (f' damping="{float(damping)!r}"' if damping > 0 else "") + \
+                (f' friction="{float(j.coulomb)!r}"' if j.coulomb > 0 else "")  # its slip speed: the default
+            if dynamics:
+                out.append(f"    <dynamics{dynamics}/>")
             out.append("  </joint>")
             ends = [c.origin_xyz for c, p in zip(chain.joints, parents, strict=True) if p == k] + \
                 [xyz for _, xyz, b, _ in frames if b == k]
@@ -137,7 +139,7 @@ def closure_sidecar(model: Model) -> str:
         state["assembly_mode"] = {k: "positive" if v > 0 else "negative" for k, v in init.signs.items()}
     if state:
         data["initial_state"] = state
-    return yaml.safe_dump(data, sort_keys=False)
+    return yaml.safe_dump(data, sort_keys=False, allow_unicode=True)  # names as written, not escaped
 
 
 def _free(joint: Joint) -> bool:

@@ -36,6 +36,7 @@ class XmlSource:
 
         parser.StartElementHandler = start
         parser.EndElementHandler = builder.end
+        parser.CharacterDataHandler = builder.data  # SDFormat writes its values as text
         parser.StartDoctypeDeclHandler = doctype
         try:
             parser.Parse(text, True)

@@ -28,7 +28,7 @@ from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.sim import kernels
 from elastic_pm_dyn.sim.simulator import FIXED_STEP, SimulationOptions, Simulator
 from elastic_pm_dyn.sim.stopped import integration_error
-from elastic_pm_dyn.sim.torque import ConstantTorque, HeldPlusSmooth
+from elastic_pm_dyn.sim.torque import ConstantTorque, HeldPlusSmooth, input_bounds
 
 # [rad or m] a requested position beyond this is a mistake: float spacing there exceeds 1e-10
 START_STATES = ("relaxed", "static")  # Plant(start=...): springs unloaded, or deflected by gravity
@@ -67,6 +67,7 @@ class Plant:
         self.qd = np.zeros(mech.n)
         self.k = 0  # control periods done
         self.tau = np.zeros(len(mech.active))  # torque applied over the last period
+        self._bounds = input_bounds(mech)  # the motors' input ranges (MJCF servos' ctrlrange), None if none
         # Unknown torques on the motors (truth): a smooth d(t), and a held part per period (the last one's)
         self.disturbance = disturbance
         self.held_disturbance = np.zeros(len(mech.active))
@@ -104,6 +105,8 @@ class Plant:
         held = np.zeros(len(self.tau)) if held_disturbance is None else np.asarray(held_disturbance, dtype=float)
         if held.shape != self.tau.shape or not np.isfinite(held.sum()):
             raise InputError(f"disturbance torque must be {len(self.tau)} finite numbers, got {held!r}")
+        if self._bounds is not None:  # a servo's ctrl within its ctrlrange, as MuJoCo clamps it
+            tau = np.clip(tau, *self._bounds)
         # Without a disturbance the torque is tau itself: the arithmetic of plants without one is unchanged.
         acting = tau if held_disturbance is None else tau + held
         t0 = self.t

@@ -43,8 +43,9 @@ class SimulationResult:
         file renamed at the end, so an interrupted write never leaves a cut CSV (or destroys the
         one that was there)."""
         path = Path(path)
-        # what np.savetxt(fmt="%.17g", delimiter=",", comments="") wrote, formatted compiled
-        head = (",".join(self.header()) + "\n").encode("latin-1")
+        # what np.savetxt(fmt="%.17g", delimiter=",", comments="") wrote, formatted compiled; the
+        # header in UTF-8 (joint names are the file's: Greek, CJK, a Gepetto 'sĥerical')
+        head = (",".join(self.header()) + "\n").encode("utf-8")
         table = self.table()
         with atomic_file(path) as tmp, open(tmp, "wb") as f:  # a device or pipe (/dev/stdout) directly
             f.write(head)

@@ -19,7 +19,7 @@ from elastic_pm_dyn.kinematics.mechanism import Mechanism, as_mechanism
 from elastic_pm_dyn.model.description import Model
 from elastic_pm_dyn.sim.result import SimulationResult
 from elastic_pm_dyn.sim.simulator import SimulationOptions, Simulator
-from elastic_pm_dyn.sim.torque import ConstantTorque, FunctionTorque, TorqueSource, load_torque_csv
+from elastic_pm_dyn.sim.torque import ConstantTorque, FunctionTorque, TorqueSource, clamped, load_torque_csv
 
 Torques = TorqueSource | str | Path | Sequence[float] | np.ndarray | Callable[[float], np.ndarray]
 _OPTION_NAMES = frozenset(f.name for f in fields(SimulationOptions))
@@ -66,7 +66,7 @@ def as_torque_source(torques: Torques, mech: Mechanism, hold: str = "zoh") -> To
     """``torques`` as a torque source for ``mech``'s motors, its width checked (one per motor)."""
     names = list(mech.active_names)
     if isinstance(torques, str | Path):
-        return load_torque_csv(torques, names, hold)  # its columns are checked against the names
+        return clamped(load_torque_csv(torques, names, hold), mech)  # its columns are checked against the names
     if isinstance(torques, TorqueSource):
         source = torques
     elif callable(torques):
@@ -81,11 +81,11 @@ def as_torque_source(torques: Torques, mech: Mechanism, hold: str = "zoh") -> To
             raise InputError(f"torques: a constant torque is {len(names)} numbers (one per motor), "
                              f"got an array of shape {values.shape}")
         source = ConstantTorque(values)
-    width = _width(source)
+    width = _width(source)  # (a table's or a constant's: before its inputs are clamped)
     if width is not None and width != len(names):
         raise InputError(f"torques: {width} values per sample, but {mech.model.name} has {len(names)} motors "
                          f"({', '.join(names)})")
-    return source
+    return clamped(source, mech)  # a servo's ctrl within its ctrlrange, as MuJoCo clamps it
 
 
 def _width(source: TorqueSource) -> int | None:

@@ -103,6 +103,53 @@ class HeldPlusSmooth(TorqueSource):
         return np.vstack([f0, (4 * f1 - 3 * f0 - f2) / h, 2 * (f0 - 2 * f1 + f2) / h ** 2])
 
 
+class ClampedInputs(TorqueSource):
+    """Another source's inputs clamped to [low, high] per motor (an MJCF servo's ctrlrange, as
+    MuJoCo clamps ctrl). Exact for held (ZOH) and constant inputs, which stay constant per step;
+    a ramp or a function that crosses a bound inside a step is fitted through its clamped values."""
+
+    def __init__(self, source: TorqueSource, low: np.ndarray, high: np.ndarray):
+        self.source, self.low, self.high = source, np.asarray(low, dtype=float), np.asarray(high, dtype=float)
+        self.smooth = source.smooth or (isinstance(source, TorqueTable) and source.hold == "linear")
+
+    def breakpoints(self) -> np.ndarray:
+        return self.source.breakpoints()
+
+    def value(self, t: float) -> np.ndarray:
+        return np.clip(self.source.value(t), self.low, self.high)
+
+    def coefficients(self, t: float, h: float) -> np.ndarray:
+        if not self.smooth:
+            c = self.source.coefficients(t, h)  # constant over the step: its clamped value
+            return np.vstack([np.clip(c[0], self.low, self.high), np.zeros_like(c[0]), np.zeros_like(c[0])])
+        f0, f1, f2 = self.value(t), self.value(t + 0.5 * h), self.value(t + h)
+        return np.vstack([f0, (4 * f1 - 3 * f0 - f2) / h, 2 * (f0 - 2 * f1 + f2) / h ** 2])
+
+    def coefficients_many(self, t: np.ndarray, h: np.ndarray) -> np.ndarray:
+        if self.smooth:
+            return super().coefficients_many(t, h)
+        out = self.source.coefficients_many(t, h).copy()
+        out[:, 0] = np.clip(out[:, 0], self.low, self.high)
+        out[:, 1:] = 0.0
+        return out
+
+
+def input_bounds(mech) -> tuple[np.ndarray, np.ndarray] | None:
+    """(low, high) per motor (active order) from the model's input ranges; None if it has none."""
+    ranges = {name: (low, high) for name, low, high in mech.model.input_ranges}
+    if not ranges:
+        return None
+    low = np.array([ranges.get(n, (-np.inf, np.inf))[0] for n in mech.active_names])
+    high = np.array([ranges.get(n, (-np.inf, np.inf))[1] for n in mech.active_names])
+    return low, high
+
+
+def clamped(source: TorqueSource, mech) -> TorqueSource:
+    """``source`` with ``mech``'s input ranges applied (itself where it has none)."""
+    bounds = input_bounds(mech)
+    return source if bounds is None else ClampedInputs(source, *bounds)
+
+
 class TorqueTable(TorqueSource):
     """Sampled torques. ``zoh``: sample k acts on [t_k, t_k+1), as a digital controller
     applies it; ``linear``: interpolated. After the last sample the last value holds."""
@@ -253,4 +300,6 @@ def write_torque_csv(path: str | Path, times: np.ndarray, values: np.ndarray, na
     """Write a table that :func:`load_torque_csv` reads back exactly (17 digits); complete or not at all."""
     data = np.column_stack([times, values])
     with atomic_file(path) as tmp:
-        np.savetxt(tmp, data, delimiter=",", header=",".join(["t", *names]), comments="", fmt="%.17g")
+        # numpy encodes a file's header as Latin-1 unless told: names are UTF-8 as the reader reads them
+        np.savetxt(tmp, data, delimiter=",", header=",".join(["t", *names]), comments="", fmt="%.17g",
+                   encoding="utf-8")
