@@ -269,33 +269,28 @@ def test_sigint_ends_a_node_computing_its_elastic_line_at_once(tmp_path: Path) -
     assert "reference ready" not in log and "started" not in log  # up long before its line was
 
 
-def test_an_elastic_line_starts_once_computed(tmp_path: Path) -> None:
+def run_to_end(tmp_path: Path, args: list[str]) -> tuple[int, str]:
+    """A feedforward node with ``args`` run until it ends by itself: its exit status and log."""
     require("rclpy")
     from elastic_pm_dyn.ros.demos.processes import NodeProcess, ros_env
-    proc = NodeProcess("feedforward", "elastic_pm_dyn.ros.feedforward.node",
-                       ["-p", "method:=elastic", "-p", "wait_for_subscribers:=0", "-p", "exit_when_done:=true"],
+    proc = NodeProcess("feedforward", "elastic_pm_dyn.ros.feedforward.node", ["-p", "wait_for_subscribers:=0", *args],
                        ros_env(domain_id(13)), tmp_path)
     try:
         code = proc.wait(600.0)
     finally:
         if proc.proc.poll() is None:
             os.killpg(proc.proc.pid, signal.SIGKILL)
-    log = proc.log.read_text()
+    return code, proc.log.read_text()
+
+
+def test_an_elastic_line_starts_once_computed(tmp_path: Path) -> None:
+    code, log = run_to_end(tmp_path, ["-p", "method:=elastic", "-p", "exit_when_done:=true"])
     assert code == 0, log
     ready, started, finished = (log.index(w) for w in ("reference ready", "started", "reference finished"))
     assert ready < started < finished
 
 
 def test_an_elastic_line_it_refuses_ends_the_node_with_one_line(tmp_path: Path) -> None:
-    require("rclpy")
-    from elastic_pm_dyn.ros.demos.processes import NodeProcess, ros_env
-    proc = NodeProcess("feedforward", "elastic_pm_dyn.ros.feedforward.node",
-                       ["-p", "method:=elastic", "-p", "line.end:=[1.5, 1.5]", "-p", "wait_for_subscribers:=0"],
-                       ros_env(domain_id(13)), tmp_path)
-    try:
-        code = proc.wait(600.0)
-    finally:
-        if proc.proc.poll() is None:
-            os.killpg(proc.proc.pid, signal.SIGKILL)
-    errors = [line for line in proc.log.read_text().splitlines() if "ERROR" in line]
+    code, log = run_to_end(tmp_path, ["-p", "method:=elastic", "-p", "line.end:=[1.5, 1.5]"])
+    errors = [line for line in log.splitlines() if "ERROR" in line]
     assert code == 2 and len(errors) == 1 and "parameters 'line.*' with method elastic" in errors[0], errors
