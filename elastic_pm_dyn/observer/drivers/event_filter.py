@@ -22,7 +22,8 @@ from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.observer.config import ObserverConfig
 from elastic_pm_dyn.observer.core import period
 from elastic_pm_dyn.observer.drivers.bag_input import Event
-from elastic_pm_dyn.observer.drivers.results import SENSORS, FilterPass, Rows
+from elastic_pm_dyn.observer.drivers.results import FilterPass
+from elastic_pm_dyn.observer.drivers.rows import SENSORS, Rows
 from elastic_pm_dyn.observer.drivers.stream import ObserverStream
 from elastic_pm_dyn.observer.schedule.ekf import Observer, ObserverFault, UpdateResult
 
@@ -147,7 +148,7 @@ class EventFilter:
         self.obs, self.fast = obs, fast
         self.gate = gate  # cleared while this runs Python (other threads wait), set otherwise
         self.stream = ObserverStream(obs, origin_ns=origin_ns)
-        self.rows = Rows(obs)
+        self.rows = Rows(obs.layout)
         self.nis = dict.fromkeys(SENSORS, np.nan)
         self.fault = ""
         self.last_row_ns = None
@@ -197,7 +198,6 @@ class EventFilter:
                     and not obs.time_pending and run.ns[gi - run.g0] != last_row_ns \
                     and not run.ts[gi - run.g0] - obs.t > max_future:
                 if fixed is None:
-                    obs.flat_layout()
                     imu = obs.imu
                     # the steps' timing array, the accelerometer's bundle (kernels.ImuModel; a
                     # placeholder without one) and its gate: the Observer's own
@@ -209,7 +209,7 @@ class EventFilter:
                 out = outs.get(run)
                 if out is None:  # the run's rows (views of it become rows.flat) and, per sensor
                     # (encoders, imu), NIS and log det S: period.run_periods'
-                    out = outs[run] = (np.empty((b, obs._flat_width)), np.empty((b, 4)))
+                    out = outs[run] = (np.empty((b, obs.layout.width)), np.empty((b, 4)))
                 run_flat, run_nis = out
                 if gate is not None:  # the compiled call leaves the GIL to the other threads
                     gate.set()
@@ -278,6 +278,7 @@ class EventFilter:
                 break
             gi += 1
         self.nis, self.fault, self.last_row_ns, self.fixed = nis, fault, last_row_ns, fixed
+        rows.stats = obs.stats  # (a reset makes new ones)
 
 
 def run_events(obs: Observer, events: list[Event], order: str = "stamp", fast: bool = True,

@@ -100,6 +100,7 @@ from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.model.description import ACTIVE
 from elastic_pm_dyn.observer.config import ObserverConfig
 from elastic_pm_dyn.observer.core import disturbance, kernels, period
+from elastic_pm_dyn.observer.core.estimate import Estimate, EstimateLayout
 from elastic_pm_dyn.observer.core.observer_model import ObserverModel
 from elastic_pm_dyn.observer.core.sensors import Sample
 from elastic_pm_dyn.observer.schedule import consistency
@@ -198,31 +199,6 @@ class Recovery:
                 f"disturbance estimates kept")
 
 
-@dataclass
-class Estimate:
-    """Estimates at time t with 1-sigma standard deviations (tree order / model branch order)."""
-
-    t: float
-    q: np.ndarray
-    qd: np.ndarray
-    q_std: np.ndarray
-    qd_std: np.ndarray
-    effort: np.ndarray  # active: command + disturbance estimate; elastic: spring force; passive: 0
-    branch_names: list[str]
-    branch_force: np.ndarray
-    branch_force_std: np.ndarray
-    deflection: np.ndarray
-    deflection_rate: np.ndarray
-    ee: np.ndarray
-    ee_std: np.ndarray
-    disturbance_joints: list[str]
-    disturbance: np.ndarray
-    disturbance_std: np.ndarray
-    x: np.ndarray
-    P: np.ndarray
-    initialised: bool = True
-
-
 class Observer:
     """EKF of an elastic parallel manipulator; see the module docstring.
 
@@ -293,6 +269,7 @@ class Observer:
         self.state_names = ([self.mech.joint_names[j] for j in self.ae]
                             + [f"{self.mech.joint_names[j]}_vel" for j in self.ae] + self._z_names)
         self.P0 = np.diag(self._initial_variances())
+        self.layout = EstimateLayout.of(model, self.nx)  # of the estimate rows (estimate_flat)
         # True: each message through one compiled step (period.sample_step / command_step), the
         # Python below only for what a step refuses. The same numbers (test_observer_fastpath),
         # but measured 3-16 % slower per live period than the Python calling the kernels piece
@@ -1060,39 +1037,19 @@ class Observer:
         return self.unpack_estimate(self.estimate_flat())
 
     def flat_layout(self) -> dict[str, slice]:
-        """Where each :class:`Estimate` field sits in :meth:`estimate_flat`'s array (and its width)."""
-        layout = getattr(self, "_flat_layout", None)
-        if layout is None:
-            m = self.model
-            n, nb, ne, nd, nx = self.mech.n, len(m.branch_joint), len(m.ee_axes), len(m.dist_idx), self.nx
-            layout, o = {}, 0
-            for key, width in (("t", 1), ("q", n), ("qd", n), ("q_std", n), ("qd_std", n), ("effort", n),
-                               ("branch_force", nb), ("branch_force_std", nb), ("deflection", nb),
-                               ("deflection_rate", nb), ("ee", ne), ("ee_std", ne), ("disturbance", nd),
-                               ("disturbance_std", nd), ("x", nx), ("P", nx * nx)):
-                layout[key] = slice(o, o + width)
-                o += width
-            self._flat_layout = layout
-            self._flat_width = o
-        return layout
+        """Where each :class:`Estimate` field sits in :meth:`estimate_flat`'s array (:attr:`layout`'s slices)."""
+        return self.layout.slices
 
     def estimate_flat(self) -> np.ndarray:
-        """:meth:`estimate` as one float array (layout: :meth:`flat_layout`), in one compiled call."""
-        self.flat_layout()
-        out = np.empty(self._flat_width)
+        """:meth:`estimate` as one float array (layout: :attr:`layout`), in one compiled call."""
+        out = np.empty(self.layout.width)
         self._pin(kernels.estimate_flat)(self.mech.arrays, self.model.fixed, self._proc, self._state(), self.tau_last,
                                          self.t, out)
         return out
 
     def unpack_estimate(self, flat: np.ndarray, initialised: bool | None = None) -> Estimate:
         """The :class:`Estimate` of an :meth:`estimate_flat` array (fields are views into it)."""
-        lay = self.flat_layout()
-        nx = self.nx
-        return Estimate(float(flat[0]), *(flat[lay[k]] for k in ("q", "qd", "q_std", "qd_std", "effort")),
-                        self.branch_names, *(flat[lay[k]] for k in ("branch_force", "branch_force_std",
-                                                                    "deflection", "deflection_rate", "ee", "ee_std")),
-                        self.model.dist_names, flat[lay["disturbance"]], flat[lay["disturbance_std"]], flat[lay["x"]],
-                        flat[lay["P"]].reshape(nx, nx), self.initialised if initialised is None else initialised)
+        return self.layout.unpack(flat, self.initialised if initialised is None else initialised)
 
     # ------------------------------------------------------------------ diagnostics
     def health(self) -> tuple[int, str]:

@@ -48,7 +48,7 @@ from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.observer.config import ObserverConfig
 from elastic_pm_dyn.observer.core import kernels, period
 from elastic_pm_dyn.observer.drivers.bag_input import Event
-from elastic_pm_dyn.observer.drivers.results import Rows
+from elastic_pm_dyn.observer.drivers.rows import Rows
 from elastic_pm_dyn.observer.drivers.stream import ObserverStream
 from elastic_pm_dyn.observer.schedule.ekf import Observer, ObserverFault
 
@@ -97,7 +97,7 @@ class Replay(Observer):
 
     def restart_from(self, flat: np.ndarray) -> None:
         """The filter's posterior of an estimate row: tree state, disturbance states, covariance."""
-        lay = self.flat_layout()
+        lay = self.layout
         nae, nx = self.nae, self.nx
         self.q = flat[lay["q"]].copy()
         self.qd = flat[lay["qd"]].copy()
@@ -122,7 +122,7 @@ def predictions(mech: Mechanism, cfg: ObserverConfig, events: list[Event], order
     rep = Replay(mech, cfg, t0=0.0)
     base_ae, base_z = rep.psd_ae.copy(), rep.psd_z.copy()
     recovered = [(r.t, r.psd_scale) for r in recoveries or ()]
-    lay = rep.flat_layout()
+    lay = rep.layout
     nx, n_rows = rep.nx, len(rows.t)
     stream = ObserverStream(rep, origin_ns=rows.origin_ns)
     row_at = {int(ns): k for k, ns in enumerate(rows.t)}
@@ -198,10 +198,10 @@ def rts(x: np.ndarray, P: np.ndarray, x_pred: np.ndarray, P_pred: np.ndarray, Ph
 def smoothed_rows(obs: Observer, rows: Rows, xs: np.ndarray, Ps: np.ndarray, tau_last: np.ndarray) -> Rows:
     """Estimate rows of the smoothed states: x^s -> tree state through the closure (from the
     filtered one), then every output with ``kernels.estimate_flat`` (as the filter's rows)."""
-    lay = obs.flat_layout()
+    lay = rows.layout
     nae = obs.nae
     ma, fixed, proc = obs.mech.arrays, obs.model.fixed, obs._proc
-    out = Rows(obs, list(rows.t), [], [list(v) for v in rows.nis], rows.origin_ns)
+    out = Rows(rows.layout, list(rows.t), [], [list(v) for v in rows.nis], rows.origin_ns, rows.stats)
     for k, flat in enumerate(rows.flat):
         q, qd = flat[lay["q"]].copy(), flat[lay["qd"]].copy()
         x = flat[lay["x"]]
@@ -222,10 +222,10 @@ def smooth(mech: Mechanism, cfg: ObserverConfig, obs: Observer, events: list[Eve
     """RTS-smoothed rows of a filter pass (``rows`` of ``obs`` over ``events`` in ``order``)."""
     wall = time.perf_counter()
     if not rows.t:
-        return SmoothedPass(Rows(obs, origin_ns=rows.origin_ns), {"rows": 0})
+        return SmoothedPass(Rows(rows.layout, origin_ns=rows.origin_ns, stats=rows.stats), {"rows": 0})
     pred = predictions(mech, cfg, events, order, rows, obs.recoveries)
     wall_pred = time.perf_counter() - wall
-    lay = obs.flat_layout()
+    lay = rows.layout
     nx = obs.nx
     table = rows.table()
     x = table[:, lay["x"]]
