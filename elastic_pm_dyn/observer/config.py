@@ -31,7 +31,7 @@ DISTURBANCE_MODELS = ("none", "random_walk", "gauss_markov", "integrated_random_
                       "bias_band_limited")
 BAND_MODELS = ("band_limited", "bias_band_limited")  # the disturbance models with band corners and an order
 BAND_ORDERS = (2, 4)  # Butterworth orders of a disturbance band
-INTEGRATORS = ("etd2", "rk4")  # of the mean (process.integrator)
+INTEGRATORS = ("etd2", "rk4")  # of the mean (process.integrator): fixed-step rows of sim/integrators.py's METHODS
 LINEARIZATIONS = ("springs", "differences")  # of the covariance (process.linearization)
 BRANCH_SOURCES = ("branch_forces", "joint_state_effort")
 SAMPLE_TIMINGS = ("before_command", "after_command", "auto")

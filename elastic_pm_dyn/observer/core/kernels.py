@@ -13,9 +13,10 @@ One prediction interval [t, t + T] (T <= 1 ms) costs, for the five-bar:
 - Phi = expm(A T) and Q = int_0^T expm(A s) G Q_c G^T expm(A s)^T ds (Van Loan's integral)
   from one scaled Taylor series and squaring, after diagonal balancing (the state mixes
   radians and micrometres, and the 550 Hz spring mode makes |A| ~ 1e7 unbalanced);
-- the state itself by the exact nonlinear model: RK4 substeps of SCDD (``rk4_steps``,
-  no stabilisation inside the interval; the closure is restored by partitioning at the
-  end, which is exactly the q_ae -> q_t map of the state definition).
+- the state itself by the exact nonlinear model: steps of SCDD by the plant's integrators
+  (``process.integrator``: ETD2, or RK4 with no stabilisation inside the interval; the
+  closure is restored by partitioning at the end, which is exactly the q_ae -> q_t map of
+  the state definition).
 The end-effector acceleration columns (for an accelerometer) come with the same
 perturbed evaluations.
 
@@ -46,14 +47,22 @@ from elastic_pm_dyn.observer.core.propagation import (
     rate_columns,
     spring_columns,
 )
-from elastic_pm_dyn.sim.exponential import AVERAGED, DEFAULT_PHASE_STEP, elastic_gains, exponential_steps
-from elastic_pm_dyn.sim.kernels import OK, STAB_PROJECTION, _closure, partition, rk4_steps, transmit
+from elastic_pm_dyn.sim.exponential import DEFAULT_PHASE_STEP, elastic_gains
+from elastic_pm_dyn.sim.integrators import ETD2, RK4, StepSettings, fixed_steps
+from elastic_pm_dyn.sim.kernels import OK, STAB_PROJECTION, _closure, partition, transmit
 from elastic_pm_dyn.small_linalg import cholesky, cholesky_solve, positive_definite
 
 ROLE_ACTIVE = ROLE_CODES["active"]  # a motor's joint in ma.ji[:, JI_ROLE]
 
-RK4, ETD2 = 0, 1  # Process.method[0]: the mean's integrator
-DIFFERENCES, SPRINGS = 0, 1  # Process.method[1]: the linearisation and discretisation
+# Process.method's entries: the mean's integrator (sim/integrators.py's METHODS: its method
+# and scheme), the linearisation and discretisation of the covariance, and the closure
+# stabilisation of the mean's steps (sim.kernels' STAB_* bits)
+INTEGRATOR, LINEARIZATION, SCHEME, STABILIZATION = range(4)
+DIFFERENCES, SPRINGS = 0, 1  # Process.method[LINEARIZATION]
+# the mean's stabilisation per integrator method: RK4 steps freely, the closure restored by
+# partitioning at the interval's end (the q_ae -> q_t map of the state definition); ETD2 projects
+# after each step, as the plant does
+MEAN_STABILIZATION = {RK4: 0, ETD2: STAB_PROJECTION}
 CLOSURE_TOL = 1e-14  # [m] partitioning target after a prediction or a correction
 PERTURBED_TOL = 1e-10  # [m] accepted gap of a first-order perturbed pose (see linearize)
 COVARIANCE_LOST = 10  # predict_checked: the prediction went through but P is no longer positive definite
@@ -88,7 +97,7 @@ class Process(NamedTuple):
     psd_ae: np.ndarray
     rel_ae: np.ndarray
     psd_z: np.ndarray
-    method: np.ndarray  # [integrator (RK4, ETD2), linearisation (DIFFERENCES, SPRINGS)]
+    method: np.ndarray  # [integrator method (RK4, ETD2), linearisation (DIFFERENCES, SPRINGS), scheme, stabilisation]
     zkey: np.ndarray  # [T, psd_z]: what the cached z block (Phi_z, Qd_z) was computed for (NaN: nothing)
     Phi_z: np.ndarray  # (4, n_z, n_z): expm(Fz T j / 4), j = 1..4 (z_block)
     Qd_z: np.ndarray  # (n_z, n_z): the z block's noise over T
@@ -557,7 +566,7 @@ def predict(ma, fixed, proc, state, tau, relinearize, T, n_sub):
     eps_q, eps_v, point, with_point, _, _, _, _, _, _, _ = fixed
     dist_idx, dist_col, Lz, Fz, psd_ae, rel_ae, psd_z, method, zkey, Phi_z, Qd_z = proc
     q, qd, z, P, Phi, Qd, Hpt, info = state
-    structured = method[1] == SPRINGS
+    structured = method[LINEARIZATION] == SPRINGS
     n = q.shape[0]
     nae = ma.ae_index.shape[0]
     nd = dist_idx.shape[0]
@@ -622,15 +631,11 @@ def predict(ma, fixed, proc, state, tau, relinearize, T, n_sub):
             coef[2, dist_idx[k]] += 0.5 * Lz[k, m] * Fzzz[m]
     lam = np.empty(ma.p_index.shape[0])
     rk_info = np.zeros(3)
-    if method[0] == ETD2:
-        # the plant's integrator: the springs exact, the closure projected after each step
-        # np.int64(): a literal constant would compile the kernels a second time (a Literal[int] signature)
-        status = exponential_steps(np.int64(AVERAGED), np.int64(SCDD), ma, q, qd, coef, T / n_sub, n_sub,
-                                   np.int64(STAB_PROJECTION), 0.0, 0.0, CLOSURE_TOL, SINGULAR_TOL, DEFAULT_PHASE_STEP,
-                                   np.zeros(n), lam, rk_info)
-    else:
-        status = rk4_steps(np.int64(SCDD), ma, q, qd, coef, T / n_sub, n_sub, np.int64(0), 0.0, 0.0, CLOSURE_TOL,
-                           SINGULAR_TOL, np.zeros(n), lam, rk_info)
+    # the plant's integrators and their dispatch (sim/integrators.py); np.int64(): a literal constant
+    # would compile the kernels a second time (a Literal[int] signature)
+    settings = StepSettings(method[STABILIZATION], 0.0, 0.0, CLOSURE_TOL, SINGULAR_TOL, DEFAULT_PHASE_STEP)
+    status = fixed_steps(method[INTEGRATOR], method[SCHEME], np.int64(SCDD), ma, q, qd, coef, T / n_sub, n_sub,
+                         settings, np.zeros(n), lam, rk_info)
     info[0] = min(cond, rk_info[1])
     if status != OK:
         return status

@@ -28,6 +28,7 @@ from elastic_pm_dyn.model.description import ACTIVE, ELASTIC
 from elastic_pm_dyn.observer.config import ObserverConfig
 from elastic_pm_dyn.observer.core import kernels
 from elastic_pm_dyn.observer.core.sensors import Accelerometer, BranchForces, Encoders, resolve_joints
+from elastic_pm_dyn.sim.integrators import Integrator
 
 # process.dt: 0 (from the model): the substep halves from AUTO_DT_MAX until omega h <= OMEGA_H for
 # the fastest elastic mode (RK4's phase error is then below 1e-4 rad per period of that mode)
@@ -135,6 +136,12 @@ class ObserverModel:
         while w * h > ETD2_OMEGA_H and h > AUTO_DT_MIN:
             h /= 2
         return h
+
+    def mean_step(self, integrator: Integrator, dt: float, interval: float) -> float:
+        """The step of the mean's ``integrator`` (a row of sim/integrators.py's METHODS) for
+        ``process.dt`` and ``process.max_interval``: :meth:`etd2_step` for an exponential one,
+        :meth:`substep` for RK4."""
+        return self.etd2_step(dt, interval) if integrator.exponential else self.substep(dt)
 
     @classmethod
     def build(cls, mech: Mechanism, cfg: ObserverConfig) -> ObserverModel:

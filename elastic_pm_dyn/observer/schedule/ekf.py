@@ -105,6 +105,7 @@ from elastic_pm_dyn.observer.core.observer_model import ObserverModel
 from elastic_pm_dyn.observer.core.sensors import Sample
 from elastic_pm_dyn.observer.schedule import consistency
 from elastic_pm_dyn.pinned_kernels import KernelPins
+from elastic_pm_dyn.sim.integrators import METHODS
 
 OK, WARN, ERROR = 0, 1, 2  # diagnostic levels (as diagnostic_msgs/DiagnosticStatus)
 TIMING_MODES = {"before_command": 0, "after_command": 1, "auto": 2}  # period.run_periods' codes
@@ -234,15 +235,17 @@ class Observer:
         self.psd_ae = np.array([pc.torque_noise_psd if r == ACTIVE else pc.elastic_force_psd for r in roles])
         self.rel_ae = np.array([0.0 if r == ACTIVE else pc.vibration_noise for r in roles])
         # the kernels' bundle of this configuration (psd_ae and psd_z grow in place at a recovery)
-        method = np.array([kernels.ETD2 if pc.integrator == "etd2" else kernels.RK4,
-                           kernels.SPRINGS if pc.linearization == "springs" else kernels.DIFFERENCES], dtype=np.int64)
+        integrator = METHODS[pc.integrator]  # the mean's (sim/integrators.py)
+        method = np.zeros(4, dtype=np.int64)  # kernels.Process.method
+        method[kernels.INTEGRATOR], method[kernels.SCHEME] = integrator.kernel
+        method[kernels.STABILIZATION] = kernels.MEAN_STABILIZATION[integrator.method]
+        method[kernels.LINEARIZATION] = kernels.SPRINGS if pc.linearization == "springs" else kernels.DIFFERENCES
         self._proc = tuple(kernels.Process(self.dist_idx, self.dist_col, self.Lz, self.Fz, self.psd_ae, self.rel_ae,
                                            self.psd_z, method, np.full(1 + self.nz, np.nan),
                                            np.empty((4, self.nz, self.nz)), np.empty((self.nz, self.nz))))
         self.period = pc.max_interval
         # the mean's step in use: process.dt if given, else from the model's fastest spring
-        self.dt = (model.etd2_step(pc.dt, pc.max_interval) if pc.integrator == "etd2"
-                   else model.substep(pc.dt))
+        self.dt = model.mean_step(integrator, pc.dt, pc.max_interval)
         self._gates: dict[int, float] = {}
         self._take_noise(cfg)  # the sensors: the model's geometry with this configuration's noise levels
         self.point = model.point
