@@ -42,7 +42,7 @@ class _Run:
 
     def close(self, origin_ns: int) -> None:
         self.ts = np.array([(int(ns) - origin_ns) * 1e-9 for ns in self.ns])  # as ObserverStream.seconds
-        self.enc = np.array(self.enc, dtype=float).reshape(len(self.ns), len(self.plan[0]))
+        self.enc = np.array(self.enc, dtype=float).reshape(len(self.ns), len(self.plan.idx))
         self.imu = np.array(self.imu, dtype=float).reshape(len(self.ns), -1 if self.imu else 0)
         self.tau = np.array(self.tau, dtype=float).reshape(len(self.ns), -1)
         # period.run_periods' inputs: (ts, taus, enc_meas, has_imu, imu_meas)
@@ -103,7 +103,7 @@ def _fast_runs(obs: Observer, stream: ObserverStream, events: list[Event], group
                     last_names, last_key = names, tuple(names)
                     last_plan = None if stream.name_problem(names)[0] else enc.fast_plan(last_key, obs.nx)
                 plan = last_plan if len(pos) == len(names) else None
-                if plan is not None and not (plan[5] and len(vel)) and not (branch_effort and len(eff)):
+                if plan is not None and not (plan.with_rates and len(vel)) and not (branch_effort and len(eff)):
                     spec = plan
                 if spec is not None and ei is not None:
                     acc, frame = ei.data
@@ -127,7 +127,7 @@ def _fast_runs(obs: Observer, stream: ObserverStream, events: list[Event], group
             cur = _Run(gi, last_key, spec, has_imu)
         cur.g1 = gi + 1
         cur.ns.append(ej.stamp_ns)
-        cur.enc.append(np.asarray(pos, dtype=float)[spec[0]])
+        cur.enc.append(np.asarray(pos, dtype=float)[spec.idx])
         if has_imu:
             cur.imu.append(np.asarray(acc, dtype=float)[axes])
         cur.tau.append(tau)
@@ -203,7 +203,7 @@ class EventFilter:
                     # placeholder without one) and its gate: the Observer's own
                     fixed = (obs._timing, obs._imu_bundle, obs.gate(len(imu.axes)) if imu is not None else np.inf)
                 timing, imu_model, imu_gate = fixed
-                idx, H, var, js, wrap, _ = obs.encoders.fast_plan(run.names, obs.nx)
+                plan = obs.encoders.fast_plan(run.names, obs.nx)
                 a, b = gi - run.g0, run.g1 - run.g0
                 cmd, ctl = obs.fast_state(b - a)
                 out = outs.get(run)
@@ -215,7 +215,7 @@ class EventFilter:
                     gate.set()
                 done = period.run_periods(
                     obs.mech.arrays, obs.model.fixed, obs._proc, obs._state(), cmd, ctl,
-                    timing, obs.evidence, (H, var, js, wrap), obs.gate(len(idx)), imu_model, imu_gate, run.inputs, a,
+                    timing, obs.evidence, plan.bundle, obs.gate(len(plan.idx)), imu_model, imu_gate, run.inputs, a,
                     b, run_flat, run_nis)
                 if gate is not None:
                     gate.clear()
@@ -223,7 +223,7 @@ class EventFilter:
                     obs._take_control(cmd, ctl)
                     ns = run.ns[a:a + done]
                     enc_nis = run_nis[a:a + done, 0].tolist()
-                    obs._accepted_many("encoders", enc_nis, len(idx), run_nis[a:a + done, 2].tolist())
+                    obs._accepted_many("encoders", enc_nis, len(plan.idx), run_nis[a:a + done, 2].tolist())
                     obs.stats["command"].accepted += done
                     obs.stats["command"].consecutive_rejections = 0
                     first = dict(nis, encoders=enc_nis[0])
@@ -235,7 +235,7 @@ class EventFilter:
                                                        logdet=float(run_nis[a + done - 1, 3]))]
                         tail = [[e, i, np.nan] for e, i in zip(enc_nis[1:], imu_nis[1:], strict=True)]
                     else:
-                        stream.results = [UpdateResult("encoders", seconds(ns[-1]), True, enc_nis[-1], len(idx),
+                        stream.results = [UpdateResult("encoders", seconds(ns[-1]), True, enc_nis[-1], len(plan.idx),
                                                        logdet=float(run_nis[a + done - 1, 2]))]
                         tail = [[e, np.nan, np.nan] for e in enc_nis[1:]]
                     rows.t.extend(ns)

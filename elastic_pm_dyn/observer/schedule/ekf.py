@@ -576,7 +576,7 @@ class Observer:
                 self.branch is not None and self.branch.source == "joint_state_effort" and effort is not None
                 and len(effort)):
             plan = self.encoders.fast_plan(names, self.nx)
-            if plan is not None and (not plan[5] or velocity is None or len(velocity) == 0):
+            if plan is not None and (not plan.with_rates or velocity is None or len(velocity) == 0):
                 done = self._fast_samples(t, plan, position, None)
                 if done is not None:
                     return done
@@ -594,12 +594,12 @@ class Observer:
                 return [late]
             fast = self.encoders.fast_plan(names, self.nx) if position is not None and len(position) == len(names) \
                 else None
-            if fast is not None and (not fast[5] or velocity is None or len(velocity) == 0):
+            if fast is not None and (not fast.with_rates or velocity is None or len(velocity) == 0):
                 # positions of state joints only: one compiled call (the same numbers as below)
-                idx, H, var, js, wrap, _ = fast
+                idx = fast.idx
                 gate = self.gate(len(idx))
                 nis, status, logdet = self._pin(kernels.encoder_correct)(
-                    self.mech.arrays, self._state(), (H, var, js, wrap), np.asarray(position, dtype=float)[idx], gate)
+                    self.mech.arrays, self._state(), fast.bundle, np.asarray(position, dtype=float)[idx], gate)
                 if status >= 0:
                     out.append(self._after("encoders", t, nis, status, len(idx), gate, [], logdet))
                     fast = True
@@ -875,7 +875,7 @@ class Observer:
     def _fast_samples(self, t: float, plan: tuple | None, position, acc: np.ndarray | None
                       ) -> list[UpdateResult] | None:
         """The samples of one stamp through ``period.sample_step`` (encoder positions of
-        ``plan`` (``EncoderPlan.fast_plan``) and/or an accelerometer sample); None if it did not
+        ``plan`` (``Encoders.fast_plan``) and/or an accelerometer sample); None if it did not
         take them (the Python below then does)."""
         tol = self.cfg.timing.stamp_tolerance
         if not (self.steps_compiled and self.initialised and self.fault is None and not self.time_pending
@@ -883,15 +883,15 @@ class Observer:
                 and not t - self.t > self.cfg.timing.max_future):
             return None
         has_enc, has_imu = plan is not None, acc is not None
-        enc_m = np.asarray(position, dtype=float)[plan[0]] if has_enc else self._row[:0]
+        enc_m = np.asarray(position, dtype=float)[plan.idx] if has_enc else self._row[:0]
         meas = acc[self.imu.axes] if has_imu else self._row[:0]
         if (has_imu and not has_enc and not abs(t - self.t) > tol and t < self._t_decide - tol
                 and self._waits_for_command(t) and self._use_after() and np.all(np.isfinite(meas))):
             # what sample_step would do (HELD: the command of this stamp corrects it), without a call
             self._held = (t, acc)
             return []
-        enc = plan[1:5] if has_enc else self._empty_plan
-        dof_e = len(plan[0]) if has_enc else 0
+        enc = plan.bundle if has_enc else self._empty_plan
+        dof_e = len(plan.idx) if has_enc else 0
         cmd, ctl = self._kernel_control(0, self._t_decide)
         row = self._row
         r = self._pin(period.sample_step)(self.mech.arrays, self.model.fixed, self._proc, self._state(), cmd, ctl,
