@@ -92,7 +92,7 @@ DEFAULT_PARAMETERS: dict[str, Any] = {
     "gating.probability": 0.9999,  # chi-square quantile of the NIS gate
     "gating.max_consecutive_rejections": 50,  # then the filter reports divergence
     "gating.recover_after": 10,  # encoder samples gated in a row, then the motors are re-initialised from
-    # them (Observer._recover; 0: never, divergence is reported after max_consecutive_rejections)
+    # them (schedule/recovery.py; 0: never, divergence is reported after max_consecutive_rejections)
     "gating.nis_window": 200,  # samples in the windowed NIS consistency check
     "gating.nis_warn_factor": 2.0,  # health WARN when the windowed mean NIS / dof leaves [1/f, f]
     "timing.stamp_tolerance": 1.0e-6,  # [s] stamps this close count as simultaneous

@@ -4,12 +4,12 @@ Built once (:meth:`ObserverModel.build`) from a :class:`~elastic_pm_dyn.kinemati
 and the configuration parts that do not change while filtering or between the candidate
 configurations of ``tune`` (:func:`model_key`: which sensors, on which joints, chain and axes,
 which joints carry disturbance states); everything else of a configuration (the disturbance
-model, noise levels, gates, timing) is the :class:`~elastic_pm_dyn.observer.schedule.ekf.Observer`'s own,
+model, noise levels, gates, timing) is the :class:`~elastic_pm_dyn.observer.core.ekf.Ekf`'s own,
 cheap to set up, and the filter's state changes as it runs. So many filters over one recording
 share one model (``tuning.evaluate``), and every stiffness, damping and rest array of the
 branches is derived here only.
 
-State x = [q_ae, qd_ae, z] (:mod:`~elastic_pm_dyn.observer.schedule.ekf`); the branch force of the
+State x = [q_ae, qd_ae, z] (:mod:`~elastic_pm_dyn.observer.core.ekf`); the branch force of the
 elastic joint u of a branch is F = c (u - u_rest) + d du/dt, so its row of H is ``H_F``
 (c at u, d at du/dt) and its offset c u_rest.
 """

@@ -16,7 +16,7 @@ variances R) at the filter's current state; the filter does the correction and g
   (``imu.sample_timing``): the torque held over the interval that ended at it
   (``before_command``: the sample at t_k shows the command of [t_k-1, t_k), as a controller
   reads sensors before it applies the next command) or the one acting from it on
-  (``after_command``, a(t_k+)); ``auto`` weighs both (:mod:`~elastic_pm_dyn.observer.schedule.ekf`).
+  (``after_command``, a(t_k+)); ``auto`` weighs both (:mod:`~elastic_pm_dyn.observer.schedule.sample_timing`).
   qdd, and so y, jumps where the torque jumps: the sensor has feed-through. H comes from
   the prediction's linearisation (columns d a / d x, exact for d).
 - Branch forces (strain gauges; ``elastic_pm_dyn_msgs/BranchForces`` force or JointState
@@ -27,7 +27,7 @@ variances R) at the filter's current state; the filter does the correction and g
 A sensor object holds its geometry (built once, in the fixed
 :class:`~elastic_pm_dyn.observer.core.observer_model.ObserverModel`) and its noise levels;
 ``with_noise`` gives a copy with the noise levels of another configuration (an
-:class:`~elastic_pm_dyn.observer.schedule.ekf.Observer`'s own), the geometry shared.
+:class:`~elastic_pm_dyn.observer.core.ekf.Ekf`'s own), the geometry shared.
 """
 
 from __future__ import annotations
@@ -64,6 +64,19 @@ def resolve_joints(mech: Mechanism, names: list[str], key: str, roles: tuple[str
                                  f"expected {' or '.join(roles)}")
             if i not in out:
                 out.append(i)
+    return out
+
+
+def motor_positions(mech: Mechanism, names, position) -> np.ndarray | None:
+    """Measured positions of every active joint (tree order of ``mech.active``) in a joint state
+    with ``names`` and ``position``, or None if one is missing or not finite."""
+    lookup = {n: k for k, n in enumerate(names)}
+    out = np.empty(len(mech.active))
+    for i, j in enumerate(mech.active):
+        k = lookup.get(mech.joint_names[j])
+        if k is None or k >= len(position) or not np.isfinite(position[k]):
+            return None
+        out[i] = float(position[k])
     return out
 
 

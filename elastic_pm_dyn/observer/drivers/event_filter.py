@@ -21,11 +21,14 @@ from elastic_pm_dyn.errors import InputError
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.observer.config import ObserverConfig
 from elastic_pm_dyn.observer.core import period
+from elastic_pm_dyn.observer.core.ekf import ObserverFault
 from elastic_pm_dyn.observer.drivers.bag_input import Event
 from elastic_pm_dyn.observer.drivers.results import FilterPass
 from elastic_pm_dyn.observer.drivers.rows import SENSORS, Rows
 from elastic_pm_dyn.observer.drivers.stream import ObserverStream
-from elastic_pm_dyn.observer.schedule.ekf import Observer, ObserverFault, UpdateResult
+from elastic_pm_dyn.observer.schedule import sensor_stats
+from elastic_pm_dyn.observer.schedule.observer import Observer
+from elastic_pm_dyn.observer.schedule.sensor_stats import UpdateResult
 
 
 class _Run:
@@ -177,7 +180,7 @@ class EventFilter:
         if events and stream.origin_ns is None:
             stream.seconds(events[0].stamp_ns)  # sets the origin
         rows.origin_ns = stream.origin_ns or 0
-        seconds, max_future = stream.seconds, obs.cfg.timing.max_future
+        seconds, max_future, window = stream.seconds, obs.cfg.timing.max_future, obs.cfg.gating.nis_window
         if runs is None:
             groups = _groups(events)
             run_of = _fast_runs(obs, stream, events, groups) if self.fast else [None] * len(groups)
@@ -223,13 +226,15 @@ class EventFilter:
                     obs._take_control(cmd, ctl)
                     ns = run.ns[a:a + done]
                     enc_nis = run_nis[a:a + done, 0].tolist()
-                    obs._accepted_many("encoders", enc_nis, len(plan.idx), run_nis[a:a + done, 2].tolist())
+                    sensor_stats.record_accepted(obs.stats["encoders"], enc_nis, len(plan.idx),
+                                                 run_nis[a:a + done, 2].tolist(), window)
                     obs.stats["command"].accepted += done
                     obs.stats["command"].consecutive_rejections = 0
                     first = dict(nis, encoders=enc_nis[0])
                     if run.has_imu:
                         imu_nis = run_nis[a:a + done, 1].tolist()
-                        obs._accepted_many("imu", imu_nis, run.imu.shape[1], run_nis[a:a + done, 3].tolist())
+                        sensor_stats.record_accepted(obs.stats["imu"], imu_nis, run.imu.shape[1],
+                                                     run_nis[a:a + done, 3].tolist(), window)
                         first["imu"] = imu_nis[0]
                         stream.results = [UpdateResult("imu", seconds(ns[-1]), True, imu_nis[-1], run.imu.shape[1],
                                                        logdet=float(run_nis[a + done - 1, 3]))]

@@ -37,7 +37,7 @@ from elastic_pm_dyn.observer.drivers.bag_input import Event, Topics, iter_events
 from elastic_pm_dyn.observer.drivers.bag_output import EstimatesBag, write_outputs
 from elastic_pm_dyn.observer.drivers.results import FilterPass, OfflineResult
 from elastic_pm_dyn.observer.drivers.rows import Rows, write_csv
-from elastic_pm_dyn.observer.schedule.ekf import Observer
+from elastic_pm_dyn.observer.schedule.observer import Observer
 
 STAMP_LAG_NS = 500_000_000
 """``observe_bag(pipeline=True, order="stamp")``: how far (header stamps) the bag must have

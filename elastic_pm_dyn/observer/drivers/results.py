@@ -25,7 +25,7 @@ from elastic_pm_dyn.observer.drivers.rows import (  # noqa: F401 - all but Rows:
     write_csv,
 )
 from elastic_pm_dyn.observer.drivers.stream import NAME_PROBLEMS
-from elastic_pm_dyn.observer.schedule.ekf import Observer
+from elastic_pm_dyn.observer.schedule.observer import Observer
 
 
 @dataclass(frozen=True)
@@ -150,7 +150,7 @@ def summary(bag: str | Path, topics: Any, counts: dict, order: str, events: list
                                  last_rejection=st.last_reason, diagnosis=findings.get(s, ""))
                  for s, st in obs.stats.items()},
         sample_timing=obs.timing_summary(),
-        recoveries=[vars(r) | {"text": r.text()} for r in obs.recoveries],  # Observer._recover
+        recoveries=[vars(r) | {"text": r.text()} for r in obs.recoveries],  # schedule.recovery
         duration_s=duration, wall_read_s=wall_read, wall_filter_s=run.wall,
         observability=report.text(),
     )

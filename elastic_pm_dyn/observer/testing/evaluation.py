@@ -27,7 +27,7 @@ from elastic_pm_dyn.model.layout import JF_REST, JF_STIFFNESS
 from elastic_pm_dyn.observer.core.observer_model import branch_arrays
 from elastic_pm_dyn.observer.drivers.rows import Rows
 from elastic_pm_dyn.observer.drivers.stream import ObserverStream
-from elastic_pm_dyn.observer.schedule.ekf import Observer
+from elastic_pm_dyn.observer.schedule.observer import Observer
 from elastic_pm_dyn.observer.testing.scenarios import Recording
 from elastic_pm_dyn.sim.simulator import SimulationOptions, Simulator
 from elastic_pm_dyn.sim.torque import TorqueTable

@@ -50,7 +50,7 @@ from elastic_pm_dyn.observer.config import BAND_MODELS, BAND_ORDERS, DEFAULT_PAR
 from elastic_pm_dyn.observer.drivers.bag_input import Event
 from elastic_pm_dyn.observer.drivers.event_filter import order_key, run_events
 from elastic_pm_dyn.observer.drivers.prepared import PreparedRecording, prepare
-from elastic_pm_dyn.observer.schedule.ekf import Observer
+from elastic_pm_dyn.observer.schedule.observer import Observer
 from elastic_pm_dyn.sim.integrators import METHODS
 
 FAILED_NLL = 1e30  # a candidate whose filter faulted
