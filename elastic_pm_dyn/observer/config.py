@@ -31,7 +31,7 @@ DISTURBANCE_MODELS = ("none", "random_walk", "gauss_markov", "integrated_random_
                       "bias_band_limited")
 BAND_MODELS = ("band_limited", "bias_band_limited")  # the disturbance models with band corners and an order
 BAND_ORDERS = (2, 4)  # Butterworth orders of a disturbance band
-INTEGRATORS = ("etd2", "rk4")  # of the mean (process.integrator)
+INTEGRATORS = ("etd2", "rk4")  # of the mean (process.integrator): fixed-step rows of sim/integrators.py's METHODS
 LINEARIZATIONS = ("springs", "differences")  # of the covariance (process.linearization)
 BRANCH_SOURCES = ("branch_forces", "joint_state_effort")
 SAMPLE_TIMINGS = ("before_command", "after_command", "auto")
@@ -92,7 +92,7 @@ DEFAULT_PARAMETERS: dict[str, Any] = {
     "gating.probability": 0.9999,  # chi-square quantile of the NIS gate
     "gating.max_consecutive_rejections": 50,  # then the filter reports divergence
     "gating.recover_after": 10,  # encoder samples gated in a row, then the motors are re-initialised from
-    # them (Observer._recover; 0: never, divergence is reported after max_consecutive_rejections)
+    # them (schedule/recovery.py; 0: never, divergence is reported after max_consecutive_rejections)
     "gating.nis_window": 200,  # samples in the windowed NIS consistency check
     "gating.nis_warn_factor": 2.0,  # health WARN when the windowed mean NIS / dof leaves [1/f, f]
     "timing.stamp_tolerance": 1.0e-6,  # [s] stamps this close count as simultaneous

@@ -87,6 +87,6 @@ def observe_bag(model: Mechanism | Model | str | Path, cfg: ObserverConfig | str
         out = Path(out)
         out.mkdir(parents=True, exist_ok=True)
         wall2 = time.perf_counter()
-        write_outputs(out, run.obs, rows, write_estimates_bag, storage, filtered)
+        write_outputs(out, rows, write_estimates_bag, storage, filtered)
         summary.wall_write_s = time.perf_counter() - wall2
     return results.finish(summary, out, wall0, rows, run.obs, filtered)

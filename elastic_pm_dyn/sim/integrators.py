@@ -1,8 +1,13 @@
-"""The fixed-step integrators behind one table and one compiled dispatch.
+"""Every integrator in one table, :data:`METHODS` (as scipy's ``solve_ivp`` keeps its solvers), one compiled dispatch.
 
-``FIXED_STEP`` names them; :func:`fixed_steps_ws` is the only place that picks the kernel, used
-by the stepping from Python (:func:`fixed_steps`: ``Simulator.fixed_steps``, the plant) and by
-the compiled offline run of many pieces (:func:`elastic_pm_dyn.sim.batch.run_pieces`).
+A row names an integrator's method (the compiled fixed-step RK4, the exponential ETD2 whose
+springs are integrated exactly, or scipy's adaptive DOP853), ETD2's scheme, and whether users
+are offered it. Simulations, the plant and the observer's mean (``process.integrator``) look an
+integrator up here and ask its row (:attr:`Integrator.fixed_step`, :attr:`Integrator.exponential`);
+none compares names. :func:`fixed_steps_ws` is the only place that picks a compiled kernel, used
+by the stepping from Python (:func:`fixed_steps`: ``Simulator.fixed_steps``, the plant), by the
+compiled offline run of many pieces (:func:`elastic_pm_dyn.sim.batch.run_pieces`) and by the
+observer's prediction (``observer.core.kernels.predict``).
 """
 
 from typing import NamedTuple
@@ -12,14 +17,41 @@ from numba import njit
 from elastic_pm_dyn.sim.exponential import AVERAGED, ETD2RK, IMPULSE, etd2_workspace, exponential_steps_ws
 from elastic_pm_dyn.sim.kernels import rk4_steps
 
-RK4 = 0
-ETD2 = 1
+RK4 = 0  # compiled, fixed steps of dt: the classical Runge-Kutta
+ETD2 = 1  # compiled, fixed steps of dt: exponential, the springs exact (sim/exponential.py)
+DOP853 = 2  # scipy's solve_ivp, adaptive (rtol, atol): not compiled, no dt
 
-# integrator name -> (method, exponential scheme; RK4 ignores the scheme). "etd2rk" and
-# "impulse" are ETD2's variants the comparison in bench/benchmarks/bench_integrators.py
-# measures against it: SimulationOptions takes them, the command line does not offer them.
-FIXED_STEP = {"rk4": (RK4, AVERAGED), "etd2": (ETD2, AVERAGED), "etd2rk": (ETD2, ETD2RK),
-              "impulse": (ETD2, IMPULSE)}
+
+class Integrator(NamedTuple):
+    """One row of :data:`METHODS`."""
+
+    method: int  # RK4 | ETD2 | DOP853
+    scheme: int  # ETD2's exponential scheme (sim/exponential.py; the others ignore it)
+    offered: bool  # a user's choice (command line, plant parameter); else the comparison bench's only
+
+    @property
+    def fixed_step(self) -> bool:
+        """Compiled steps of dt (:func:`fixed_steps`); else scipy's adaptive DOP853."""
+        return self.method != DOP853
+
+    @property
+    def exponential(self) -> bool:
+        """The springs integrated exactly: its step follows their coupling with the motion, not their stability."""
+        return self.method == ETD2
+
+    @property
+    def kernel(self) -> tuple[int, int]:
+        """(method, scheme): the compiled kernels' first two arguments."""
+        return self.method, self.scheme
+
+
+# integrator name -> its row. "etd2rk" and "impulse" are ETD2's variants the comparison in
+# bench/benchmarks/bench_integrators.py measures against it: SimulationOptions takes them, the
+# command line does not offer them.
+METHODS = {"rk4": Integrator(RK4, AVERAGED, True), "dop853": Integrator(DOP853, AVERAGED, True),
+           "etd2": Integrator(ETD2, AVERAGED, True), "etd2rk": Integrator(ETD2, ETD2RK, False),
+           "impulse": Integrator(ETD2, IMPULSE, False)}
+OFFERED = tuple(name for name, row in METHODS.items() if row.offered)  # the command line's choices
 
 
 class StepSettings(NamedTuple):

@@ -26,7 +26,7 @@ from elastic_pm_dyn.errors import AssemblyError, InputError, SingularConfigurati
 from elastic_pm_dyn.kinematics.assembly import initial_state, solve_pose, solve_velocity
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.sim import kernels
-from elastic_pm_dyn.sim.simulator import FIXED_STEP, SimulationOptions, Simulator
+from elastic_pm_dyn.sim.simulator import SimulationOptions, Simulator
 from elastic_pm_dyn.sim.stopped import integration_error
 from elastic_pm_dyn.sim.torque import ConstantTorque, HeldPlusSmooth, input_bounds
 
@@ -113,12 +113,13 @@ class Plant:
         t1 = t0 + self.period
         q, qd = self.q.copy(), self.qd.copy()  # the stepping works on copies: a fault keeps the last good state
         try:
+            fixed_step = self._sim.integrator.fixed_step
             if self.disturbance is not None:  # a function of time: refitted per step (as offline simulate)
-                if self.options.integrator in FIXED_STEP and hasattr(self.disturbance, "on_grid"):
+                if fixed_step and hasattr(self.disturbance, "on_grid"):
                     self._smooth_steps(q, qd, acting, t0, t1)
                 else:
                     self._sim.advance(q, qd, HeldPlusSmooth(acting, self.disturbance), t0, t1)
-            elif self.options.integrator in FIXED_STEP:
+            elif fixed_step:
                 self._fixed_step(q, qd, acting, t0, t1)
             else:
                 self._sim.advance(q, qd, ConstantTorque(acting), t0, t1)

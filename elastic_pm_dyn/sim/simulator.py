@@ -21,11 +21,11 @@ from elastic_pm_dyn.sim.result import SimulationResult
 from elastic_pm_dyn.sim.stopped import integration_error
 from elastic_pm_dyn.sim.torque import TorqueSource
 
-INTEGRATORS = ("rk4", "dop853", "etd2")  # offered to users (the command line's choices)
-# Fixed-step compiled methods (sim/integrators.py): RK4 on everything, or the exponential ETD2
-# whose springs are integrated on sub-steps of a frozen linear system (sim/exponential.py);
-# both take dt. Also ETD2's variants of the comparison bench.
-FIXED_STEP = integrators.FIXED_STEP
+# The integrators (sim/integrators.py's METHODS): the compiled fixed-step RK4 on everything and
+# the exponential ETD2, whose springs are integrated on sub-steps of a frozen linear system
+# (sim/exponential.py), both taking dt; scipy's adaptive DOP853 (rtol, atol); ETD2's variants of
+# the comparison bench.
+INTEGRATORS = integrators.OFFERED  # offered to users (the command line's choices)
 STABILIZATIONS = {"none": 0, "baumgarte": kernels.STAB_BAUMGARTE, "projection": kernels.STAB_PROJECTION,
                   "both": kernels.STAB_BAUMGARTE | kernels.STAB_PROJECTION}
 
@@ -61,9 +61,10 @@ class SimulationOptions:
         if self.formulation not in FORMULATION_CODES:
             raise InputError(f"unknown formulation {self.formulation!r} "
                              f"(expected one of: {', '.join(FORMULATION_CODES)})")
-        if self.integrator not in INTEGRATORS and self.integrator not in FIXED_STEP:
+        method = integrators.METHODS.get(self.integrator)
+        if method is None:
             raise InputError(f"unknown integrator {self.integrator!r} (expected one of: {', '.join(INTEGRATORS)})")
-        if FIXED_STEP.get(self.integrator, (None,))[0] == integrators.ETD2 and self.formulation == "lda":
+        if method.exponential and self.formulation == "lda":
             raise InputError(f"integrator {self.integrator} needs a tree formulation (scdd, multipliers, "
                              "scdd_one_pass, scdd_stacked); L-D'A integrates q_ae: use rk4 or dop853 with it")
         if self.stabilization not in STABILIZATIONS:
@@ -100,8 +101,10 @@ class Simulator:
         # the compiled calls per chunk, period or DOP853 stage, without numba's type dispatch
         # (pinned_kernels.py): every argument keeps its type from call to call
         self._pin = KernelPins()
-        # (method, exponential scheme) of a fixed-step integrator (sim/integrators.py)
-        self.method = FIXED_STEP.get(self.options.integrator, (integrators.RK4, exponential.AVERAGED))
+        self.integrator = integrators.METHODS[self.options.integrator]  # its row (sim/integrators.py)
+        self.method = self.integrator.kernel  # (method, exponential scheme) of the compiled kernels
+        # one piece of a run: compiled fixed steps, or scipy's adaptive DOP853
+        self._advance_piece = self._advance_fixed if self.integrator.fixed_step else self._advance_adaptive
 
     # ------------------------------------------------------------------ stepping
     def advance(self, q: np.ndarray, qd: np.ndarray, torque: TorqueSource, t0: float, t1: float) -> None:
@@ -109,14 +112,15 @@ class Simulator:
 
         Raises SingularConfigurationError (state left at the last good step).
         """
-        o = self.options
         if self.code == SCDD_ONE_PASS:  # each call (a plant's period, a run's interval) starts where it converges
             check_one_pass(self.mech, q, f"at t = {t0:.6g} s", t0)
+        self._advance_piece(q, qd, torque, t0, t1)
+
+    def _advance_fixed(self, q: np.ndarray, qd: np.ndarray, torque: TorqueSource, t0: float, t1: float) -> None:
+        """:meth:`advance` by the compiled fixed-step integrator: steps of at most dt."""
+        o = self.options
         n_steps = max(1, int(np.ceil((t1 - t0) / o.dt - 1e-9)))
         h = (t1 - t0) / n_steps
-        if o.integrator == "dop853":
-            self._advance_adaptive(q, qd, torque, t0, t1)
-            return
         info, coef = self.info, self._coef
         # A table's piece is one polynomial over the whole call; a function is refitted
         # through the stage times of every step.
@@ -177,6 +181,7 @@ class Simulator:
         return state_vector(q, n, "q"), state_vector(qd, n, "qd")
 
     def _advance_adaptive(self, q: np.ndarray, qd: np.ndarray, torque: TorqueSource, t0: float, t1: float) -> None:
+        """:meth:`advance` by scipy's DOP853 (rtol, atol)."""
         o, mech, n = self.options, self.mech, self.mech.n
         a = float(o.baumgarte_alpha) if self.stab & kernels.STAB_BAUMGARTE else 0.0
         b = float(o.baumgarte_beta) if self.stab & kernels.STAB_BAUMGARTE else 0.0
@@ -222,7 +227,7 @@ class Simulator:
         astronomical); steps 0 with DOP853."""
         o = self.options
         rows = math.floor(duration / o.sample + 1e-9) + 2.0 if duration / o.sample < 2**52 else duration / o.sample
-        steps = 0.0 if o.integrator not in FIXED_STEP else duration / o.dt
+        steps = duration / o.dt if self.integrator.fixed_step else 0.0
         return rows, steps
 
     def max_rows(self) -> int:
@@ -278,7 +283,7 @@ class Simulator:
         grid = grid[np.concatenate([[True], np.diff(grid) > 1e-12])]
         is_out = np.isin(np.round(grid / 1e-12), np.round(out_times / 1e-12))
 
-        if o.integrator in FIXED_STEP and not torque.smooth:
+        if self.integrator.fixed_step and not torque.smooth:
             # a function's fits cost more than the loop (3 Python calls a step): it stays below,
             # called in time order as each step needs it
             return self._run_pieces(torque, grid, is_out, q, qd, t_end)

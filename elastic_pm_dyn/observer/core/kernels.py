@@ -13,14 +13,16 @@ One prediction interval [t, t + T] (T <= 1 ms) costs, for the five-bar:
 - Phi = expm(A T) and Q = int_0^T expm(A s) G Q_c G^T expm(A s)^T ds (Van Loan's integral)
   from one scaled Taylor series and squaring, after diagonal balancing (the state mixes
   radians and micrometres, and the 550 Hz spring mode makes |A| ~ 1e7 unbalanced);
-- the state itself by the exact nonlinear model: RK4 substeps of SCDD (``rk4_steps``,
-  no stabilisation inside the interval; the closure is restored by partitioning at the
-  end, which is exactly the q_ae -> q_t map of the state definition).
+- the state itself by the exact nonlinear model: steps of SCDD by the plant's integrators
+  (``process.integrator``: ETD2, or RK4 with no stabilisation inside the interval; the
+  closure is restored by partitioning at the end, which is exactly the q_ae -> q_t map of
+  the state definition).
 The end-effector acceleration columns (for an accelerometer) come with the same
 perturbed evaluations.
 
-The observer-level kernels take their arrays in a few bundles (plain tuples, unpacked in the
-kernel in the order of the NamedTuple that documents them): :class:`Fixed` (built once per
+The observer-level kernels take their arrays in a few bundles (plain tuples in the order of the
+NamedTuple that documents them; a kernel reads a field by the constant that names its position,
+``state[ST_P]``, which numba resolves when it compiles): :class:`Fixed` (built once per
 :class:`~elastic_pm_dyn.observer.core.observer_model.ObserverModel`), :class:`Process` (the
 disturbance model and noise intensities of one configuration), :class:`State` (the filter's
 state, changed in place), :class:`ImuModel` and :class:`EncoderPlan` (a sensor's arrays). Plain
@@ -46,14 +48,22 @@ from elastic_pm_dyn.observer.core.propagation import (
     rate_columns,
     spring_columns,
 )
-from elastic_pm_dyn.sim.exponential import AVERAGED, DEFAULT_PHASE_STEP, elastic_gains, exponential_steps
-from elastic_pm_dyn.sim.kernels import OK, STAB_PROJECTION, _closure, partition, rk4_steps, transmit
+from elastic_pm_dyn.sim.exponential import DEFAULT_PHASE_STEP, elastic_gains
+from elastic_pm_dyn.sim.integrators import ETD2, RK4, StepSettings, fixed_steps
+from elastic_pm_dyn.sim.kernels import OK, STAB_PROJECTION, _closure, partition, transmit
 from elastic_pm_dyn.small_linalg import cholesky, cholesky_solve, positive_definite
 
 ROLE_ACTIVE = ROLE_CODES["active"]  # a motor's joint in ma.ji[:, JI_ROLE]
 
-RK4, ETD2 = 0, 1  # Process.method[0]: the mean's integrator
-DIFFERENCES, SPRINGS = 0, 1  # Process.method[1]: the linearisation and discretisation
+# Process.method's entries: the mean's integrator (sim/integrators.py's METHODS: its method
+# and scheme), the linearisation and discretisation of the covariance, and the closure
+# stabilisation of the mean's steps (sim.kernels' STAB_* bits)
+INTEGRATOR, LINEARIZATION, SCHEME, STABILIZATION = range(4)
+DIFFERENCES, SPRINGS = 0, 1  # Process.method[LINEARIZATION]
+# the mean's stabilisation per integrator method: RK4 steps freely, the closure restored by
+# partitioning at the interval's end (the q_ae -> q_t map of the state definition); ETD2 projects
+# after each step, as the plant does
+MEAN_STABILIZATION = {RK4: 0, ETD2: STAB_PROJECTION}
 CLOSURE_TOL = 1e-14  # [m] partitioning target after a prediction or a correction
 PERTURBED_TOL = 1e-10  # [m] accepted gap of a first-order perturbed pose (see linearize)
 COVARIANCE_LOST = 10  # predict_checked: the prediction went through but P is no longer positive definite
@@ -75,6 +85,10 @@ class Fixed(NamedTuple):
     rest: np.ndarray  # (n_b,) its rest position
 
 
+FX_EPS_Q, FX_EPS_V, FX_POINT, FX_WITH_POINT, FX_TRANSMISSION, FX_EE_POINT, FX_EE_AXES, FX_BRANCH_JOINT, FX_STIFF, \
+    FX_DAMP, FX_REST = range(11)  # Fixed's fields
+
+
 class Process(NamedTuple):
     """The process model of one configuration: disturbance states z (d = Lz z on tree joints
     ``dist_idx``, q_ae columns ``dist_col``; z' = Fz z + w) and the white-noise intensities
@@ -88,10 +102,14 @@ class Process(NamedTuple):
     psd_ae: np.ndarray
     rel_ae: np.ndarray
     psd_z: np.ndarray
-    method: np.ndarray  # [integrator (RK4, ETD2), linearisation (DIFFERENCES, SPRINGS)]
+    method: np.ndarray  # [integrator method (RK4, ETD2), linearisation (DIFFERENCES, SPRINGS), scheme, stabilisation]
     zkey: np.ndarray  # [T, psd_z]: what the cached z block (Phi_z, Qd_z) was computed for (NaN: nothing)
     Phi_z: np.ndarray  # (4, n_z, n_z): expm(Fz T j / 4), j = 1..4 (z_block)
     Qd_z: np.ndarray  # (n_z, n_z): the z block's noise over T
+
+
+PR_DIST_IDX, PR_DIST_COL, PR_LZ, PR_FZ, PR_PSD_AE, PR_REL_AE, PR_PSD_Z, PR_METHOD, PR_ZKEY, PR_PHI_Z, \
+    PR_QD_Z = range(11)  # Process's fields
 
 
 class State(NamedTuple):
@@ -109,12 +127,18 @@ class State(NamedTuple):
     info: np.ndarray
 
 
+ST_Q, ST_QD, ST_Z, ST_P, ST_PHI, ST_QD_NOISE, ST_HPT, ST_INFO = range(8)  # State's fields (Qd: ST_QD_NOISE)
+
+
 class ImuModel(NamedTuple):
     """An accelerometer: y = S (a - g) with noise variances R."""
 
     S: np.ndarray  # (m, 3) measured axes in world coordinates
     g: np.ndarray  # (3,) gravity for a specific-force sensor, else 0
     R: np.ndarray  # (m,)
+
+
+IM_S, IM_G, IM_R = range(3)  # ImuModel's fields
 
 
 class EncoderPlan(NamedTuple):
@@ -263,9 +287,10 @@ def estimate_flat(ma, fixed, proc, state, tau_last, t, out):
     """Every output of ``Observer.estimate`` into one flat array ``out``:
     [t, q, qd, q_std, qd_std, effort (n_t each), F, F_std, deflection, deflection rate (n_b each),
     ee, ee_std, d, d_std, x, P (row-major)]."""
-    _, _, _, _, transmission, point, ee_axes, branch_joint, stiff, damp, rest = fixed
-    dist_idx, Lz = proc[0], proc[2]
-    q, qd, z, P, _, _, _, _ = state
+    transmission, point, ee_axes = fixed[FX_TRANSMISSION], fixed[FX_EE_POINT], fixed[FX_EE_AXES]
+    branch_joint, stiff, damp, rest = fixed[FX_BRANCH_JOINT], fixed[FX_STIFF], fixed[FX_DAMP], fixed[FX_REST]
+    dist_idx, Lz = proc[PR_DIST_IDX], proc[PR_LZ]
+    q, qd, z, P = state[ST_Q], state[ST_QD], state[ST_Z], state[ST_P]
     n = q.shape[0]
     nb = branch_joint.shape[0]
     ne = ee_axes.shape[0]
@@ -554,10 +579,13 @@ def predict(ma, fixed, proc, state, tau, relinearize, T, n_sub):
     block), P. info: [worst conditioning, closure gap after partitioning]. Returns
     ``sim.kernels`` status codes.
     """
-    eps_q, eps_v, point, with_point, _, _, _, _, _, _, _ = fixed
-    dist_idx, dist_col, Lz, Fz, psd_ae, rel_ae, psd_z, method, zkey, Phi_z, Qd_z = proc
-    q, qd, z, P, Phi, Qd, Hpt, info = state
-    structured = method[1] == SPRINGS
+    eps_q, eps_v, point, with_point = fixed[FX_EPS_Q], fixed[FX_EPS_V], fixed[FX_POINT], fixed[FX_WITH_POINT]
+    dist_idx, dist_col, Lz, Fz = proc[PR_DIST_IDX], proc[PR_DIST_COL], proc[PR_LZ], proc[PR_FZ]
+    psd_ae, rel_ae, psd_z, method = proc[PR_PSD_AE], proc[PR_REL_AE], proc[PR_PSD_Z], proc[PR_METHOD]
+    zkey, Phi_z, Qd_z = proc[PR_ZKEY], proc[PR_PHI_Z], proc[PR_QD_Z]
+    q, qd, z, P = state[ST_Q], state[ST_QD], state[ST_Z], state[ST_P]
+    Phi, Qd, Hpt, info = state[ST_PHI], state[ST_QD_NOISE], state[ST_HPT], state[ST_INFO]
+    structured = method[LINEARIZATION] == SPRINGS
     n = q.shape[0]
     nae = ma.ae_index.shape[0]
     nd = dist_idx.shape[0]
@@ -622,15 +650,11 @@ def predict(ma, fixed, proc, state, tau, relinearize, T, n_sub):
             coef[2, dist_idx[k]] += 0.5 * Lz[k, m] * Fzzz[m]
     lam = np.empty(ma.p_index.shape[0])
     rk_info = np.zeros(3)
-    if method[0] == ETD2:
-        # the plant's integrator: the springs exact, the closure projected after each step
-        # np.int64(): a literal constant would compile the kernels a second time (a Literal[int] signature)
-        status = exponential_steps(np.int64(AVERAGED), np.int64(SCDD), ma, q, qd, coef, T / n_sub, n_sub,
-                                   np.int64(STAB_PROJECTION), 0.0, 0.0, CLOSURE_TOL, SINGULAR_TOL, DEFAULT_PHASE_STEP,
-                                   np.zeros(n), lam, rk_info)
-    else:
-        status = rk4_steps(np.int64(SCDD), ma, q, qd, coef, T / n_sub, n_sub, np.int64(0), 0.0, 0.0, CLOSURE_TOL,
-                           SINGULAR_TOL, np.zeros(n), lam, rk_info)
+    # the plant's integrators and their dispatch (sim/integrators.py); np.int64(): a literal constant
+    # would compile the kernels a second time (a Literal[int] signature)
+    settings = StepSettings(method[STABILIZATION], 0.0, 0.0, CLOSURE_TOL, SINGULAR_TOL, DEFAULT_PHASE_STEP)
+    status = fixed_steps(method[INTEGRATOR], method[SCHEME], np.int64(SCDD), ma, q, qd, coef, T / n_sub, n_sub,
+                         settings, np.zeros(n), lam, rk_info)
     info[0] = min(cond, rk_info[1])
     if status != OK:
         return status
@@ -652,7 +676,7 @@ def predict_checked(ma, fixed, proc, state, tau, relinearize, T, n_sub):
     status = predict(ma, fixed, proc, state, tau, relinearize, T, n_sub)
     if status != OK:
         return status
-    return OK if covariance_ok(state[3]) else COVARIANCE_LOST
+    return OK if covariance_ok(state[ST_P]) else COVARIANCE_LOST
 
 
 @njit(cache=True)
@@ -769,7 +793,7 @@ def correct(ma, state, H, R, r, gate):
     the tree state (closure re-solved) and a covariance check. Returns (NIS, status, log det S):
     status 0 applied, 1 gated out, 2 the closure could not be re-solved, 3 P no longer positive
     definite."""
-    q, qd, z, P, _, _, _, _ = state
+    q, qd, z, P = state[ST_Q], state[ST_QD], state[ST_Z], state[ST_P]
     dx = np.zeros(P.shape[0])
     nis, logdet = kalman_update_ld(P, H, R, r, gate, dx)
     if not nis <= gate:
@@ -789,7 +813,7 @@ def encoder_correct(ma, state, enc, meas, gate):
     Returns (NIS, status, log det S) as :func:`correct`, or (nan, -1, nan) untouched if a value
     is not finite."""
     H, R, js, wrap = enc
-    q = state[0]
+    q = state[ST_Q]
     k = js.shape[0]
     r = np.empty(k)
     for i in range(k):
@@ -829,9 +853,9 @@ def imu_correct(ma, fixed, proc, state, imu, tau, meas, gate, a):
     (a deferred sample's weighing, :func:`imu_innovations`, takes it instead of evaluating it
     again). Returns (NIS, status, log det S) as :func:`correct`, status 4 if the model is
     singular."""
-    point = fixed[2]
-    dist_idx, Lz = proc[0], proc[2]
-    q, qd, z, _, _, _, Hpt, _ = state
+    point = fixed[FX_POINT]
+    dist_idx, Lz = proc[PR_DIST_IDX], proc[PR_LZ]
+    q, qd, z, Hpt = state[ST_Q], state[ST_QD], state[ST_Z], state[ST_HPT]
     S, g, R = imu
     d = disturbance_torques(Lz, z)
     if not point_acceleration(ma, q, qd, tau, dist_idx, d, point, a) >= SINGULAR_TOL:
@@ -884,9 +908,9 @@ def imu_innovations(ma, fixed, proc, state, imu, tau_before, tau_after, meas, ga
     one hypothesis. ``known``: ``a_before`` (3) already holds the point's acceleration under
     tau_before at this state (:func:`imu_correct`'s), else it receives it. Returns (r_b, r_a,
     H, False if the model is singular there)."""
-    point = fixed[2]
-    dist_idx, Lz = proc[0], proc[2]
-    q, qd, z, P, _, _, Hpt, _ = state
+    point = fixed[FX_POINT]
+    dist_idx, Lz = proc[PR_DIST_IDX], proc[PR_LZ]
+    q, qd, z, P, Hpt = state[ST_Q], state[ST_QD], state[ST_Z], state[ST_P], state[ST_HPT]
     S, g, R = imu
     d = disturbance_torques(Lz, z)
     nz = S.shape[0]
@@ -925,7 +949,7 @@ def imu_correct_auto(ma, fixed, proc, state, imu, tau_before, tau_after, use_aft
                                       np.empty(3), np.bool_(False))
     if not ok:
         return np.inf, 4, np.nan
-    return correct(ma, state, H, imu[2], r_a if use_after else r_b, gate)
+    return correct(ma, state, H, imu[IM_R], r_a if use_after else r_b, gate)
 
 
 @njit(cache=True)

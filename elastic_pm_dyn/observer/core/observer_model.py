@@ -4,12 +4,12 @@ Built once (:meth:`ObserverModel.build`) from a :class:`~elastic_pm_dyn.kinemati
 and the configuration parts that do not change while filtering or between the candidate
 configurations of ``tune`` (:func:`model_key`: which sensors, on which joints, chain and axes,
 which joints carry disturbance states); everything else of a configuration (the disturbance
-model, noise levels, gates, timing) is the :class:`~elastic_pm_dyn.observer.schedule.ekf.Observer`'s own,
+model, noise levels, gates, timing) is the :class:`~elastic_pm_dyn.observer.core.ekf.Ekf`'s own,
 cheap to set up, and the filter's state changes as it runs. So many filters over one recording
 share one model (``tuning.evaluate``), and every stiffness, damping and rest array of the
 branches is derived here only.
 
-State x = [q_ae, qd_ae, z] (:mod:`~elastic_pm_dyn.observer.schedule.ekf`); the branch force of the
+State x = [q_ae, qd_ae, z] (:mod:`~elastic_pm_dyn.observer.core.ekf`); the branch force of the
 elastic joint u of a branch is F = c (u - u_rest) + d du/dt, so its row of H is ``H_F``
 (c at u, d at du/dt) and its offset c u_rest.
 """
@@ -28,6 +28,7 @@ from elastic_pm_dyn.model.description import ACTIVE, ELASTIC
 from elastic_pm_dyn.observer.config import ObserverConfig
 from elastic_pm_dyn.observer.core import kernels
 from elastic_pm_dyn.observer.core.sensors import Accelerometer, BranchForces, Encoders, resolve_joints
+from elastic_pm_dyn.sim.integrators import Integrator
 
 # process.dt: 0 (from the model): the substep halves from AUTO_DT_MAX until omega h <= OMEGA_H for
 # the fastest elastic mode (RK4's phase error is then below 1e-4 rad per period of that mode)
@@ -135,6 +136,12 @@ class ObserverModel:
         while w * h > ETD2_OMEGA_H and h > AUTO_DT_MIN:
             h /= 2
         return h
+
+    def mean_step(self, integrator: Integrator, dt: float, interval: float) -> float:
+        """The step of the mean's ``integrator`` (a row of sim/integrators.py's METHODS) for
+        ``process.dt`` and ``process.max_interval``: :meth:`etd2_step` for an exponential one,
+        :meth:`substep` for RK4."""
+        return self.etd2_step(dt, interval) if integrator.exponential else self.substep(dt)
 
     @classmethod
     def build(cls, mech: Mechanism, cfg: ObserverConfig) -> ObserverModel:

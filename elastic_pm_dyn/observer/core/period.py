@@ -38,7 +38,16 @@ from numba import njit
 
 from elastic_pm_dyn.observer.core.kernels import (
     COVARIANCE_LOST,
+    FX_TRANSMISSION,
     OK,
+    ST_HPT,
+    ST_INFO,
+    ST_P,
+    ST_PHI,
+    ST_Q,
+    ST_QD,
+    ST_QD_NOISE,
+    ST_Z,
     encoder_correct,
     estimate_flat,
     imu_correct,
@@ -117,7 +126,7 @@ def advance(ma, fixed, proc, state, cmd, ctl, timing, t_to, tree):
     delayed one starts to act). Returns the status of ``kernels.predict_checked``: on a failure
     the time stays at the failing piece's start (COVARIANCE_LOST: after it)."""
     tau_hold, tau_last, pend_t, pend_tau = cmd
-    transmission = fixed[4]
+    transmission = fixed[FX_TRANSMISSION]
     max_interval, dt, tol = timing[MAX_INTERVAL], timing[DT], timing[TOL]
     every, timeout = timing[RELIN_EVERY], timing[TIMEOUT]
     t, lin_age, lin_T, t_command = ctl[T_NOW], ctl[LIN_AGE], ctl[LIN_T], ctl[T_COMMAND]
@@ -169,15 +178,22 @@ def _copy_state(src, dst, with_linearisation):
     :func:`_may_relinearise`) need not save them (on the Hexa at n_ek = 2 they were two thirds of
     the 100 kB a snapshot copied, three snapshots a period)."""
     # a State is a tuple of arrays of different ranks: no loop over it in compiled code
-    dst[0][:] = src[0]
-    dst[1][:] = src[1]
-    dst[2][:] = src[2]
-    dst[3][:, :] = src[3]
+    dst[ST_Q][:] = src[ST_Q]
+    dst[ST_QD][:] = src[ST_QD]
+    dst[ST_Z][:] = src[ST_Z]
+    dst[ST_P][:, :] = src[ST_P]
     if with_linearisation:
-        dst[4][:, :] = src[4]
-        dst[5][:, :] = src[5]
-    dst[6][:, :] = src[6]
-    dst[7][:] = src[7]
+        dst[ST_PHI][:, :] = src[ST_PHI]
+        dst[ST_QD_NOISE][:, :] = src[ST_QD_NOISE]
+    dst[ST_HPT][:, :] = src[ST_HPT]
+    dst[ST_INFO][:] = src[ST_INFO]
+
+
+@njit(cache=True)
+def _state_copy(state):
+    """A State of copies of ``state``'s arrays."""
+    return (state[ST_Q].copy(), state[ST_QD].copy(), state[ST_Z].copy(), state[ST_P].copy(), state[ST_PHI].copy(),
+            state[ST_QD_NOISE].copy(), state[ST_HPT].copy(), state[ST_INFO].copy())
 
 
 @njit(cache=True)
@@ -222,7 +238,7 @@ def _imu(ma, fixed, proc, state, cmd, ctl, timing, evidence, imu, imu_gate, meas
     ``waiting`` (the command of the stamp still to come, no delay): under ``auto`` correct with
     the before hypothesis now and weigh the sample when the command comes (its prior into
     ``work``). Returns (NIS, status, log det S)."""
-    transmission = fixed[4]
+    transmission = fixed[FX_TRANSMISSION]
     tau_hold, tau_last = cmd[0], cmd[1]
     trees, prior, tau_before, a_before = work
     tree_b, tree_a = trees[0], trees[1]
@@ -303,7 +319,7 @@ def command_step(ma, fixed, proc, state, cmd, ctl, timing, evidence, imu, imu_ga
     otherwise (or if the held sample is not ordinary), else 1; nis_row[1], nis_row[3]: the held
     sample's NIS and log det S."""
     tau_hold, _, pend_t, pend_tau = cmd
-    transmission = fixed[4]
+    transmission = fixed[FX_TRANSMISSION]
     tol, delay = timing[TOL], timing[DELAY]
     t = ctl[T_NOW]
     tail = int(ctl[TAIL])
@@ -349,18 +365,14 @@ def command_step(ma, fixed, proc, state, cmd, ctl, timing, evidence, imu, imu_ga
 @njit(cache=True)
 def snapshot_buffers(state, cmd, evidence, ctl):
     """Buffers for a step's snapshot of the filter (restored when the step is not taken)."""
-    q, qd, z, P, Phi, Qd, Hpt, info = state
-    return ((q.copy(), qd.copy(), z.copy(), P.copy(), Phi.copy(), Qd.copy(), Hpt.copy(), info.copy()),
-            (cmd[0].copy(), cmd[1].copy()), evidence.copy(), ctl.copy())
+    return _state_copy(state), (cmd[0].copy(), cmd[1].copy()), evidence.copy(), ctl.copy()
 
 
 @njit(cache=True)
 def step_work(state, n):
     """A step's ``work`` bundle: tree force vectors, the deferred sample's prior, its torque
     before and its point acceleration there."""
-    q, qd, z, P, Phi, Qd, Hpt, info = state
-    return (np.zeros((3, n)), (q.copy(), qd.copy(), z.copy(), P.copy(), Phi.copy(), Qd.copy(), Hpt.copy(),
-                               info.copy()), np.zeros(n), np.zeros(3))
+    return np.zeros((3, n)), _state_copy(state), np.zeros(n), np.zeros(3)
 
 
 @njit(cache=True, nogil=True)
@@ -375,7 +387,7 @@ def run_periods(ma, fixed, proc, state, cmd, ctl, timing, evidence, enc, enc_gat
     the filter as before the period. Returns the number of periods done; the caller runs the
     next one through the per-message API."""
     ts, taus, enc_meas, has_imu, imu_meas = inputs
-    n = state[0].shape[0]
+    n = state[ST_Q].shape[0]
     work = step_work(state, n)
     save = snapshot_buffers(state, cmd, evidence, ctl)
     period = snapshot_buffers(state, cmd, evidence, ctl)

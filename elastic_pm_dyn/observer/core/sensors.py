@@ -16,7 +16,7 @@ variances R) at the filter's current state; the filter does the correction and g
   (``imu.sample_timing``): the torque held over the interval that ended at it
   (``before_command``: the sample at t_k shows the command of [t_k-1, t_k), as a controller
   reads sensors before it applies the next command) or the one acting from it on
-  (``after_command``, a(t_k+)); ``auto`` weighs both (:mod:`~elastic_pm_dyn.observer.schedule.ekf`).
+  (``after_command``, a(t_k+)); ``auto`` weighs both (:mod:`~elastic_pm_dyn.observer.schedule.sample_timing`).
   qdd, and so y, jumps where the torque jumps: the sensor has feed-through. H comes from
   the prediction's linearisation (columns d a / d x, exact for d).
 - Branch forces (strain gauges; ``elastic_pm_dyn_msgs/BranchForces`` force or JointState
@@ -27,13 +27,14 @@ variances R) at the filter's current state; the filter does the correction and g
 A sensor object holds its geometry (built once, in the fixed
 :class:`~elastic_pm_dyn.observer.core.observer_model.ObserverModel`) and its noise levels;
 ``with_noise`` gives a copy with the noise levels of another configuration (an
-:class:`~elastic_pm_dyn.observer.schedule.ekf.Observer`'s own), the geometry shared.
+:class:`~elastic_pm_dyn.observer.core.ekf.Ekf`'s own), the geometry shared.
 """
 
 from __future__ import annotations
 
 import copy
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -66,6 +67,19 @@ def resolve_joints(mech: Mechanism, names: list[str], key: str, roles: tuple[str
     return out
 
 
+def motor_positions(mech: Mechanism, names, position) -> np.ndarray | None:
+    """Measured positions of every active joint (tree order of ``mech.active``) in a joint state
+    with ``names`` and ``position``, or None if one is missing or not finite."""
+    lookup = {n: k for k, n in enumerate(names)}
+    out = np.empty(len(mech.active))
+    for i, j in enumerate(mech.active):
+        k = lookup.get(mech.joint_names[j])
+        if k is None or k >= len(position) or not np.isfinite(position[k]):
+            return None
+        out[i] = float(position[k])
+    return out
+
+
 def broadcast(values: list[float], n: int, key: str) -> np.ndarray:
     if len(values) == 1:
         return np.full(n, values[0])
@@ -84,6 +98,35 @@ class Sample:
     R: np.ndarray
     labels: list[str]
     dropped: list[str]
+
+
+class FieldPlan(NamedTuple):
+    """What a joint state's positions or velocities give (:meth:`Encoders.sample`), for one list of names."""
+
+    kind: str  # position | velocity
+    idx: np.ndarray  # message indices of the joints used
+    js: np.ndarray  # their tree indices
+    var: np.ndarray  # their noise variances
+    H: np.ndarray | None  # their rows, passive joints' left empty (None: no joint)
+    passive: list  # (row, tree index) of the passive joints (their rows from the closure)
+    offset: int  # the rows' first column (positions 0, rates n_ae)
+    labels: list[str]  # <joint>.<kind>
+
+
+class FastEncoderPlan(NamedTuple):
+    """A joint state that gives positions of state joints only: ``kernels.encoder_correct``'s part."""
+
+    idx: np.ndarray  # message indices of the positions
+    H: np.ndarray  # their constant rows
+    R: np.ndarray  # their noise variances
+    js: np.ndarray  # their tree indices
+    wrap: np.ndarray  # revolute: the innovation wrapped to (-pi, pi]
+    with_rates: bool  # rates are measured too: a message with velocities takes :meth:`Encoders.sample`
+
+    @property
+    def bundle(self) -> tuple:
+        """The kernels' :class:`~elastic_pm_dyn.observer.core.kernels.EncoderPlan` (a plain tuple)."""
+        return self[1:5]
 
 
 class Encoders:
@@ -105,8 +148,8 @@ class Encoders:
         self.revolute = np.array([j.type == REVOLUTE for j in mech.model.joints])
         self.needs_w = any(j not in x_of_ae for j in self.pos + self.vel)
         self._index = {n: i for i, n in enumerate(mech.joint_names)}
-        self._plans: dict[tuple, list] = {}
-        self._fast: dict[tuple, tuple | None] = {}
+        self._plans: dict[tuple, list[FieldPlan]] = {}
+        self._fast: dict[tuple, FastEncoderPlan | None] = {}
         self._nx = 2 * nae
 
     def with_noise(self, cfg: ObserverConfig) -> Encoders:
@@ -127,8 +170,8 @@ class Encoders:
                 H[r, offset:offset + self.nae] = W[j]
         return H
 
-    def _plan(self, names: tuple) -> list:
-        """Per field: (message indices, joints, variances, H without passive rows, passive rows)."""
+    def _plan(self, names: tuple) -> list[FieldPlan]:
+        """The positions' and the velocities' :class:`FieldPlan` of a message with these names."""
         plan = self._plans.get(names)
         if plan is None:
             where = {}
@@ -142,26 +185,27 @@ class Encoders:
                 js = [j for _, j in use]
                 H = self.rows(js, None, self._nx, offset) if js else None
                 passive = [(i, j) for i, j in enumerate(js) if j not in self.x_of_ae]
-                plan.append((kind, np.array([where[j] for j in js], dtype=np.int64), np.array(js, dtype=np.int64),
-                             var[[r for r, _ in use]], H, passive, offset,
-                             [f"{self.mech.joint_names[j]}.{kind}" for j in js]))
+                plan.append(FieldPlan(kind, np.array([where[j] for j in js], dtype=np.int64),
+                                      np.array(js, dtype=np.int64), var[[r for r, _ in use]], H, passive, offset,
+                                      [f"{self.mech.joint_names[j]}.{kind}" for j in js]))
             if len(self._plans) > 64:
                 self._plans.clear()
             self._plans[names] = plan
         return plan
 
-    def fast_plan(self, names, nx: int) -> tuple | None:
-        """(message indices, H, variances, joints, wrap) when a message with these names gives
-        positions of state joints only (no passive row, no rates): what ``kernels.encoder_correct``
-        needs; else None (use :meth:`sample`)."""
+    def fast_plan(self, names, nx: int) -> FastEncoderPlan | None:
+        """The :class:`FastEncoderPlan` of a message with these names when it gives positions of
+        state joints only (no passive row): what ``kernels.encoder_correct`` needs; else None (use
+        :meth:`sample`)."""
         key = tuple(names)
         hit = self._fast.get(key, False)
         if hit is False:
             self._nx = nx
-            (_, idx, js, var, H, passive, _, _), vel = self._plan(key)
+            pos, vel = self._plan(key)
             hit = None
-            if len(js) and not passive and H.shape[1] == nx:
-                hit = (idx, np.ascontiguousarray(H), var, js, self.revolute[js].copy(), len(vel[2]) > 0)
+            if len(pos.js) and not pos.passive and pos.H.shape[1] == nx:
+                hit = FastEncoderPlan(pos.idx, np.ascontiguousarray(pos.H), pos.var, pos.js,
+                                      self.revolute[pos.js].copy(), len(vel.js) > 0)
             if len(self._fast) > 64:
                 self._fast.clear()
             self._fast[key] = hit
@@ -172,20 +216,20 @@ class Encoders:
         self._nx = nx
         plan = self._plan(tuple(names))
         rs, Hs, Rs, labels, dropped = [], [], [], [], []
-        for (kind, idx, js, var, H, passive, offset, labs), values, state in zip(
-                plan, (position, velocity), (q, qd), strict=True):
+        for field, values, state in zip(plan, (position, velocity), (q, qd), strict=True):
+            kind, js, var, H, passive, labs = field.kind, field.js, field.var, field.H, field.passive, field.labels
             if not len(js) or values is None or len(values) == 0:
                 continue
             if len(values) != len(names):
                 raise InputError(f"joint state: {len(names)} names but {len(values)} {kind} values")
-            z = np.asarray(values, dtype=float)[idx]
+            z = np.asarray(values, dtype=float)[field.idx]
             r = z - state[js]
             if kind == "position":
                 wrap = self.revolute[js]
                 r[wrap] = (r[wrap] + np.pi) % (2 * np.pi) - np.pi
             H = H.copy() if passive else H
             for i, j in passive:
-                H[i, offset:offset + self.nae] = W[j]
+                H[i, field.offset:field.offset + self.nae] = W[j]
             ok = np.isfinite(z)
             if not ok.all():
                 dropped += [lab for lab, good in zip(labs, ok, strict=True) if not good]

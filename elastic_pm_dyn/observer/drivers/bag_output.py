@@ -1,6 +1,6 @@
 """The observer's estimates written out: ``estimates.csv`` and a bag of estimates.
 
-- ``estimates.csv``: :func:`~elastic_pm_dyn.observer.drivers.results.write_csv` (``t`` since the
+- ``estimates.csv``: :func:`~elastic_pm_dyn.observer.drivers.rows.write_csv` (``t`` since the
   first stamp and the exact ``stamp_ns``, then the estimates);
 - ``estimates/`` (:func:`write_bag`, a bag, mcap by default; header stamps exact) with ``/joint_states``
   (position, velocity, effort of every tree joint), ``/branch_forces`` (with
@@ -24,12 +24,12 @@ import numpy as np
 from elastic_pm_dyn.bags import cdr
 from elastic_pm_dyn.bags.msgtypes import BRANCH_FORCES, JOINT_STATE, POSE_STAMPED
 from elastic_pm_dyn.bags.writer import BagWriter
-from elastic_pm_dyn.observer.drivers.results import Rows, write_csv
-from elastic_pm_dyn.observer.schedule.ekf import Observer
+from elastic_pm_dyn.observer.core.estimate import EstimateLayout
+from elastic_pm_dyn.observer.drivers.rows import Rows, write_csv
 
 
-def write_outputs(out: Path, obs: Observer, rows: Rows, write_estimates_bag: bool, storage: str,
-                  filtered: Rows | None = None) -> None:
+def write_outputs(out: Path, rows: Rows, write_estimates_bag: bool, storage: str, filtered: Rows | None = None
+                  ) -> None:
     """``estimates.csv`` and (optionally) the ``estimates/`` bag of all rows into ``out`` (nothing
     if no rows); with ``filtered`` (the filter's rows when ``rows`` are smoothed) also
     ``filtered.csv`` (the same columns)."""
@@ -41,12 +41,12 @@ def write_outputs(out: Path, obs: Observer, rows: Rows, write_estimates_bag: boo
         with open(out / "filtered.csv", "w") as fh:
             write_csv(fh, filtered)
     if write_estimates_bag:
-        write_bag(out / "estimates", obs, rows, storage)
+        write_bag(out / "estimates", rows, storage)
 
 
-def write_bag(path: Path, obs: Observer, rows: Rows, storage: str = "mcap") -> None:
+def write_bag(path: Path, rows: Rows, storage: str = "mcap") -> None:
     """Estimates as a rosbag2: /joint_states, /branch_forces, /ee_pose, /observer/joint_states_stddev."""
-    out = EstimatesBag(path, obs, storage)
+    out = EstimatesBag(path, rows.layout, storage)
     try:
         out.write(rows)
     finally:
@@ -56,11 +56,8 @@ def write_bag(path: Path, obs: Observer, rows: Rows, storage: str = "mcap") -> N
 class EstimatesBag:
     """:func:`write_bag` a chunk of rows after another (the same file as all rows at once)."""
 
-    def __init__(self, path: Path, obs: Observer, storage: str = "mcap"):
-        self.obs = obs
-        self.names = list(obs.mech.joint_names)
-        self.ee_unit, self.ee_axes = obs.mech.ee_unit, obs.mech.ee_axes  # the pose: back in the base frame
-        self.lay = obs.flat_layout()
+    def __init__(self, path: Path, layout: EstimateLayout, storage: str = "mcap"):
+        self.layout = layout
         self.w = BagWriter(path, storage)
         try:
             self.conns = [self.w.add_connection("/joint_states", JOINT_STATE),
@@ -72,17 +69,14 @@ class EstimatesBag:
             raise
 
     def write(self, rows: Rows) -> None:
-        obs, names, lay = self.obs, self.names, self.lay
+        lay = self.layout
+        names = lay.joint_names
         table = rows.table()
         ns = np.array(rows.t, dtype=np.int64)
-        if self.ee_unit is not None:
-            xyz = np.zeros((len(ns), 3))
-            xyz[:, self.ee_unit] = table[:, lay["ee"]]
-        else:  # a tilted plane's u, v: the point's projection on the plane through the origin
-            xyz = table[:, lay["ee"]] @ self.ee_axes
+        xyz = lay.ee_xyz(table[:, lay["ee"]])  # the pose: back in the base frame
         self.w.write_rows(self.conns, ns, [
             cdr.encode_joint_state_batch(ns, names, table[:, lay["q"]], table[:, lay["qd"]], table[:, lay["effort"]]),
-            cdr.encode_branch_forces_batch(ns, obs.branch_names, *(table[:, lay[k]] for k in (
+            cdr.encode_branch_forces_batch(ns, lay.branch_names, *(table[:, lay[k]] for k in (
                 "branch_force", "deflection", "deflection_rate", "branch_force_std"))),
             cdr.encode_pose_stamped_batch(ns, xyz, "world"),
             cdr.encode_joint_state_batch(ns, names, table[:, lay["q_std"]], table[:, lay["qd_std"]],

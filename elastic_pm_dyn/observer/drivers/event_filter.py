@@ -21,10 +21,14 @@ from elastic_pm_dyn.errors import InputError
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.observer.config import ObserverConfig
 from elastic_pm_dyn.observer.core import period
+from elastic_pm_dyn.observer.core.ekf import ObserverFault
 from elastic_pm_dyn.observer.drivers.bag_input import Event
-from elastic_pm_dyn.observer.drivers.results import SENSORS, FilterPass, Rows
+from elastic_pm_dyn.observer.drivers.results import FilterPass
+from elastic_pm_dyn.observer.drivers.rows import SENSORS, Rows
 from elastic_pm_dyn.observer.drivers.stream import ObserverStream
-from elastic_pm_dyn.observer.schedule.ekf import Observer, ObserverFault, UpdateResult
+from elastic_pm_dyn.observer.schedule import sensor_stats
+from elastic_pm_dyn.observer.schedule.observer import Observer
+from elastic_pm_dyn.observer.schedule.sensor_stats import UpdateResult
 
 
 class _Run:
@@ -41,7 +45,7 @@ class _Run:
 
     def close(self, origin_ns: int) -> None:
         self.ts = np.array([(int(ns) - origin_ns) * 1e-9 for ns in self.ns])  # as ObserverStream.seconds
-        self.enc = np.array(self.enc, dtype=float).reshape(len(self.ns), len(self.plan[0]))
+        self.enc = np.array(self.enc, dtype=float).reshape(len(self.ns), len(self.plan.idx))
         self.imu = np.array(self.imu, dtype=float).reshape(len(self.ns), -1 if self.imu else 0)
         self.tau = np.array(self.tau, dtype=float).reshape(len(self.ns), -1)
         # period.run_periods' inputs: (ts, taus, enc_meas, has_imu, imu_meas)
@@ -102,7 +106,7 @@ def _fast_runs(obs: Observer, stream: ObserverStream, events: list[Event], group
                     last_names, last_key = names, tuple(names)
                     last_plan = None if stream.name_problem(names)[0] else enc.fast_plan(last_key, obs.nx)
                 plan = last_plan if len(pos) == len(names) else None
-                if plan is not None and not (plan[5] and len(vel)) and not (branch_effort and len(eff)):
+                if plan is not None and not (plan.with_rates and len(vel)) and not (branch_effort and len(eff)):
                     spec = plan
                 if spec is not None and ei is not None:
                     acc, frame = ei.data
@@ -126,7 +130,7 @@ def _fast_runs(obs: Observer, stream: ObserverStream, events: list[Event], group
             cur = _Run(gi, last_key, spec, has_imu)
         cur.g1 = gi + 1
         cur.ns.append(ej.stamp_ns)
-        cur.enc.append(np.asarray(pos, dtype=float)[spec[0]])
+        cur.enc.append(np.asarray(pos, dtype=float)[spec.idx])
         if has_imu:
             cur.imu.append(np.asarray(acc, dtype=float)[axes])
         cur.tau.append(tau)
@@ -147,7 +151,7 @@ class EventFilter:
         self.obs, self.fast = obs, fast
         self.gate = gate  # cleared while this runs Python (other threads wait), set otherwise
         self.stream = ObserverStream(obs, origin_ns=origin_ns)
-        self.rows = Rows(obs)
+        self.rows = Rows(obs.layout)
         self.nis = dict.fromkeys(SENSORS, np.nan)
         self.fault = ""
         self.last_row_ns = None
@@ -176,7 +180,7 @@ class EventFilter:
         if events and stream.origin_ns is None:
             stream.seconds(events[0].stamp_ns)  # sets the origin
         rows.origin_ns = stream.origin_ns or 0
-        seconds, max_future = stream.seconds, obs.cfg.timing.max_future
+        seconds, max_future, window = stream.seconds, obs.cfg.timing.max_future, obs.cfg.gating.nis_window
         if runs is None:
             groups = _groups(events)
             run_of = _fast_runs(obs, stream, events, groups) if self.fast else [None] * len(groups)
@@ -197,25 +201,24 @@ class EventFilter:
                     and not obs.time_pending and run.ns[gi - run.g0] != last_row_ns \
                     and not run.ts[gi - run.g0] - obs.t > max_future:
                 if fixed is None:
-                    obs.flat_layout()
                     imu = obs.imu
                     # the steps' timing array, the accelerometer's bundle (kernels.ImuModel; a
                     # placeholder without one) and its gate: the Observer's own
                     fixed = (obs._timing, obs._imu_bundle, obs.gate(len(imu.axes)) if imu is not None else np.inf)
                 timing, imu_model, imu_gate = fixed
-                idx, H, var, js, wrap, _ = obs.encoders.fast_plan(run.names, obs.nx)
+                plan = obs.encoders.fast_plan(run.names, obs.nx)
                 a, b = gi - run.g0, run.g1 - run.g0
                 cmd, ctl = obs.fast_state(b - a)
                 out = outs.get(run)
                 if out is None:  # the run's rows (views of it become rows.flat) and, per sensor
                     # (encoders, imu), NIS and log det S: period.run_periods'
-                    out = outs[run] = (np.empty((b, obs._flat_width)), np.empty((b, 4)))
+                    out = outs[run] = (np.empty((b, obs.layout.width)), np.empty((b, 4)))
                 run_flat, run_nis = out
                 if gate is not None:  # the compiled call leaves the GIL to the other threads
                     gate.set()
                 done = period.run_periods(
                     obs.mech.arrays, obs.model.fixed, obs._proc, obs._state(), cmd, ctl,
-                    timing, obs.evidence, (H, var, js, wrap), obs.gate(len(idx)), imu_model, imu_gate, run.inputs, a,
+                    timing, obs.evidence, plan.bundle, obs.gate(len(plan.idx)), imu_model, imu_gate, run.inputs, a,
                     b, run_flat, run_nis)
                 if gate is not None:
                     gate.clear()
@@ -223,19 +226,21 @@ class EventFilter:
                     obs._take_control(cmd, ctl)
                     ns = run.ns[a:a + done]
                     enc_nis = run_nis[a:a + done, 0].tolist()
-                    obs._accepted_many("encoders", enc_nis, len(idx), run_nis[a:a + done, 2].tolist())
+                    sensor_stats.record_accepted(obs.stats["encoders"], enc_nis, len(plan.idx),
+                                                 run_nis[a:a + done, 2].tolist(), window)
                     obs.stats["command"].accepted += done
                     obs.stats["command"].consecutive_rejections = 0
                     first = dict(nis, encoders=enc_nis[0])
                     if run.has_imu:
                         imu_nis = run_nis[a:a + done, 1].tolist()
-                        obs._accepted_many("imu", imu_nis, run.imu.shape[1], run_nis[a:a + done, 3].tolist())
+                        sensor_stats.record_accepted(obs.stats["imu"], imu_nis, run.imu.shape[1],
+                                                     run_nis[a:a + done, 3].tolist(), window)
                         first["imu"] = imu_nis[0]
                         stream.results = [UpdateResult("imu", seconds(ns[-1]), True, imu_nis[-1], run.imu.shape[1],
                                                        logdet=float(run_nis[a + done - 1, 3]))]
                         tail = [[e, i, np.nan] for e, i in zip(enc_nis[1:], imu_nis[1:], strict=True)]
                     else:
-                        stream.results = [UpdateResult("encoders", seconds(ns[-1]), True, enc_nis[-1], len(idx),
+                        stream.results = [UpdateResult("encoders", seconds(ns[-1]), True, enc_nis[-1], len(plan.idx),
                                                        logdet=float(run_nis[a + done - 1, 2]))]
                         tail = [[e, np.nan, np.nan] for e in enc_nis[1:]]
                     rows.t.extend(ns)
@@ -278,6 +283,7 @@ class EventFilter:
                 break
             gi += 1
         self.nis, self.fault, self.last_row_ns, self.fixed = nis, fault, last_row_ns, fixed
+        rows.stats = obs.stats  # (a reset makes new ones)
 
 
 def run_events(obs: Observer, events: list[Event], order: str = "stamp", fast: bool = True,

@@ -35,8 +35,9 @@ from elastic_pm_dyn.observer.config import ObserverConfig
 from elastic_pm_dyn.observer.drivers import event_filter, results
 from elastic_pm_dyn.observer.drivers.bag_input import Event, Topics, iter_events
 from elastic_pm_dyn.observer.drivers.bag_output import EstimatesBag, write_outputs
-from elastic_pm_dyn.observer.drivers.results import FilterPass, OfflineResult, Rows, write_csv
-from elastic_pm_dyn.observer.schedule.ekf import Observer
+from elastic_pm_dyn.observer.drivers.results import FilterPass, OfflineResult
+from elastic_pm_dyn.observer.drivers.rows import Rows, write_csv
+from elastic_pm_dyn.observer.schedule.observer import Observer
 
 STAMP_LAG_NS = 500_000_000
 """``observe_bag(pipeline=True, order="stamp")``: how far (header stamps) the bag must have
@@ -113,12 +114,10 @@ def _pieces(events: list[Event], size: int):
 class _WriteWorker(threading.Thread):
     """Writing thread: CSV (and bag) of the finished rows lo..hi-1 put into ``q``, into ``stage``."""
 
-    def __init__(self, stage: Path, obs: Observer, rows: Rows, storage: str, with_bag: bool,
-                 gate: threading.Event):
+    def __init__(self, stage: Path, rows: Rows, storage: str, with_bag: bool, gate: threading.Event):
         super().__init__(name="observe-write", daemon=True)
-        self.stage, self.obs, self.rows, self.storage, self.with_bag = stage, obs, rows, storage, with_bag
+        self.stage, self.rows, self.storage, self.with_bag = stage, rows, storage, with_bag
         self.gate = gate
-        obs.flat_layout()
         self.q: queue.Queue = queue.Queue()
         self.error: BaseException | None = None
         self.busy = 0.0
@@ -135,13 +134,12 @@ class _WriteWorker(threading.Thread):
                     b = min(a + _WRITE_ROWS, hi)
                     self.gate.wait()
                     t = time.perf_counter()
-                    rows = Rows(self.obs, self.rows.t[a:b], self.rows.flat[a:b], self.rows.nis[a:b],
-                                self.rows.origin_ns)
+                    rows = self.rows.piece(a, b)
                     header = fh is None
                     if fh is None:
                         fh = open(self.stage / "estimates.csv", "w")  # noqa: SIM115 - closed below
                         if self.with_bag:
-                            bag = EstimatesBag(self.stage / "estimates", self.obs, self.storage)
+                            bag = EstimatesBag(self.stage / "estimates", rows.layout, self.storage)
                     write_csv(fh, rows, header)
                     if bag is not None:
                         bag.write(rows)
@@ -208,7 +206,7 @@ def _observe_pipelined(mech: Mechanism, cfg: ObserverConfig, bag: Path, out, top
                 if stage.exists():
                     shutil.rmtree(stage)
                 stage.mkdir()
-                state["writer"] = _WriteWorker(stage, obs, filt.rows, storage, write_estimates_bag, gate)
+                state["writer"] = _WriteWorker(stage, filt.rows, storage, write_estimates_bag, gate)
                 state["writer"].start()
         t = time.perf_counter()
         n0 = len(filt.rows.t)
@@ -297,7 +295,7 @@ def _observe_pipelined(mech: Mechanism, cfg: ObserverConfig, bag: Path, out, top
                 summary.wall_write_s = writer.busy + time.perf_counter() - wall2
             else:
                 out.mkdir(parents=True, exist_ok=True)
-                write_outputs(out, obs, rows, write_estimates_bag, storage)
+                write_outputs(out, rows, write_estimates_bag, storage)
                 summary.wall_write_s = time.perf_counter() - wall2
     except BaseException:
         writer = state["writer"]

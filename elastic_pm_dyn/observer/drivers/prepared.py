@@ -18,7 +18,7 @@ from elastic_pm_dyn.observer.config import ObserverConfig
 from elastic_pm_dyn.observer.core.observer_model import ObserverModel
 from elastic_pm_dyn.observer.drivers.bag_input import Event
 from elastic_pm_dyn.observer.drivers.event_filter import FastRuns, fast_runs
-from elastic_pm_dyn.observer.schedule.ekf import Observer
+from elastic_pm_dyn.observer.schedule.observer import Observer
 
 
 @dataclass(frozen=True, eq=False)

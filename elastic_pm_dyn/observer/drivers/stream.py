@@ -31,7 +31,8 @@ from collections.abc import Sequence
 import numpy as np
 
 from elastic_pm_dyn.errors import InputError
-from elastic_pm_dyn.observer.schedule.ekf import Observer, UpdateResult
+from elastic_pm_dyn.observer.schedule.observer import Observer
+from elastic_pm_dyn.observer.schedule.sensor_stats import UpdateResult
 
 NAME_PROBLEMS = ("duplicate", "missing", "unknown")  # why a joint state's names are not used
 

@@ -1,3 +1,5 @@
-"""The scheduler around the core: :class:`~.ekf.Observer` owns command delays, sample timing,
-gating, recovery, faults and statistics, and takes the messages a compiled step does not
-(:mod:`~elastic_pm_dyn.observer.core.period`); :mod:`.consistency` reads its NIS statistics."""
+"""The scheduler around the filter: :class:`~.observer.Observer` takes time-stamped messages and
+decides what the filter (:mod:`~elastic_pm_dyn.observer.core.ekf`) predicts and corrects, with its
+parts: the commands (:mod:`.commands`), the accelerometer's sample timing (:mod:`.sample_timing`),
+the fall-back from divergence (:mod:`.recovery`) and the sensors' statistics (:mod:`.sensor_stats`,
+:mod:`.consistency`). :mod:`.ekf` keeps the old import path's names."""

@@ -41,7 +41,7 @@ OFFSET = "frame / bias (imu.rpy, specific_force)"
 def findings(obs: Any, switch_evidence: float) -> dict[str, str]:
     """One line per sensor whose NIS is far off: ``{sensor: "<sensor>: NIS 4.5x its dof: <cause>"}``.
 
-    ``obs``: an :class:`~elastic_pm_dyn.observer.schedule.ekf.Observer`; ``switch_evidence``: the
+    ``obs``: an :class:`~elastic_pm_dyn.observer.schedule.observer.Observer`; ``switch_evidence``: the
     log-likelihood margin [nats] the ``auto`` sample timing needs to switch (the same margin
     names ``timing`` here)."""
     f = obs.cfg.gating.nis_warn_factor
@@ -98,7 +98,7 @@ def _gated(st: Any, limit: int) -> str:
         return f"{st.consecutive_rejections} consecutive samples gated out"
     if st.rejected >= MIN_GATED and st.rejected > st.accepted:
         return f"{100.0 * st.rejected / (st.rejected + st.accepted):.0f} % of samples gated out"
-    if getattr(st, "recoveries", 0):  # runs of gated samples the filter fell back from (Observer._recover)
+    if getattr(st, "recoveries", 0):  # runs of gated samples the filter fell back from (schedule.recovery)
         return f"gated out in a run {st.recoveries} times, recovered from it each time"
     return ""
 

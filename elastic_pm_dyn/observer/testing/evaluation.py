@@ -25,9 +25,9 @@ from scipy.stats import chi2
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.model.layout import JF_REST, JF_STIFFNESS
 from elastic_pm_dyn.observer.core.observer_model import branch_arrays
-from elastic_pm_dyn.observer.drivers.results import Rows
+from elastic_pm_dyn.observer.drivers.rows import Rows
 from elastic_pm_dyn.observer.drivers.stream import ObserverStream
-from elastic_pm_dyn.observer.schedule.ekf import Observer
+from elastic_pm_dyn.observer.schedule.observer import Observer
 from elastic_pm_dyn.observer.testing.scenarios import Recording
 from elastic_pm_dyn.sim.simulator import SimulationOptions, Simulator
 from elastic_pm_dyn.sim.torque import TorqueTable
@@ -139,14 +139,14 @@ def feed(obs: Observer, rec: Recording, use: tuple[str, ...] = ("encoders", "imu
 
 
 def offline_run(rec: Recording, rows: Rows) -> Run:
-    """The rows of ``observe`` (:class:`~elastic_pm_dyn.observer.drivers.results.Rows`) at the
+    """The rows of ``observe`` (:class:`~elastic_pm_dyn.observer.drivers.rows.Rows`) at the
     recording's sample stamps: for each sample the last row at or before its stamp (the first
     row before any), so that :func:`score` compares them with the truth sample by sample."""
     est = rows.est
     stamps = np.asarray(rows.t, dtype=np.int64)
     idx = np.clip(np.searchsorted(stamps, np.asarray(rec.stamp_ns, dtype=np.int64), side="right") - 1, 0, None)
     pick = [est[i] for i in idx]
-    st = rows.obs.stats
+    st = rows.stats
     return Run(np.array([e.t for e in pick]), np.array([e.q for e in pick]), np.array([e.qd for e in pick]),
                np.array([e.branch_force for e in pick]), np.array([e.branch_force_std for e in pick]),
                np.array([e.x for e in pick]), np.array([e.P for e in pick]), np.array([e.q_std for e in pick]),

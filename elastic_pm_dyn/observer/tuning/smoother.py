@@ -47,10 +47,11 @@ from elastic_pm_dyn.errors import InputError
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.observer.config import ObserverConfig
 from elastic_pm_dyn.observer.core import kernels, period
+from elastic_pm_dyn.observer.core.ekf import ObserverFault
 from elastic_pm_dyn.observer.drivers.bag_input import Event
-from elastic_pm_dyn.observer.drivers.results import Rows
+from elastic_pm_dyn.observer.drivers.rows import Rows
 from elastic_pm_dyn.observer.drivers.stream import ObserverStream
-from elastic_pm_dyn.observer.schedule.ekf import Observer, ObserverFault
+from elastic_pm_dyn.observer.schedule.observer import Observer
 
 SMOOTHERS = ("rts",)
 
@@ -85,11 +86,12 @@ class Replay(Observer):
         tol = self.cfg.timing.stamp_tolerance
         timeout = self.cfg.timing.command_timeout
         Phi = np.eye(self.nx)
-        self._activate_due()
+        commands = self.commands
+        commands.activate_due(self.t)
         no_pending = np.zeros(0)
         while t_to - self.t > tol:
-            next_t = np.array([self._pending[0][0]]) if self._pending else no_pending
-            end = period.piece_end(self.t, t_to, self.cfg.process.max_interval, self.t_command, timeout, next_t,
+            next_t = np.array([commands.pending[0][0]]) if commands.pending else no_pending
+            end = period.piece_end(self.t, t_to, self.cfg.process.max_interval, commands.t_command, timeout, next_t,
                                    0, len(next_t), tol)
             self._advance(end)  # exactly one piece up to ``end``
             Phi = self.Phi @ Phi
@@ -97,7 +99,7 @@ class Replay(Observer):
 
     def restart_from(self, flat: np.ndarray) -> None:
         """The filter's posterior of an estimate row: tree state, disturbance states, covariance."""
-        lay = self.flat_layout()
+        lay = self.layout
         nae, nx = self.nae, self.nx
         self.q = flat[lay["q"]].copy()
         self.qd = flat[lay["qd"]].copy()
@@ -122,7 +124,7 @@ def predictions(mech: Mechanism, cfg: ObserverConfig, events: list[Event], order
     rep = Replay(mech, cfg, t0=0.0)
     base_ae, base_z = rep.psd_ae.copy(), rep.psd_z.copy()
     recovered = [(r.t, r.psd_scale) for r in recoveries or ()]
-    lay = rep.flat_layout()
+    lay = rep.layout
     nx, n_rows = rep.nx, len(rows.t)
     stream = ObserverStream(rep, origin_ns=rows.origin_ns)
     row_at = {int(ns): k for k, ns in enumerate(rows.t)}
@@ -139,13 +141,11 @@ def predictions(mech: Mechanism, cfg: ObserverConfig, events: list[Event], order
             scale = next((s for t_r, s in recovered if abs(t_r - rows.flat[j][0]) <= cfg.timing.stamp_tolerance),
                          None)
             if k < 0 or j != k + 1 or scale is not None:  # the first row, rows not joined, a recovery:
-                tau_hold, t_command = rep.tau_hold, rep.t_command  # the filter (re)started here
-                flat = rows.flat[j]
+                flat = rows.flat[j]  # the filter (re)started here (a reset keeps the held command)
                 psd_scale = rep._psd_scale if scale is None else scale
                 rep.reset(t_j, flat[lay["q"]], flat[lay["qd"]], flat[lay["P"]].reshape(nx, nx))
                 rep.psd_ae[:], rep.psd_z[:] = base_ae * psd_scale, base_z * psd_scale
                 rep._psd_scale = psd_scale
-                rep.tau_hold, rep.tau_last, rep.t_command = tau_hold, tau_hold.copy(), t_command
             else:
                 rep.restart_from(rows.flat[k])
                 try:
@@ -198,10 +198,10 @@ def rts(x: np.ndarray, P: np.ndarray, x_pred: np.ndarray, P_pred: np.ndarray, Ph
 def smoothed_rows(obs: Observer, rows: Rows, xs: np.ndarray, Ps: np.ndarray, tau_last: np.ndarray) -> Rows:
     """Estimate rows of the smoothed states: x^s -> tree state through the closure (from the
     filtered one), then every output with ``kernels.estimate_flat`` (as the filter's rows)."""
-    lay = obs.flat_layout()
+    lay = rows.layout
     nae = obs.nae
     ma, fixed, proc = obs.mech.arrays, obs.model.fixed, obs._proc
-    out = Rows(obs, list(rows.t), [], [list(v) for v in rows.nis], rows.origin_ns)
+    out = Rows(rows.layout, list(rows.t), [], [list(v) for v in rows.nis], rows.origin_ns, rows.stats)
     for k, flat in enumerate(rows.flat):
         q, qd = flat[lay["q"]].copy(), flat[lay["qd"]].copy()
         x = flat[lay["x"]]
@@ -222,10 +222,10 @@ def smooth(mech: Mechanism, cfg: ObserverConfig, obs: Observer, events: list[Eve
     """RTS-smoothed rows of a filter pass (``rows`` of ``obs`` over ``events`` in ``order``)."""
     wall = time.perf_counter()
     if not rows.t:
-        return SmoothedPass(Rows(obs, origin_ns=rows.origin_ns), {"rows": 0})
+        return SmoothedPass(Rows(rows.layout, origin_ns=rows.origin_ns, stats=rows.stats), {"rows": 0})
     pred = predictions(mech, cfg, events, order, rows, obs.recoveries)
     wall_pred = time.perf_counter() - wall
-    lay = obs.flat_layout()
+    lay = rows.layout
     nx = obs.nx
     table = rows.table()
     x = table[:, lay["x"]]

@@ -50,7 +50,8 @@ from elastic_pm_dyn.observer.config import BAND_MODELS, BAND_ORDERS, DEFAULT_PAR
 from elastic_pm_dyn.observer.drivers.bag_input import Event
 from elastic_pm_dyn.observer.drivers.event_filter import order_key, run_events
 from elastic_pm_dyn.observer.drivers.prepared import PreparedRecording, prepare
-from elastic_pm_dyn.observer.schedule.ekf import Observer
+from elastic_pm_dyn.observer.schedule.observer import Observer
+from elastic_pm_dyn.sim.integrators import METHODS
 
 FAILED_NLL = 1e30  # a candidate whose filter faulted
 # A step is kept only if it gains this much log-likelihood [nats]: smaller gains are within
@@ -226,11 +227,10 @@ def tune(mech: Mechanism, base: ObserverConfig, events: list[Event], explicit: s
     # The search ranks noise models at a substep of at least SEARCH_DT; the result is judged at
     # the model's own (process.dt: 0 halves it for fast spring modes, which doubles every pass).
     # ETD2's own step is set by the springs' coupling, not their stability: searched as it is.
-    if base.process.integrator == "etd2":
-        fine_dt, search = prepared.model.etd2_step(base.process.dt, base.process.max_interval), {}
-    else:
-        fine_dt = prepared.model.substep(base.process.dt)
-        search = {"process.dt": SEARCH_DT} if fine_dt < SEARCH_DT and "process.dt" not in explicit else {}
+    integrator = METHODS[base.process.integrator]
+    fine_dt = prepared.model.mean_step(integrator, base.process.dt, base.process.max_interval)
+    search = {"process.dt": SEARCH_DT} if (not integrator.exponential and fine_dt < SEARCH_DT
+                                           and "process.dt" not in explicit) else {}
 
     def passes(params_list: list[dict], evs: list[Event] = events,
                prep: PreparedRecording = prepared) -> list[Evaluation]:
