@@ -160,7 +160,7 @@ def advance(ma, fixed, proc, state, cmd, ctl, timing, t_to, tree):
 
 @njit(cache=True)
 def _newest(pend_t, ctl):
-    """When the newest accepted command acts from (``Observer._newest_command``)."""
+    """When the newest accepted command acts from (``CommandQueue.newest``)."""
     head, tail = int(ctl[HEAD]), int(ctl[TAIL])
     return pend_t[tail - 1] if tail > head else ctl[T_COMMAND]
 
