@@ -33,7 +33,7 @@ from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.sim.plant import Plant
 
 if TYPE_CHECKING:
-    from elastic_pm_dyn.observer.schedule.ekf import Estimate
+    from elastic_pm_dyn.observer.core.estimate import Estimate
 
 
 def doubles(values: np.ndarray | Sequence[float]) -> array:

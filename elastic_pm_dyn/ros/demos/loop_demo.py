@@ -77,7 +77,6 @@ TOPICS = {  # role -> topic
     "estimate": f"/{OBSERVER_NS}/joint_states", "estimate_forces": f"/{OBSERVER_NS}/branch_forces",
     "estimate_pose": f"/{OBSERVER_NS}/ee_pose", "command": "/torque_command", "reference": "/reference_joint_states",
     "encoders": "/measured_joint_states", "imu": "/ee_imu", "disturbance": "/disturbance",
-    "applied": "/applied_torque",  # what the plant applied: the observer's torque input, offline as live
 }
 
 

@@ -47,8 +47,9 @@ import numpy as np
 from elastic_pm_dyn.errors import ElasticPmDynError, InputError
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.observer import Observer, ObserverConfig, ObserverFault
+from elastic_pm_dyn.observer.core.estimate import Estimate
 from elastic_pm_dyn.observer.drivers.stream import NAME_PROBLEMS, ObserverStream
-from elastic_pm_dyn.observer.schedule.ekf import OK, WARN, Estimate, UpdateResult
+from elastic_pm_dyn.observer.schedule.sensor_stats import OK, WARN, UpdateResult
 
 KINDS = ("torque_command", "joint_state", "imu", "branch_forces")
 SOURCE = "node parameters"  # the config's error prefix, replaced by "parameter '...'"
