@@ -56,10 +56,14 @@ class _Topic:
     covers: tuple[int, int] | None = None  # its next message's key is at least this
     period_ns: int | None = None  # its sample period (the smallest stamp step seen)
     stalled: bool = False  # not waited for until it delivers again
-    skips: bool = False  # leaves out sample periods (see SKIPS_AMONG): not waited for past HORIZON
     steps: deque[bool] = field(default_factory=lambda: deque(maxlen=RECENT_STEPS))  # latest steps: a period left out?
     always_skips: bool = False  # a controller found answering less than every period
     last_push: float = float("-inf")  # wall time [s] of its latest message
+
+    @property
+    def skips(self) -> bool:
+        """It leaves out sample periods (see SKIPS_AMONG): not waited for past HORIZON."""
+        return self.always_skips or sum(self.steps) >= SKIPS_AMONG
 
 
 @dataclass
@@ -123,7 +127,6 @@ class InputOrder:
             # a slower sensor or controller (a lockstep one answers every period); not a message lost
             # once (a reader queue that overflowed while this node was stalled)
             topic.steps.append(ns - topic.last_ns >= HORIZON * self.period_ns)
-            topic.skips = topic.always_skips or sum(topic.steps) >= SKIPS_AMONG
         topic.last_ns = ns
         topic.last_push = now
         topic.stalled = False
@@ -148,7 +151,7 @@ class InputOrder:
             return self.primaries[0]
         after = [s for s in self.primaries if s > previous]
         if len(after) > 3:  # more states than a lockstep plant makes ahead of a command on its way here
-            command.skips = command.always_skips = True
+            command.always_skips = True
             return newest
         if after:
             return after[0]
