@@ -193,6 +193,14 @@ def test_a_goal_computes_beside_the_stream_and_a_newer_one_supersedes_it(ros: Ro
     node.ff.close()
 
 
+def interrupt(proc) -> tuple[int, float]:
+    """Ctrl-C to a node process: its exit status and how long it took to end [s]."""
+    start = time.monotonic()
+    proc.proc.send_signal(signal.SIGINT)
+    code = proc.wait(30.0)
+    return code, time.monotonic() - start
+
+
 def test_sigint_ends_a_node_computing_a_long_goal_at_once(tmp_path: Path) -> None:
     require("rclpy")
     from trajectory_msgs.msg import MultiDOFJointTrajectory
@@ -211,10 +219,7 @@ def test_sigint_ends_a_node_computing_a_long_goal_at_once(tmp_path: Path) -> Non
         pub.publish(goal([0.25 * k for k in range(n)], [[-0.04 + 0.005 * (k % 2), 0.36, 0.0] for k in range(n)]))
         h.wait_until(lambda: "computing its reference" in proc.log.read_text(), 30.0, "the goal taken")
         h.spin_for(1.0)
-        start = time.monotonic()
-        proc.proc.send_signal(signal.SIGINT)
-        code = proc.wait(30.0)
-        took = time.monotonic() - start
+        code, took = interrupt(proc)
     finally:
         if proc.proc.poll() is None:
             os.killpg(proc.proc.pid, signal.SIGKILL)
@@ -256,10 +261,7 @@ def test_sigint_ends_a_node_computing_its_elastic_line_at_once(tmp_path: Path) -
             assert time.monotonic() < deadline, "the node did not start"
             time.sleep(0.1)
         time.sleep(1.0)
-        start = time.monotonic()
-        proc.proc.send_signal(signal.SIGINT)
-        code = proc.wait(30.0)
-        took = time.monotonic() - start
+        code, took = interrupt(proc)
     finally:
         if proc.proc.poll() is None:
             os.killpg(proc.proc.pid, signal.SIGKILL)
