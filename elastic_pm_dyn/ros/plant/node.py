@@ -96,7 +96,6 @@ from elastic_pm_dyn.ros.params import (
     reject_unknown,
 )
 from elastic_pm_dyn.ros.plant.command_hold import CommandHold
-from elastic_pm_dyn.ros.plant.realtime import collect_young, prepare, restore
 from elastic_pm_dyn.ros.plant.realtime_schedule import OVERRUNS, RealtimeSchedule
 from elastic_pm_dyn.ros.plant.sensors import (
     DISTURBANCE_PARAMS,
@@ -116,6 +115,8 @@ from elastic_pm_dyn.ros.qos import (
     STATE_OUT_QOS,
     VIEWER_QOS,
 )
+from elastic_pm_dyn.ros.realtime_process import PROCESS_PARAMS, collect_young, prepare, restore
+from elastic_pm_dyn.ros.realtime_process import refusal as process_refusal
 from elastic_pm_dyn.ros.robot_description import publish_robot_description
 from elastic_pm_dyn.ros.throttle import KindThrottle
 from elastic_pm_dyn.sim.plant import START_STATES, Plant
@@ -170,8 +171,7 @@ PARAMS = [
           fixed="the clock topic depends on it: restart the node"),
     Param("realtime.keep_gc_out", True, "realtime: no automatic garbage collection in the loop (the node "
           "collects the young generations between periods, at the diagnostics rate)"),
-    Param("realtime.cpu_affinity", [], "realtime: CPUs the process runs on (empty: any)", item=int),
-    Param("realtime.priority", 0, "realtime: SCHED_FIFO priority 1-99 where permitted (0: normal scheduling)"),
+    *PROCESS_PARAMS,
     *SENSOR_PARAMS,
     *DISTURBANCE_PARAMS,
     # the wall-clock rates may change while the plant runs (their timers are made anew)
@@ -225,12 +225,8 @@ class PlantNode(ManagedNode):
 
     def _start_plant(self, mech: Mechanism, p: dict[str, Any]) -> None:
         self.sync_mode: str = p["sync_mode"]
-        if not 0 <= p["realtime.priority"] <= 99:
-            raise ParameterError(f"parameter 'realtime.priority' must lie in 0-99 (0: normal scheduling), "
-                                 f"got {p['realtime.priority']}")
-        if any(c < 0 for c in p["realtime.cpu_affinity"]):
-            raise ParameterError(f"parameter 'realtime.cpu_affinity' must list CPU numbers >= 0, "
-                                 f"got {p['realtime.cpu_affinity']}")
+        if (why := process_refusal(p)) is not None:
+            raise ParameterError(why)
         period = 1.0 / p["publish_rate"]
         options = SimulationOptions(formulation=p["formulation"], integrator=p["integrator"], dt=p["dt"],
                                     stabilization=p["stabilization"], sample=period)
@@ -304,7 +300,7 @@ class PlantNode(ManagedNode):
         if self.sync_mode == "realtime":
             self.step_timer = self.create_timer(period, self._on_realtime_tick, clock=self.steady)
             prepared = prepare(self.get_logger(), p["realtime.cpu_affinity"], p["realtime.priority"],
-                              p["realtime.keep_gc_out"])
+                               p["realtime.keep_gc_out"], p["realtime.nice"])
             self.keep_gc_out = p["realtime.keep_gc_out"]
             extra = f" ({', '.join(prepared)})" if prepared else ""
         elif self.sync_mode == "fast":
