@@ -21,7 +21,7 @@ from elastic_pm_dyn.observer.drivers.event_filter import filter_all, run_events
 from elastic_pm_dyn.observer.drivers.results import estimates_equal, seconds_text, summary
 from elastic_pm_dyn.observer.drivers.stream import ObserverStream
 from elastic_pm_dyn.observer.offline import observe_bag
-from elastic_pm_dyn.observer.schedule.ekf import Observer
+from elastic_pm_dyn.observer.schedule.observer import Observer
 from elastic_pm_dyn.observer.testing.scenarios import manoeuvre_recording
 from elastic_pm_dyn.ros.observer.session import ObserverSession
 

@@ -8,7 +8,7 @@ import pytest
 from elastic_pm_dyn.errors import InputError
 from elastic_pm_dyn.observer import Observer, ObserverConfig
 from elastic_pm_dyn.observer.drivers.stream import ObserverStream
-from elastic_pm_dyn.observer.schedule.ekf import ERROR, OK
+from elastic_pm_dyn.observer.schedule.sensor_stats import ERROR, OK
 from elastic_pm_dyn.observer.testing.evaluation import feed
 from elastic_pm_dyn.observer.testing.scenarios import manoeuvre_recording
 
@@ -135,7 +135,7 @@ def test_bad_commands_and_states_are_refused(five_bar) -> None:
 
 def test_filter_fault_is_loud(five_bar, rec) -> None:
     """A state the model cannot integrate (here: NaN forced in) raises and stays faulted until reset."""
-    from elastic_pm_dyn.observer.schedule.ekf import ObserverFault
+    from elastic_pm_dyn.observer.core.ekf import ObserverFault
     obs = make(five_bar, initial__source="model")
     obs.qd[0] = np.nan
     with pytest.raises(ObserverFault):

@@ -21,7 +21,7 @@ from elastic_pm_dyn.errors import InputError
 from elastic_pm_dyn.observer import Observer, ObserverConfig
 from elastic_pm_dyn.observer.drivers.event_filter import run_events
 from elastic_pm_dyn.observer.drivers.stream import ObserverStream
-from elastic_pm_dyn.observer.schedule.ekf import TIMING_SWITCH_EVIDENCE
+from elastic_pm_dyn.observer.schedule.sample_timing import TIMING_SWITCH_EVIDENCE
 from elastic_pm_dyn.observer.testing.evaluation import feed, open_loop, score
 from elastic_pm_dyn.observer.testing.scenarios import manoeuvre_recording
 from elastic_pm_dyn.ros.observer.session import ObserverSession

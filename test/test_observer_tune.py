@@ -13,7 +13,7 @@ from elastic_pm_dyn.observer.config import load_config
 from elastic_pm_dyn.observer.drivers.bag_input import Topics, read_events
 from elastic_pm_dyn.observer.drivers.event_filter import run_events
 from elastic_pm_dyn.observer.offline import observe_bag
-from elastic_pm_dyn.observer.schedule.ekf import LOG_2PI
+from elastic_pm_dyn.observer.schedule.sensor_stats import LOG_2PI
 from elastic_pm_dyn.observer.testing.evaluation import offline_run, open_loop, quasi_static_series, score
 from elastic_pm_dyn.observer.testing.recordings import RecordingSpec, generate, write_bag
 from elastic_pm_dyn.observer.tuning import tuning

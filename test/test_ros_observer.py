@@ -212,7 +212,7 @@ def test_nan_and_inconsistent_samples_are_gated_and_reported(ros: RosHarness, re
     from sensor_msgs.msg import JointState
     from std_msgs.msg import Header
 
-    from elastic_pm_dyn.observer.schedule.ekf import ERROR
+    from elastic_pm_dyn.observer.schedule.sensor_stats import ERROR
     from elastic_pm_dyn.ros.messages import stamp
     plant = make_observer(ros)
     feeder = Feeder(ros, plant, rec)
