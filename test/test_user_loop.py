@@ -44,9 +44,11 @@ TOPICS = ["/joint_states", "/branch_forces", "/ee_pose", "/torque_command", "/ap
 
 
 def run_user_loop(out: Path, model: Path, domain: int, controller_first: bool = False,
-                  plant_args: tuple[str, ...] = (), analyse: bool = True) -> dict | Path:
-    """Plant, observer, recorder and the example controller on ``domain``; the loop's summary
-    (``analyse`` False: the bag)."""
+                  plant_args: tuple[str, ...] = (), analyse: bool = True, observer_args: tuple[str, ...] = (),
+                  recorder_args: tuple[str, ...] = (), controller_prefix: tuple[str, ...] = ()) -> dict | Path:
+    """Plant, observer, recorder and the example controller on ``domain`` (``*_args``: more node
+    arguments; ``controller_prefix``: what the controller's command line starts with, e.g. chrt);
+    the loop's summary (``analyse`` False: the bag)."""
     import time
 
     from elastic_pm_dyn.ros.demos.loop_demo import LoopOptions, analyse_loop
@@ -60,13 +62,14 @@ def run_user_loop(out: Path, model: Path, domain: int, controller_first: bool = 
     try:
         def user_controller() -> subprocess.Popen:
             # it starts once the plant, the observer and the recorder listen to its commands
-            return subprocess.Popen([sys.executable, str(EXAMPLE), str(model), str(PERIODS), "3"], env=env,
+            return subprocess.Popen([*controller_prefix, sys.executable, str(EXAMPLE), str(model), str(PERIODS), "3"],
+                                    env=env,
                                     stdout=(logs / "controller.log").open("w"), stderr=subprocess.STDOUT)
 
         def observer() -> None:  # started, and up: its subscriptions made (it says so in one line)
             procs.append(NodeProcess("observer", "elastic_pm_dyn.ros.observer.node",
-                                     ["--params-file", str(observer_config_for(model)), "-p", f"model:={model}"],
-                                     env, logs))
+                                     ["--params-file", str(observer_config_for(model)), "-p", f"model:={model}",
+                                      *observer_args], env, logs))
             deadline = time.monotonic() + START
             while "one estimate per" not in (logs / "observer.log").read_text(errors="replace"):
                 procs[-1].check_running()
@@ -76,7 +79,7 @@ def run_user_loop(out: Path, model: Path, domain: int, controller_first: bool = 
         logs.mkdir(parents=True, exist_ok=True)
         procs.append(NodeProcess("recorder", "elastic_pm_dyn.ros.recorder.node",
                                  ["--params-file", str(CONFIG / "recorder.yaml"), "-p", f"output:={bag}",
-                                  "-p", f"topics:=[{', '.join(TOPICS)}]"], env, logs))
+                                  "-p", f"topics:=[{', '.join(TOPICS)}]", *recorder_args], env, logs))
         if controller_first:
             controller = user_controller()
             observer()
@@ -147,17 +150,18 @@ def read_efforts(bag: Path, topics: tuple[str, ...]) -> dict[str, dict[int, list
     return out
 
 
+NICE = ("-p", "realtime.nice:=-10")
+
+
 def cpu_hogs(n: int) -> list[subprocess.Popen]:
     """Busy processes (a loaded machine): each spins until killed."""
     return [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(n)]
 
 
-@pytest.mark.xfail(reason="issue #37, open: beside two CPU hogs 1 run in 3 meets it (2026-12-07). In the others "
-                   "the controller falls behind (commands > command_timeout late: zero torque), its PD loop goes "
-                   "unstable and flings the five-bar through its singular poses; the observer, now fed the applied "
-                   "torque and restarting after faults, estimates every joint state it receives, but its reader "
-                   "overflows (1 s deep) while the gated samples of that motion cost it more than real time, and "
-                   "the recorder loses messages too", strict=False)
+@pytest.mark.xfail(reason="issue #37, open: with the loop at nice -10 beside two CPU hogs (and other sessions' "
+                   "work) the controller keeps up and the five-bar stays near its pose, but the observer still "
+                   "misses samples (95 % estimated in the best run, 2026-12-07): stalled longer than its readers' "
+                   "1 s of history, it loses them (lost.<topic> in /diagnostics)", strict=False)
 def test_user_controller_in_realtime_beside_two_cpu_hogs(loop_soak: None, tmp_path: Path) -> None:
     """Realtime: the plant advances on its own clock, slowed when it cannot keep up (never skipping
     a period); every state of the loop gets its estimate, the stamps stay on the 1 ms grid and the
@@ -169,11 +173,19 @@ def test_user_controller_in_realtime_beside_two_cpu_hogs(loop_soak: None, tmp_pa
     from elastic_pm_dyn.bags.msgtypes import stamp_ns
     from elastic_pm_dyn.bags.reader import open_bag
 
+    # A realtime loop beside other load is scheduled ahead of it, as docs/ros.md tells a user to run
+    # theirs: the plant, the controller, the observer and the recorder at nice -10 (at nice 0 each of
+    # the six processes gets a third of a core: the controller fell seconds behind and its PD loop
+    # flung the five-bar through its singular poses).
+    if subprocess.run(["nice", "-n", "-10", "true"], capture_output=True).returncode != 0:
+        pytest.skip("a negative nice value is not permitted here (nice -n -10 true failed)")
     hogs = cpu_hogs(2)
     try:
         # the controller first: a realtime plant runs from its start, with or without commands
         bag = run_user_loop(tmp_path, CONFIG / "five_bar.yaml", DOMAINS["realtime"], controller_first=True,
-                            plant_args=("-p", "sync_mode:=realtime", "-p", "diagnostics_rate:=5.0"), analyse=False)
+                            plant_args=("-p", "sync_mode:=realtime", "-p", "diagnostics_rate:=5.0", *NICE),
+                            controller_prefix=("nice", "-n", "-10"), observer_args=NICE, recorder_args=NICE,
+                            analyse=False)
     finally:
         for h in hogs:
             h.kill()
