@@ -47,14 +47,14 @@ def plant() -> Any:
     h = RosHarness(domain_id(17))
     node = h.add(PlantNode(context=h.context, parameter_overrides=[Parameter("sync_mode", value="lockstep")]))
     published: list[tuple[np.ndarray, float]] = []
-    publish = node._publish_state
+    publish = node.publish_state
 
     def record() -> None:
         publish()
         q = np.array(node.messages.joint_state.position)
         published.append((q, node.plant.gap()))
 
-    node._publish_state = record
+    node.publish_state = record
     node.published = published
     yield node
     h.close()
@@ -70,25 +70,25 @@ def _apply(node: Any, op: tuple) -> None:
         msg = JointState(name=list(joint_names), effort=[float(e) for e in effort])
         msg.header.stamp.sec = stamp  # any order: the plant holds commands by arrival
         node._on_command(msg)
-        node._on_lockstep()
+        node.sync.on_commands()
     elif kind == "set_state":
         _, joint_names, position, velocity = op
         request = SetJointState.Request(state=JointState(name=list(joint_names),
                                                          position=[float(p) for p in position],
                                                          velocity=[float(v) for v in velocity]))
-        response = node._on_set_state(request, SetJointState.Response())
+        response = node.sim_services.on_set_state(request, SetJointState.Response())
         assert isinstance(response.success, bool) and response.message
     elif kind in ("pause", "unpause"):
-        handler = node._on_pause if kind == "pause" else node._on_unpause
+        handler = node.sim_services.on_pause if kind == "pause" else node.sim_services.on_unpause
         assert handler(Trigger.Request(), Trigger.Response()).success
-        node._on_lockstep()
+        node.sync.on_commands()
     elif kind == "step":
         k = node.plant.k
-        response = node._on_step(StepPeriods.Request(periods=op[1]), StepPeriods.Response())
+        response = node.sim_services.on_step(StepPeriods.Request(periods=op[1]), StepPeriods.Response())
         assert response.message and node.plant.k == k + response.periods_advanced
         assert response.success == (node.paused and node.plant.fault is None and response.periods_advanced == op[1])
     else:
-        response = node._on_reset(Trigger.Request(), Trigger.Response())
+        response = node.sim_services.on_reset(Trigger.Request(), Trigger.Response())
         assert response.success, response.message
         assert node.plant.gap() < GAP and node.plant.fault is None
 

@@ -200,7 +200,7 @@ def test_plant_parameters_change_through_the_parameter_client() -> None:
         ok = remote.set(command_timeout=0.05, disturbance__timeout=0.02, marker_rate=10.0,
                         diagnostics_rate=100.0, lockstep__waiting_republish_period=0.25)
         assert all(r.successful for r in ok), [r.reason for r in ok]
-        assert (plant.hold.timeout, plant.hold.disturbance_timeout, plant.republish_period) == (0.05, 0.02, 0.25)
+        assert (plant.hold.timeout, plant.hold.disturbance_timeout, plant.sync.republish_period) == (0.05, 0.02, 0.25)
         assert plant.marker_timer.timer_period_ns == 100_000_000
         assert plant.diagnostics_timer.timer_period_ns == 10_000_000
         assert plant.get_parameter("disturbance.timeout").value == 0.02

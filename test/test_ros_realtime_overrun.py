@@ -98,7 +98,7 @@ def test_overrun_slows_the_clock_and_the_stamps_stay_on_the_grid(ros: RosHarness
     from diagnostic_msgs.msg import DiagnosticStatus
     plant = make_plant(ros, sync_mode="realtime", publish_rate=RATE, diagnostics_rate=10.0,
                        realtime__keep_gc_out=False, **OPTIONS)
-    assert plant.overrun == "slow" and plant.pub_clock is not None  # the default; the clock is published
+    assert plant.sync.overrun == "slow" and plant.pub_clock is not None  # the default; the clock is published
     slow_down(plant, 3 / RATE)
     out = Listener(ros)
     ros.wait_until(lambda: any(s.level == DiagnosticStatus.WARN for s in out.diagnostics[1:])
@@ -157,7 +157,7 @@ def test_a_stall_ages_the_command_on_the_plant_clock(ros: RosHarness, overrun: s
     out.send()
     ros.wait_until(lambda: out.states and np.array_equal(out.effort(), TAU), 10.0, "the command applied")
     stale = plant.stats.stale
-    age, t = plant.hold.age(plant._command_clock()), plant.plant.t
+    age, t = plant.hold.age(plant.command_clock()), plant.plant.t
     time.sleep(0.5)  # the executor does not run
     k = plant.plant.k
     ros.wait_until(lambda: plant.plant.k > k + 20, 30.0, "20 periods after the stall")
@@ -165,7 +165,7 @@ def test_a_stall_ages_the_command_on_the_plant_clock(ros: RosHarness, overrun: s
     ros.wait_until(lambda: out.states[-1][0] >= last, 10.0, "the states after the stall")
     if slow:
         # exactly the plant's time since (a loaded machine's own delays included), not the stall's 0.5 s
-        assert plant.hold.age(plant._command_clock()) - age == pytest.approx(plant.plant.t - t, abs=1e-9)
+        assert plant.hold.age(plant.command_clock()) - age == pytest.approx(plant.plant.t - t, abs=1e-9)
         assert plant.stats.stale == stale
         np.testing.assert_array_equal(out.effort(), TAU)
         assert plant.stats.slowed_periods >= 400  # the stall's periods: the clock stopped, not skipped
