@@ -11,7 +11,7 @@ import scipy.linalg
 from elastic_pm_dyn.errors import InputError
 from elastic_pm_dyn.kinematics.assembly import initial_state
 from elastic_pm_dyn.observer import Observer, ObserverConfig, load_config
-from elastic_pm_dyn.observer.core import kernels
+from elastic_pm_dyn.observer.core import correction, kernels
 from elastic_pm_dyn.observer.core.observability import analyse
 from elastic_pm_dyn.sim import kernels as sim_kernels
 
@@ -135,7 +135,7 @@ def test_kalman_update_matches_textbook_and_gates() -> None:
     r = rng.standard_normal(m)
     P = P0.copy()
     dx = np.zeros(n)
-    nis = kernels.kalman_update(P, H, R, r, 1e9, dx)
+    nis = correction.kalman_update(P, H, R, r, 1e9, dx)
     S = H @ P0 @ H.T + np.diag(R)
     K = P0 @ H.T @ np.linalg.inv(S)
     assert nis == pytest.approx(r @ np.linalg.solve(S, r), rel=1e-12)
@@ -144,7 +144,7 @@ def test_kalman_update_matches_textbook_and_gates() -> None:
     # A gated sample leaves everything unchanged.
     P = P0.copy()
     dx[:] = 0.0
-    nis = kernels.kalman_update(P, H, R, 100 * r, 1.0, dx)
+    nis = correction.kalman_update(P, H, R, 100 * r, 1.0, dx)
     assert nis > 1.0 and np.all(dx == 0.0) and np.all(P == P0)
     assert kernels.covariance_ok(P0) and not kernels.covariance_ok(P0 - 100 * np.eye(n))
 

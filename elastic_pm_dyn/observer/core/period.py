@@ -36,6 +36,7 @@ point's acceleration at that prior under that torque (3: its weighing does not e
 import numpy as np
 from numba import njit
 
+from elastic_pm_dyn.observer.core.correction import encoder_correct, imu_correct, imu_correct_auto, imu_innovations
 from elastic_pm_dyn.observer.core.kernels import (
     COVARIANCE_LOST,
     FX_TRANSMISSION,
@@ -48,11 +49,7 @@ from elastic_pm_dyn.observer.core.kernels import (
     ST_QD,
     ST_QD_NOISE,
     ST_Z,
-    encoder_correct,
     estimate_flat,
-    imu_correct,
-    imu_correct_auto,
-    imu_innovations,
     predict_checked,
 )
 from elastic_pm_dyn.sim.kernels import transmit
