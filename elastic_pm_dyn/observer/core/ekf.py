@@ -31,13 +31,13 @@ and with which commands, and which samples to correct with.
 from __future__ import annotations
 
 import numpy as np
-from scipy.stats import chi2
 
 from elastic_pm_dyn.errors import ElasticPmDynError, InputError
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.model.description import ACTIVE
 from elastic_pm_dyn.observer.config import RUNTIME_PARAMETERS, ObserverConfig
 from elastic_pm_dyn.observer.core import correction, disturbance, kernels, period
+from elastic_pm_dyn.observer.core.chi_square import chi2_quantile
 from elastic_pm_dyn.observer.core.estimate import Estimate, EstimateLayout
 from elastic_pm_dyn.observer.core.observer_model import ObserverModel
 from elastic_pm_dyn.observer.core.sensors import Sample
@@ -149,7 +149,7 @@ class Ekf:
             return np.inf
         g = self._gates.get(dof)
         if g is None:
-            g = self._gates[dof] = float(chi2.ppf(self.cfg.gating.probability, dof))
+            g = self._gates[dof] = float(chi2_quantile(self.cfg.gating.probability, dof))
         return g
 
     # ------------------------------------------------------------------ state
