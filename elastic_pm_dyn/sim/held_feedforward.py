@@ -16,8 +16,9 @@ import numpy as np
 from elastic_pm_dyn.errors import InputError
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.model.description import Model
+from elastic_pm_dyn.motion import feedforward
 from elastic_pm_dyn.motion.elastic_inverse import InverseMotion, zoh_samples
-from elastic_pm_dyn.motion.feedforward import elastic_line_motion, inverse_step, path_shaper, path_torques
+from elastic_pm_dyn.motion.feedforward import elastic_line_motion, inverse_step, path_shaper
 from elastic_pm_dyn.motion.references import ElasticLineReference, ReferenceSample
 from elastic_pm_dyn.motion.shaping import ShapedPath
 from elastic_pm_dyn.motion.task import Task
@@ -65,7 +66,8 @@ def feedforward_table(model: Model, path, rate: float, method: str, shaper: str 
     if inverse not in INVERSES:
         raise InputError(f"the elastic inverse is held or continuous, got {inverse!r}")
     if inverse == "continuous" or method == "rigid" or (method == "shaped" and shaped_inverse == "rigid"):
-        return path_torques(model, path, rate, method, shaper, shaped_inverse)
+        # through the module: the table of the other methods is that function's, wherever it is replaced
+        return feedforward.path_torques(model, path, rate, method, shaper, shaped_inverse)
     if method == "shaped":
         if shaped_inverse != "elastic":
             raise InputError(f"the inverse after a shaper is rigid or elastic, got {shaped_inverse!r}")
