@@ -86,6 +86,8 @@ class HeldLineReference(ElasticLineReference):
         super().__init__(model, line, rate, joint_names)
         held = held_solution(model, line, rate, self.motion)
         self._times, self._held = held.times, held.torques
+        # the node holds the reference's end: the table's rest row, not a settling one
+        self.duration = max(self.duration, (len(self._held) - 1) / rate)
 
     def sample(self, t: float) -> ReferenceSample:
         s = super().sample(t)
