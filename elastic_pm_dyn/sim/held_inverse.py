@@ -50,7 +50,7 @@ from elastic_pm_dyn.sim.simulator import SimulationOptions, Simulator
 from elastic_pm_dyn.sim.torque import TorqueTable
 
 POINTS = 4  # output points per hold period (its end included): the ripple between samples counts
-SUBSTEPS = 25  # RK4 steps per point: 10 us at 1 kHz (the five-bar's 566 Hz mode at 0.036 rad a step)
+MAX_STEP = 1e-5  # [s] RK4 step of the model runs: 0.06 rad of the Triglide's 976 Hz mode (DOP853 agrees to ~1e-10 m)
 SETTLE = 10  # periods after the move in which the samples may still settle the machine
 MAX_PASSES = 8
 TOLERANCE = 1e-12  # [task units] output error at which the passes stop
@@ -177,7 +177,7 @@ def solve_held(mech: Mechanism, path: Path, rate: float, horizon: float, u_first
         raise InputError(f"held inverse: {n_h} first samples of {len(mech.active)} motors needed")
     n_a, n = len(mech.active), len(mech.ae)
     dt = h / POINTS
-    options = SimulationOptions(integrator="rk4", dt=dt / SUBSTEPS, sample=dt)
+    options = SimulationOptions(integrator="rk4", dt=dt / np.ceil(dt / MAX_STEP - 1e-9), sample=dt)
     sim = Simulator(mech, options)
     t_pts = dt * np.arange(1, n_h * POINTS + 1)
     y_d = np.array([path(float(t) - offset)[0] for t in t_pts])
