@@ -304,7 +304,7 @@ def test_waypoint_file_of_poses_and_of_motor_positions(tmp_path, capsys, five_ba
     assert rigid.path_deviation >= 10 * elastic.path_deviation
     out = tmp_path / "tau.csv"
     assert main(["feedforward", "--model", "config/five_bar.yaml", "--waypoints", str(poses), "--method", "elastic",
-                 "--hold", "0.1", "--out", str(out)]) == 0
+                 "--elastic-inverse", "continuous", "--hold", "0.1", "--out", str(out)]) == 0
     assert np.allclose(np.loadtxt(out, delimiter=",", skiprows=1)[:, 1:], ve, rtol=0, atol=1e-12)
     motors = tmp_path / "motors.csv"
     motors.write_text("t,left_motor,right_motor\n0,2.6,0.87\n0.2,2.5,0.9\n")
