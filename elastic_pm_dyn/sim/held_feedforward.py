@@ -12,6 +12,7 @@ the hold. The default is what a user who asks for a table at a rate expects of i
 from __future__ import annotations
 
 import numpy as np
+from scipy.interpolate import make_interp_spline
 
 from elastic_pm_dyn.errors import InputError
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
@@ -43,7 +44,11 @@ def held_solution(model: Model, path, rate: float, motion: InverseMotion | None 
     n_h = int(np.ceil(horizon * rate - 1e-9))
     if len(first) < n_h:  # a table without its settling periods: they are added
         first = np.vstack([first, np.tile(u_rest, (n_h - len(first), 1))])
-    held = solve_held(mech, path, rate, horizon, first, q0, u_rest, q_rest, offset=motion.pre, task=task)
+    # the continuous inverse's state on the path: where a long horizon's windows end
+    ae = mech.ae
+    state = make_interp_spline(motion.t, np.hstack([motion.q[:, ae], motion.qd[:, ae]]), k=5, axis=0)
+    held = solve_held(mech, path, rate, horizon, first, q0, u_rest, q_rest, offset=motion.pre, task=task,
+                      through=lambda t: state(float(np.clip(t, motion.t[0], motion.t[-1]))))
     n = max(len(first), n_h + 1)
     values = np.tile(u_rest, (n, 1))
     values[:n_h] = held.torques[:n_h]

@@ -35,6 +35,8 @@ one). The continuous inverse's period means are the first guess.
 
 from __future__ import annotations
 
+import itertools
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -57,6 +59,8 @@ TOLERANCE = 1e-12  # [task units] output error at which the passes stop
 DRIFT_SPAN = 0.3  # [s] the end state's velocity error counts as the distance it drifts in this time
 STALL = 0.7  # a pass that leaves more than this part of the best error so far ends the passes
 LINEARISE = 5e-3  # [s] between the points the machine is linearised at (interpolated between)
+WINDOW = 400  # periods kept from one solve: the lifted matrices hold ~(4 n_y + 1) ((WINDOW + OVERLAP) n_a)^2 numbers
+OVERLAP = 100  # periods a window's solve reaches into the next one
 RHO = 1e-9  # Tikhonov weight on the correction, relative to the sensitivity's largest column norm^2
 
 
@@ -165,48 +169,81 @@ def _discretise(A: np.ndarray, B: np.ndarray, h: float) -> tuple[np.ndarray, np.
 
 def solve_held(mech: Mechanism, path: Path, rate: float, horizon: float, u_first: np.ndarray,
                q0: np.ndarray, u_rest: np.ndarray, q_rest: np.ndarray, offset: float = 0.0,
-               task: Task | None = None) -> HeldInverse:
+               task: Task | None = None, through: Callable[[float], np.ndarray] | None = None) -> HeldInverse:
     """Samples u_k, k < n_h (n_h = ceil(horizon * rate)), held at ``rate``, by Gauss-Newton
     from ``u_first`` ((n_h, n_a)), the plant starting at rest at ``q0``; u_rest after them.
-    The table's t = 0 is the path's t = -``offset`` (pre-actuation)."""
+    The table's t = 0 is the path's t = -``offset`` (pre-actuation).
+
+    A horizon longer than :data:`WINDOW` periods is solved window by window (the lifted
+    matrices grow with its square): each window starts where the last one's simulated machine
+    is and ends in ``through``'s state (path time -> x = (q_ae, qd_ae): the continuous
+    inverse's, on the path), the last one at rest."""
     task = Task(mech) if task is None else task
     h = 1.0 / rate
     n_h = int(np.ceil(horizon * rate - 1e-9))
     U = np.array(u_first[:n_h], dtype=float)
     if U.shape != (n_h, len(mech.active)):
         raise InputError(f"held inverse: {n_h} first samples of {len(mech.active)} motors needed")
-    n_a, n = len(mech.active), len(mech.ae)
+    n = len(mech.ae)
+    windows = max(1, int(np.ceil(n_h / WINDOW)))
+    if windows > 1 and through is None:
+        raise InputError(f"held inverse: a horizon of {n_h} periods needs the path's states between its windows")
+    edges = np.linspace(0, n_h, windows + 1).round().astype(int)
     dt = h / POINTS
-    options = SimulationOptions(integrator="rk4", dt=dt / np.ceil(dt / MAX_STEP - 1e-9), sample=dt)
-    sim = Simulator(mech, options)
-    t_pts = dt * np.arange(1, n_h * POINTS + 1)
-    y_d = np.array([path(float(t) - offset)[0] for t in t_pts])
-    x_rest = np.concatenate([q_rest[mech.ae], np.zeros(n)])
+    sim = Simulator(mech, SimulationOptions(integrator="rk4", dt=dt / np.ceil(dt / MAX_STEP - 1e-9), sample=dt))
     lin = _Linearisation(mech)
+    q, qd = np.array(q0, dtype=float), np.zeros(mech.n)
+    passes, err = 0, 0.0
+    for k0, k1 in itertools.pairwise(edges):
+        # each window reaches OVERLAP periods into the next (receding horizon): where it is cut,
+        # the samples were not forced to a state, the end of the longer solve was
+        reach = min(k1 + OVERLAP, n_h) if k1 < n_h else n_h
+        last = reach == n_h
+        x_end = (np.concatenate([q_rest[mech.ae], np.zeros(n)]) if last
+                 else np.asarray(through(reach * h - offset), dtype=float))
+        U_w, w_err, e_T, w_passes, (Q, Qd) = _solve_window(
+            mech, task, sim, lin, path, rate, k0, U[k0:reach], u_rest if last else U[reach], q, qd, x_end, offset)
+        U[k0:k1] = U_w[:k1 - k0]
+        q, qd = Q[(k1 - k0) * POINTS - 1], Qd[(k1 - k0) * POINTS - 1]  # the machine where the next window starts
+        passes, err = max(passes, w_passes), max(err, w_err)
+    return HeldInverse(np.arange(n_h + 1) * h, np.vstack([U, u_rest]), np.array(q0, dtype=float), passes, err, e_T)
+
+
+def _solve_window(mech: Mechanism, task: Task, sim: Simulator, lin: _Linearisation, path: Path, rate: float,
+                  k0: int, U: np.ndarray, u_next: np.ndarray, q: np.ndarray, qd: np.ndarray, x_end: np.ndarray,
+                  offset: float) -> tuple[np.ndarray, float, np.ndarray, int, tuple[np.ndarray, np.ndarray]]:
+    """Gauss-Newton on the samples of periods k0 .. k0 + len(U) from the tree state (q, qd):
+    (samples, largest output error, end-state error, passes, the simulated tree states at the points)."""
+    h = 1.0 / rate
+    n_w, n_a = U.shape
+    n = len(mech.ae)
+    dt = h / POINTS
+    t0 = k0 * h
+    t_pts = t0 + dt * np.arange(1, n_w * POINTS + 1)
+    y_d = np.array([path(float(t) - offset)[0] for t in t_pts])
+    times = t0 + np.arange(n_w + 1) * h
+    U = U.copy()
     solver = None
     best = None
     for passes in range(1, MAX_PASSES + 1):
-        times = np.arange(n_h + 1) * h
-        table = TorqueTable(times, np.vstack([U, u_rest]))
-        run = sim.run(table, n_h * h, q0=q0)
-        Q, Qd = run.q[1:], run.qd[1:]  # the points t_pts (the run also records t = 0)
-        y = np.array([task.coordinates(q) for q in Q])
-        e_y = y - y_d
-        e_T = np.concatenate([Q[-1][mech.ae], Qd[-1][mech.ae]]) - x_rest
+        run = sim.run(TorqueTable(times, np.vstack([U, u_next])), n_w * h, q0=q, qd0=qd, t0=t0)
+        Q, Qd = run.q[1:], run.qd[1:]  # the points t_pts (the run also records its start)
+        e_y = np.array([task.coordinates(x) for x in Q]) - y_d
+        e_T = np.concatenate([Q[-1][mech.ae], Qd[-1][mech.ae]]) - x_end
         err = float(np.max(np.abs(e_y)))
         # the output error, or the end state's: its position and what its velocity drifts over a while
         score = max(err, float(np.max(np.abs(e_T[:n])) + DRIFT_SPAN * np.max(np.abs(e_T[n:]))))
         if best is not None and score > STALL * best[4]:
             break  # what is left is the staircase's own ripple (the least-squares optimum), or a pass made it worse
         if best is None or score < best[4]:
-            best = (U.copy(), err, e_T, passes, score)
+            best = (U.copy(), err, e_T, passes, score, (Q, Qd))
         if score <= TOLERANCE:
             break
         if solver is None:  # linearised once, about the first pass's motion (a pass is then one simulation)
-            solver = _Correction(*_lifted(mech, task, lin, Q, Qd, U, n_h, dt, max(1, round(LINEARISE * rate))))
-        U = U + solver(e_y.ravel(), e_T).reshape(n_h, n_a)
-    U, err, e_T, passes, _ = best
-    return HeldInverse(times, np.vstack([U, u_rest]), q0, passes, err, e_T)
+            solver = _Correction(*_lifted(mech, task, lin, Q, Qd, U, n_w, dt, max(1, round(LINEARISE * rate))))
+        U = U + solver(e_y.ravel(), e_T).reshape(n_w, n_a)
+    U, err, e_T, passes, _, end = best
+    return U, err, e_T, passes, end
 
 
 def _lifted(mech: Mechanism, task: Task, lin: _Linearisation, Q: np.ndarray, Qd: np.ndarray, U: np.ndarray,
