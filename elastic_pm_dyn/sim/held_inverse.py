@@ -1,14 +1,14 @@
 """Discrete-time inverse of the held elastic machine: torque samples for a zero-order hold.
 
 The plant holds each command sample u_k over [t_k, t_k + h) (h = 1 / rate). The continuous
-elastic inverse (:mod:`elastic_inverse`) sampled, even as each period's mean, is not an
+elastic inverse (:mod:`~elastic_pm_dyn.motion.elastic_inverse`) sampled, even as each period's mean, is not an
 inverse of that machine: the staircase differs from the smooth torque by O(h), so the end
 effector leaves the path between and at the samples and, above all, the machine ends the move
 with a small velocity left in its free motors (a double integrator, or with gravity a slow
 pendulum), which the hold turns into drift. Here the samples are chosen for the held machine
 itself (the lifted formulation of iterative learning control, run on the model):
 
-    minimise  sum_s |y(t_s) - y_d(t_s)|^2 + rho |U - U_0|^2      (t_s: m points per period)
+    minimise  sum_s |y(t_s) - y_d(t_s)|^2                     (t_s: POINTS points per period)
     subject to x(T) = x_rest,   u_k = u_rest for t_k >= T
 
 with y the task coordinates (:class:`~elastic_pm_dyn.motion.task.Task`), y_d the path,
@@ -21,7 +21,11 @@ dY / dU, built from the machine linearised about the simulated motion (eq 17 pro
 q_ae, by finite differences of SCDD's accelerations, eqs 33-41) and discretised exactly
 over each sub-interval (the matrix exponential of the frozen linear system with the held
 input, as an ETD step does). The residual is always the nonlinear simulation's, so the
-linearisation only sets the rate of convergence, not the answer.
+linearisation only sets the rate of convergence, not the answer (each correction carries a
+tiny Tikhonov term, RHO). A pass that does not lower the error ends the passes and the best
+samples so far are kept: where a mode is nearly uncontrollable through the hold (the
+Triglide's 976 Hz mode under a 1 kHz hold) that is the first guess itself. A long horizon is
+solved in overlapping windows (:func:`solve_held`).
 
 Why not a per-sample inverse: matching y at t_{k+1} alone with u_k (one sample ahead) inverts
 the sampled system's zeros, among them the hold's sampling zeros near -1 (relative degree
