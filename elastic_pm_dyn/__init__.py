@@ -49,6 +49,7 @@ _EXPORTS: dict[str, tuple[str, str]] = {
     "QuinticLine": ("elastic_pm_dyn.motion.trajectory", "QuinticLine"),
     "line_torques": ("elastic_pm_dyn.motion.feedforward", "line_torques"),
     "rigid_feedforward": ("elastic_pm_dyn.motion.feedforward", "rigid_feedforward"),
+    "feedforward_table": ("elastic_pm_dyn.sim.held_feedforward", "feedforward_table"),
     "LineReference": ("elastic_pm_dyn.motion.references", "LineReference"),
     "REFERENCE_MANOEUVRE": ("elastic_pm_dyn.motion.manoeuvre", "REFERENCE_MANOEUVRE"),
     "observe": ("elastic_pm_dyn.observer.offline", "observe_bag"),
@@ -86,6 +87,7 @@ __all__ = [  # written out, not derived from _EXPORTS: static tools read it lite
     "analyze",
     "batch",
     "elastic_modes",
+    "feedforward_table",
     "initial_state",
     "line_torques",
     "load_model",
@@ -120,6 +122,7 @@ if TYPE_CHECKING:  # what type checkers and IDEs see; at run time __getattr__ be
     from elastic_pm_dyn.observer.config import load_config as load_observer_config
     from elastic_pm_dyn.observer.drivers.results import ObserveSummary
     from elastic_pm_dyn.observer.offline import observe_bag as observe
+    from elastic_pm_dyn.sim.held_feedforward import feedforward_table
     from elastic_pm_dyn.sim.simulate import simulate
     from elastic_pm_dyn.sim.simulator import SimulationOptions, Simulator
     from elastic_pm_dyn.sim.torque import ConstantTorque, FunctionTorque, TorqueTable, load_torque_csv

@@ -120,12 +120,12 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 def cmd_feedforward(args: argparse.Namespace) -> int:
     from elastic_pm_dyn.errors import InputError
     from elastic_pm_dyn.kinematics.mechanism import Mechanism
-    from elastic_pm_dyn.motion.feedforward import path_torques
     from elastic_pm_dyn.motion.manoeuvre import REFERENCE_MANOEUVRE as ref
     from elastic_pm_dyn.motion.poses import PoseLine
     from elastic_pm_dyn.motion.task import Task
     from elastic_pm_dyn.motion.time_laws import law_order
     from elastic_pm_dyn.motion.trajectory import make_line
+    from elastic_pm_dyn.sim.held_feedforward import feedforward_table
     from elastic_pm_dyn.sim.torque import write_torque_csv
     rate = _control_rate(args)  # checked before the model is read
     model = _load(args)
@@ -163,7 +163,8 @@ def cmd_feedforward(args: argparse.Namespace) -> int:
     elif args.rpy is not None:
         raise InputError(f"--rpy: {model.name} has no platform orientation to command (its task coordinates: "
                          f"{', '.join(task.names)})")
-    times, torques, names, _ = path_torques(model, line, rate, args.method, args.shaper, args.shaped_inverse)
+    times, torques, names, _ = feedforward_table(model, line, rate, args.method, args.shaper, args.shaped_inverse,
+                                                 args.elastic_inverse)
     write_torque_csv(args.out, times, torques, names)
     print(f"{len(times)} samples at {rate:g} Hz -> {args.out}  (peak |tau| "
           + ", ".join(f"{n} {v:.3f} N m" for n, v in zip(names, np.abs(torques).max(0), strict=True)) + ")")
@@ -189,11 +190,11 @@ def _waypoint_feedforward(args: argparse.Namespace, model, rate: float) -> int:
     """feedforward --waypoints: poses of the task coordinates or motor positions with times."""
     from elastic_pm_dyn.errors import InputError
     from elastic_pm_dyn.kinematics.mechanism import Mechanism
-    from elastic_pm_dyn.motion.feedforward import path_torques
     from elastic_pm_dyn.motion.manoeuvre import REFERENCE_MANOEUVRE as ref
     from elastic_pm_dyn.motion.task import Task
     from elastic_pm_dyn.motion.time_laws import law_order
     from elastic_pm_dyn.motion.waypoints import WaypointPath, joint_waypoint_torques, read_waypoints
+    from elastic_pm_dyn.sim.held_feedforward import feedforward_table
     from elastic_pm_dyn.sim.torque import write_torque_csv
     if args.line is not None or args.rpy is not None or args.move is not None:
         raise InputError("--waypoints replaces --line, --rpy and --move: the file gives the poses and their times")
@@ -213,7 +214,8 @@ def _waypoint_feedforward(args: argparse.Namespace, model, rate: float) -> int:
     law = args.law or ("nonic" if elastic else "quintic")
     if columns == task.names:
         path = WaypointPath(table[:, 0], table[:, 1:], hold, law_order(law))
-        times, torques, names, _ = path_torques(model, path, rate, args.method, args.shaper, args.shaped_inverse)
+        times, torques, names, _ = feedforward_table(model, path, rate, args.method, args.shaper,
+                                                     args.shaped_inverse, args.elastic_inverse)
     elif all(n in columns for n in mech.active_names):
         if args.method != "rigid":
             raise InputError("--waypoints with motor positions: rigid only (the elastic inverse prescribes the "
@@ -496,8 +498,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--rate", type=float, help="sample rate [Hz] (default: the reference manoeuvre's)")
     p.add_argument("--method", choices=("rigid", "elastic", "shaped"), default="rigid",
                    help="rigid: the rigid model's inverse dynamics sampled at t_k; elastic: the elastic model's "
-                        "(the deflections compensated), each sample the mean over its hold period; shaped: the "
-                        "rigid inverse of the path through an input shaper of the elastic modes (--shaper)")
+                        "(the deflections compensated; --elastic-inverse picks how the hold is treated); shaped: "
+                        "the rigid inverse of the path through an input shaper of the elastic modes (--shaper)")
+    p.add_argument("--elastic-inverse", choices=("held", "continuous"), default="held",
+                   help="the elastic inverse (--method elastic, or shaped with --shaped-inverse elastic): held "
+                        "(default): the samples solved for the machine that holds them at --rate, which follows "
+                        "the path and ends at rest; continuous: the continuous inverse, each sample its mean over "
+                        "the period (faster to compute; the hold leaves micrometres of path error and a drift)")
     p.add_argument("--shaper", choices=("zv", "zvd", "ei"), default="zvd",
                    help="--method shaped: the shaper (default zvd), built from the free-motor elastic modes at the "
                         "path's start and end; the move lengthens by its length")

@@ -25,6 +25,12 @@ METHODS = ("rigid", "elastic", "shaped")
 INVERSE_GRID = 2e-3
 
 
+def inverse_step(rate: float) -> float:
+    """The continuous elastic inverse's grid for a table at ``rate``: INVERSE_GRID, or the
+    control period where that is longer."""
+    return max(INVERSE_GRID, 1.0 / rate)
+
+
 def rigid_feedforward(model: Model) -> RigidFeedforward:
     """Feedforward on the rigid model (elastic DOF locked), warm-started at the start pose."""
     elastic = Mechanism(model)
@@ -129,7 +135,7 @@ def elastic_line_torques(model: Model, line: Line | QuinticLine | PoseLine, rate
     needs pre-actuation: the table then starts ``motion.pre`` before the move, which begins at
     t = pre, and runs ``motion.post`` longer.
     """
-    motion = elastic_line_motion(model, line, max(INVERSE_GRID, 1.0 / rate))
+    motion = elastic_line_motion(model, line, inverse_step(rate))
     times, values = zoh_samples(motion, rate, line.duration)
     k0 = int(np.argmin(np.abs(motion.t + motion.pre)))  # the table's t = 0 (before any pre-actuation)
     return times, values, Mechanism(model).active_names, motion.q[k0].copy()

@@ -18,6 +18,7 @@ from elastic_pm_dyn.motion.elastic_inverse import solve
 from elastic_pm_dyn.motion.feedforward import elastic_line_motion, elastic_line_torques, line_torques
 from elastic_pm_dyn.motion.time_laws import rest_to_rest
 from elastic_pm_dyn.motion.trajectory import Line, QuinticLine
+from elastic_pm_dyn.sim.held_feedforward import held_line_torques
 from elastic_pm_dyn.sim.simulator import SimulationOptions, Simulator
 from elastic_pm_dyn.sim.torque import FunctionTorque, TorqueTable
 
@@ -165,6 +166,11 @@ def test_cli_elastic_feedforward_writes_the_elastic_torques(tmp_path, capsys, fi
                  "--hold", "0.05", "--out", str(out)]) == 0
     table = np.loadtxt(out, delimiter=",", skiprows=1)
     line = Line(np.array([-0.05, 0.35]), np.array([0.05, 0.45]), 0.1, 0.05, 4)
+    times, values, _, _ = held_line_torques(five_bar_model, line, RATE)  # the default: the held inverse
+    assert np.allclose(table[:, 0], times) and np.allclose(table[:, 1:], values, rtol=0, atol=1e-12)
+    assert main(["feedforward", "--model", "config/five_bar.yaml", "--method", "elastic", "--move", "0.1",
+                 "--hold", "0.05", "--elastic-inverse", "continuous", "--out", str(out)]) == 0
+    table = np.loadtxt(out, delimiter=",", skiprows=1)
     times, values, _, _ = elastic_line_torques(five_bar_model, line, RATE)
     assert np.allclose(table[:, 0], times) and np.allclose(table[:, 1:], values, rtol=0, atol=1e-12)
     assert main(["feedforward", "--model", "config/five_bar.yaml", "--method", "elastic", "--move", "0.003",
@@ -298,7 +304,7 @@ def test_waypoint_file_of_poses_and_of_motor_positions(tmp_path, capsys, five_ba
     assert rigid.path_deviation >= 10 * elastic.path_deviation
     out = tmp_path / "tau.csv"
     assert main(["feedforward", "--model", "config/five_bar.yaml", "--waypoints", str(poses), "--method", "elastic",
-                 "--hold", "0.1", "--out", str(out)]) == 0
+                 "--elastic-inverse", "continuous", "--hold", "0.1", "--out", str(out)]) == 0
     assert np.allclose(np.loadtxt(out, delimiter=",", skiprows=1)[:, 1:], ve, rtol=0, atol=1e-12)
     motors = tmp_path / "motors.csv"
     motors.write_text("t,left_motor,right_motor\n0,2.6,0.87\n0.2,2.5,0.9\n")

@@ -96,19 +96,24 @@ def test_lockstep_with_plant_reproduces_offline_simulate(ros: RosHarness) -> Non
                                rtol=0, atol=1e-12)
 
 
-def test_elastic_method_in_lockstep_sends_the_elastic_table_and_the_plant_stays_quiet(ros: RosHarness) -> None:
-    """method elastic: the commands are the offline elastic table bit for bit, and the plant
-    (elastic, in lockstep) ends the reference manoeuvre's line without the rigid torques' ringing."""
+@pytest.mark.parametrize("inverse", ["held", "continuous"])
+def test_elastic_method_in_lockstep_sends_the_elastic_table_and_the_plant_stays_quiet(ros: RosHarness,
+                                                                                      inverse: str) -> None:
+    """method elastic: the commands are the offline elastic table (held, the default, or the
+    continuous inverse's means) bit for bit, and the plant (elastic, in lockstep) ends the
+    reference manoeuvre's line without the rigid torques' ringing."""
     from elastic_pm_dyn.motion.feedforward import elastic_line_torques
     from elastic_pm_dyn.motion.trajectory import Line
+    from elastic_pm_dyn.sim.held_feedforward import held_line_torques
     model = load_model(FIVE_BAR)
     line = Line(np.array(REFERENCE_MANOEUVRE.start), np.array(REFERENCE_MANOEUVRE.end), REFERENCE_MANOEUVRE.move,
                 0.05, 4)  # 0.25 s in all: a sum without round-off, so the node stops where the table does
-    times, torques, _, _ = elastic_line_torques(model, line, 1000.0)
+    table = held_line_torques if inverse == "held" else elastic_line_torques
+    times, torques, _, _ = table(model, line, 1000.0)
     listener = Listener(ros)
     make(ros, "plant", sync_mode="lockstep", publish_rate=1000.0, formulation="scdd", integrator="rk4", dt=2e-5)
     ff = make(ros, "feedforward", trigger="state", exit_when_done=True, wait_for_subscribers=2, method="elastic",
-              line__hold=0.05)
+              line__hold=0.05, elastic_inverse=inverse)
     ros.wait_until(lambda: ff.done, 60.0, "the feedforward to finish the manoeuvre")
     ros.spin_for(0.05)
     n = len(times) - 1

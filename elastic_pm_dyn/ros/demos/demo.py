@@ -29,7 +29,7 @@ from elastic_pm_dyn.bags.series import read_series
 from elastic_pm_dyn.errors import InputError
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.model.loader import load_model
-from elastic_pm_dyn.motion.feedforward import elastic_line_torques, line_torques
+from elastic_pm_dyn.motion.feedforward import line_torques
 from elastic_pm_dyn.motion.manoeuvre import REFERENCE_MANOEUVRE
 from elastic_pm_dyn.motion.trajectory import Line, QuinticLine
 from elastic_pm_dyn.ros.demos.local_nodes import run_domain_id
@@ -40,6 +40,7 @@ from elastic_pm_dyn.ros.demos.processes import (
     wait_for_recording,
 )
 from elastic_pm_dyn.ros.params import share_path
+from elastic_pm_dyn.sim.held_feedforward import held_line_torques
 from elastic_pm_dyn.sim.simulator import SimulationOptions, Simulator
 from elastic_pm_dyn.sim.torque import TorqueTable
 
@@ -158,8 +159,8 @@ def analyse(out: Path, bag: Path, model_path: Path, sync: str, line: QuinticLine
     forces = {b.name: bf.column("force", b.name)[i_bf] for b in model.branches}
     gap = np.array([mech.gap(x) for x in q])
 
-    if feedforward == "elastic":  # in mech.active_names order
-        times, torques, _, _ = elastic_line_torques(model, line, CONTROL_RATE)
+    if feedforward == "elastic":  # in mech.active_names order; the node's default inverse, held
+        times, torques, _, _ = held_line_torques(model, line, CONTROL_RATE)
     else:
         times, torques, _ = line_torques(model, line, CONTROL_RATE)
     offline = Simulator(mech, OPTIONS).run(TorqueTable(times, torques, "zoh"), line.duration)

@@ -49,6 +49,7 @@ from elastic_pm_dyn.motion.references import ElasticLineReference, TaskReference
 from elastic_pm_dyn.motion.shaping import ShapedPath
 from elastic_pm_dyn.motion.task import Task
 from elastic_pm_dyn.motion.waypoints import MovingWaypointPath, WaypointPath
+from elastic_pm_dyn.sim.held_feedforward import DEFAULT_INVERSE, HeldLineReference
 
 END_EFFECTOR = "end_effector"
 POSITION_TOLERANCE = 1e-6  # [m] a coordinate the machine cannot move must match to this
@@ -212,10 +213,13 @@ def goal_path(msg: Any, model: Model, frame: str, order: int, rate: float) -> Wa
 
 
 def goal_reference(model: Model, path: WaypointPath | MovingWaypointPath, method: str, rate: float, shaper: str,
-                   joint_names: Sequence[str]) -> TaskReference | ElasticLineReference:
+                   joint_names: Sequence[str], inverse: str = DEFAULT_INVERSE) -> TaskReference | ElasticLineReference:
     """The reference of a goal's path by ``method`` (rigid, elastic, shaped: as ``feedforward
-    --waypoints``'s table at the control instants). Unreachable or singular poses raise."""
+    --waypoints``'s table at the control instants; elastic by the ``inverse``, held or
+    continuous). Unreachable or singular poses raise."""
     if method == "elastic":
+        if inverse == "held":
+            return HeldLineReference(model, path, rate, joint_names)
         return ElasticLineReference(model, path, rate, joint_names)
     if method == "shaped":
         path = ShapedPath(path, path_shaper(model, path, shaper))

@@ -26,6 +26,7 @@ from elastic_pm_dyn.model.description import Model
 from elastic_pm_dyn.motion.feedforward import rigid_feedforward
 from elastic_pm_dyn.motion.references import ElasticLineReference, JointReference
 from elastic_pm_dyn.ros.feedforward.cartesian_goals import goal_reference
+from elastic_pm_dyn.sim.held_feedforward import DEFAULT_INVERSE, HeldLineReference
 
 CONTEXT = "forkserver"
 POLL = 0.05  # [s] how often the waiting thread looks at its cancel flag
@@ -45,11 +46,16 @@ def prestart() -> None:
 
 
 def cartesian_reference(model: Model, path: Any, method: str, rate: float, shaper: str,
-                        joint_names: Sequence[str]) -> Any:
-    return goal_reference(model, path, method, rate, shaper, joint_names)
+                        joint_names: Sequence[str], inverse: str = DEFAULT_INVERSE) -> Any:
+    return goal_reference(model, path, method, rate, shaper, joint_names, inverse)
 
 
-def elastic_line_reference(model: Model, line: Any, rate: float, joint_names: Sequence[str]) -> ElasticLineReference:
+def elastic_line_reference(model: Model, line: Any, rate: float, joint_names: Sequence[str],
+                           inverse: str = DEFAULT_INVERSE) -> ElasticLineReference:
+    """The elastic line's reference: the held inverse's samples (``inverse`` held) or the
+    continuous inverse's period means (continuous)."""
+    if inverse == "held":
+        return HeldLineReference(model, line, rate, list(joint_names))
     return ElasticLineReference(model, line, rate, list(joint_names))
 
 

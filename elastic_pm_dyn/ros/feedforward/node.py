@@ -3,8 +3,10 @@
 Publishes motor torques on ``torque_command`` at the control rate and the model's motion on
 ``reference_joint_states``. ``method``: ``rigid`` (the rigid model's inverse dynamics, sampled
 at each control instant), ``elastic`` (a line or a Cartesian goal: the elastic model's inverse,
-computed when the line or goal is made, each torque the mean over its hold period; the reference
-motion then has the motors at their deflection-compensated angles) or ``shaped`` (a line or a
+computed when the line or goal is made; ``elastic_inverse: held``, the default, solves for the
+torques the plant holds over each period so that it follows the path and ends at rest
+(:mod:`~elastic_pm_dyn.sim.held_inverse`), ``continuous`` holds the continuous inverse's mean over
+each period; the reference motion then has the motors at their deflection-compensated angles) or ``shaped`` (a line or a
 Cartesian goal: the rigid inverse of the path through the ``shaper`` of the free-motor elastic modes,
 the move longer by the shaper's length). ``line.law``: the time law of lines and Cartesian
 goals (empty: quintic for rigid, nonic, C^4, for elastic). Desired motion (parameter ``source``):
@@ -117,6 +119,7 @@ from elastic_pm_dyn.ros.params import (
 )
 from elastic_pm_dyn.ros.qos import COMMAND_OUT_QOS, COMMAND_QOS, OBSERVER_INPUT_QOS, STATE_QOS
 from elastic_pm_dyn.ros.throttle import KindThrottle
+from elastic_pm_dyn.sim.held_feedforward import INVERSES
 
 READY_POLL = 0.05  # [s] wall-clock check for subscribers while waiting to start
 # Our errors (unreachable, singular), and numpy's should a solver inside it fail outright.
@@ -144,6 +147,10 @@ PARAMS = [
           "trajectory with Cartesian goals",
           choices=("rigid", "elastic", "shaped")),
     Param("shaper", "zvd", "method shaped: zv, zvd or ei", choices=SHAPERS),
+    Param("elastic_inverse", "held", "method elastic: held (the samples solved for the plant that holds them at "
+          "the rate: on the path at and between the samples, at rest after the move) or continuous (the "
+          "continuous inverse's mean over each period: faster to compute, micrometres off and a drift in the hold)",
+          choices=INVERSES),
     Param("hold.duration", 0.5, "source hold: how long the start pose is held [s]", positive=True),
     Param("autostart", True, "line, hold: start at start-up (else call ~/start)"),
     Param("trigger", "timer", "timer (at rate, node clock) or state (one command per plant state)",
@@ -195,6 +202,7 @@ class FeedforwardNode(ManagedNode):
         self.wait_for = p["wait_for_subscribers"]
         self.rate = p["rate"]
         self.method, self.shaper, self.frame = p["method"], p["shaper"], p["frames.base"]
+        self.inverse = p["elastic_inverse"]
         self.goal_law = law_order(p["line.law"] or ("nonic" if p["method"] == "elastic" else "quintic"))
         if p["method"] != "rigid" and self.source == "hold":
             raise ParameterError(f"parameter 'method': {p['method']} takes source line or trajectory (Cartesian "
@@ -212,7 +220,8 @@ class FeedforwardNode(ManagedNode):
             prestart()
             what = f"elastic line {np.asarray(line.start).tolist()} -> {np.asarray(line.end).tolist()} m"
             self.line_job = GoalJob(what, None,
-                                    partial(elastic_line_reference, self.model, line, self.rate, rigid.joint_names),
+                                    partial(elastic_line_reference, self.model, line, self.rate, rigid.joint_names,
+                                            self.inverse),
                                     stopping)
             self.line_job.start()
         self.line = (None if self.line_job is not None else
@@ -324,7 +333,7 @@ class FeedforwardNode(ManagedNode):
             return
         self._submit(GoalJob(f"cartesian goal of {len(msg.points)} points ({self.method})", start,
                              partial(cartesian_reference, self.model, path, self.method, self.rate, self.shaper,
-                                     self.ff_names), stopping))
+                                     self.ff_names, self.inverse), stopping))
 
     # ------------------------------------------------------------------- goals
     def _goal_clock(self) -> tuple[int, str]:
