@@ -106,10 +106,16 @@ class Process(NamedTuple):
     zkey: np.ndarray  # [T, psd_z]: what the cached z block (Phi_z, Qd_z) was computed for (NaN: nothing)
     Phi_z: np.ndarray  # (4, n_z, n_z): expm(Fz T j / 4), j = 1..4 (z_block)
     Qd_z: np.ndarray  # (n_z, n_z): the z block's noise over T
+    # The end-effector wrench (process.wrench; n_w = 0: none): its n_w states are the last of z and
+    # its joint forces the last n_ae rows of Lz (on every q_ae joint: dist_idx ends with ae), the
+    # block G = W^T (J_p^T f + J_w^T m) per component, refreshed at each linearisation
+    # (:func:`wrench_columns`).
+    wrench_points: np.ndarray  # (k,) int64: the end-effector point, then the other points of its body
+    wrench_axes: np.ndarray  # (n_w, 6): each component's [force; couple] axes
 
 
 PR_DIST_IDX, PR_DIST_COL, PR_LZ, PR_FZ, PR_PSD_AE, PR_REL_AE, PR_PSD_Z, PR_METHOD, PR_ZKEY, PR_PHI_Z, \
-    PR_QD_Z = range(11)  # Process's fields
+    PR_QD_Z, PR_WRENCH_POINTS, PR_WRENCH_AXES = range(13)  # Process's fields
 
 
 class State(NamedTuple):
@@ -233,6 +239,93 @@ def pose_outputs(ma, q, point, W, Jp, p):
     return ratio
 
 
+@njit(cache=True)
+def wrench_columns(ma, q, wpoints, waxes, G):
+    """G (n_ae x n_w): the generalised forces on q_ae of a unit wrench component at q,
+    W^T (J_p^T f + J_w^T m) (f, m: the component's force and couple axes; seed eq 31's G^{+T},
+    the same numbers by another route). J_w, the end-effector body's angular Jacobian, from its
+    other points b: [r_b]x J_w = J_p - J_b (r_b = p_b - p), in the least-squares sense. Returns
+    the pivot ratio of the closure's dh/dq_p."""
+    n = q.shape[0]
+    nae = ma.ae_index.shape[0]
+    nw = waxes.shape[0]
+    J, a_pt, p_pt, A, gamma, res = _work(ma, n)
+    _kinematics(ma, q, J, a_pt, p_pt, A, gamma, res)
+    W = np.empty((n, nae))
+    ratio = _passive_rows_from(ma, A, gamma, W)
+    e = wpoints[0]
+    couples = False
+    for c in range(nw):
+        for r in range(3, 6):
+            couples = couples or waxes[c, r] != 0.0
+    Jw = np.zeros((3, n))
+    if couples:  # normal equations sum X^T X J_w = sum X^T (J_p - J_b), X = [r_b]x (a 3x3 solve)
+        N = np.zeros((3, 3))
+        R = np.zeros((3, n))
+        X = np.zeros((3, 3))
+        for k in range(1, wpoints.shape[0]):
+            b = wpoints[k]
+            r0, r1, r2 = p_pt[b, 0] - p_pt[e, 0], p_pt[b, 1] - p_pt[e, 1], p_pt[b, 2] - p_pt[e, 2]
+            X[0, 0], X[0, 1], X[0, 2] = 0.0, -r2, r1
+            X[1, 0], X[1, 1], X[1, 2] = r2, 0.0, -r0
+            X[2, 0], X[2, 1], X[2, 2] = -r1, r0, 0.0
+            for i in range(3):
+                for j in range(3):
+                    for m in range(3):
+                        N[i, j] += X[m, i] * X[m, j]
+                for j in range(n):
+                    for m in range(3):
+                        R[i, j] += X[m, i] * (J[e, m, j] - J[b, m, j])
+        # the inverse of the symmetric 3x3 N by cofactors (no LAPACK in cached kernels)
+        c00 = N[1, 1] * N[2, 2] - N[1, 2] * N[2, 1]
+        c01 = N[0, 2] * N[2, 1] - N[0, 1] * N[2, 2]
+        c02 = N[0, 1] * N[1, 2] - N[0, 2] * N[1, 1]
+        c11 = N[0, 0] * N[2, 2] - N[0, 2] * N[2, 0]
+        c12 = N[0, 2] * N[1, 0] - N[0, 0] * N[1, 2]
+        c22 = N[0, 0] * N[1, 1] - N[0, 1] * N[1, 0]
+        det = N[0, 0] * c00 + N[0, 1] * (N[1, 2] * N[2, 0] - N[1, 0] * N[2, 2]) + N[0, 2] * (
+            N[1, 0] * N[2, 1] - N[1, 1] * N[2, 0])
+        Ni = np.empty((3, 3))
+        Ni[0, 0], Ni[0, 1], Ni[0, 2] = c00 / det, c01 / det, c02 / det
+        Ni[1, 0], Ni[1, 1], Ni[1, 2] = c01 / det, c11 / det, c12 / det
+        Ni[2, 0], Ni[2, 1], Ni[2, 2] = c02 / det, c12 / det, c22 / det
+        for i in range(3):
+            for j in range(n):
+                Jw[i, j] = Ni[i, 0] * R[0, j] + Ni[i, 1] * R[1, j] + Ni[i, 2] * R[2, j]
+    tau = np.empty(n)
+    for c in range(nw):
+        for j in range(n):
+            s = 0.0
+            for r in range(3):
+                s += waxes[c, r] * J[e, r, j] + waxes[c, 3 + r] * Jw[r, j]
+            tau[j] = s
+        for i in range(nae):
+            s = 0.0
+            for j in range(n):
+                s += W[j, i] * tau[j]
+            G[i, c] = s
+    return ratio
+
+
+@njit(cache=True)
+def refresh_wrench(ma, proc, q):
+    """Lz's wrench block (the last n_ae rows, the last n_w columns) from :func:`wrench_columns`
+    at q; nothing without wrench states."""
+    waxes = proc[PR_WRENCH_AXES]
+    nw = waxes.shape[0]
+    if nw == 0:
+        return
+    Lz = proc[PR_LZ]
+    nae = ma.ae_index.shape[0]
+    G = np.empty((nae, nw))
+    wrench_columns(ma, q, proc[PR_WRENCH_POINTS], waxes, G)
+    r0 = Lz.shape[0] - nae
+    c0 = Lz.shape[1] - nw
+    for i in range(nae):
+        for c in range(nw):
+            Lz[r0 + i, c0 + c] = G[i, c]
+
+
 # reassociated sums: the quadratic forms below vectorise (the Hexa's 18 passive joints x 18 x 18 terms)
 @njit(cache=True, fastmath={"reassoc", "contract"})
 def outputs(ma, q, qd, P, point, ee_axes, branch_joint, stiff, damp, rest, q_std, qd_std, F, F_std, ee, ee_std):
@@ -286,7 +379,8 @@ def outputs(ma, q, qd, P, point, ee_axes, branch_joint, stiff, damp, rest, q_std
 def estimate_flat(ma, fixed, proc, state, tau_last, t, out):
     """Every output of ``Observer.estimate`` into one flat array ``out``:
     [t, q, qd, q_std, qd_std, effort (n_t each), F, F_std, deflection, deflection rate (n_b each),
-    ee, ee_std, d, d_std, x, P (row-major)]."""
+    ee, ee_std, d, d_std, wrench, wrench_std, x, P (row-major)]; d: the motor disturbances alone
+    (the wrench's joint forces are not in d, nor in the motors' effort)."""
     transmission, point, ee_axes = fixed[FX_TRANSMISSION], fixed[FX_EE_POINT], fixed[FX_EE_AXES]
     branch_joint, stiff, damp, rest = fixed[FX_BRANCH_JOINT], fixed[FX_STIFF], fixed[FX_DAMP], fixed[FX_REST]
     dist_idx, Lz = proc[PR_DIST_IDX], proc[PR_LZ]
@@ -294,9 +388,10 @@ def estimate_flat(ma, fixed, proc, state, tau_last, t, out):
     n = q.shape[0]
     nb = branch_joint.shape[0]
     ne = ee_axes.shape[0]
-    nd = dist_idx.shape[0]
-    nz = z.shape[0]
     nae = ma.ae_index.shape[0]
+    nw = proc[PR_WRENCH_AXES].shape[0]
+    nd = dist_idx.shape[0] - (nae if nw > 0 else 0)  # the motor disturbances' rows of Lz
+    nz = z.shape[0]
     nx = P.shape[0]
     out[0] = t
     o = 1
@@ -308,6 +403,8 @@ def estimate_flat(ma, fixed, proc, state, tau_last, t, out):
     o += 2 * ne
     od, ods = o, o + nd
     o += 2 * nd
+    ow, ows = o, o + nw
+    o += 2 * nw
     ox = o
     oP = o + nx
     outputs(ma, q, qd, P, point, ee_axes, branch_joint, stiff, damp, rest, out[oqs:oqs + n], out[oqds:oqds + n],
@@ -332,6 +429,10 @@ def estimate_flat(ma, fixed, proc, state, tau_last, t, out):
             for m in range(nz):
                 v += Lz[k, j] * P[2 * nae + j, 2 * nae + m] * Lz[k, m]
         out[ods + k] = np.sqrt(max(v, 0.0))
+    for c in range(nw):  # the wrench states: the last n_w of z
+        m = nz - nw + c
+        out[ow + c] = z[m]
+        out[ows + c] = np.sqrt(max(P[2 * nae + m, 2 * nae + m], 0.0))
     for k in range(nb):
         j = branch_joint[k]
         out[oeff + j] = out[oF + k]
@@ -591,6 +692,8 @@ def predict(ma, fixed, proc, state, tau, relinearize, T, n_sub):
     nd = dist_idx.shape[0]
     nz = z.shape[0]
     nx = 2 * nae + nz
+    if relinearize:  # the wrench's joint forces move with the pose: taken with the linearisation
+        refresh_wrench(ma, proc, q)
     tt = tau.copy()
     for k in range(nd):
         for m in range(nz):
