@@ -77,7 +77,7 @@ def run(mech: Mechanism, wrench: ExternalWrench, duration: float, config: Observ
     kp = 500.0 * inertia.mean() if kp is None else kp  # the chirp runs' PD (bench/tools/observer_runs.py)
     kd = 12.5 * inertia.mean() if kd is None else kd
     names = list(mech.active_names)
-    n = int(round(duration / PERIOD))
+    n = round(duration / PERIOD)
     t_out, true, est, sd, ee, cov = [], [], [], [], [], []
     ws = np.arange(obs.nx - obs.nw, obs.nx)
     rows = []
