@@ -233,8 +233,8 @@ def test_fast_path_with_wrench_states(five_bar, rec, count_fast) -> None:
     wrench's jump, taken by the Observer's Python) included."""
     bad = {50: {"accel": rec.accel[50] + [5.0, 0.0, 0.0]}, 60: {"encoder": rec.encoder[60] + [0.5, 0.0]},
            70: {"accel": rec.accel[70] + [500.0, 0.0, 0.0]}}
-    obs, rows = _compare(five_bar, {"sensors": ["encoders", "imu"], "process.wrench": "random_walk"},
-                         _events(rec, corrupt=bad))
+    obs, _ = _compare(five_bar, {"sensors": ["encoders", "imu"], "process.wrench": "random_walk"},
+                      _events(rec, corrupt=bad))
     # the 5 m/s^2 sample was taken as a jump of the wrench (and the next ones as its way back), the
     # 500 m/s^2 one stays an outlier
     assert obs.nw == 2 and obs.wrench_jumps[0] == pytest.approx(rec.t[50]) and obs.stats["imu"].rejected >= 1
