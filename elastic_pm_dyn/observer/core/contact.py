@@ -65,30 +65,44 @@ class ContactDetector:
         self.in_contact = False
         self.events: list[ContactEvent] = []
 
+    def block(self, P: np.ndarray) -> np.ndarray:
+        """The wrench states' block of a filter covariance (nx x nx)."""
+        return P[np.ix_(self.states, self.states)]
+
     def statistic(self, row: np.ndarray) -> float:
         """s = w^T P_w^-1 w of an estimate row (inf if P_w is not positive definite)."""
         nx = self.layout.nx
-        w = row[self.layout["wrench"]]
-        P = row[self.layout["P"]].reshape(nx, nx)[np.ix_(self.states, self.states)]
-        try:
-            L = np.linalg.cholesky(P)
-        except np.linalg.LinAlgError:
-            return float("inf")
-        y = np.linalg.solve(L, w)
-        return float(y @ y)
+        return normalised(row[self.layout["wrench"]], self.block(row[self.layout["P"]].reshape(nx, nx)))
 
     def update(self, row: np.ndarray) -> ContactEvent | None:
         """The event this row makes (None: no change)."""
-        s = self.statistic(row)
+        nx = self.layout.nx
+        return self.update_values(float(row[0]), row[self.layout["wrench"]],
+                                  self.block(row[self.layout["P"]].reshape(nx, nx)))
+
+    def update_values(self, t: float, w: np.ndarray, P_w: np.ndarray) -> ContactEvent | None:
+        """The event of an estimate ``w`` with covariance ``P_w`` at ``t`` (what :meth:`update` reads
+        from a row; the live node passes an Estimate's fields)."""
+        s = normalised(w, P_w)
         event = None
         if not self.in_contact and s > self.threshold:
-            event = ContactEvent("contact", float(row[0]), s, self.threshold, row[self.layout["wrench"]].copy())
+            event = ContactEvent("contact", t, s, self.threshold, np.array(w, dtype=float))
         elif self.in_contact and s < self.release * self.threshold:
-            event = ContactEvent("release", float(row[0]), s, self.threshold, row[self.layout["wrench"]].copy())
+            event = ContactEvent("release", t, s, self.threshold, np.array(w, dtype=float))
         if event is not None:
             self.in_contact = event.kind == "contact"
             self.events.append(event)
         return event
+
+
+def normalised(w: np.ndarray, P_w: np.ndarray) -> float:
+    """w^T P_w^-1 w (inf if P_w is not positive definite)."""
+    try:
+        L = np.linalg.cholesky(P_w)
+    except np.linalg.LinAlgError:
+        return float("inf")
+    y = np.linalg.solve(L, w)
+    return float(y @ y)
 
 
 def detect(layout: EstimateLayout, rows: np.ndarray, probability: float = DEFAULT_PROBABILITY,

@@ -70,6 +70,7 @@ class EstimateLayout:
     ee_unit: np.ndarray | None  # the ee components' base-frame axes (None: a tilted plane, see ee_axes)
     ee_axes: np.ndarray  # (k, 3) world directions of the ee components
     wrench_names: list[str] | None = None  # the end-effector wrench components (empty: no wrench states)
+    wrench_axes: np.ndarray | None = None  # (n_w, 6) each component's [force; torque] axes in the world
 
     @classmethod
     def of(cls, model: ObserverModel, nx: int) -> EstimateLayout:
@@ -83,7 +84,7 @@ class EstimateLayout:
             slices[key] = slice(o, o + widths[width])
             o += widths[width]
         return cls(slices, o, nx, list(mech.joint_names), list(model.branch_names), list(mech.ee_names),
-                   list(model.dist_names), mech.ee_unit, mech.ee_axes, list(model.wrench_names))
+                   list(model.dist_names), mech.ee_unit, mech.ee_axes, list(model.wrench_names), model.wrench_axes)
 
     def __getitem__(self, key: str) -> slice:
         return self.slices[key]
@@ -117,6 +118,11 @@ class EstimateLayout:
         s = self.slices
         return np.r_[s["q"], s["qd"], s["branch_force"], s["q_std"], s["qd_std"], s["branch_force_std"], s["ee"],
                      s["ee_std"], s["disturbance"], s["disturbance_std"], s["wrench"], s["wrench_std"]]
+
+    def wrench6(self, values: np.ndarray) -> np.ndarray:
+        """Wrench rows (n_w components each, or their standard deviations: the axes are unit
+        vectors along x, y, z) as [fx, fy, fz, mx, my, mz] in the world frame."""
+        return np.asarray(values, dtype=float) @ np.abs(self.wrench_axes)
 
     def ee_xyz(self, ee: np.ndarray) -> np.ndarray:
         """End-effector rows (k components each) as base-frame points (rows of 3): the unit axes'

@@ -12,6 +12,7 @@ with ETD2 at 1e-4 s or RK4), not the observer's model run again.
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -45,6 +46,7 @@ class WrenchRun:
     cov: np.ndarray  # (periods, n_w, n_w) the wrench states' covariance block
     rows: list[np.ndarray] = field(default_factory=list)  # estimate rows (observer layout), if kept
     stopped_at: float | None = None  # t at which ``stop`` returned True (the run then ends)
+    period_s: np.ndarray | None = None  # wall time of the observer's calls per period (its live cost)
 
 
 def wrench_config(**overrides) -> ObserverConfig:
@@ -82,19 +84,24 @@ def run(mech: Mechanism, wrench: ExternalWrench, duration: float, config: Observ
     ws = np.arange(obs.nx - obs.nw, obs.nx)
     rows = []
     stopped = None
+    wall = []
     tau = hold.copy()
     for k in range(n + 1):
         t = plant.t
         pos, _ = sensors.encoders(plant.q, plant.qd)
         acc = sensors.accelerometer(plant.q, plant.qd, plant.motor_torque(), plant.wrench_tree_forces())
+        start = time.perf_counter()
         obs.update_joint_states(t, names, pos)
         obs.update_imu(t, acc)
+        wall.append(time.perf_counter() - start)
         target, rate = (ref, 0.0) if ref_rate is None else (ref + ref_rate * t, ref_rate)
         tau = hold + kp * (target - plant.q[mech.active]) + kd * (rate - plant.qd[mech.active])
         if extra is not None:
             tau = tau + extra(t)
+        start = time.perf_counter()
         obs.command(t, tau)
         row = obs.estimate_flat()
+        wall[-1] += time.perf_counter() - start
         t_out.append(t)
         true.append(axes[:, :3] @ plant.true_wrench[:3] + axes[:, 3:] @ plant.true_wrench[3:])
         est.append(row[layout["wrench"]].copy())
@@ -109,7 +116,7 @@ def run(mech: Mechanism, wrench: ExternalWrench, duration: float, config: Observ
         if k < n:
             plant.step(tau)
     return WrenchRun(np.array(t_out), np.array(true), np.array(est), np.array(sd), list(obs.model.wrench_names),
-                     np.array(ee), np.array(cov), rows, stopped)
+                     np.array(ee), np.array(cov), rows, stopped, np.array(wall))
 
 
 def step_scores(run_: WrenchRun, t_step: float, component: int, size: float) -> dict:
