@@ -1,7 +1,8 @@
 """Sensorless force sensing (issue 43): the wrench states and contact detection on every machine.
 
-    .venv/bin/python bench/benchmarks/bench_wrench.py                     # ~6 min on 2 cores
-    .venv/bin/python bench/benchmarks/bench_wrench.py --quiet-seconds 10  # shorter normal motion
+    .venv/bin/python bench/benchmarks/bench_wrench.py --machines five_bar                      # ~7 min, 2 cores
+    .venv/bin/python bench/benchmarks/bench_wrench.py --machines triglide --quiet-seconds 20   # ~4 min
+    .venv/bin/python bench/benchmarks/bench_wrench.py --machines hexa --quiet-seconds 20       # ~5 min
 
 Lockstep plant + observer (``observer.testing.wrench_runs``: the plant's ETD2 at 0.1 ms with the
 wrench evaluated per step, PD hold, encoders + accelerometer a(t_k-), a flat 2-200 Hz multisine of
@@ -20,7 +21,7 @@ Triglide and the Hexa at n_ek = 2, default wrench settings (``process.wrench: ra
   statistic over its threshold;
 - the observer's cost per period in those runs (median, p99) with the wrench states.
 
-Writes bench/results/wrench.{json,md}.
+Writes bench/results/wrench_<machines>.{json,md}.
 """
 
 from __future__ import annotations
@@ -46,6 +47,9 @@ from elastic_pm_dyn.observer.testing.wrench_runs import run, step_scores, wrench
 from elastic_pm_dyn.sim.wrench import ExternalWrench, StepWrench, Wall  # noqa: E402
 
 MACHINES = {"five_bar": 0, "triglide": 2, "hexa": 2}
+# the PD hold's gains [N m/rad or N/m, N m s/rad or N s/m] (None: wrench_runs' defaults); the Hexa's
+# light motors (0.009 kg m^2 reduced) need a stiffer hold, else a 0.2 N m couple walks the platform away
+HOLD = {"hexa": (60.0, 0.5)}
 CHIRP_AMPLITUDE = {"five_bar": 3.0, "triglide": 0.375 * 3.34, "hexa": 3.75 * 0.0493}  # bench/tools/observer_runs.py
 
 
@@ -64,6 +68,11 @@ def detector_stop(det: dict, peak: list | None = None, stop_on_event: bool = Tru
     return stop
 
 
+def hold(name: str) -> dict:
+    kp, kd = HOLD.get(name, (None, None))
+    return {"kp": kp, "kd": kd}
+
+
 def steps(name: str, mech: Mechanism) -> list[dict]:
     out = []
     comps = [(0, 2.0), (1, 2.0)] + ([(2, 2.0)] if name != "five_bar" else []) \
@@ -71,7 +80,7 @@ def steps(name: str, mech: Mechanism) -> list[dict]:
     for comp, size in comps:
         w = np.zeros(6)
         w[comp] = size
-        r = run(mech, ExternalWrench([StepWrench(0.2, w)]), 0.6, seed=4301 + comp)
+        r = run(mech, ExternalWrench([StepWrench(0.2, w)]), 0.6, seed=4301 + comp, **hold(name))
         s = step_scores(r, 0.2, comp, size)
         out.append({"component": r.names[comp], "size": size, **s,
                     "period_median_us": float(np.median(r.period_s[5:]) * 1e6),
@@ -79,16 +88,17 @@ def steps(name: str, mech: Mechanism) -> list[dict]:
     return out
 
 
-def contact(mech: Mechanism) -> dict:
-    rate = np.full(len(mech.active), 1.0)
-    free = run(mech, ExternalWrench(), 0.2, ref_rate=rate * 0.0 + 1e-3)
+def contact(name: str, mech: Mechanism) -> dict:
+    rate = np.full(len(mech.active), 1e-3)
+    rate[0] *= -1.0  # not the common mode alone (on the five-bar it only turns the arms apart)
+    free = run(mech, ExternalWrench(), 0.2, ref_rate=rate, **hold(name))
     v = (free.ee[200] - free.ee[100]) / 0.1
-    rate *= 1e-3 * 0.1 / max(np.linalg.norm(v), 1e-12)  # about 0.1 m/s at the end effector
-    free = run(mech, ExternalWrench(), 0.2, ref_rate=rate)
+    rate *= 0.1 / max(np.linalg.norm(v), 1e-12)  # about 0.1 m/s at the end effector
+    free = run(mech, ExternalWrench(), 0.2, ref_rate=rate, **hold(name))
     v = (free.ee[200] - free.ee[100]) / 0.1
     wall = Wall(free.ee[150], -v / np.linalg.norm(v), 1e4, 10.0)
     det = {}
-    r = run(mech, ExternalWrench([wall]), 0.3, ref_rate=rate, stop=detector_stop(det))
+    r = run(mech, ExternalWrench([wall]), 0.3, ref_rate=rate, stop=detector_stop(det), **hold(name))
     inside = np.flatnonzero([wall.depth(p) > 0 for p in r.ee])
     touch = float(r.t[inside[0]]) if len(inside) else float("nan")
     return {"speed_m_s": float(np.linalg.norm(v)), "touch_s": touch, "detected_s": r.stopped_at,
@@ -107,19 +117,20 @@ def quiet(name: str, mech: Mechanism, seconds: float) -> dict:
     det, peak = {}, [0.0]
     start = time.perf_counter()
     r = run(mech, ExternalWrench(), seconds, extra=chirp, stop=detector_stop(det, peak, stop_on_event=False),
-            seed=4399)
+            seed=4399, **hold(name))
     return {"seconds": seconds, "false_detections": sum(e.kind == "contact" for e in det["d"].events),
             "peak_statistic_over_threshold": peak[0] / det["d"].threshold, "wall_s": time.perf_counter() - start,
             "period_median_us": float(np.median(r.period_s[5:]) * 1e6),
             "period_p99_us": float(np.percentile(r.period_s[5:], 99) * 1e6)}
 
 
-def cost(mech: Mechanism, seconds: float = 2.0) -> dict:
+def cost(name: str, mech: Mechanism, seconds: float = 2.0) -> dict:
     """The observer's wall time per period with and without the wrench states, the same hold run
     (paired: the machine's load moves both alike); median and p99 [us]."""
     out = {}
     for label, wrench in (("with", "random_walk"), ("without", "none")):
-        r = run(mech, ExternalWrench(), seconds, config=wrench_config(process__wrench=wrench), seed=4398)
+        r = run(mech, ExternalWrench(), seconds, config=wrench_config(process__wrench=wrench), seed=4398,
+                **hold(name))
         out[label] = {"median_us": float(np.median(r.period_s[5:]) * 1e6),
                       "p99_us": float(np.percentile(r.period_s[5:], 99) * 1e6)}
     return out
@@ -127,14 +138,15 @@ def cost(mech: Mechanism, seconds: float = 2.0) -> dict:
 
 def markdown(result: dict) -> str:
     lines = [f"Measured {result['date']} on {result['machine']}, commit {result['commit']} (`{result['command']}`).",
-             "", "| machine | step | error 20 ms after | steady error | NEES in band "
-             "| observer period median / p99 [us] |",
-             "|---|---|---|---|---|---|"]
+             "", "| machine | step | error 20 ms after | steady-state bias | steady-state mean abs. error "
+             "| NEES in band | observer period median / p99 [us] |",
+             "|---|---|---|---|---|---|---|"]
     for m, res in result["machines"].items():
         for s in res["steps"]:
             unit = "N m" if s["component"].startswith("torque") else "N"
             lines.append(f"| {m} | {s['size']:g} {unit} {s['component']} | {100 * s['error_at_20ms']:.1f} % | "
-                         f"{100 * s['steady_error']:.1f} % | {100 * s['nees_in_band']:.0f} % | "
+                         f"{100 * s['steady_error']:.1f} % | {100 * s['steady_abs_error']:.1f} % | "
+                         f"{100 * s['nees_in_band']:.0f} % | "
                          f"{s['period_median_us']:.0f} / {s['period_p99_us']:.0f} |")
     lines += ["", "| machine | wall contact: speed | detection delay | force at detection | normal motion "
               "| false detections | peak statistic / threshold |", "|---|---|---|---|---|---|---|"]
@@ -160,10 +172,10 @@ def main() -> int:
               "command": "python bench/benchmarks/bench_wrench.py " + " ".join(sys.argv[1:]), "machines": {}}
     for name in args.machines:
         mech = mech_of(name)
-        result["machines"][name] = {"steps": steps(name, mech), "contact": contact(mech),
-                                    "quiet": quiet(name, mech, args.quiet_seconds), "cost": cost(mech)}
+        result["machines"][name] = {"steps": steps(name, mech), "contact": contact(name, mech),
+                                    "quiet": quiet(name, mech, args.quiet_seconds), "cost": cost(name, mech)}
         print(name, result["machines"][name], flush=True)
-    common.write(common.RESULTS, "wrench", result, markdown(result))
+    common.write(common.RESULTS, "wrench_" + "_".join(args.machines), result, markdown(result))
     return 0
 
 

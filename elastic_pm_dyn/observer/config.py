@@ -85,6 +85,7 @@ DEFAULT_PARAMETERS: dict[str, Any] = {
     "process.wrench_torque_intensity": 0.1,  # ... of a couple component's rate [(N m)^2/s] (platforms)
     "process.wrench_jump_stddev": 10.0,  # [N] a gated accelerometer sample: the forces' variances grow by this^2
     "process.wrench_jump_torque_stddev": 1.0,  # [N m] ... the couples'
+    "process.wrench_jump_probability": 0.999,  # the accelerometer's NIS quantile above which the wrench jumps
     "process.torque_noise_psd": 1.0e-10,  # white torque on active joints [(N m)^2 s]
     "process.elastic_force_psd": 1.0e-12,  # white force on elastic joints (model error) [N^2 s]
     "process.vibration_noise": 2.0e-11,  # ... plus this times the vibration-force amplitude^2 [s]
@@ -168,6 +169,7 @@ class ProcessConfig:
     wrench_torque_intensity: float = 0.1
     wrench_jump_stddev: float = 10.0
     wrench_jump_torque_stddev: float = 1.0
+    wrench_jump_probability: float = 0.999
 
 
 @dataclass
@@ -258,7 +260,7 @@ class ObserverConfig:
                                   p["process.torque_noise_psd"], p["process.elastic_force_psd"],
                                   p["process.vibration_noise"], p["process.wrench"], p["process.wrench_intensity"],
                                   p["process.wrench_torque_intensity"], p["process.wrench_jump_stddev"],
-                                  p["process.wrench_jump_torque_stddev"]),
+                                  p["process.wrench_jump_torque_stddev"], p["process.wrench_jump_probability"]),
             initial=InitialConfig(p["initial.source"], p["initial.active_position_stddev"],
                                   p["initial.elastic_position_stddev"], p["initial.active_velocity_stddev"],
                                   p["initial.elastic_velocity_stddev"], p["initial.disturbance_stddev"],
@@ -376,6 +378,10 @@ class ObserverConfig:
                       f"got {_shown(self.imu.axes)}")
         if len(self.imu.rpy) != 3:
             raise bad("imu.rpy", f"expected 3 angles, got {_shown(self.imu.rpy)}")
+        if not 0.5 < self.process.wrench_jump_probability <= self.gating.probability:
+            raise bad("process.wrench_jump_probability",
+                      f"expected a probability in (0.5, gating.probability], got "
+                      f"{_shown(self.process.wrench_jump_probability)}")
         if not 0.5 < self.gating.probability < 1.0:
             raise bad("gating.probability",
                       f"expected a probability in (0.5, 1), got {_shown(self.gating.probability)}")

@@ -159,6 +159,18 @@ class Ekf:
             g = self._gates[dof] = float(chi2.ppf(self.cfg.gating.probability, dof))
         return g
 
+    def imu_gate(self, dof: int) -> float:
+        """The accelerometer's NIS gate in the per-sample steps: :meth:`gate`, or with wrench states the
+        lower ``process.wrench_jump_probability`` quantile, above which a sample is first taken as the
+        wrench's jump (the scheduler's ``_wrench_jump``) and gated only if it stays beyond :meth:`gate` after it."""
+        if not self.nw or not self.gating:
+            return self.gate(dof)
+        key = -dof  # cached beside the gates of gating.probability
+        g = self._gates.get(key)
+        if g is None:
+            g = self._gates[key] = float(chi2.ppf(self.cfg.process.wrench_jump_probability, dof))
+        return g
+
     # ------------------------------------------------------------------ state
     def _state(self) -> tuple:
         """The kernels' :class:`~elastic_pm_dyn.observer.core.kernels.State` bundle (the arrays: changed in place)."""
@@ -263,7 +275,8 @@ class Ekf:
                    evidence: np.ndarray, a_before: np.ndarray) -> None:
         """``kernels.imu_innovations`` of a sample at its ``prior`` (a State) into ``evidence`` (no correction)."""
         self._pin(kernels.imu_innovations)(self.mech.arrays, self.model.fixed, self._proc, prior, self._imu,
-                                           tau_before, tau_after, meas, self.gate(len(meas)), evidence, a_before, True)
+                                           tau_before, tau_after, meas, self.imu_gate(len(meas)), evidence, a_before,
+                                           True)
 
     # ------------------------------------------------------------------ outputs
     def x(self) -> np.ndarray:
