@@ -92,7 +92,7 @@ class Plant:
         self._branch_names = [b.name for b in mech.model.branches]
         # the external wrench on the end effector (truth), and where it acts
         self.wrench = wrench
-        self._wrench_map = WrenchMap(mech) if wrench is not None else None
+        self.wrench_map = WrenchMap(mech) if wrench is not None else None
         self.true_wrench = np.zeros(WRENCH_SIZE)
         self._update_true_wrench()
 
@@ -152,7 +152,7 @@ class Plant:
 
     def _update_true_wrench(self) -> None:
         if self.wrench is not None:
-            p, v = self._wrench_map.point_state(self.q, self.qd)
+            p, v = self.wrench_map.point_state(self.q, self.qd)
             self.true_wrench = self.wrench(self.t, p, v)
 
     def _wrench_steps(self, q: np.ndarray, qd: np.ndarray, acting: np.ndarray, t0: float, t1: float) -> None:
@@ -160,7 +160,7 @@ class Plant:
         each step's start and held over it (a wall's force follows the tool in), the smooth
         disturbance at the step's middle. The step is the plant's dt: a 1e4 N/m wall against the
         end effector's mass rings far below 1 / dt."""
-        o, sim, wm = self.options, self._sim, self._wrench_map
+        o, sim, wm = self.options, self._sim, self.wrench_map
         if not sim.integrator.fixed_step:
             raise InputError("an external wrench needs a fixed-step integrator (rk4 or etd2)")
         n_steps = max(1, int(np.ceil((t1 - t0) / o.dt - 1e-9)))
@@ -334,7 +334,7 @@ class Plant:
         what an accelerometer sample of this state feels besides the motor torques."""
         if self.wrench is None:
             return None
-        return self._wrench_map.tree_forces(self.q, self.true_wrench)
+        return self.wrench_map.tree_forces(self.q, self.true_wrench)
 
     def end_effector(self) -> np.ndarray:
         return self.mech.end_effector(self.q)

@@ -106,7 +106,7 @@ def run(mech: Mechanism, wrench: ExternalWrench, duration: float, config: Observ
         true.append(axes[:, :3] @ plant.true_wrench[:3] + axes[:, 3:] @ plant.true_wrench[3:])
         est.append(row[layout["wrench"]].copy())
         sd.append(row[layout["wrench_std"]].copy())
-        ee.append(plant._wrench_map.point_state(plant.q, plant.qd)[0])
+        ee.append(plant.wrench_map.point_state(plant.q, plant.qd)[0])
         cov.append(obs.P[np.ix_(ws, ws)].copy())
         if keep_rows:
             rows.append(row)

@@ -84,7 +84,7 @@ class WrenchIO:
         try:
             if frame and frame != self.frame:
                 raise InputError(f"frame {frame!r}, expected {self.frame!r} (or empty)")
-            if np.any(w[3:] != 0) and not self.plant._wrench_map.turns:
+            if np.any(w[3:] != 0) and not self.plant.wrench_map.turns:
                 raise InputError("a couple on an end effector that cannot turn")
             self.plant.wrench.hold(w)
         except InputError as err:
