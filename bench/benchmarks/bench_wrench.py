@@ -32,6 +32,7 @@ import sys
 import time
 from datetime import date
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -50,6 +51,7 @@ MACHINES = {"five_bar": 0, "triglide": 2, "hexa": 2}
 # the PD hold's gains [N m/rad or N/m, N m s/rad or N s/m] (None: wrench_runs' defaults); the Hexa's
 # light motors (0.009 kg m^2 reduced) need a stiffer hold, else a 0.2 N m couple walks the platform away
 HOLD = {"hexa": (60.0, 0.5)}
+PARTS = ("steps", "contact", "quiet", "cost")
 CHIRP_AMPLITUDE = {"five_bar": 3.0, "triglide": 0.375 * 3.34, "hexa": 3.75 * 0.0493}  # bench/tools/observer_runs.py
 
 
@@ -136,13 +138,23 @@ def cost(name: str, mech: Mechanism, seconds: float = 2.0) -> dict:
     return out
 
 
+def run_part(part: str, name: str, mech: Mechanism, quiet_seconds: float) -> Any:
+    if part == "steps":
+        return steps(name, mech)
+    if part == "contact":
+        return contact(name, mech)
+    if part == "quiet":
+        return quiet(name, mech, quiet_seconds)
+    return cost(name, mech)
+
+
 def markdown(result: dict) -> str:
     lines = [f"Measured {result['date']} on {result['machine']}, commit {result['commit']} (`{result['command']}`).",
              "", "| machine | step | error 20 ms after | steady-state bias | steady-state mean abs. error "
              "| NEES in band | observer period median / p99 [us] |",
              "|---|---|---|---|---|---|---|"]
     for m, res in result["machines"].items():
-        for s in res["steps"]:
+        for s in res.get("steps", []):
             unit = "N m" if s["component"].startswith("torque") else "N"
             lines.append(f"| {m} | {s['size']:g} {unit} {s['component']} | {100 * s['error_at_20ms']:.1f} % | "
                          f"{100 * s['steady_error']:.1f} % | {100 * s['steady_abs_error']:.1f} % | "
@@ -151,13 +163,15 @@ def markdown(result: dict) -> str:
     lines += ["", "| machine | wall contact: speed | detection delay | force at detection | normal motion "
               "| false detections | peak statistic / threshold |", "|---|---|---|---|---|---|---|"]
     for m, res in result["machines"].items():
-        c, q = res["contact"], res["quiet"]
-        delay = "not detected" if c["delay_ms"] is None else f"{c['delay_ms']:.0f} ms"
-        lines.append(f"| {m} | {c['speed_m_s']:.3f} m/s | {delay} | {c['true_force_at_detection_N']:.1f} N | "
-                     f"{q['seconds']:g} s chirps | {q['false_detections']} | "
-                     f"{q['peak_statistic_over_threshold']:.2f} |")
+        c, q = res.get("contact"), res.get("quiet")
+        delay = "-" if c is None else "not detected" if c["delay_ms"] is None else f"{c['delay_ms']:.0f} ms"
+        contact_cells = (f"{c['speed_m_s']:.3f} m/s | {delay} | {c['true_force_at_detection_N']:.1f} N" if c
+                         else "- | - | -")
+        quiet_cells = (f"{q['seconds']:g} s chirps | {q['false_detections']} | {q['peak_statistic_over_threshold']:.2f}"
+                       if q else "- | - | -")
+        lines.append(f"| {m} | {contact_cells} | {quiet_cells} |")
     lines += ["", "| machine | observer period with wrench states: median / p99 [us] | without |", "|---|---|---|"]
-    for m, res in result["machines"].items():
+    for m, res in ((m, r) for m, r in result["machines"].items() if "cost" in r):
         w, wo = res["cost"]["with"], res["cost"]["without"]
         lines.append(f"| {m} | {w['median_us']:.0f} / {w['p99_us']:.0f} | {wo['median_us']:.0f} / {wo['p99_us']:.0f} |")
     return "\n".join(lines)
@@ -167,15 +181,16 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--machines", nargs="+", default=list(MACHINES))
     ap.add_argument("--quiet-seconds", type=float, default=60.0)
+    ap.add_argument("--parts", nargs="+", default=list(PARTS), choices=PARTS, help="what to run (default: all)")
     args = ap.parse_args()
     result = {"date": str(date.today()), "machine": platform.node(), "commit": common.commit(),
               "command": "python bench/benchmarks/bench_wrench.py " + " ".join(sys.argv[1:]), "machines": {}}
     for name in args.machines:
         mech = mech_of(name)
-        result["machines"][name] = {"steps": steps(name, mech), "contact": contact(name, mech),
-                                    "quiet": quiet(name, mech, args.quiet_seconds), "cost": cost(name, mech)}
+        result["machines"][name] = {part: run_part(part, name, mech, args.quiet_seconds) for part in args.parts}
         print(name, result["machines"][name], flush=True)
-    common.write(common.RESULTS, "wrench_" + "_".join(args.machines), result, markdown(result))
+    stem = "wrench_" + "_".join(args.machines) + ("" if len(args.parts) == len(PARTS) else "_" + "_".join(args.parts))
+    common.write(common.RESULTS, stem, result, markdown(result))
     return 0
 
 
