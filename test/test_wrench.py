@@ -79,6 +79,8 @@ def test_step_ramp_and_bad_input():
         StepWrench(0.0, [1.0, np.nan, 0, 0, 0, 0])
     with pytest.raises(InputError):
         ExternalWrench().hold([1.0, 2.0])
+    with pytest.raises(InputError, match="within"):
+        ExternalWrench().hold([1e300, 0, 0, 0, 0, 0])
     with pytest.raises(InputError, match="couple"):
         WrenchMap(_mech("five_bar")).tree_forces(initial_state(_mech("five_bar")), np.array([0, 0, 0, 0, 0, 1.0]))
 

@@ -38,6 +38,7 @@ from elastic_pm_dyn.kinematics.assembly import initial_state
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 
 WRENCH_SIZE = 6  # [fx, fy, fz, mx, my, mz]
+MAX_WRENCH = 1.0e6  # [N, N m] per component: far beyond any tool; larger only makes the plant diverge
 
 
 def _vector(value, size: int, what: str) -> np.ndarray:
@@ -64,6 +65,8 @@ class StepWrench(WrenchSource):
 
     def __post_init__(self) -> None:
         self.wrench = _vector(self.wrench, WRENCH_SIZE, "a step's wrench")
+        if np.any(np.abs(self.wrench) > MAX_WRENCH):
+            raise InputError(f"a step's wrench components must lie within +-{MAX_WRENCH:g}")
         if not (np.isfinite(self.start) and np.isfinite(self.ramp) and self.ramp >= 0):
             raise InputError(f"a step needs a finite start and a ramp >= 0, got {self.start!r}, {self.ramp!r}")
 
@@ -120,8 +123,12 @@ class ExternalWrench:
         return w
 
     def hold(self, wrench) -> None:
-        """Hold ``wrench`` (6 finite numbers) from now on (InputError, nothing changed, if not)."""
-        self.held = _vector(wrench, WRENCH_SIZE, "an external wrench")
+        """Hold ``wrench`` (6 finite numbers within +-MAX_WRENCH) from now on (InputError, nothing
+        changed, if not)."""
+        w = _vector(wrench, WRENCH_SIZE, "an external wrench")
+        if np.any(np.abs(w) > MAX_WRENCH):
+            raise InputError(f"an external wrench's components must lie within +-{MAX_WRENCH:g}, got {w.tolist()}")
+        self.held = w
 
 
 class WrenchMap:
