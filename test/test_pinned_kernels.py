@@ -52,7 +52,7 @@ def test_pins_are_one_per_kernel() -> None:
 def test_the_observer_calls_its_per_period_kernels_pinned(five_bar) -> None:
     """The live path's kernels are pinned (so the suite's type check is live on them)."""
     from elastic_pm_dyn.observer import Observer, ObserverConfig
-    from elastic_pm_dyn.observer.core import kernels, period
+    from elastic_pm_dyn.observer.core import correction, kernels, period
     from elastic_pm_dyn.observer.testing.evaluation import feed
     from elastic_pm_dyn.observer.testing.scenarios import chirp_recording
 
@@ -60,8 +60,8 @@ def test_the_observer_calls_its_per_period_kernels_pinned(five_bar) -> None:
     obs = Observer(five_bar, ObserverConfig.from_parameters({"sensors": ["encoders", "imu"]}))
     feed(obs, rec, ("encoders", "imu"))
     pinned = {k.__name__ for k, p in obs._pin._pins.items() if p.entry is not None and p.entry is not k}
-    assert {period.advance.__name__, kernels.encoder_correct.__name__, kernels.estimate_flat.__name__} <= pinned
-    assert pinned & {kernels.imu_correct.__name__, kernels.imu_correct_auto.__name__}
+    assert {period.advance.__name__, correction.encoder_correct.__name__, kernels.estimate_flat.__name__} <= pinned
+    assert pinned & {correction.imu_correct.__name__, correction.imu_correct_auto.__name__}
 
 
 def _pinned(pins: KernelPins) -> set[str]:

@@ -8,7 +8,7 @@ pose with the motors unpowered (zero torque): our SCDD (DOP853 at rtol 1e-10, RK
 dt = 1e-5 s) against Pinocchio's ``constraintDynamics`` on the same files (the closures
 as Gepetto's loader builds them, see test/pinocchio_urdf.py, imported by path), integrated
 by DOP853 at rtol 1e-10 with the same small Baumgarte corrector as
-test/test_robot_dynamics.py. A legged robot's root link is fixed (a hanging leg): the
+test/dynamics/test_robot_dynamics.py. A legged robot's root link is fixed (a hanging leg): the
 files are fixed-root trees; Gepetto loads them with a free flyer for walking.
 
     python bench/studies/third_party_models.py [ROOT] [--only NAME ...]

@@ -2,7 +2,7 @@
 
 The peers are built from :func:`five_bar_spec`, which restates the numbers of
 ``docs/five_bar.md`` here, independently of our YAML loader, so that the
-cross-check (test/test_peer_crosscheck.py) also checks what the loader made of
+cross-check (test/dynamics/test_peer_crosscheck.py) also checks what the loader made of
 ``config/five_bar.yaml``. Conventions, chosen so that no re-ordering or sign change is
 needed anywhere:
 

@@ -19,7 +19,7 @@ from common import REPO
 
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 
-BAUMGARTE = (100.0, 20.0)  # as test/test_robot_dynamics.py: w = 10 1/s, far below 1e-6 rad here
+BAUMGARTE = (100.0, 20.0)  # as test/dynamics/test_robot_dynamics.py: w = 10 1/s, far below 1e-6 rad here
 
 
 def peer_class():

@@ -13,7 +13,6 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.optimize import least_squares
 from scipy.signal import hilbert
 from scipy.signal.windows import hann
 from scipy.spatial import cKDTree
@@ -409,6 +408,7 @@ def residual_vibration(
             )
         )
 
+    from scipy.optimize import least_squares  # here: scipy.optimize costs every start-up ~0.1-0.3 s
     fit = least_squares(resid, p0, jac=jac, method="lm", x_scale="jac")
     amp, sigma, f, phase, offset = (float(v) for v in fit.x)
     # Same curve, canonical form: positive amplitude and frequency.

@@ -28,7 +28,7 @@ VECTOR3 = "geometry_msgs/msg/Vector3"
 QUATERNION = "geometry_msgs/msg/Quaternion"
 KEY_VALUE = "diagnostic_msgs/msg/KeyValue"
 
-# Verbatim copy of msg_defs/msg/BranchForces.msg (test/test_ros_msgs.py checks it).
+# Verbatim copy of msg_defs/msg/BranchForces.msg (test/ros/test_ros_msgs.py checks it).
 BRANCH_FORCES_MSG_TEXT = """\
 # Axial forces in the elastic branches (legs) of a parallel manipulator.
 # All arrays are indexed alike: entry i of every array belongs to name[i].

@@ -11,7 +11,6 @@ the guess kept.
 from __future__ import annotations
 
 import numpy as np
-from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 from elastic_pm_dyn.errors import AssemblyError
@@ -102,6 +101,7 @@ def _levenberg_marquardt(mech: Mechanism, q: np.ndarray, free: np.ndarray, targe
     rows = len(fun(base[free]))
     method = "lm" if rows >= len(free) else "trf"
     with np.errstate(all="ignore"):
+        from scipy.optimize import least_squares  # here: only this fallback needs it, not every start-up
         sol = least_squares(fun, base[free], jac=jac, method=method, xtol=1e-15, ftol=1e-15, gtol=1e-15,
                             max_nfev=200 * max(1, len(free)))
     base[free] = sol.x

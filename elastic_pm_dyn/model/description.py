@@ -56,7 +56,7 @@ class Body:
 
 
 # Dry friction's slip speed: below it the regularised Coulomb force tanh(qd / v_s) is viscous-like
-# (a stick that creeps); measured against MuJoCo's friction loss in test/test_friction_loss.py.
+# (a stick that creeps); measured against MuJoCo's friction loss in test/dynamics/test_friction_loss.py.
 SLIP_SPEED = 1e-3
 
 

@@ -17,7 +17,6 @@ from dataclasses import replace
 
 import numpy as np
 import scipy.linalg
-import scipy.optimize
 from scipy.spatial.transform import Rotation
 
 from elastic_pm_dyn.model.description import ELASTIC, PASSIVE, Closure, Model
@@ -167,6 +166,7 @@ def _assembled(model: Model, free: list[int], start: np.ndarray | None = None) -
         return closure_terms(model, trial)[1][:, free]
 
     with np.errstate(all="ignore"):
+        import scipy.optimize  # here: scipy.optimize costs every start-up ~0.1-0.3 s
         sol = scipy.optimize.least_squares(fun, x0, jac=jac, method="trf", xtol=1e-15, ftol=1e-15, gtol=1e-15,
                                            max_nfev=100 * len(free))
     if not np.all(np.isfinite(sol.x)):
@@ -594,6 +594,7 @@ def missed_loops(model: Model) -> list[tuple[int, float]] | None:
         return []
     q0 = np.array([model.initial.guess.get(j.name, j.rest) for j in model.joints], dtype=float)
     with np.errstate(all="ignore"):
+        import scipy.optimize  # here: scipy.optimize costs every start-up ~0.1-0.3 s
         sol = scipy.optimize.least_squares(lambda x: closure_terms(model, x)[0], q0,
                                            jac=lambda x: closure_terms(model, x)[1], method="trf",
                                            xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=100 * len(every))

@@ -17,7 +17,6 @@ import warnings
 from dataclasses import replace
 
 import numpy as np
-import scipy.optimize
 from scipy.spatial.transform import Rotation
 
 from elastic_pm_dyn.model.description import PASSIVE, Chain, Model
@@ -72,6 +71,7 @@ def _nearest(model: Model, free: list[int]) -> tuple[np.ndarray, float]:
         return q
 
     with np.errstate(all="ignore"):
+        import scipy.optimize  # here: scipy.optimize costs every start-up ~0.1-0.3 s
         sol = scipy.optimize.least_squares(lambda x: closure_terms(model, at(x))[0], q0[free],
                                            jac=lambda x: closure_terms(model, at(x))[1][:, free], method="trf",
                                            xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=100 * max(1, len(free)))

@@ -219,7 +219,7 @@ class PlantMessages:
 
 
 class EstimateMessages(StateMessages):
-    """An observer :class:`~elastic_pm_dyn.observer.schedule.ekf.Estimate` as the plant's state messages
+    """An observer :class:`~elastic_pm_dyn.observer.core.estimate.Estimate` as the plant's state messages
     (``branch_forces`` with ``force_stddev``) plus ``stddev``: a JointState whose position and
     velocity hold the 1-sigma standard deviations of every tree joint (effort empty)."""
 

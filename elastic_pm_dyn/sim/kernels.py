@@ -253,8 +253,6 @@ def _correct(chain_start, Y, S, piv, rows, n_rows, r, x):
 def project_into(ma, q, qd, tol, max_iter, pws):
     """:func:`project` on the :class:`ProjectionWorkspace` ``pws``: allocates nothing, and
     solves each chain only in its own closure rows (bit-identical)."""
-    M, A, res, Y = pws.M, pws.A, pws.res, pws.Y
-    S, piv, L, dinv, XY, rows, n_rows, v = pws.S, pws.piv, pws.L, pws.dinv, pws.XY, pws.rows, pws.n_rows, pws.v
     m = ma.p_index.shape[0]
     if m == 0:
         return 0.0
@@ -263,15 +261,16 @@ def project_into(ma, q, qd, tol, max_iter, pws):
         gap = _closure_at(ma, q, pws)
         if gap0 < 0.0:
             gap0 = gap
-        if not _chain_responses_sparse(M, A, ma.chain_start, Y, S, L, dinv, XY, rows, n_rows):
-            S[:, :] = np.nan
-        if lu_factor(S, piv) == 0.0:
+        if not _chain_responses_sparse(pws.M, pws.A, ma.chain_start, pws.Y, pws.S, pws.L, pws.dinv, pws.XY,
+                                       pws.rows, pws.n_rows):
+            pws.S[:, :] = np.nan
+        if lu_factor(pws.S, pws.piv) == 0.0:
             return gap0
         if gap <= tol or it == max_iter:
             break
-        _correct(ma.chain_start, Y, S, piv, rows, n_rows, res, q)
-    matvec(A, qd, v)
-    _correct(ma.chain_start, Y, S, piv, rows, n_rows, v, qd)
+        _correct(ma.chain_start, pws.Y, pws.S, pws.piv, pws.rows, pws.n_rows, pws.res, q)
+    matvec(pws.A, qd, pws.v)
+    _correct(ma.chain_start, pws.Y, pws.S, pws.piv, pws.rows, pws.n_rows, pws.v, qd)
     return gap0
 
 

@@ -31,13 +31,13 @@ and with which commands, and which samples to correct with.
 from __future__ import annotations
 
 import numpy as np
-from scipy.stats import chi2
 
 from elastic_pm_dyn.errors import ElasticPmDynError, InputError
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.model.description import ACTIVE
 from elastic_pm_dyn.observer.config import RUNTIME_PARAMETERS, ObserverConfig
-from elastic_pm_dyn.observer.core import disturbance, kernels, period
+from elastic_pm_dyn.observer.core import correction, disturbance, kernels, period, wrench_kernels
+from elastic_pm_dyn.observer.core.chi_square import chi2_quantile
 from elastic_pm_dyn.observer.core.estimate import Estimate, EstimateLayout
 from elastic_pm_dyn.observer.core.observer_model import ObserverModel
 from elastic_pm_dyn.observer.core.sensors import Sample
@@ -156,7 +156,7 @@ class Ekf:
             return np.inf
         g = self._gates.get(dof)
         if g is None:
-            g = self._gates[dof] = float(chi2.ppf(self.cfg.gating.probability, dof))
+            g = self._gates[dof] = float(chi2_quantile(self.cfg.gating.probability, dof))
         return g
 
     def imu_gate(self, dof: int) -> float:
@@ -168,7 +168,7 @@ class Ekf:
         key = -dof  # cached beside the gates of gating.probability
         g = self._gates.get(key)
         if g is None:
-            g = self._gates[key] = float(chi2.ppf(self.cfg.process.wrench_jump_probability, dof))
+            g = self._gates[key] = float(chi2_quantile(self.cfg.process.wrench_jump_probability, dof))
         return g
 
     # ------------------------------------------------------------------ state
@@ -186,7 +186,7 @@ class Ekf:
             raise InputError(f"observer reset: a state needs {mech.n} tree coordinates")
         if not (np.all(np.isfinite(q)) and np.all(np.isfinite(qd))):
             raise InputError("observer reset: NaN or Inf in the state")
-        gap, ratio = kernels.apply_correction(mech.arrays, q, qd, np.zeros(self.nz), np.zeros(self.nx))
+        gap, ratio = correction.apply_correction(mech.arrays, q, qd, np.zeros(self.nz), np.zeros(self.nx))
         if not (gap <= 1e-9 and ratio >= kernels.SINGULAR_TOL):
             raise InputError(f"observer reset: the closure cannot be solved there (gap {gap:.3g} m)")
         self.q, self.qd = q, qd
@@ -209,7 +209,7 @@ class Ekf:
     def _refresh_wrench(self) -> None:
         """The wrench states' joint forces at the current pose (as every linearisation refreshes them)."""
         if self.nw:
-            self._pin(kernels.refresh_wrench)(self.mech.arrays, self._proc, self.q)
+            self._pin(wrench_kernels.refresh_wrench)(self.mech.arrays, self._proc, self.q)
 
     def _grow_process_noise(self, factor: float) -> None:
         """The noise intensities ``factor`` times larger (in place: the offline fast path holds these arrays)."""
@@ -252,31 +252,31 @@ class Ekf:
             self._fail(f"covariance lost positive definiteness at t = {self.t:.6f} s")
 
     def _correct_sample(self, s: Sample, gate: float) -> tuple[float, int, float]:
-        """``kernels.correct`` with a sample's H, R and innovation: (NIS, status, log det S)."""
-        return self._pin(kernels.correct)(self.mech.arrays, self._state(), np.ascontiguousarray(s.H), s.R, s.r, gate)
+        """``correction.correct`` with a sample's H, R and innovation: (NIS, status, log det S)."""
+        return self._pin(correction.correct)(self.mech.arrays, self._state(), np.ascontiguousarray(s.H), s.R, s.r, gate)
 
     def _correct_encoders(self, bundle: tuple, meas: np.ndarray, gate: float) -> tuple[float, int, float]:
-        """``kernels.encoder_correct`` (``bundle``: a :class:`~elastic_pm_dyn.observer.core.kernels.EncoderPlan`)."""
-        return self._pin(kernels.encoder_correct)(self.mech.arrays, self._state(), bundle, meas, gate)
+        """``correction.encoder_correct`` (``bundle``: a :class:`~elastic_pm_dyn.observer.core.kernels.EncoderPlan`)."""
+        return self._pin(correction.encoder_correct)(self.mech.arrays, self._state(), bundle, meas, gate)
 
     def _correct_imu(self, tau: np.ndarray, meas: np.ndarray, gate: float, a: np.ndarray) -> tuple[float, int, float]:
-        """``kernels.imu_correct`` under tree forces ``tau`` (``a`` receives the point's acceleration)."""
-        return self._pin(kernels.imu_correct)(self.mech.arrays, self.model.fixed, self._proc, self._state(), self._imu,
-                                              tau, meas, gate, a)
+        """``correction.imu_correct`` under tree forces ``tau`` (``a`` receives the point's acceleration)."""
+        return self._pin(correction.imu_correct)(self.mech.arrays, self.model.fixed, self._proc, self._state(),
+                                                 self._imu, tau, meas, gate, a)
 
     def _correct_imu_weighed(self, tau_before: np.ndarray, tau_after: np.ndarray, use_after: bool, meas: np.ndarray,
                              gate: float, evidence: np.ndarray) -> tuple[float, int, float]:
-        """``kernels.imu_correct_auto``: both sample-timing hypotheses weighed into ``evidence``,
+        """``correction.imu_correct_auto``: both sample-timing hypotheses weighed into ``evidence``,
         the correction under ``use_after``'s."""
-        return self._pin(kernels.imu_correct_auto)(self.mech.arrays, self.model.fixed, self._proc, self._state(),
+        return self._pin(correction.imu_correct_auto)(self.mech.arrays, self.model.fixed, self._proc, self._state(),
                                                    self._imu, tau_before, tau_after, use_after, meas, gate, evidence)
 
     def _weigh_imu(self, prior: tuple, tau_before: np.ndarray, tau_after: np.ndarray, meas: np.ndarray,
                    evidence: np.ndarray, a_before: np.ndarray) -> None:
-        """``kernels.imu_innovations`` of a sample at its ``prior`` (a State) into ``evidence`` (no correction)."""
-        self._pin(kernels.imu_innovations)(self.mech.arrays, self.model.fixed, self._proc, prior, self._imu,
-                                           tau_before, tau_after, meas, self.imu_gate(len(meas)), evidence, a_before,
-                                           True)
+        """``correction.imu_innovations`` of a sample at its ``prior`` (a State) into ``evidence`` (no correction)."""
+        self._pin(correction.imu_innovations)(self.mech.arrays, self.model.fixed, self._proc, prior, self._imu,
+                                              tau_before, tau_after, meas, self.imu_gate(len(meas)), evidence,
+                                              a_before, True)
 
     # ------------------------------------------------------------------ outputs
     def x(self) -> np.ndarray:

@@ -114,7 +114,7 @@ class FieldPlan(NamedTuple):
 
 
 class FastEncoderPlan(NamedTuple):
-    """A joint state that gives positions of state joints only: ``kernels.encoder_correct``'s part."""
+    """A joint state that gives positions of state joints only: ``correction.encoder_correct``'s part."""
 
     idx: np.ndarray  # message indices of the positions
     H: np.ndarray  # their constant rows
@@ -195,7 +195,7 @@ class Encoders:
 
     def fast_plan(self, names, nx: int) -> FastEncoderPlan | None:
         """The :class:`FastEncoderPlan` of a message with these names when it gives positions of
-        state joints only (no passive row): what ``kernels.encoder_correct`` needs; else None (use
+        state joints only (no passive row): what ``correction.encoder_correct`` needs; else None (use
         :meth:`sample`)."""
         key = tuple(names)
         hit = self._fast.get(key, False)

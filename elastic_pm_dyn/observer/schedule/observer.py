@@ -51,7 +51,7 @@ from elastic_pm_dyn.observer.schedule.recovery import EncoderRecovery
 from elastic_pm_dyn.observer.schedule.sample_timing import AUTO, DeferredSample, HeldSample, SampleTiming
 from elastic_pm_dyn.observer.schedule.sensor_stats import UpdateResult
 
-# a correction's status (kernels.correct, imu_correct) that is a fault
+# a correction's status (correction.correct, imu_correct) that is a fault
 CORRECTION_FAULTS = {2: "a {sensor} correction left the closure unsolvable at t = {t:.6f} s",
                      3: "covariance lost positive definiteness in a {sensor} correction at t = {t:.6f} s",
                      4: "singular configuration in the {sensor} model at t = {t:.6f} s"}
@@ -70,7 +70,7 @@ class Observer(Ekf):
     t_command = property(attrgetter("commands.t_command"))  # ... acting from here
     _pending = property(attrgetter("commands.pending"))  # delayed commands: (time it acts from, torque)
     delay = property(attrgetter("commands.delay"))  # command_delay [s]
-    evidence = property(attrgetter("imu_timing.evidence"))  # sample timing: kernels.imu_innovations' sums
+    evidence = property(attrgetter("imu_timing.evidence"))  # sample timing: correction.imu_innovations' sums
     timing_decisions = property(attrgetter("imu_timing.decisions"))  # ... the first choice and every switch
     timing_last = property(attrgetter("imu_timing.last"))  # ... the latest choice or check
     recoveries = property(attrgetter("recovery.done"))  # fall-backs since the last reset

@@ -22,7 +22,7 @@ import numpy as np
 
 from elastic_pm_dyn.errors import ElasticPmDynError
 from elastic_pm_dyn.kinematics.assembly import solve_pose
-from elastic_pm_dyn.observer.core import kernels
+from elastic_pm_dyn.observer.core import correction, kernels
 from elastic_pm_dyn.observer.core.sensors import motor_positions
 
 RECOVERY_PSD_GROWTH = 4.0  # each recovery multiplies the process noise intensities by this ...
@@ -100,7 +100,7 @@ class EncoderRecovery:
         qd_ae = qd[obs.ae].copy()
         qd = np.zeros(mech.n)
         qd[obs.ae] = qd_ae
-        gap, ratio = kernels.apply_correction(mech.arrays, q, qd, np.zeros(obs.nz), np.zeros(obs.nx))
+        gap, ratio = correction.apply_correction(mech.arrays, q, qd, np.zeros(obs.nz), np.zeros(obs.nx))
         if not (gap <= 1e-9 and ratio >= kernels.SINGULAR_TOL):
             return
         P = np.zeros_like(obs.P)

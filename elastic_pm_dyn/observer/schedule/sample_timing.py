@@ -11,7 +11,7 @@ taken at the instant a command starts to act depends on which side of it it was 
   stamp, or any message stamped later, arrives, then is corrected at t_k with the torque acting
   then. So a live node and the offline pass give the same estimates whichever arrives first;
 - ``auto``: both hypotheses are weighed on every sample at the same (prior) state (two
-  predicted accelerations, one innovation covariance S; ``kernels.imu_innovations``) into
+  predicted accelerations, one innovation covariance S; ``correction.imu_innovations``) into
   :attr:`SampleTiming.evidence`. Over the first :data:`TIMING_TRIAL` seconds after
   (re)initialisation each sample is corrected with the likelier so far (this sample not
   counted); then the likelier is chosen (:class:`TimingDecision`, with both log-likelihoods,
@@ -96,7 +96,7 @@ class SampleTiming:
         # no delay: the command that starts to act at a sample is the one of its own stamp
         self.no_delay = no_delay
         self.tol = tol
-        self.evidence = np.zeros(4)  # kernels.imu_innovations', since the last choice or check
+        self.evidence = np.zeros(4)  # correction.imu_innovations', since the last choice or check
         self.decisions: list[TimingDecision] = []  # the first choice and every switch
         self.last: TimingDecision | None = None  # the latest choice or check
         self.held: HeldSample | None = None

@@ -15,8 +15,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy.stats import chi2
 
+from elastic_pm_dyn.observer.core.chi_square import chi2_quantile
 from elastic_pm_dyn.observer.schedule import consistency
 from elastic_pm_dyn.observer.schedule.sample_timing import TIMING_SWITCH_EVIDENCE
 
@@ -137,7 +137,7 @@ def nis_band(st: SensorStats, p: float = 0.95) -> tuple[float, float, float]:
         return float("nan"), float("nan"), float("nan")
     total = sum(n for n, _ in w)
     dof = sum(d for _, d in w)
-    lo, hi = chi2.ppf((1 - p) / 2, dof) / len(w), chi2.ppf((1 + p) / 2, dof) / len(w)
+    lo, hi = chi2_quantile((1 - p) / 2, dof) / len(w), chi2_quantile((1 + p) / 2, dof) / len(w)
     return float(lo), float(hi), float(total / len(w))
 
 

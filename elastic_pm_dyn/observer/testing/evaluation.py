@@ -20,10 +20,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import chi2
 
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.model.layout import JF_REST, JF_STIFFNESS
+from elastic_pm_dyn.observer.core.chi_square import chi2_quantile
 from elastic_pm_dyn.observer.core.observer_model import branch_arrays
 from elastic_pm_dyn.observer.drivers.rows import Rows
 from elastic_pm_dyn.observer.drivers.stream import ObserverStream
@@ -183,7 +183,7 @@ def score(rec: Recording, run: Run, ol: OpenLoop | None = None, F_qs: np.ndarray
     nees = np.array([float(ek @ np.linalg.solve(Pk / np.outer(sk, sk), ek)) for ek, Pk, sk in
                      zip(e / s, Pm, s, strict=True)])
     dof = 2 * nae
-    lo, hi = chi2.ppf(0.025, dof), chi2.ppf(0.975, dof)
+    lo, hi = chi2_quantile(0.025, dof), chi2_quantile(0.975, dof)
     out["nees_mean"] = float(np.mean(nees[keep]))
     out["nees_in_band"] = float(np.mean((nees[keep] >= lo) & (nees[keep] <= hi)))
     out["nees_band"] = (float(lo), float(hi))

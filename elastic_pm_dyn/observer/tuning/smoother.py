@@ -26,7 +26,7 @@ sample the filter held for a command that never came (``imu.sample_timing``
 row (that sample is not in the smoothed estimate at that one stamp).
 
 The state x = [q_ae, qd_ae, z] is a chart of the closure manifold (the minimal coordinates);
-a smoothed x goes back to the tree state by the closure (``kernels.apply_correction``, the
+a smoothed x goes back to the tree state by the closure (``correction.apply_correction``, the
 filter's partitioning) and to the outputs (every joint, branch forces, deflections, the end
 effector and their standard deviations) by ``kernels.estimate_flat``, as the filter's.
 
@@ -46,7 +46,7 @@ from scipy.linalg import LinAlgError, cho_factor, cho_solve
 from elastic_pm_dyn.errors import InputError
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.observer.config import ObserverConfig
-from elastic_pm_dyn.observer.core import kernels, period
+from elastic_pm_dyn.observer.core import correction, kernels, period
 from elastic_pm_dyn.observer.core.ekf import ObserverFault
 from elastic_pm_dyn.observer.drivers.bag_input import Event
 from elastic_pm_dyn.observer.drivers.rows import Rows
@@ -208,7 +208,7 @@ def smoothed_rows(obs: Observer, rows: Rows, xs: np.ndarray, Ps: np.ndarray, tau
         z = x[2 * nae:].copy()
         dx = xs[k] - x
         if np.any(dx):
-            kernels.apply_correction(ma, q, qd, z, dx)
+            correction.apply_correction(ma, q, qd, z, dx)
         new = np.empty_like(flat)
         # the smoothed state as the kernels' State bundle (Phi, Qd, Hpt and info are not read)
         state = (q, qd, z, np.ascontiguousarray(Ps[k]), obs.Phi, obs.Qd, obs.Hpt, obs.info)

@@ -7,7 +7,7 @@ log-likelihood
     NLL(theta) = sum_k (r_k^T S_k^-1 r_k + log det S_k + m_k log 2 pi) / 2
 
 over every sensor sample (the filter reports NIS and log det S per sample:
-``kernels.kalman_update_ld``, ``SensorStats.nll``). A Kalman filter whose noise model is the
+``correction.kalman_update_ld``, ``SensorStats.nll``). A Kalman filter whose noise model is the
 data's whitens the innovations and minimises it; it needs nothing but the recording. Gating
 is off while tuning (``Observer.gating``), so a candidate cannot win by throwing samples away.
 

@@ -60,6 +60,7 @@ from elastic_pm_dyn.errors import InputError
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.observer.config import DEFAULT_PARAMETERS, PREFIX, RUNTIME_PARAMETERS
 from elastic_pm_dyn.ros.graph_checks import refuse_if_taken, resolved_topics
+from elastic_pm_dyn.ros.losses import SequenceGaps
 from elastic_pm_dyn.ros.markers import MechanismMarkers
 from elastic_pm_dyn.ros.messages import EstimateMessages, stamp
 from elastic_pm_dyn.ros.observer.input_order import AFTER, BEFORE, COMMAND, PRIMARY, InputOrder
@@ -147,9 +148,15 @@ class ObserverMode:
         self.superseded = 0  # torque commands not used since (the applied torque says what acted)
         if topics.applied_torque:
             inputs.insert(1, (JointState, topics.applied_torque, self._on_applied))
+        # messages that never reached a callback (the writer's or this reader's queue overflowed while
+        # this node lagged): counted per topic from the publication sequence numbers, said once a kind
+        self.lost: dict[str, SequenceGaps] = {}
         for msg_type, topic, callback in inputs:  # a copy each: rclpy writes the overrides into the profile
-            node.create_subscription(msg_type, topic, callback, copy.copy(OBSERVER_INPUT_QOS),
-                                     qos_overriding_options=QoSOverridingOptions.with_default_policies())
+            gaps = SequenceGaps()
+            take, made = self._counted(gaps, callback)
+            made.append(node.create_subscription(msg_type, topic, take, copy.copy(OBSERVER_INPUT_QOS),
+                                                 qos_overriding_options=QoSOverridingOptions.with_default_policies()))
+            self.lost[made[0].topic_name] = gaps
         node.create_service(Trigger, "~/reset", self._on_reset)
         node.create_service(SetJointState, "~/set_state", self._on_set_state)
         steady = Clock(clock_type=ClockType.STEADY_TIME)
@@ -193,6 +200,20 @@ class ObserverMode:
         return None
 
     # ------------------------------------------------------------------ inputs
+    def _counted(self, gaps: SequenceGaps, callback: Any) -> tuple[Any, list[Any]]:
+        """``callback`` behind a count of the messages that never reached it; the list takes the
+        subscription once made (its publishers: gaps are exact with one)."""
+        made: list[Any] = []
+
+        def take(msg: Any, info: dict[str, Any]) -> None:
+            sub = made[0]
+            if gaps.take(info.get("publication_sequence_number"), sub.get_publisher_count()):
+                self.warn.warning("lost " + sub.topic_name, f"{gaps.missed} '{sub.topic_name}' message(s) never "
+                                  "reached the observer so far (it fell more than its reader's queue behind: "
+                                  "cycle times and input_order.lag_s in /diagnostics)")
+            callback(msg)
+        return take, made
+
     def _input(self, kind: str) -> Any:
         """The callback of a sample topic: straight to its handler, or through the stamp order."""
         if self.order is None:
@@ -310,6 +331,7 @@ class ObserverMode:
         values["torque_input"] = (self.cfg.topics.torque_command if self.applied_since is None
                                   else self.cfg.topics.applied_torque)
         values["torque_commands_superseded"] = str(self.superseded)
+        values |= {f"lost.{topic.lstrip('/')}": str(g.missed) for topic, g in self.lost.items()}
         if self.order is not None:
             values |= self._order_values()
         status = DiagnosticStatus(name=f"{self.node.get_fully_qualified_name()}: observer", hardware_id=self.model_name,

@@ -24,7 +24,14 @@ from typing import Any
 from elastic_pm_dyn.ros.machine_params import DESCRIPTION_PARAMS, ESTIMATE_PARAMS, MACHINE_PARAMS, load_machine
 from elastic_pm_dyn.ros.node_main import ManagedNode, run_node
 from elastic_pm_dyn.ros.observer.mode import OBSERVER_PARAMS, ObserverMode
-from elastic_pm_dyn.ros.params import COMMAND_JOINTS, Param, on_runtime_change, read_parameters, reject_unknown
+from elastic_pm_dyn.ros.params import (
+    COMMAND_JOINTS,
+    Param,
+    on_runtime_change,
+    read_parameters,
+    reject_unknown,
+)
+from elastic_pm_dyn.ros.realtime_process import PROCESS_PARAMS, schedule_process
 from elastic_pm_dyn.ros.robot_description import publish_robot_description
 
 # Its outputs under its own name (/observer/joint_states ...): beside a plant in the same namespace,
@@ -42,7 +49,7 @@ def _own(spec: Param) -> Param:
     return spec
 
 
-PARAMS = [_own(s) for s in (*MACHINE_PARAMS, *ESTIMATE_PARAMS, *DESCRIPTION_PARAMS)]
+PARAMS = [_own(s) for s in (*MACHINE_PARAMS, *ESTIMATE_PARAMS, *DESCRIPTION_PARAMS, *PROCESS_PARAMS)]
 
 
 class ObserverNode(ManagedNode):
@@ -52,6 +59,7 @@ class ObserverNode(ManagedNode):
         super().__init__("observer", **node_kwargs)
         reject_unknown(self, [s.name for s in (*PARAMS, *OBSERVER_PARAMS)] + [COMMAND_JOINTS])
         p = read_parameters(self, PARAMS)
+        schedule_process(self, p)
         mech, _ = load_machine(self, p)  # the decoder checks command_joints
         self.observer = ObserverMode(self, mech, p)
         on_runtime_change(self, [*PARAMS, *OBSERVER_PARAMS], self.observer.apply_parameter)

@@ -18,7 +18,7 @@ An estimate is published after each message of the *primary* input, at its stamp
 wants the accelerometer of t_k in the estimate of t_k sends it before the joint state
 (as the offline pass, which records one row per stamp after all of its messages).
 
-Faults (:class:`~elastic_pm_dyn.observer.schedule.ekf.ObserverFault`: singular model, state or
+Faults (:class:`~elastic_pm_dyn.observer.core.ekf.ObserverFault`: singular model, state or
 covariance not finite) stop the filter: messages are refused (counted), nothing is
 published, diagnostics say ERROR until :meth:`ObserverSession.reset`, or, with
 ``restart_on_fault`` (the default), until the next measured joint state, from which the filter

@@ -33,8 +33,11 @@ checked as at start-up); the rest is read-only. Several plants in one domain: ea
 namespace; ``topics.clock`` is relative (``<ns>/clock``), /diagnostics names each plant by its
 fully qualified node name and ``hardware_id``.
 
-Callbacks only validate and store; the timers and the lockstep handler (a guard
-condition) advance the :class:`~elastic_pm_dyn.sim.plant.Plant`. Nothing a message or a
+Callbacks only validate and store; the sync mode (:mod:`~elastic_pm_dyn.ros.plant.sync_modes`:
+its timer, or the lockstep handler on a guard condition) advances the
+:class:`~elastic_pm_dyn.sim.plant.Plant` one period at a time through :meth:`PlantNode.step_period`;
+the services are :mod:`~elastic_pm_dyn.ros.plant.services`, the status on /diagnostics
+:mod:`~elastic_pm_dyn.ros.plant.diagnostics`. Nothing a message or a
 service request holds makes the node die: a fault stops integration at the last good
 state, ``~/reset`` and ``~/set_state`` recover, and a request that cannot be served is
 answered ``success: false`` with the reason. Warnings are throttled per kind. With ``mode: observer``
@@ -64,16 +67,13 @@ import time
 from typing import Any
 
 import numpy as np
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticArray
 from elastic_pm_dyn_msgs.msg import BranchForces
-from elastic_pm_dyn_msgs.srv import SetJointState, StepPeriods
 from geometry_msgs.msg import PoseStamped
 from rclpy.clock import Clock, ClockType
-from rclpy.qos import DurabilityPolicy
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, Header
-from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
 
 from elastic_pm_dyn.bags import cdr
@@ -86,7 +86,7 @@ from elastic_pm_dyn.ros.losses import SequenceGaps
 from elastic_pm_dyn.ros.machine_params import DESCRIPTION_PARAMS, ESTIMATE_PARAMS, MACHINE_PARAMS, load_machine
 from elastic_pm_dyn.ros.markers import MechanismMarkers
 from elastic_pm_dyn.ros.messages import PlantMessages, SerializedMessage, stamp
-from elastic_pm_dyn.ros.node_main import ManagedNode, run_node, stopping
+from elastic_pm_dyn.ros.node_main import ManagedNode, run_node
 from elastic_pm_dyn.ros.params import (
     COMMAND_JOINTS,
     Param,
@@ -96,8 +96,8 @@ from elastic_pm_dyn.ros.params import (
     reject_unknown,
 )
 from elastic_pm_dyn.ros.plant.command_hold import CommandHold
-from elastic_pm_dyn.ros.plant.realtime import collect_young, prepare, restore
-from elastic_pm_dyn.ros.plant.realtime_schedule import OVERRUNS, RealtimeSchedule
+from elastic_pm_dyn.ros.plant.diagnostics import plant_status
+from elastic_pm_dyn.ros.plant.realtime_schedule import OVERRUNS
 from elastic_pm_dyn.ros.plant.sensors import (
     DISTURBANCE_PARAMS,
     SENSOR_PARAMS,
@@ -106,8 +106,10 @@ from elastic_pm_dyn.ros.plant.sensors import (
     sensor_spec,
     spectrum_disturbance,
 )
+from elastic_pm_dyn.ros.plant.services import PlantServices
 from elastic_pm_dyn.ros.plant.stats import PlantStats
 from elastic_pm_dyn.ros.plant.step_check import rk4_step_warning
+from elastic_pm_dyn.ros.plant.sync_modes import SYNC_MODES
 from elastic_pm_dyn.ros.plant.wrench_input import WRENCH_PARAMS, WrenchIO, external_wrench
 from elastic_pm_dyn.ros.qos import (
     CLOCK_QOS,
@@ -117,6 +119,8 @@ from elastic_pm_dyn.ros.qos import (
     STATE_OUT_QOS,
     VIEWER_QOS,
 )
+from elastic_pm_dyn.ros.realtime_process import PROCESS_PARAMS, restore
+from elastic_pm_dyn.ros.realtime_process import refusal as process_refusal
 from elastic_pm_dyn.ros.robot_description import publish_robot_description
 from elastic_pm_dyn.ros.throttle import KindThrottle
 from elastic_pm_dyn.sim.plant import START_STATES, Plant
@@ -124,11 +128,6 @@ from elastic_pm_dyn.sim.simulator import INTEGRATORS, STABILIZATIONS, Simulation
 
 MODES = ("plant", "observer")
 RUNTIME_RATES = ("marker_rate", "diagnostics_rate")
-SYNC_MODES = ("realtime", "fast", "lockstep")
-MAX_STEP_REQUEST = 1_000_000  # ~/step: periods in one request (the executor waits for them)
-WAITING_LOG_EVERY = 5.0  # [s] the "waiting for a command" line
-FAST_SLICE = 0.005  # [s] fast mode: wall time per executor turn (amortises its ~0.2 ms; stays responsive)
-# (the executor turn's cost measured 2026-11-22 on the 2-core dev machine)
 WARN_EVERY = 1.0  # [s] throttle of repeated warnings, per kind
 
 PARAMS = [
@@ -146,7 +145,7 @@ PARAMS = [
     Param("publish_rate", 1000.0, "control and publish rate [Hz]; a command is held for one period",
           positive=True, fixed="the control period is built into the integrator's steps and the stamps: "
           "restart the node"),
-    Param("sync_mode", "realtime", "realtime | fast | lockstep", choices=SYNC_MODES,
+    Param("sync_mode", "realtime", "realtime | fast | lockstep", choices=tuple(SYNC_MODES),
           fixed="QoS, clock and timers depend on it: restart the node"),
     Param("command_timeout", 0.1, "[s] an older command means zero torque (the plant's clock: simulated "
           "time in fast and realtime with overrun slow, wall time with overrun skip; unused in lockstep)",
@@ -171,8 +170,7 @@ PARAMS = [
           fixed="the clock topic depends on it: restart the node"),
     Param("realtime.keep_gc_out", True, "realtime: no automatic garbage collection in the loop (the node "
           "collects the young generations between periods, at the diagnostics rate)"),
-    Param("realtime.cpu_affinity", [], "realtime: CPUs the process runs on (empty: any)", item=int),
-    Param("realtime.priority", 0, "realtime: SCHED_FIFO priority 1-99 where permitted (0: normal scheduling)"),
+    *PROCESS_PARAMS,
     *SENSOR_PARAMS,
     *DISTURBANCE_PARAMS,
     *WRENCH_PARAMS,
@@ -228,12 +226,8 @@ class PlantNode(ManagedNode):
 
     def _start_plant(self, mech: Mechanism, p: dict[str, Any]) -> None:
         self.sync_mode: str = p["sync_mode"]
-        if not 0 <= p["realtime.priority"] <= 99:
-            raise ParameterError(f"parameter 'realtime.priority' must lie in 0-99 (0: normal scheduling), "
-                                 f"got {p['realtime.priority']}")
-        if any(c < 0 for c in p["realtime.cpu_affinity"]):
-            raise ParameterError(f"parameter 'realtime.cpu_affinity' must list CPU numbers >= 0, "
-                                 f"got {p['realtime.cpu_affinity']}")
+        if (why := process_refusal(p)) is not None:
+            raise ParameterError(why)
         period = 1.0 / p["publish_rate"]
         options = SimulationOptions(formulation=p["formulation"], integrator=p["integrator"], dt=p["dt"],
                                     stabilization=p["stabilization"], sample=period)
@@ -246,11 +240,8 @@ class PlantNode(ManagedNode):
                 self.get_logger().warning(coarse)
         self.period_ns = round(period * NS)
         self.formulation = p["formulation"]
-        self.overrun: str = p["realtime.overrun"]
-        self.schedule = RealtimeSchedule(period, p["realtime.max_catch_up"], self.overrun)
         # The stamps are the plant's clock, not the wall clock: fast, lockstep, realtime slowing
-        self.own_clock = self.sync_mode != "realtime" or self.overrun == "slow"
-        self.republish_period: float = p["lockstep.waiting_republish_period"]
+        self.own_clock = self.sync_mode != "realtime" or p["realtime.overrun"] == "slow"
         self.hardware_id = p["hardware_id"] or f"{mech.model.name} {self.get_fully_qualified_name()}"
         self.messages = PlantMessages(self.plant, p["frames.base"])
         self.markers = MechanismMarkers(mech, p["frames.base"])
@@ -285,40 +276,20 @@ class PlantNode(ManagedNode):
             self.pub_disturbance = self.create_publisher(JointState, p["topics.disturbance"], STATE_OUT_QOS)
         if p["disturbance.input"]:
             self.create_subscription(msg_type, p["topics.disturbance_torque"], self._on_disturbance, COMMAND_QOS)
-        self.create_service(Trigger, "~/reset", self._on_reset)
-        self.create_service(SetJointState, "~/set_state", self._on_set_state)
-        self.create_service(Trigger, "~/pause", self._on_pause)
-        self.create_service(Trigger, "~/unpause", self._on_unpause)
-        self.create_service(StepPeriods, "~/step", self._on_step)
+        self.sim_services = PlantServices(self)
 
         self.stats = PlantStats()
         self.paused = False
         self.last_command_wall = time.monotonic()
-        self.waiting_logged = 0.0
-        self.matched_since: float | None = None  # lockstep: a volatile state subscriber there since (monotonic)
         self.last_state_wall = time.monotonic()
 
         self.steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.marker_timer = self.create_timer(1.0 / p["marker_rate"], self._publish_markers, clock=self.steady)
         self.diagnostics_timer = self.create_timer(1.0 / p["diagnostics_rate"], self._publish_diagnostics,
                                                    clock=self.steady)
-        self.step_timer = None
-        self.republish_timer = None
-        self.keep_gc_out = False
-        extra = ""
-        if self.sync_mode == "realtime":
-            self.step_timer = self.create_timer(period, self._on_realtime_tick, clock=self.steady)
-            prepared = prepare(self.get_logger(), p["realtime.cpu_affinity"], p["realtime.priority"],
-                              p["realtime.keep_gc_out"])
-            self.keep_gc_out = p["realtime.keep_gc_out"]
-            extra = f" ({', '.join(prepared)})" if prepared else ""
-        elif self.sync_mode == "fast":
-            self.step_timer = self.create_timer(0.0, self._on_fast_tick, clock=self.steady)
-        else:
-            self.lockstep_trigger = self.create_guard_condition(self._on_lockstep)
-            self.republish_timer = self.create_timer(self.republish_period / 5, self._republish_waiting,
-                                                     clock=self.steady)
-            self._publish_state()
+        self.step_timer = None  # realtime and fast: the timer that steps (cancelled while paused or stopped)
+        self.sync = SYNC_MODES[self.sync_mode](self, p, period)
+        extra = self.sync.start(p, period)
         self.get_logger().info(
             f"{mech.model.name}: {self.formulation}, {p['integrator']} dt {p['dt']:g} s, "
             f"{p['publish_rate']:g} Hz, {self.sync_mode}{extra}; commands ({p['command_type']}) on "
@@ -326,7 +297,7 @@ class PlantNode(ManagedNode):
             + (f"; clock on '{self.pub_clock.topic_name}'" if self.pub_clock is not None else ""))
 
     def destroy_node(self) -> None:
-        restore(getattr(self, "keep_gc_out", False))  # the process may go on without this node
+        restore(getattr(getattr(self, "sync", None), "keep_gc_out", False))  # the process may go on without it
         super().destroy_node()
 
     # ------------------------------------------------------- runtime parameters
@@ -343,10 +314,8 @@ class PlantNode(ManagedNode):
             self.destroy_timer(self.diagnostics_timer)
             self.diagnostics_timer = self.create_timer(1.0 / value, self._publish_diagnostics, clock=self.steady)
         elif name == "lockstep.waiting_republish_period":
-            self.republish_period = value
-            if self.republish_timer is not None:
-                self.destroy_timer(self.republish_timer)
-                self.republish_timer = self.create_timer(value / 5, self._republish_waiting, clock=self.steady)
+            # taken by a lockstep plant; the others keep it for nothing (checked, not used)
+            self.sync.apply_parameter(name, value)
         else:
             return "not changeable at run time"
         return None
@@ -362,19 +331,14 @@ class PlantNode(ManagedNode):
                    else self.decoder.from_array(msg.data))
         except InputError as err:
             self.stats.rejected += 1
-            if self.sync_mode == "lockstep":  # answered all the same: the last valid command holds
-                self.warn.warning(getattr(err, "kind", "rejected"),
-                                  f"command rejected: {err}; holding the last valid one for the period")
-                self.hold.take_rejected(arrival)
-                self.lockstep_trigger.trigger()
-            else:
-                self.warn.warning(getattr(err, "kind", "rejected"), f"command rejected: {err}")
+            held = "; holding the last valid one for the period" if self.sync_mode == "lockstep" else ""
+            self.warn.warning(getattr(err, "kind", "rejected"), f"command rejected: {err}{held}")
+            self.sync.command_rejected(arrival)
             return
         self.stats.accepted += 1
-        if self.hold.take(tau, arrival, self._command_clock()):
+        if self.hold.take(tau, arrival, self.command_clock()):
             self.get_logger().info("first torque command received")
-        if self.sync_mode == "lockstep":
-            self.lockstep_trigger.trigger()
+        self.sync.command_taken()
 
     def _count_overwritten(self, seq: int | None) -> None:
         """Lockstep answers every command it gets: one that a queue overwrote is reported, never silent."""
@@ -392,15 +356,15 @@ class PlantNode(ManagedNode):
             self.warn.warning("disturbance " + getattr(err, "kind", "rejected"),
                               f"disturbance torque rejected: {err}; the last valid one holds")
             return
-        self.hold.take_disturbance(d, self._command_clock())
+        self.hold.take_disturbance(d, self.command_clock())
 
-    def _command_clock(self) -> float:
+    def command_clock(self) -> float:
         """The clock a command's age is measured on: the stamps' (simulated time unless they are the wall clock)."""
         return self.plant.t if self.own_clock else time.monotonic()
 
-    def _held_torque(self) -> np.ndarray:
+    def held_torque(self) -> np.ndarray:
         """The torque for the next period in realtime/fast: the command, or zero when stale."""
-        tau, stale_age = self.hold.held(self._command_clock())
+        tau, stale_age = self.hold.held(self.command_clock())
         if stale_age is not None:
             self.warn.warning("stale", f"last torque command is {stale_age:.3g} s old (timeout "
                               f"{self.hold.timeout:g} s): applying zero torque")
@@ -408,129 +372,28 @@ class PlantNode(ManagedNode):
             self.stats.stale += 1
         return tau
 
-    # --------------------------------------------------------------- services
-    def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
-        try:
-            self.plant.reset()
-            self._restarted()
-            response.success = True
-            response.message = f"reset to the initial state at t = {self.plant.t:.6g} s"
-            self.get_logger().info(response.message)
-        except Exception as err:  # never die on a service call: answer why
-            response.success = False
-            response.message = f"reset failed: {type(err).__name__}: {err}"
-            self.get_logger().error(response.message)
-        return response
-
-    def _on_set_state(self, request: SetJointState.Request,
-                      response: SetJointState.Response) -> SetJointState.Response:
-        s = request.state
-        try:
-            response.message = self.plant.set_state(s.name, s.position, s.velocity)
-            response.success = True
-            self._restarted()
-            self.get_logger().info(response.message)
-        except InputError as err:
-            response.success = False
-            response.message = f"set_state rejected: {err}"
-            self.get_logger().warning(response.message)
-        except Exception as err:  # never die on a service call: answer why (the state is unchanged)
-            response.success = False
-            response.message = f"set_state failed: {type(err).__name__}: {err}"
-            self.get_logger().error(response.message)
-        return response
-
-    def _on_pause(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
-        response.success = True
-        if self.paused:
-            response.message = f"already paused at t = {self.plant.t:.6g} s"
-            return response
-        self.paused = True
-        self.stats.pause(time.monotonic())
-        if self.step_timer is not None:
-            self.step_timer.cancel()
-        response.message = (f"paused at t = {self.plant.t:.6g} s ({self.plant.k} periods)"
-                            + ("; commands queue until unpause or step" if self.sync_mode == "lockstep" else ""))
-        self.get_logger().info(response.message)
-        return response
-
-    def _on_unpause(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
-        response.success = True
-        if not self.paused:
-            response.message = f"not paused (t = {self.plant.t:.6g} s)"
-            return response
-        self.paused = False
-        self.stats.resume(time.monotonic())
-        self._resume()
-        response.message = f"running from t = {self.plant.t:.6g} s"
-        self.get_logger().info(response.message)
-        return response
-
-    def _on_step(self, request: StepPeriods.Request, response: StepPeriods.Response) -> StepPeriods.Response:
-        """N periods at once while paused, each with the torque the mode would hold (see StepPeriods.srv)."""
-        response.periods_advanced = 0
-        n = request.periods
-        if not self.paused:
-            response.success, response.message = False, "not paused: call ~/pause first (steps are counted exactly)"
-        elif self.plant.fault is not None:
-            response.success = False
-            response.message = f"integration stopped: {self.plant.fault}; call ~/reset or ~/set_state"
-        elif n > MAX_STEP_REQUEST:
-            response.success, response.message = False, f"{n} periods: at most {MAX_STEP_REQUEST} per request"
-        else:
-            try:
-                for _ in range(n):
-                    if stopping():  # Ctrl-C or SIGTERM: answer with what was done, then the node ends
-                        break
-                    if not self._step(*self._step_torque()):
-                        break
-                    response.periods_advanced += 1
-            except Exception as err:  # never die on a service call: answer why
-                self.get_logger().error(f"step failed: {type(err).__name__}: {err}")
-            response.success = response.periods_advanced == n
-            why = "the node is stopping" if stopping() else self.plant.fault or "see the log"
-            response.message = (f"advanced {response.periods_advanced} of {n} period(s) to t = {self.plant.t:.6g} s"
-                                + ("" if response.success else f"; stopped: {why}"))
-        response.sim_time = self.plant.t
-        if response.success:  # one severity per call site (rclpy's rule)
-            self.get_logger().info(f"step: {response.message}")
-        else:
-            self.get_logger().warning(f"step: {response.message}")
-        return response
-
-    def _step_torque(self) -> tuple[np.ndarray, float | None]:
-        """~/step: the torque of one period and its command's arrival (None: no new command)."""
-        if self.sync_mode != "lockstep":
-            return self._held_torque(), self.hold.take_arrival()
-        return self.hold.next_queued()
-
-    def _restarted(self) -> None:
+    def restarted(self) -> None:
         """After reset/set_state: forget old commands, resume stepping, show the new state."""
         self.hold.restart()
-        self._resume(publish=True)
+        self.resume(publish=True)
 
-    def _resume(self, publish: bool = False) -> None:
+    def resume(self, publish: bool = False) -> None:
         """Stepping goes on (unless paused or stopped by a fault); the new realtime schedule's
         first tick, or here ``publish``, shows the state."""
         if self.paused:
             if publish:
-                self._publish_state()
+                self.publish_state()
             return
         if self.step_timer is not None and self.step_timer.is_canceled() and self.plant.fault is None:
             self.step_timer.reset()
-        if self.sync_mode == "realtime":
-            self.schedule.stop()  # a fresh schedule; its first tick publishes the state
-        elif publish:
-            self._publish_state()
-        if self.sync_mode == "lockstep" and self.hold.queue:
-            self.lockstep_trigger.trigger()
+        self.sync.resume(publish)
 
     # ---------------------------------------------------------------- stepping
-    def _step(self, tau: np.ndarray, arrival: float | None = None) -> bool:
+    def step_period(self, tau: np.ndarray, arrival: float | None = None) -> bool:
         """Advance one period and publish; False when integration stopped. ``arrival``: when the
         command of this period arrived, if it is a new one (latency, fresh-command share)."""
         t0 = time.perf_counter()
-        held = self.hold.held_disturbance(self._command_clock())
+        held = self.hold.held_disturbance(self.command_clock())
         start_ns = self._stamp_ns()
         try:
             if self.sensors is not None and self.sensors.after:  # a(t_k+): under the command that starts now
@@ -550,7 +413,7 @@ class PlantNode(ManagedNode):
         self.applied.set_stamp(*divmod(start_ns, NS))
         self.applied.arrays[2][:] = tau
         self.pub_applied.publish(self.applied.raw())
-        self._publish_state()
+        self.publish_state()
         t2 = time.perf_counter()
         self.stats.add(t1 - t0, t2 - t0)
         if arrival is not None:
@@ -558,111 +421,11 @@ class PlantNode(ManagedNode):
             self.stats.latency.append(time.monotonic() - arrival)
         return True
 
-    def _on_realtime_tick(self) -> None:
-        now = time.monotonic()
-        schedule = self.schedule
-        if not schedule.started:
-            schedule.start(now, self.plant.k)
-            if not (self.stamp_set and self.overrun == "slow"):  # skip: the stamps follow the wall clock again
-                self.stamp_base = self.get_clock().now().nanoseconds - self.plant.k * self.period_ns
-                self.stamp_set = True
-            self._publish_state()
-            return
-        tick = schedule.tick(now, self.plant.k)
-        s = self.stats
-        if tick.slowed:
-            s.overruns += 1
-            s.slowed_periods += tick.slowed
-            self.warn.warning("slowed", f"realtime: the clock slowed by {tick.slowed} period(s) "
-                              f"({s.slowed_periods} so far; more than {schedule.max_catch_up} periods behind); "
-                              "the stamps stay on the simulated-time grid")
-        elif tick.skipped:
-            s.overruns += 1
-            s.slipped_periods += tick.skipped
-            self.stamp_base += tick.skipped * self.period_ns
-            self.warn.warning("slipped", f"realtime: {s.slipped_periods} period(s) slipped so far, "
-                              f"{tick.skipped} now (more than {schedule.max_catch_up} periods behind); the stamps jump")
-        if tick.late:
-            s.late(tick.late, tick.lateness)
-            self.warn.warning("late", f"realtime: {tick.late} period(s) caught up, the first "
-                              f"{tick.lateness * 1e3:.2f} ms late ({s.late_periods} late so far; cycle_load in "
-                              "/diagnostics)")
-        for _ in range(tick.due):
-            if not self._step(self._held_torque(), self.hold.take_arrival()):
-                return
-
-    def _on_fast_tick(self) -> None:
-        end = time.perf_counter() + FAST_SLICE
-        while time.perf_counter() < end:
-            if not self._step(self._held_torque(), self.hold.take_arrival()):
-                return
-
-    def _on_lockstep(self) -> None:
-        """One period per command (a rejected one holds the last valid command). Every command
-        is answered, so a controller that waits for the state never waits more than one period:
-        while integration is stopped (ERROR in /diagnostics until ~/reset or ~/set_state) the
-        last good state is published again, with its own stamp (time does not advance).
-        Paused: the commands wait in the queue (~/step or ~/unpause takes them)."""
-        while self.hold.queue and not self.paused:
-            tau, arrival = self.hold.queue.popleft()
-            if self.plant.fault is not None:
-                self.stats.rejected += 1
-                self.warn.warning("stopped", f"command ignored, integration stopped: {self.plant.fault}; "
-                                  "call ~/reset or ~/set_state")
-                self._publish_state()
-            elif not self._step(tau, arrival):
-                self._publish_state()  # the last good state: the plant keeps it on a fault
-
-    def _republish_waiting(self) -> None:
-        """Lockstep before the first command: everything published per period again (states,
-        clock, sensors, disturbance truth; the same bytes and stamp), for a controller that
-        subscribed after it was published (a volatile subscriber gets no history), whichever of
-        these topics it reads. Only while a volatile subscriber of one of them is there (a
-        transient-local one got the state when it matched), once it has been there for a whole
-        republish period and the state is that old: a controller that answers within the period
-        never sees a state twice."""
-        if not self.hold.awaiting_first or self.paused:
-            return
-        now = time.monotonic()
-        if not any(r.qos_profile.durability == DurabilityPolicy.VOLATILE
-                   for pub in self._period_publishers()
-                   for r in self.get_subscriptions_info_by_topic(pub.topic_name)):
-            self.matched_since = None
-            return
-        if self.matched_since is None:
-            self.matched_since = now
-        if now - self.matched_since < self.republish_period or now - self.last_state_wall < self.republish_period:
-            return
-        self._publish_state(again=True)
-        if now - self.waiting_logged >= WAITING_LOG_EVERY:
-            self.waiting_logged = now
-            self.get_logger().info(
-                f"lockstep: waiting for the first command on '{self.command_sub.topic_name}' "
-                f"({self._command_publishers()}); the state of t = {self.plant.t:.6g} s and its samples are "
-                f"published again every {self.republish_period:g} s until one arrives")
-
-    def _period_publishers(self) -> list[Any]:
-        """The publishers of every period's state (a lockstep controller may read any of them)."""
-        pubs = [self.pub_joint_states, self.pub_branch_forces, self.pub_ee_pose]
-        if self.sensors is not None:
-            pubs += self.sensors.publishers()
-        if self.pub_disturbance is not None:
-            pubs.append(self.pub_disturbance)
-        return pubs
-
-    def _command_publishers(self) -> str:
-        """Who publishes on the command topic, for the waiting line."""
-        infos = self.get_publishers_info_by_topic(self.command_sub.topic_name)
-        if not infos:
-            return "no publisher yet"
-        names = sorted({f"{i.node_namespace.rstrip('/')}/{i.node_name}" for i in infos})
-        return f"publishers: {', '.join(names)}"
-
     # ----------------------------------------------------------------- outputs
     def _stamp_ns(self) -> int:
         return self.stamp_base + self.plant.k * self.period_ns
 
-    def _publish_state(self, again: bool = False) -> None:
+    def publish_state(self, again: bool = False) -> None:
         """The state of the current period on every output; ``again``: the same state and samples
         once more (the sensors' bytes as published: their noise is drawn once per stamp)."""
         m = self.messages
@@ -686,72 +449,22 @@ class PlantNode(ManagedNode):
             self.pub_disturbance.publish(disturbance_message(
                 self.plant.mech.active_names, m.stamp_ns, self.plant.disturbance_at(self.plant.t)))
 
+    def period_publishers(self) -> list[Any]:
+        """The publishers of every period's state (a lockstep controller may read any of them)."""
+        pubs = [self.pub_joint_states, self.pub_branch_forces, self.pub_ee_pose]
+        if self.sensors is not None:
+            pubs += self.sensors.publishers()
+        if self.pub_disturbance is not None:
+            pubs.append(self.pub_disturbance)
+        return pubs
+
+    def _publish_diagnostics(self) -> None:
+        status = plant_status(self)
+        self.pub_diagnostics.publish(DiagnosticArray(header=Header(stamp=stamp(self._stamp_ns())), status=[status]))
+
     def _publish_markers(self) -> None:
         if self.pub_markers.get_subscription_count():
             self.pub_markers.publish(self.markers.build(self.plant.q, self._stamp_ns()))
-
-    def _waiting(self) -> str:
-        """Lockstep: what the plant waits for, if it waits (empty otherwise)."""
-        if self.sync_mode != "lockstep" or self.hold.queue or self.plant.fault is not None:
-            return ""
-        if self.hold.awaiting_first:
-            return (f"waiting for the first command (state of t = {self.plant.t:.6g} s re-published every "
-                    f"{self.republish_period:g} s while a volatile subscriber is there)")
-        idle = time.monotonic() - self.last_command_wall
-        return f"waiting for a command for {idle:.3g} s" if idle > 1.0 else ""
-
-    def _factor_text(self, wall: float) -> str:
-        factor = self.stats.real_time_factor(self.plant.t, wall)
-        return f"{factor:.2g}" if factor is not None else "?"
-
-    def _publish_diagnostics(self) -> None:
-        s, plant = self.stats, self.plant
-        if self.keep_gc_out:  # between periods: the collection's time shows in gc_time_ms, not in a period
-            s.gc_time = collect_young()
-        wall = time.monotonic()
-        command_age = self.hold.age(self._command_clock())
-        age = f"{command_age:.6g}" if command_age is not None else ""
-        status = DiagnosticStatus(name=f"{self.get_fully_qualified_name()}: plant", hardware_id=self.hardware_id)
-        if plant.fault is not None:
-            status.level, status.message = DiagnosticStatus.ERROR, f"integration stopped: {plant.fault}"
-        else:
-            issues = [text for changed, text in (
-                (s.window_rejected != s.rejected, "commands rejected"),
-                (s.window_stale != s.stale, "zero torque (no command or a stale one)"),
-                (s.window_late != s.late_periods,
-                 f"realtime: {s.late_periods - s.window_late} period(s) late, up to "
-                 f"{s.window_max_lateness * 1e3:.2f} ms"),
-                (s.window_slowed != s.slowed_periods,
-                 f"realtime: running slower than real time (factor {self._factor_text(wall)}, "
-                 f"{s.slowed_periods - s.window_slowed} period(s) slowed)"),
-                (s.window_slipped != s.slipped_periods,
-                 f"realtime overrun: the schedule slipped ({s.slipped_periods - s.window_slipped} period(s))"),
-                (s.window_overwritten != self.command_gaps.missed and self.sync_mode == "lockstep",
-                 "commands overwritten (unanswered)"))
-                if changed]
-            status.level = DiagnosticStatus.WARN if issues else DiagnosticStatus.OK
-            waiting = self._waiting()
-            status.message = "; ".join(issues + ([waiting] if waiting else [])) or (
-                "paused" if self.paused else "running")
-            if self.paused and issues:
-                status.message += "; paused"
-        values = {
-            "sync_mode": self.sync_mode, "formulation": self.formulation, "paused": str(self.paused).lower(),
-            "waiting_for_command": str(bool(self._waiting())).lower(), "sim_time_s": f"{plant.t:.6f}",
-            "periods": str(plant.k),
-            **s.values(plant.period, plant.t, plant.k, wall),
-            "closure_gap_m": f"{plant.gap():.3g}", "command_age_s": age,
-            "commands_accepted": str(s.accepted), "commands_rejected": str(s.rejected),
-            "zero_torque_periods": str(s.stale), "overruns": str(s.overruns),
-            "commands_overwritten": str(self.command_gaps.missed),
-        }
-        if self.sync_mode == "realtime":
-            values["overrun"] = self.overrun
-        status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
-        self.pub_diagnostics.publish(DiagnosticArray(header=Header(stamp=stamp(self._stamp_ns())), status=[status]))
-        s.new_window(plant.t, plant.k, wall)
-        s.window_overwritten = self.command_gaps.missed
-
 
 def main(args: list[str] | None = None) -> int:
     return run_node("plant_node", PlantNode, args)

@@ -74,6 +74,7 @@ from elastic_pm_dyn.ros.losses import TopicLosses
 from elastic_pm_dyn.ros.node_main import ManagedNode, run_node
 from elastic_pm_dyn.ros.params import Param, ParameterError, read_parameters, reject_unknown
 from elastic_pm_dyn.ros.qos import DIAGNOSTICS_QOS
+from elastic_pm_dyn.ros.realtime_process import PROCESS_PARAMS, schedule_process
 from elastic_pm_dyn.ros.recorder.second_participant import SecondParticipant
 
 DEMO_TOPICS = ["/joint_states", "/branch_forces", "/ee_pose", "/torque_command", "/reference_joint_states"]
@@ -99,6 +100,7 @@ PARAMS = [
     Param("rate_hint", 1000.0, "[Hz] the highest message rate expected on one topic", positive=True),
     Param("max_lag", 2.0, "[s] how far the recorder may fall behind a topic at rate_hint before "
           "the middleware drops messages (subscription depth = rate_hint * max_lag)", positive=True),
+    *PROCESS_PARAMS,  # a recorder beside a realtime loop on a loaded machine is scheduled as the loop is
 ]
 
 
@@ -161,6 +163,7 @@ class RecorderNode(ManagedNode):
         super().__init__("recorder", **node_kwargs)
         reject_unknown(self, [s.name for s in PARAMS])
         p = read_parameters(self, PARAMS)
+        schedule_process(self, p)
         # resolved as a publisher of this node would resolve them: namespace, ~, remappings
         self.wanted = [self._resolve("topics", t) for t in p["topics"]]
         if not self.wanted:
