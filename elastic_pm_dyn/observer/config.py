@@ -378,10 +378,9 @@ class ObserverConfig:
                       f"got {_shown(self.imu.axes)}")
         if len(self.imu.rpy) != 3:
             raise bad("imu.rpy", f"expected 3 angles, got {_shown(self.imu.rpy)}")
-        if not 0.5 < self.process.wrench_jump_probability <= self.gating.probability:
+        if not 0.5 < self.process.wrench_jump_probability < 1.0:
             raise bad("process.wrench_jump_probability",
-                      f"expected a probability in (0.5, gating.probability], got "
-                      f"{_shown(self.process.wrench_jump_probability)}")
+                      f"expected a probability in (0.5, 1), got {_shown(self.process.wrench_jump_probability)}")
         if not 0.5 < self.gating.probability < 1.0:
             raise bad("gating.probability",
                       f"expected a probability in (0.5, 1), got {_shown(self.gating.probability)}")

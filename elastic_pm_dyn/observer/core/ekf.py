@@ -168,7 +168,9 @@ class Ekf:
         key = -dof  # cached beside the gates of gating.probability
         g = self._gates.get(key)
         if g is None:
-            g = self._gates[key] = float(chi2_quantile(self.cfg.process.wrench_jump_probability, dof))
+            # never above the full gate (a gating.probability set below the jump's)
+            p = min(self.cfg.process.wrench_jump_probability, self.cfg.gating.probability)
+            g = self._gates[key] = float(chi2_quantile(p, dof))
         return g
 
     # ------------------------------------------------------------------ state
