@@ -145,3 +145,10 @@ def test_two_plants(tmp_path: Path) -> None:
         assert len(lines) == 1 and lines[0].endswith("strictly increasing: yes"), text
         assert f"'/{ns}/plant: plant', hardware_id 'five_bar /{ns}/plant'" in text
         assert "Traceback" not in (tmp_path / "two_plants_out" / f"{ns}.log").read_text()
+
+
+def test_contact_stop(tmp_path: Path) -> None:
+    """The move into the wall is stopped within 5 ms of the touch (issue 43's bound), by the wrench estimate."""
+    text = run_example("contact_stop.py", cwd=tmp_path)
+    assert number_after(text, "touched the wall at") > 0
+    assert 0 <= number_after(text, "ms: detected") <= 5, text

@@ -41,6 +41,7 @@ from elastic_pm_dyn.bags.msgtypes import (
     JOINT_STATE,
     NS,
     POSE_STAMPED,
+    WRENCH_STAMPED,
     stamp_ns,
 )
 from elastic_pm_dyn.bags.reader import open_bag
@@ -55,9 +56,16 @@ ROLES: dict[str, tuple[tuple[str, ...], str, tuple[str, ...]]] = {
     "measured": ((JOINT_STATE,), "/measured_joint_states", ("measured", "meas", "sensor")),
     "ee_pose": ((POSE_STAMPED,), "/ee_pose", ()),
     "diagnostics": ((DIAGNOSTIC_ARRAY,), "/diagnostics", ()),
+    # the observer's wrench estimate (observe's bag, the observer node), the plant's true wrench, the contacts
+    "wrench": ((WRENCH_STAMPED,), "/observer/wrench", ()),
+    "wrench_stddev": ((WRENCH_STAMPED,), "/observer/wrench_stddev", ()),
+    "wrench_truth": ((WRENCH_STAMPED,), "/wrench", ()),
+    "contact": ((WRENCH_STAMPED,), "/observer/contact", ()),
 }
 # Roles whose absence is normal (observer input, plant extras): not reported as missing.
-OPTIONAL = ("measured", "ee_pose", "diagnostics")
+OPTIONAL = ("measured", "ee_pose", "diagnostics", "wrench", "wrench_stddev", "wrench_truth", "contact")
+# Roles taken by their default name only (all of one message type: a guess by type would mix them up).
+BY_NAME_ONLY = ("wrench", "wrench_stddev", "wrench_truth", "contact")
 MAX_SAMPLES = 200_000  # per topic at full rate (JointState of 6 joints: ~30 MB)
 WINDOW_SAMPLES = 50_000  # full-rate rows kept for the vibration fit when decimating
 TIMER_STAMPS = 5  # x max_samples: stamps kept per topic for exact timing statistics (8 bytes each)
@@ -176,7 +184,7 @@ def discover_topics(topics: Mapping[str, tuple[str, int]], given: Mapping[str, s
             accept(role, default if default in cands else cands[0])
     for role in free:  # words in the name among topics of an accepted type
         types, _, words = ROLES[role]
-        if roles[role] is not None or not words:
+        if roles[role] is not None or not words or role in BY_NAME_ONLY:
             continue
         cands = [t for t, (ty, _) in topics.items() if ty in types and t not in taken
                  and any(w in t.rsplit("/", 1)[-1].lower() for w in words)]
@@ -185,7 +193,7 @@ def discover_topics(topics: Mapping[str, tuple[str, int]], given: Mapping[str, s
     all_words = {w for _, _, ws in ROLES.values() for w in ws}
     for role in free:  # the only remaining topic of an accepted type
         types, default, words = ROLES[role]
-        if roles[role] is not None:
+        if roles[role] is not None or role in BY_NAME_ONLY:
             continue
         cands = [t for t, (ty, _) in topics.items() if ty in types and t not in taken
                  and (words or not any(w in t.rsplit("/", 1)[-1].lower() for w in all_words))]

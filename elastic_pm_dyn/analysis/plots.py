@@ -261,6 +261,45 @@ def plot_torques(
     return _save(fig, path_png)
 
 
+def plot_wrench(
+    path_png: str | Path,
+    t: np.ndarray,
+    wrench: np.ndarray,
+    std: np.ndarray | None = None,
+    t_true: np.ndarray | None = None,
+    true: np.ndarray | None = None,
+    contacts: np.ndarray | None = None,
+) -> Path:
+    """The end-effector wrench estimate (rows [fx, fy, fz, mx, my, mz]) with its +-2 sigma band,
+    the true wrench (dashed) where a plant recorded it, and the contact detections (vertical
+    lines): forces above, couples below where there are any."""
+    wrench = np.asarray(wrench, dtype=float)
+    couples = bool(np.any(wrench[:, 3:] != 0)) or (true is not None and bool(np.any(np.asarray(true)[:, 3:] != 0)))
+    fig = _new_figure(9.0, 6.5 if couples else 4.5)
+    axes = fig.subplots(2 if couples else 1, 1, sharex=True, squeeze=False)[:, 0]
+    colors = {"x": "tab:blue", "y": "tab:orange", "z": "tab:green"}
+    for ax, first, unit, name in zip(axes, (0, 3), ("N", "N m"), ("force", "couple"), strict=False):
+        for c, axis in enumerate("xyz"):
+            k = first + c
+            if not np.any(wrench[:, k] != 0) and (true is None or not np.any(np.asarray(true)[:, k] != 0)):
+                continue
+            ax.plot(t, wrench[:, k], color=colors[axis], lw=1.0, label=f"{name} {axis} (estimate)")
+            if std is not None:
+                ax.fill_between(t, wrench[:, k] - 2 * std[:, k], wrench[:, k] + 2 * std[:, k], color=colors[axis],
+                                alpha=0.15, lw=0)
+            if true is not None:
+                ax.plot(t_true, np.asarray(true)[:, k], color=colors[axis], lw=1.0, ls="--",
+                        label=f"{name} {axis} (true)")
+        for tc in contacts if contacts is not None else ():
+            ax.axvline(tc, color="tab:red", lw=0.8, ls=":")
+        ax.set_ylabel(f"{name} [{unit}]")
+        ax.grid(True, alpha=0.3)
+        ax.legend(loc="best", fontsize="small")
+    axes[-1].set_xlabel("time [s]")
+    axes[0].set_title("End-effector wrench (band: +-2 sigma; red: contact detected)")
+    return _save(fig, path_png)
+
+
 def plot_tracking_error(
     path_png: str | Path,
     t: ArrayLike | Mapping[str, ArrayLike],

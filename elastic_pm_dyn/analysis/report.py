@@ -28,7 +28,8 @@ from elastic_pm_dyn.output_files import staged_files, write_text
 # Plot file names by figure; paper-figures uses the paper's numbering.
 PLOT_NAMES = {"path": "path.png", "branch_forces": "branch_forces.png", "gap": "gap.png",
               "torques": "torques.png", "tracking_error": "tracking_error.png", "spectrum": "spectrum.png",
-              "force_difference": "difference_branch_forces.png", "path_difference": "difference_path.png"}
+              "force_difference": "difference_branch_forces.png", "path_difference": "difference_path.png",
+              "wrench": "wrench.png"}
 ZOOM = (-0.01, 0.04)  # [s] around the hold start: the residual vibration in the branch-force plot
 
 
@@ -276,6 +277,13 @@ def write_plots(out: Path, runs: Sequence[RunData], natural_hz: Sequence[float],
                 key = f"{r.label}: {n}" if len(runs) > 1 else n
                 t_by[key], tau[key] = r.t_torque, x
         files["torques"] = plots.plot_torques(out / names["torques"], t_by, tau)
+    with_w = next((r for r in runs if r.wrench is not None or r.wrench_true is not None), None)
+    if with_w is not None:  # the first run that has one (an estimate or a plant's truth)
+        files["wrench"] = plots.plot_wrench(
+            out / names["wrench"], with_w.t_wrench if with_w.wrench is not None else with_w.t_wrench_true,
+            with_w.wrench if with_w.wrench is not None else with_w.wrench_true, with_w.wrench_std,
+            with_w.t_wrench_true if with_w.wrench is not None else None,
+            with_w.wrench_true if with_w.wrench is not None else None, with_w.contacts)
     errs = {r.label: (r.t, r.ee - r.reference_at(r.t)) for r in with_ee if r.ee_ref is not None}
     if errs:
         files["tracking_error"] = plots.plot_tracking_error(

@@ -87,6 +87,12 @@ class RunData:
     t_torque: np.ndarray | None = None
     torques: dict[str, np.ndarray] = field(default_factory=dict)
     torque_source: str = ""
+    t_wrench: np.ndarray | None = None  # the observer's wrench estimate: times, (N, 6) [f; m], std
+    wrench: np.ndarray | None = None
+    wrench_std: np.ndarray | None = None
+    t_wrench_true: np.ndarray | None = None  # the plant's true wrench
+    wrench_true: np.ndarray | None = None
+    contacts: np.ndarray | None = None  # detection times [s] of the contact events
     hold_start: float | None = None
     hold_source: str = ""
     decimated: bool = False
@@ -258,6 +264,7 @@ def run_from_bag(bag: BagData, info: ModelInfo, label: str, hold_start: float | 
 
     _forces_from_bag(run, s, info, rel)
     _torques_from_bag(run, s, mech, rel)
+    _wrench_from_bag(run, s, rel)
     if "torque_command" in s and js is not None:
         run.command_age["from_stamps"] = _command_age(s["torque_command"], js)
     run.diagnostics, reported = _diagnostics_summary(bag, rel.t0)
@@ -272,6 +279,21 @@ def run_from_bag(bag: BagData, info: ModelInfo, label: str, hold_start: float | 
         run.notes.append(f"{', '.join(rel.crossed)}: stamped on another clock than {rel.source.split()[-1]}; "
                          f"aligned by its median receive delay ({rel.delay * 1e3:.3g} ms)")
     return run
+
+
+def _wrench_from_bag(run: RunData, s: dict[str, TopicSeries], rel: Timebase) -> None:
+    """The wrench estimate (and its standard deviations), the true wrench and the contact events."""
+    def six(x: TopicSeries) -> np.ndarray:
+        return np.hstack([x.fields["force"], x.fields["torque"]])
+
+    if "wrench" in s:
+        run.t_wrench, run.wrench = rel(s["wrench"]), six(s["wrench"])
+        if "wrench_stddev" in s and len(s["wrench_stddev"].t) == len(run.t_wrench):
+            run.wrench_std = six(s["wrench_stddev"])
+    if "wrench_truth" in s:
+        run.t_wrench_true, run.wrench_true = rel(s["wrench_truth"]), six(s["wrench_truth"])
+    if "contact" in s:
+        run.contacts = rel(s["contact"])
 
 
 def _forces_from_bag(run: RunData, s: dict[str, TopicSeries], info: ModelInfo, rel: Timebase) -> None:

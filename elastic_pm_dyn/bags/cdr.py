@@ -255,6 +255,11 @@ def encode_branch_forces_batch(ns, names, force, deflection, rate, stddev, frame
     return _batch(ns, frame_id, names, (force, deflection, rate, stddev))
 
 
+def encode_wrench_stamped_batch(ns, wrench, frame_id: str = "world") -> np.ndarray:
+    """geometry_msgs/WrenchStamped of many rows: ``wrench`` rows x 6 [force; torque]."""
+    return _batch(ns, frame_id, None, (np.asarray(wrench, dtype=float).reshape(-1, 6),), counted=False)
+
+
 def encode_pose_stamped_batch(ns, xyz, frame_id: str = "world") -> np.ndarray:
     xyz = np.asarray(xyz, dtype=float).reshape(-1, 3)
     pose = np.zeros((len(xyz), 7))

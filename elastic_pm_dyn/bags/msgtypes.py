@@ -16,6 +16,7 @@ NS = 1_000_000_000  # nanoseconds per second: stamps travel as integer ns
 JOINT_STATE = "sensor_msgs/msg/JointState"
 IMU = "sensor_msgs/msg/Imu"
 POSE_STAMPED = "geometry_msgs/msg/PoseStamped"
+WRENCH_STAMPED = "geometry_msgs/msg/WrenchStamped"
 FLOAT64_ARRAY = "std_msgs/msg/Float64MultiArray"
 DIAGNOSTIC_ARRAY = "diagnostic_msgs/msg/DiagnosticArray"
 BRANCH_FORCES = "elastic_pm_dyn_msgs/msg/BranchForces"

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from elastic_pm_dyn.bags.errors import BagError
-from elastic_pm_dyn.bags.msgtypes import BRANCH_FORCES, FLOAT64_ARRAY, JOINT_STATE, POSE_STAMPED
+from elastic_pm_dyn.bags.msgtypes import BRANCH_FORCES, FLOAT64_ARRAY, JOINT_STATE, POSE_STAMPED, WRENCH_STAMPED
 from elastic_pm_dyn.bags.reader import open_bag
 
 # Numeric fields per message type (a PoseStamped's: its position, columns x, y, z).
@@ -26,6 +26,7 @@ FIELDS: dict[str, tuple[str, ...]] = {
     BRANCH_FORCES: ("force", "deflection", "deflection_rate"),
     FLOAT64_ARRAY: ("data",),
     POSE_STAMPED: ("position",),
+    WRENCH_STAMPED: ("force", "torque"),  # columns x, y, z each
 }
 
 
@@ -34,6 +35,9 @@ def numeric_values(msg: Any, msgtype: str) -> tuple[list[str] | None, list[np.nd
     if msgtype == POSE_STAMPED:
         p = msg.pose.position
         return ["x", "y", "z"], [np.array([p.x, p.y, p.z])]
+    if msgtype == WRENCH_STAMPED:
+        f, m = msg.wrench.force, msg.wrench.torque
+        return ["x", "y", "z"], [np.array([f.x, f.y, f.z]), np.array([m.x, m.y, m.z])]
     names = list(msg.name) if hasattr(msg, "name") else None
     return names, [np.asarray(getattr(msg, f), dtype=float) for f in FIELDS[msgtype]]
 

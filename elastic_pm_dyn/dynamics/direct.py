@@ -51,8 +51,9 @@ class Dynamics:
 
     def accelerations(self, q: np.ndarray, qd: np.ndarray, tau_active: np.ndarray,
                       ee_force: np.ndarray | None = None, baumgarte: tuple[float, float] = (0.0, 0.0),
-                      ) -> np.ndarray:
-        """Tree accelerations qdd_t at (q_t, qd_t) under motor torques tau_active.
+                      extra_tree: np.ndarray | None = None) -> np.ndarray:
+        """Tree accelerations qdd_t at (q_t, qd_t) under motor torques tau_active (plus tree forces
+        ``extra_tree``: an external wrench's J^T w).
 
         The cut forces (multipliers lambda of the closure rows) are left in ``cut_force``
         (zero for L-D'A, which never forms them).
@@ -63,6 +64,8 @@ class Dynamics:
             check_one_pass(self.mech, q)  # before its lag can make a wrong answer
             self._checked_q = q.copy()
         tau = self.tree_forces(tau_active, ee_force, q)
+        if extra_tree is not None:
+            tau = tau + extra_tree
         qdd = np.empty(n)
         lam = np.zeros(self.mech.m)
         cond, gap = self._pin(accelerations)(self.code, self.mech.arrays, q, qd, tau, float(baumgarte[0]),

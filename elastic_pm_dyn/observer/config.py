@@ -29,6 +29,7 @@ PREFIX = "observer."
 SENSOR_KINDS = ("encoders", "imu", "branch_forces")
 DISTURBANCE_MODELS = ("none", "random_walk", "gauss_markov", "integrated_random_walk", "band_limited",
                       "bias_band_limited")
+WRENCH_MODELS = ("none", "random_walk")  # process.wrench: the end-effector wrench as states, or not
 BAND_MODELS = ("band_limited", "bias_band_limited")  # the disturbance models with band corners and an order
 BAND_ORDERS = (2, 4)  # Butterworth orders of a disturbance band
 INTEGRATORS = ("etd2", "rk4")  # of the mean (process.integrator): fixed-step rows of sim/integrators.py's METHODS
@@ -77,6 +78,14 @@ DEFAULT_PARAMETERS: dict[str, Any] = {
     "process.disturbance_bandwidth": [5.0, 50.0],  # band_limited: corner frequencies [Hz] (a sum, equal variance each)
     "process.disturbance_band_order": 2,  # band_limited: Butterworth order of each band (2 or 4)
     "process.disturbance_time_constant": 0.02,  # gauss_markov: correlation time [s]
+    # the external wrench on the end effector as task-space disturbance states (docs/state_observer.md,
+    # "External wrench"): none (default) | random_walk
+    "process.wrench": "none",
+    "process.wrench_intensity": 10.0,  # random walk: PSD of a force component's rate [N^2/s]
+    "process.wrench_torque_intensity": 0.1,  # ... of a couple component's rate [(N m)^2/s] (platforms)
+    "process.wrench_jump_stddev": 10.0,  # [N] a gated accelerometer sample: the forces' variances grow by this^2
+    "process.wrench_jump_torque_stddev": 1.0,  # [N m] ... the couples'
+    "process.wrench_jump_probability": 0.999,  # the accelerometer's NIS quantile above which the wrench jumps
     "process.torque_noise_psd": 1.0e-10,  # white torque on active joints [(N m)^2 s]
     "process.elastic_force_psd": 1.0e-12,  # white force on elastic joints (model error) [N^2 s]
     "process.vibration_noise": 2.0e-11,  # ... plus this times the vibration-force amplitude^2 [s]
@@ -88,6 +97,8 @@ DEFAULT_PARAMETERS: dict[str, Any] = {
     "initial.elastic_velocity_stddev": 3.0e-5,  # [m/s] (the same force as a vibration: c v / w)
     "initial.disturbance_stddev": 0.02,  # [N m]
     "initial.disturbance_rate_stddev": 1.0,  # [N m/s] (integrated random walk)
+    "initial.wrench_stddev": 1.0,  # [N] of each force component (process.wrench)
+    "initial.wrench_torque_stddev": 0.1,  # [N m] of each couple component
     # --- robustness
     "gating.probability": 0.9999,  # chi-square quantile of the NIS gate
     "gating.max_consecutive_rejections": 50,  # then the filter reports divergence
@@ -153,6 +164,12 @@ class ProcessConfig:
     torque_noise_psd: float
     elastic_force_psd: float
     vibration_noise: float
+    wrench: str = "none"
+    wrench_intensity: float = 10.0
+    wrench_torque_intensity: float = 0.1
+    wrench_jump_stddev: float = 10.0
+    wrench_jump_torque_stddev: float = 1.0
+    wrench_jump_probability: float = 0.999
 
 
 @dataclass
@@ -164,6 +181,8 @@ class InitialConfig:
     elastic_velocity_stddev: float
     disturbance_stddev: float
     disturbance_rate_stddev: float
+    wrench_stddev: float = 1.0
+    wrench_torque_stddev: float = 0.1
 
 
 @dataclass
@@ -239,11 +258,14 @@ class ObserverConfig:
                                   p["process.disturbance_stddev"], p["process.disturbance_bandwidth"],
                                   p["process.disturbance_time_constant"], p["process.disturbance_band_order"],
                                   p["process.torque_noise_psd"], p["process.elastic_force_psd"],
-                                  p["process.vibration_noise"]),
+                                  p["process.vibration_noise"], p["process.wrench"], p["process.wrench_intensity"],
+                                  p["process.wrench_torque_intensity"], p["process.wrench_jump_stddev"],
+                                  p["process.wrench_jump_torque_stddev"], p["process.wrench_jump_probability"]),
             initial=InitialConfig(p["initial.source"], p["initial.active_position_stddev"],
                                   p["initial.elastic_position_stddev"], p["initial.active_velocity_stddev"],
                                   p["initial.elastic_velocity_stddev"], p["initial.disturbance_stddev"],
-                                  p["initial.disturbance_rate_stddev"]),
+                                  p["initial.disturbance_rate_stddev"], p["initial.wrench_stddev"],
+                                  p["initial.wrench_torque_stddev"]),
             gating=GatingConfig(p["gating.probability"], p["gating.max_consecutive_rejections"],
                                 p["gating.nis_window"], p["gating.nis_warn_factor"], p["gating.recover_after"]),
             timing=TimingConfig(p["timing.stamp_tolerance"], p["timing.command_timeout"],
@@ -294,6 +316,8 @@ class ObserverConfig:
                     "initial.elastic_velocity_stddev": self.initial.elastic_velocity_stddev,
                     "initial.disturbance_stddev": self.initial.disturbance_stddev,
                     "initial.disturbance_rate_stddev": self.initial.disturbance_rate_stddev,
+                    "initial.wrench_stddev": self.initial.wrench_stddev,
+                    "initial.wrench_torque_stddev": self.initial.wrench_torque_stddev,
                     "timing.stamp_tolerance": self.timing.stamp_tolerance,
                     "timing.max_future": self.timing.max_future,
                     "observability.horizon": self.observability_horizon}
@@ -305,6 +329,10 @@ class ObserverConfig:
                         "process.torque_noise_psd": self.process.torque_noise_psd,
                         "process.elastic_force_psd": self.process.elastic_force_psd,
                         "process.vibration_noise": self.process.vibration_noise,
+                        "process.wrench_intensity": self.process.wrench_intensity,
+                        "process.wrench_torque_intensity": self.process.wrench_torque_intensity,
+                        "process.wrench_jump_stddev": self.process.wrench_jump_stddev,
+                        "process.wrench_jump_torque_stddev": self.process.wrench_jump_torque_stddev,
                         "timing.command_timeout": self.timing.command_timeout,
                         "command_delay": self.command_delay, "process.dt": self.process.dt}
         for key, value in non_negative.items():
@@ -334,6 +362,7 @@ class ObserverConfig:
             raise bad("process.disturbance_bandwidth", f"needs distinct corner frequencies > 0, got {_shown(bands)}")
         choices = (("process.disturbance_band_order", self.process.disturbance_band_order, BAND_ORDERS),
                    ("process.disturbance", self.process.disturbance, DISTURBANCE_MODELS),
+                   ("process.wrench", self.process.wrench, WRENCH_MODELS),
                    ("process.integrator", self.process.integrator, INTEGRATORS),
                    ("process.linearization", self.process.linearization, LINEARIZATIONS),
                    ("branch_forces.source", self.branch_forces.source, BRANCH_SOURCES),
@@ -349,6 +378,9 @@ class ObserverConfig:
                       f"got {_shown(self.imu.axes)}")
         if len(self.imu.rpy) != 3:
             raise bad("imu.rpy", f"expected 3 angles, got {_shown(self.imu.rpy)}")
+        if not 0.5 < self.process.wrench_jump_probability < 1.0:
+            raise bad("process.wrench_jump_probability",
+                      f"expected a probability in (0.5, 1), got {_shown(self.process.wrench_jump_probability)}")
         if not 0.5 < self.gating.probability < 1.0:
             raise bad("gating.probability",
                       f"expected a probability in (0.5, 1), got {_shown(self.gating.probability)}")

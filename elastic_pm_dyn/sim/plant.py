@@ -9,6 +9,13 @@ observer has to estimate): a smooth function of time d(t) (``disturbance``, e.g.
 :class:`~elastic_pm_dyn.sim.disturbances.SpectrumDisturbance`) integrated as such (refitted
 per step, as offline recordings do), plus a held value given with each period's command.
 
+An external wrench on the end effector (``wrench``, :class:`~elastic_pm_dyn.sim.wrench.ExternalWrench`:
+steps, ramps, a wall, a held value) depends on the state (a wall pushes by how far the tool is
+in): it is evaluated at the start of every integrator step and held over it (tree forces
+J^T w, :class:`~elastic_pm_dyn.sim.wrench.WrenchMap`); :attr:`Plant.true_wrench` is its value at
+the current state, the truth an observer's wrench estimate is held against. Without a wrench
+the stepping is exactly what it was.
+
 A fault (a singular configuration, or a state that diverged) never leaves garbage: the
 state stays the last good one, at the start of the period that failed, until
 :meth:`Plant.reset` or :meth:`Plant.set_state`, which recover from any fault.
@@ -29,6 +36,7 @@ from elastic_pm_dyn.sim import kernels
 from elastic_pm_dyn.sim.simulator import SimulationOptions, Simulator
 from elastic_pm_dyn.sim.stopped import integration_error
 from elastic_pm_dyn.sim.torque import ConstantTorque, HeldPlusSmooth, input_bounds
+from elastic_pm_dyn.sim.wrench import WRENCH_SIZE, ExternalWrench, WrenchMap
 
 # [rad or m] a requested position beyond this is a mistake: float spacing there exceeds 1e-10
 START_STATES = ("relaxed", "static")  # Plant(start=...): springs unloaded, or deflected by gravity
@@ -50,7 +58,8 @@ class Plant:
     """Tree state (q, qd) of an elastic mechanism under zero-order-held motor torques."""
 
     def __init__(self, mech: Mechanism, options: SimulationOptions, period: float,
-                 disturbance: Callable[[float], np.ndarray] | None = None, start: str = "relaxed"):
+                 disturbance: Callable[[float], np.ndarray] | None = None, start: str = "relaxed",
+                 wrench: ExternalWrench | None = None):
         """``start``: ``relaxed`` begins at the model's initial pose with every spring unloaded (as
         ``simulate`` does); ``static`` with the springs deflected by gravity, the motors held there
         (a machine standing at rest, as the observer assumes at its start)."""
@@ -81,6 +90,11 @@ class Plant:
         # throwaway simulator keeps the real one's state as offline runs start it.
         Simulator(mech, options).advance(self.q0.copy(), np.zeros(mech.n), ConstantTorque(self.tau), 0.0, period)
         self._branch_names = [b.name for b in mech.model.branches]
+        # the external wrench on the end effector (truth), and where it acts
+        self.wrench = wrench
+        self.wrench_map = WrenchMap(mech) if wrench is not None else None
+        self.true_wrench = np.zeros(WRENCH_SIZE)
+        self._update_true_wrench()
 
     @property
     def t(self) -> float:
@@ -114,7 +128,9 @@ class Plant:
         q, qd = self.q.copy(), self.qd.copy()  # the stepping works on copies: a fault keeps the last good state
         try:
             fixed_step = self._sim.integrator.fixed_step
-            if self.disturbance is not None:  # a function of time: refitted per step (as offline simulate)
+            if self.wrench is not None:
+                self._wrench_steps(q, qd, acting, t0, t1)
+            elif self.disturbance is not None:  # a function of time: refitted per step (as offline simulate)
                 if fixed_step and hasattr(self.disturbance, "on_grid"):
                     self._smooth_steps(q, qd, acting, t0, t1)
                 else:
@@ -132,6 +148,33 @@ class Plant:
         self.tau = tau.copy()
         self.held_disturbance = held.copy()
         self.k += 1
+        self._update_true_wrench()
+
+    def _update_true_wrench(self) -> None:
+        if self.wrench is not None:
+            p, v = self.wrench_map.point_state(self.q, self.qd)
+            self.true_wrench = self.wrench(self.t, p, v)
+
+    def _wrench_steps(self, q: np.ndarray, qd: np.ndarray, acting: np.ndarray, t0: float, t1: float) -> None:
+        """The fixed-step integrator one step at a time, the wrench's tree forces J^T w evaluated at
+        each step's start and held over it (a wall's force follows the tool in), the smooth
+        disturbance at the step's middle. The step is the plant's dt: a 1e4 N/m wall against the
+        end effector's mass rings far below 1 / dt."""
+        o, sim, wm = self.options, self._sim, self.wrench_map
+        if not sim.integrator.fixed_step:
+            raise InputError("an external wrench needs a fixed-step integrator (rk4 or etd2)")
+        n_steps = max(1, int(np.ceil((t1 - t0) / o.dt - 1e-9)))
+        h = (t1 - t0) / n_steps
+        coef = np.zeros((3, self.mech.n))
+        for k in range(n_steps):
+            t = t0 + k * h
+            u = acting + (self.disturbance(t + 0.5 * h) if self.disturbance is not None else 0.0)
+            self.mech.split_tau(u, out=coef[0])
+            p, v = wm.point_state(q, qd)
+            coef[0] += wm.tree_forces(q, self.wrench(t, p, v))
+            status = sim.fixed_steps(q, qd, coef, h, 1)
+            if status != kernels.OK:
+                raise integration_error(status, o.formulation, t + sim.info[0] * h, sim.info)
 
     def _fixed_step(self, q: np.ndarray, qd: np.ndarray, tau: np.ndarray, t0: float, t1: float) -> None:
         """The simulator's fixed-step method (RK4 or ETD2) over one torque piece (the same steps, so
@@ -246,6 +289,7 @@ class Plant:
         self.tau = np.zeros(len(self.mech.active))
         self.held_disturbance = np.zeros(len(self.mech.active))
         self.fault = self.fault_error = None
+        self._update_true_wrench()
         # A fresh simulator: the one-pass SCDD variant keeps the last accelerations.
         self._sim = Simulator(self.mech, self.options)
 
@@ -284,6 +328,13 @@ class Plant:
                 self._d_last = (t, self.disturbance(t))
             out += self._d_last[1]
         return out
+
+    def wrench_tree_forces(self) -> np.ndarray | None:
+        """The tree forces J^T w of :attr:`true_wrench` at the current state (None without a wrench):
+        what an accelerometer sample of this state feels besides the motor torques."""
+        if self.wrench is None:
+            return None
+        return self.wrench_map.tree_forces(self.q, self.true_wrench)
 
     def end_effector(self) -> np.ndarray:
         return self.mech.end_effector(self.q)

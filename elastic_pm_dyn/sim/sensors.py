@@ -30,12 +30,12 @@ SAMPLE_TIMINGS = ("before_command", "after_command")
 
 
 def ee_acceleration(mech: Mechanism, dyn: Dynamics, q: np.ndarray, qd: np.ndarray, tau_active: np.ndarray,
-                    chain: int) -> np.ndarray:
+                    chain: int, extra_tree: np.ndarray | None = None) -> np.ndarray:
     """World acceleration (3,) of ``chain``'s end point at (q, qd) under the motor torques
-    ``tau_active``: J qdd + Jdot qd with qdd from the direct dynamics (gravity acts in qdd; the
-    sensor's -g is the caller's)."""
+    ``tau_active`` (and tree forces ``extra_tree``, an external wrench's): J qdd + Jdot qd with qdd
+    from the direct dynamics (gravity acts in qdd; the sensor's -g is the caller's)."""
     terms = mech.terms(q, qd)
-    qdd = dyn.accelerations(q, qd, tau_active)
+    qdd = dyn.accelerations(q, qd, tau_active, extra_tree=extra_tree)
     return terms.J[chain] @ qdd + terms.a_tip[chain]
 
 
@@ -126,9 +126,11 @@ class SensorModel:
         r = self.resolution
         return np.where(r > 0, np.round(position / np.where(r > 0, r, 1.0)) * r, position)
 
-    def accelerometer_true(self, q: np.ndarray, qd: np.ndarray, tau_active: np.ndarray) -> np.ndarray:
-        """y = R^T (a - g) + bias, noise-free, at (q, qd) under ``tau_active`` (commands and disturbance)."""
-        a = ee_acceleration(self.mech, self.dyn, q, qd, tau_active, self.chain)
+    def accelerometer_true(self, q: np.ndarray, qd: np.ndarray, tau_active: np.ndarray,
+                           extra_tree: np.ndarray | None = None) -> np.ndarray:
+        """y = R^T (a - g) + bias, noise-free, at (q, qd) under ``tau_active`` (commands and
+        disturbance) and tree forces ``extra_tree`` (an external wrench's, :meth:`Plant.wrench_tree_forces`)."""
+        a = ee_acceleration(self.mech, self.dyn, q, qd, tau_active, self.chain, extra_tree)
         return self.R_T @ (a - self.g) + self.bias
 
     # ------------------------------------------------------------------- samples
@@ -139,8 +141,10 @@ class SensorModel:
         velocity = qd[a] + e.velocity_stddev * rng.standard_normal(len(a)) if e.velocity else None
         return position, velocity
 
-    def accelerometer(self, q: np.ndarray, qd: np.ndarray, tau_active: np.ndarray) -> np.ndarray:
-        return self.accelerometer_true(q, qd, tau_active) + self.spec.imu.stddev * self.rng_imu.standard_normal(3)
+    def accelerometer(self, q: np.ndarray, qd: np.ndarray, tau_active: np.ndarray,
+                      extra_tree: np.ndarray | None = None) -> np.ndarray:
+        return (self.accelerometer_true(q, qd, tau_active, extra_tree)
+                + self.spec.imu.stddev * self.rng_imu.standard_normal(3))
 
     def branch_forces(self, force: np.ndarray) -> np.ndarray:
         return force + self.spec.branch_forces.stddev * self.rng_gauges.standard_normal(len(force))

@@ -226,3 +226,16 @@ def test_a_step_that_skips_saving_phi_and_qd_never_relinearises(five_bar, rec) -
             renewed_after_no += not (np.array_equal(phi, state[4]) and np.array_equal(qd_, state[5]))
     assert renewed_after_no == 0
     assert said_no > 80
+
+
+def test_fast_path_with_wrench_states(five_bar, rec, count_fast) -> None:
+    """The wrench states (process.wrench) live = offline too, a gated accelerometer sample (the
+    wrench's jump, taken by the Observer's Python) included."""
+    bad = {50: {"accel": rec.accel[50] + [5.0, 0.0, 0.0]}, 60: {"encoder": rec.encoder[60] + [0.5, 0.0]},
+           70: {"accel": rec.accel[70] + [500.0, 0.0, 0.0]}}
+    obs, _ = _compare(five_bar, {"sensors": ["encoders", "imu"], "process.wrench": "random_walk"},
+                      _events(rec, corrupt=bad))
+    # the 5 m/s^2 sample was taken as a jump of the wrench (and the next ones as its way back), the
+    # 500 m/s^2 one stays an outlier
+    assert obs.nw == 2 and obs.wrench_jumps[0] == pytest.approx(rec.t[50]) and obs.stats["imu"].rejected >= 1
+    assert sum(count_fast) > 0.8 * len(rec.stamp_ns)

@@ -27,10 +27,14 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from elastic_pm_dyn.observer.config import BAND_MODELS, InitialConfig, ProcessConfig
+
+if TYPE_CHECKING:
+    from elastic_pm_dyn.observer.core.observer_model import ObserverModel
 
 ZETA = 1.0 / np.sqrt(2.0)
 
@@ -137,3 +141,39 @@ def build(pc: ProcessConfig, initial: InitialConfig, names: list[str]) -> Distur
     # random_walk (or none: nd = 0)
     return DisturbanceModel(eye.copy(), np.zeros((nd, nd)), np.full(nd, pc.disturbance_intensity),
                             np.full(nd, initial.disturbance_stddev), [f"d_{n}" for n in names])
+
+
+@dataclass
+class WithWrench:
+    """The motor disturbance model and the end-effector wrench states together: z = [z_d, w],
+    d = Lz z on ``dist_idx`` = [the disturbance joints, every q_ae joint]."""
+
+    Lz: np.ndarray  # (n_d + n_ae, n_zd + n_w): [[Lz_d, 0], [0, G(q)]], G filled by the kernels
+    Fz: np.ndarray
+    psd: np.ndarray
+    initial_stddev: np.ndarray
+    names: list[str]
+    dist_idx: np.ndarray
+    dist_col: np.ndarray
+
+
+def with_wrench(dm: DisturbanceModel, model: ObserverModel, pc: ProcessConfig, initial: InitialConfig) -> WithWrench:
+    """``dm`` with the wrench states of ``model`` appended (``process.wrench: random_walk``).
+
+    Each component w_c is a random walk, w_c' white (``wrench_intensity`` for a force,
+    ``wrench_torque_intensity`` for a couple): a contact or a push is a step or a ramp that
+    stays, which a random walk follows with no bias once it has settled, where a band-limited
+    state would let it decay. Its joint forces G(q) w (G = W^T J^T: seed eq 31's G^{+T}) act on
+    every q_ae joint, springs included: a force on the tool loads the springs as a motor torque
+    does not, which is what tells the two apart (with the accelerometer's help)."""
+    nae, nw = model.nae, len(model.wrench_names)
+    couple = np.abs(model.wrench_axes[:, 3:]).sum(axis=1) > 0
+    Lz = np.zeros((dm.Lz.shape[0] + nae, dm.nz + nw))
+    Lz[:dm.Lz.shape[0], :dm.nz] = dm.Lz
+    Fz = np.zeros((dm.nz + nw, dm.nz + nw))
+    Fz[:dm.nz, :dm.nz] = dm.Fz
+    psd = np.r_[dm.psd, np.where(couple, pc.wrench_torque_intensity, pc.wrench_intensity)]
+    sd = np.r_[dm.initial_stddev, np.where(couple, initial.wrench_torque_stddev, initial.wrench_stddev)]
+    return WithWrench(np.ascontiguousarray(Lz), Fz, psd, sd, [*dm.names, *(f"wrench_{c}" for c in model.wrench_names)],
+                      np.r_[model.dist_idx, model.ae].astype(np.int64),
+                      np.r_[model.dist_col, np.arange(nae)].astype(np.int64))

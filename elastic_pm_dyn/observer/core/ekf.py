@@ -36,7 +36,7 @@ from elastic_pm_dyn.errors import ElasticPmDynError, InputError
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.model.description import ACTIVE
 from elastic_pm_dyn.observer.config import RUNTIME_PARAMETERS, ObserverConfig
-from elastic_pm_dyn.observer.core import correction, disturbance, kernels, period
+from elastic_pm_dyn.observer.core import correction, disturbance, kernels, period, wrench_kernels
 from elastic_pm_dyn.observer.core.chi_square import chi2_quantile
 from elastic_pm_dyn.observer.core.estimate import Estimate, EstimateLayout
 from elastic_pm_dyn.observer.core.observer_model import ObserverModel
@@ -72,12 +72,18 @@ class Ekf:
         self.cfg = cfg
         self.ae, self.x_of_ae, self.eps_q, self.eps_v = model.ae, model.x_of_ae, model.eps_q, model.eps_v
         self.nae = nae = model.nae
-        self.dist_idx, self.dist_col = model.dist_idx, model.dist_col
         self.nd = len(model.dist_idx)
         pc = cfg.process
         self.disturbance_model = dm = disturbance.build(pc, cfg.initial, model.dist_names)
-        self.Lz, self.Fz, self.psd_z = dm.Lz, dm.Fz, dm.psd
-        self.nz = dm.nz
+        # with wrench states (process.wrench) z ends with them and d = Lz z with the wrench's
+        # joint forces on every q_ae joint (disturbance.with_wrench; Lz's block follows the pose)
+        self.nw = len(model.wrench_names)
+        zm = disturbance.with_wrench(dm, model, pc, cfg.initial) if self.nw else None
+        self.dist_idx, self.dist_col = (model.dist_idx, model.dist_col) if zm is None else (zm.dist_idx, zm.dist_col)
+        self.Lz, self.Fz, self.psd_z = (dm.Lz, dm.Fz, dm.psd) if zm is None else (zm.Lz, zm.Fz, zm.psd)
+        self._z_initial_stddev = dm.initial_stddev if zm is None else zm.initial_stddev
+        self._z_names = dm.names if zm is None else zm.names
+        self.nz = len(self.psd_z)
         self.nx = 2 * nae + self.nz
         roles = model.roles
         self.psd_ae = np.array([pc.torque_noise_psd if r == ACTIVE else pc.elastic_force_psd for r in roles])
@@ -91,7 +97,8 @@ class Ekf:
         method[kernels.LINEARIZATION] = kernels.SPRINGS if pc.linearization == "springs" else kernels.DIFFERENCES
         self._proc = tuple(kernels.Process(self.dist_idx, self.dist_col, self.Lz, self.Fz, self.psd_ae, self.rel_ae,
                                            self.psd_z, method, np.full(1 + self.nz, np.nan),
-                                           np.empty((4, self.nz, self.nz)), np.empty((self.nz, self.nz))))
+                                           np.empty((4, self.nz, self.nz)), np.empty((self.nz, self.nz)),
+                                           model.wrench_points, model.wrench_axes))
         self.period = pc.max_interval
         # the mean's step in use: process.dt if given, else from the model's fastest spring
         self.dt = model.mean_step(integrator, pc.dt, pc.max_interval)
@@ -104,7 +111,7 @@ class Ekf:
         self.with_point = model.with_point
         self.branch_names = model.branch_names
         self.state_names = ([self.mech.joint_names[j] for j in self.ae]
-                            + [f"{self.mech.joint_names[j]}_vel" for j in self.ae] + dm.names)
+                            + [f"{self.mech.joint_names[j]}_vel" for j in self.ae] + self._z_names)
         self.P0 = np.diag(self._initial_variances())
         self.layout = EstimateLayout.of(model, self.nx)  # of the estimate rows (estimate_flat)
         self._pin = KernelPins()  # the kernels called per message, without numba's type dispatch
@@ -118,7 +125,7 @@ class Ekf:
         roles = self.model.roles
         pos = [i.active_position_stddev if r == ACTIVE else i.elastic_position_stddev for r in roles]
         vel = [i.active_velocity_stddev if r == ACTIVE else i.elastic_velocity_stddev for r in roles]
-        return np.concatenate([pos, vel, self.disturbance_model.initial_stddev]) ** 2
+        return np.concatenate([pos, vel, self._z_initial_stddev]) ** 2
 
     def _take_noise(self, cfg: ObserverConfig) -> None:
         """The sensor models with ``cfg``'s noise levels, the compiled steps' accelerometer bundle,
@@ -150,6 +157,20 @@ class Ekf:
         g = self._gates.get(dof)
         if g is None:
             g = self._gates[dof] = float(chi2_quantile(self.cfg.gating.probability, dof))
+        return g
+
+    def imu_gate(self, dof: int) -> float:
+        """The accelerometer's NIS gate in the per-sample steps: :meth:`gate`, or with wrench states the
+        lower ``process.wrench_jump_probability`` quantile, above which a sample is first taken as the
+        wrench's jump (the scheduler's ``_wrench_jump``) and gated only if it stays beyond :meth:`gate` after it."""
+        if not self.nw or not self.gating:
+            return self.gate(dof)
+        key = -dof  # cached beside the gates of gating.probability
+        g = self._gates.get(key)
+        if g is None:
+            # never above the full gate (a gating.probability set below the jump's)
+            p = min(self.cfg.process.wrench_jump_probability, self.cfg.gating.probability)
+            g = self._gates[key] = float(chi2_quantile(p, dof))
         return g
 
     # ------------------------------------------------------------------ state
@@ -185,6 +206,12 @@ class Ekf:
         self._lin_age, self._lin_T = 1 << 30, -1.0  # intervals since the last linearisation, its length
         self.Hpt = np.zeros((3, self.nx))
         self.info = np.zeros(2)
+        self._refresh_wrench()
+
+    def _refresh_wrench(self) -> None:
+        """The wrench states' joint forces at the current pose (as every linearisation refreshes them)."""
+        if self.nw:
+            self._pin(wrench_kernels.refresh_wrench)(self.mech.arrays, self._proc, self.q)
 
     def _grow_process_noise(self, factor: float) -> None:
         """The noise intensities ``factor`` times larger (in place: the offline fast path holds these arrays)."""
@@ -197,6 +224,7 @@ class Ekf:
         prediction, the accelerometer's Jacobian at once."""
         self.q, self.qd, self.P = q, qd, P
         self._lin_age = 1 << 30
+        self._refresh_wrench()
         if self.with_point:
             self._linearize_here()
 
@@ -249,14 +277,16 @@ class Ekf:
                    evidence: np.ndarray, a_before: np.ndarray) -> None:
         """``correction.imu_innovations`` of a sample at its ``prior`` (a State) into ``evidence`` (no correction)."""
         self._pin(correction.imu_innovations)(self.mech.arrays, self.model.fixed, self._proc, prior, self._imu,
-                                           tau_before, tau_after, meas, self.gate(len(meas)), evidence, a_before, True)
+                                              tau_before, tau_after, meas, self.imu_gate(len(meas)), evidence,
+                                              a_before, True)
 
     # ------------------------------------------------------------------ outputs
     def x(self) -> np.ndarray:
         return np.concatenate([self.q[self.ae], self.qd[self.ae], self.z])
 
     def disturbance(self) -> np.ndarray:
-        """Estimated disturbance torques d = Lz z on ``dist_idx`` joints."""
+        """Estimated disturbance torques d = Lz z on ``dist_idx`` joints (with wrench states: then
+        its joint forces on every q_ae joint, the last n_ae)."""
         return self.Lz @ self.z
 
     def _passive_jacobian(self) -> np.ndarray:

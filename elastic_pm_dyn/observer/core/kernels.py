@@ -106,10 +106,16 @@ class Process(NamedTuple):
     zkey: np.ndarray  # [T, psd_z]: what the cached z block (Phi_z, Qd_z) was computed for (NaN: nothing)
     Phi_z: np.ndarray  # (4, n_z, n_z): expm(Fz T j / 4), j = 1..4 (z_block)
     Qd_z: np.ndarray  # (n_z, n_z): the z block's noise over T
+    # The end-effector wrench (process.wrench; n_w = 0: none): its n_w states are the last of z and
+    # its joint forces the last n_ae rows of Lz (on every q_ae joint: dist_idx ends with ae), the
+    # block G = W^T (J_p^T f + J_w^T m) per component, refreshed at each linearisation
+    # (``wrench_kernels.refresh_wrench``, called by ``period.advance`` before the prediction).
+    wrench_points: np.ndarray  # (k,) int64: the end-effector point, then the other points of its body
+    wrench_axes: np.ndarray  # (n_w, 6): each component's [force; couple] axes
 
 
 PR_DIST_IDX, PR_DIST_COL, PR_LZ, PR_FZ, PR_PSD_AE, PR_REL_AE, PR_PSD_Z, PR_METHOD, PR_ZKEY, PR_PHI_Z, \
-    PR_QD_Z = range(11)  # Process's fields
+    PR_QD_Z, PR_WRENCH_POINTS, PR_WRENCH_AXES = range(13)  # Process's fields
 
 
 class State(NamedTuple):
@@ -286,7 +292,8 @@ def outputs(ma, q, qd, P, point, ee_axes, branch_joint, stiff, damp, rest, q_std
 def estimate_flat(ma, fixed, proc, state, tau_last, t, out):
     """Every output of ``Observer.estimate`` into one flat array ``out``:
     [t, q, qd, q_std, qd_std, effort (n_t each), F, F_std, deflection, deflection rate (n_b each),
-    ee, ee_std, d, d_std, x, P (row-major)]."""
+    ee, ee_std, d, d_std, wrench, wrench_std, x, P (row-major)]; d: the motor disturbances alone
+    (the wrench's joint forces are not in d, nor in the motors' effort)."""
     transmission, point, ee_axes = fixed[FX_TRANSMISSION], fixed[FX_EE_POINT], fixed[FX_EE_AXES]
     branch_joint, stiff, damp, rest = fixed[FX_BRANCH_JOINT], fixed[FX_STIFF], fixed[FX_DAMP], fixed[FX_REST]
     dist_idx, Lz = proc[PR_DIST_IDX], proc[PR_LZ]
@@ -294,9 +301,10 @@ def estimate_flat(ma, fixed, proc, state, tau_last, t, out):
     n = q.shape[0]
     nb = branch_joint.shape[0]
     ne = ee_axes.shape[0]
-    nd = dist_idx.shape[0]
-    nz = z.shape[0]
     nae = ma.ae_index.shape[0]
+    nw = proc[PR_WRENCH_AXES].shape[0]
+    nd = dist_idx.shape[0] - (nae if nw > 0 else 0)  # the motor disturbances' rows of Lz
+    nz = z.shape[0]
     nx = P.shape[0]
     out[0] = t
     o = 1
@@ -308,6 +316,8 @@ def estimate_flat(ma, fixed, proc, state, tau_last, t, out):
     o += 2 * ne
     od, ods = o, o + nd
     o += 2 * nd
+    ow, ows = o, o + nw
+    o += 2 * nw
     ox = o
     oP = o + nx
     outputs(ma, q, qd, P, point, ee_axes, branch_joint, stiff, damp, rest, out[oqs:oqs + n], out[oqds:oqds + n],
@@ -332,6 +342,10 @@ def estimate_flat(ma, fixed, proc, state, tau_last, t, out):
             for m in range(nz):
                 v += Lz[k, j] * P[2 * nae + j, 2 * nae + m] * Lz[k, m]
         out[ods + k] = np.sqrt(max(v, 0.0))
+    for c in range(nw):  # the wrench states: the last n_w of z
+        m = nz - nw + c
+        out[ow + c] = z[m]
+        out[ows + c] = np.sqrt(max(P[2 * nae + m, 2 * nae + m], 0.0))
     for k in range(nb):
         j = branch_joint[k]
         out[oeff + j] = out[oF + k]

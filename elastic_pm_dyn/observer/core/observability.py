@@ -194,5 +194,6 @@ def analyse(obs, horizon: float | None = None, q: np.ndarray | None = None, qd: 
         joint = mech.model.joints[int(obs.dist_idx[j])]
         units.append(("N m" if joint.type == "revolute" else "N") + ("" if order == 0 else "/s" if order == 1
                                                                      else f"/s^{order}"))
+    units += ["N m" if c.startswith("torque") else "N" for c in obs.model.wrench_names]
     return ObservabilityReport(list(obs.cfg.sensors), labels, list(obs.state_names), units, horizon, s,
                                s * ratio, ratio, classes, sv, steady, steady_F, list(obs.branch_names), note)

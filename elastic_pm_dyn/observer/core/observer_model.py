@@ -29,6 +29,7 @@ from elastic_pm_dyn.observer.config import ObserverConfig
 from elastic_pm_dyn.observer.core import kernels
 from elastic_pm_dyn.observer.core.sensors import Accelerometer, BranchForces, Encoders, resolve_joints
 from elastic_pm_dyn.sim.integrators import Integrator
+from elastic_pm_dyn.sim.wrench import WrenchMap
 
 # process.dt: 0 (from the model): the substep halves from AUTO_DT_MAX until omega h <= OMEGA_H for
 # the fastest elastic mode (RK4's phase error is then below 1e-4 rad per period of that mode)
@@ -52,7 +53,7 @@ def model_key(cfg: ObserverConfig) -> tuple:
     e, i, b, p = cfg.encoders, cfg.imu, cfg.branch_forces, cfg.process
     return (tuple(cfg.sensors), tuple(e.position_joints), tuple(e.velocity_joints), i.chain, i.frame_id,
             tuple(i.rpy), tuple(i.axes), i.specific_force, b.source, tuple(b.branches), p.disturbance == "none",
-            tuple(p.disturbance_joints))
+            tuple(p.disturbance_joints), p.wrench != "none")
 
 
 def branch_arrays(mech: Mechanism) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -62,6 +63,23 @@ def branch_arrays(mech: Mechanism) -> tuple[np.ndarray, np.ndarray, np.ndarray, 
     joint = np.array([mech.joint_names.index(b.joint) for b in model.branches], dtype=np.int64)
     return (joint, np.array([model.joints[j].stiffness for j in joint]),
             np.array([model.joints[j].damping for j in joint]), np.array([model.joints[j].rest for j in joint]))
+
+
+def wrench_components(mech: Mechanism) -> tuple[list[str], np.ndarray, np.ndarray]:
+    """The end-effector wrench the machine can feel, as states: a force along each of the end
+    effector's components (``ee_axes``: x, y on the five-bar, x, y, z on the Triglide and the
+    Hexa) and, where the end-effector body turns (a platform on revolute joints: the Hexa), a
+    couple about x, y and z. Returns (names, the body's points with the end-effector point
+    first, (n_w, 6) axes [force; couple] of the components)."""
+    wm = WrenchMap(mech)
+    names = [f"force_{c}" for c in mech.ee_names]
+    rows = [np.r_[a, 0.0, 0.0, 0.0] for a in np.asarray(mech.ee_axes, dtype=float)]
+    closure = mech.model.closure
+    if wm.turns and closure is not None and closure.hub >= 0 and any(
+            j.type == "revolute" for j in mech.model.chains[closure.hub].joints):
+        names += ["torque_x", "torque_y", "torque_z"]
+        rows += [np.r_[0.0, 0.0, 0.0, e] for e in np.eye(3)]
+    return names, np.array([wm.point, *wm.body_points], dtype=np.int64), np.ascontiguousarray(rows, dtype=float)
 
 
 @dataclass(frozen=True, eq=False)
@@ -92,6 +110,11 @@ class ObserverModel:
     imu: Accelerometer | None
     branch: BranchForces | None
     fixed: tuple  # kernels.Fixed as a plain tuple (the kernels' bundle)
+    # the end-effector wrench states (process.wrench; none: empty): their names, the points of the
+    # end-effector body (the end-effector point first) and each component as [force; couple] axes
+    wrench_names: list[str]
+    wrench_points: np.ndarray  # (k,) int64
+    wrench_axes: np.ndarray  # (n_w, 6)
 
     @property
     def nae(self) -> int:
@@ -180,10 +203,13 @@ class ObserverModel:
         transmission = np.ascontiguousarray(mech.transmission, dtype=np.float64)
         fixed = tuple(kernels.Fixed(eps_q, eps_v, point, imu is not None, transmission, ee_point, ee_axes,
                                     branch_joint, stiff, damp, rest))
+        wrench_names, wrench_points, wrench_axes = wrench_components(mech) if pc.wrench != "none" else \
+            ([], np.zeros(0, dtype=np.int64), np.zeros((0, 6)))
         return cls(mech, model_key(cfg), ae, x_of_ae, tuple(model.joints[j].role for j in ae), eps_q, eps_v,
                    np.array(dist, dtype=np.int64), np.array([x_of_ae[j] for j in dist], dtype=np.int64),
                    [mech.joint_names[j] for j in dist], branch_names, branch_joint, stiff, damp, rest, H_F,
-                   active_idx, ee_axes, ee_point, point, encoders, imu, branch, fixed)
+                   active_idx, ee_axes, ee_point, point, encoders, imu, branch, fixed, wrench_names, wrench_points,
+                   wrench_axes)
 
     def serves(self, cfg: ObserverConfig) -> bool:
         """Was this model built from the same fixed parts as ``cfg`` has?"""

@@ -52,6 +52,7 @@ from elastic_pm_dyn.observer.core.kernels import (
     estimate_flat,
     predict_checked,
 )
+from elastic_pm_dyn.observer.core.wrench_kernels import refresh_wrench
 from elastic_pm_dyn.sim.kernels import transmit
 
 # sample_step's results besides 0 (not taken): what became of an accelerometer sample
@@ -138,6 +139,8 @@ def advance(ma, fixed, proc, state, cmd, ctl, timing, t_to, tree):
         _tree(transmission, tau_hold, expired, tree)
         n_sub = max(1, int(np.ceil(T / dt - 1e-9)))
         relin = _relinearises(lin_age, lin_T, T, every)
+        if relin:  # the wrench states' joint forces move with the pose: taken with the linearisation
+            refresh_wrench(ma, proc, state[ST_Q])
         status = predict_checked(ma, fixed, proc, state, tree, relin, T, n_sub)
         if relin:
             lin_age, lin_T = 0.0, T

@@ -6,7 +6,11 @@
   (position, velocity, effort of every tree joint), ``/branch_forces`` (with
   ``force_stddev``) and ``/ee_pose`` for ``elastic-pm-dyn analyze``, plus
   ``/observer/joint_states_stddev`` (JointState whose position/velocity fields hold the
-  standard deviations);
+  standard deviations); with wrench states (``process.wrench``) ``/observer/wrench`` and
+  ``/observer/wrench_stddev`` (WrenchStamped, world frame, at the end-effector point) and the
+  contact events of :mod:`~elastic_pm_dyn.observer.core.contact` on ``/observer/contact`` and
+  ``/observer/contact_release`` (WrenchStamped: stamped with the detecting row's stamp, the
+  estimate then; the live observer node publishes the same);
 - ``filtered.csv`` (with a smoother only: ``estimates.csv`` and the bag are then smoothed):
   the filter's estimates, the same columns.
 
@@ -22,8 +26,9 @@ from pathlib import Path
 import numpy as np
 
 from elastic_pm_dyn.bags import cdr
-from elastic_pm_dyn.bags.msgtypes import BRANCH_FORCES, JOINT_STATE, POSE_STAMPED
+from elastic_pm_dyn.bags.msgtypes import BRANCH_FORCES, JOINT_STATE, POSE_STAMPED, WRENCH_STAMPED
 from elastic_pm_dyn.bags.writer import BagWriter
+from elastic_pm_dyn.observer.core.contact import ContactDetector
 from elastic_pm_dyn.observer.core.estimate import EstimateLayout
 from elastic_pm_dyn.observer.drivers.rows import Rows, write_csv
 
@@ -64,6 +69,13 @@ class EstimatesBag:
                           self.w.add_connection("/branch_forces", BRANCH_FORCES),
                           self.w.add_connection("/ee_pose", POSE_STAMPED),
                           self.w.add_connection("/observer/joint_states_stddev", JOINT_STATE)]
+            self.wrench = bool(layout.wrench_names)
+            if self.wrench:
+                self.conns += [self.w.add_connection("/observer/wrench", WRENCH_STAMPED),
+                               self.w.add_connection("/observer/wrench_stddev", WRENCH_STAMPED)]
+                self.events = {kind: self.w.add_connection(f"/observer/{kind}", WRENCH_STAMPED)
+                               for kind in ("contact", "contact_release")}
+                self.detector = ContactDetector(layout)  # across chunks: the live node's verdicts
         except BaseException:
             self.w.close()
             raise
@@ -80,7 +92,16 @@ class EstimatesBag:
                 "branch_force", "deflection", "deflection_rate", "branch_force_std"))),
             cdr.encode_pose_stamped_batch(ns, xyz, "world"),
             cdr.encode_joint_state_batch(ns, names, table[:, lay["q_std"]], table[:, lay["qd_std"]],
-                                         np.zeros((len(ns), 0)))])
+                                         np.zeros((len(ns), 0)))] + ([
+            cdr.encode_wrench_stamped_batch(ns, lay.wrench6(table[:, lay["wrench"]])),
+            cdr.encode_wrench_stamped_batch(ns, lay.wrench6(table[:, lay["wrench_std"]]))] if self.wrench else []))
+        if self.wrench:
+            for k, row in enumerate(table):
+                event = self.detector.update(row)
+                if event is not None:
+                    kind = "contact" if event.kind == "contact" else "contact_release"
+                    self.w.write(self.events[kind], int(ns[k]),
+                                 cdr.encode_wrench_stamped_batch(ns[k:k + 1], lay.wrench6(event.wrench))[0].tobytes())
 
     def close(self) -> None:
         self.w.close()

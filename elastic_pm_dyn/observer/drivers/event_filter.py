@@ -204,7 +204,7 @@ class EventFilter:
                     imu = obs.imu
                     # the steps' timing array, the accelerometer's bundle (kernels.ImuModel; a
                     # placeholder without one) and its gate: the Observer's own
-                    fixed = (obs._timing, obs._imu_bundle, obs.gate(len(imu.axes)) if imu is not None else np.inf)
+                    fixed = (obs._timing, obs._imu_bundle, obs.imu_gate(len(imu.axes)) if imu is not None else np.inf)
                 timing, imu_model, imu_gate = fixed
                 plan = obs.encoders.fast_plan(run.names, obs.nx)
                 a, b = gi - run.g0, run.g1 - run.g0

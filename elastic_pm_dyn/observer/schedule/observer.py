@@ -90,6 +90,7 @@ class Observer(Ekf):
         # by piece (bench_observer_loop): a step per message makes as many calls and adds a
         # snapshot. The speed-up needs one call per period; until then the Python is the default.
         self.steps_compiled = False
+        self.wrench_jumps: list[float] = []  # stamps where a gated accelerometer sample made the wrench jump
         self.reset(t0, q0, qd0, initialised=q0 is not None or cfg.initial.source == "model")
         self._timing = self.fast_timing()
         n, na = self.mech.n, len(self.mech.active)
@@ -368,7 +369,7 @@ class Observer(Ekf):
             kernels.point_acceleration(self.mech.arrays, self.q, self.qd, tau_after if after else tau_before,
                                        self.dist_idx, self.disturbance(), self.point, a)
             return self._correct(imu.sample(acc, a, self.Hpt), t)
-        gate = self.gate(len(meas))
+        gate = self.imu_gate(len(meas))
         if timing.mode == AUTO and not defer:
             nis, status, logdet = self._correct_imu_weighed(tau_before, tau_after, after, meas, gate, timing.evidence)
         else:
@@ -380,7 +381,28 @@ class Observer(Ekf):
                          self.Hpt.copy(), self.info)
                 timing.deferred = DeferredSample(t, meas.copy(), prior, tau_before, a)
             nis, status, logdet = self._correct_imu(tau_after if after else tau_before, meas, gate, a)
+        if status == 1 and self.nw:
+            nis, status, logdet = self._wrench_jump(t, tau_after if after else tau_before, meas,
+                                                    self.gate(len(meas)), nis, logdet)
         return self._after("imu", t, nis, status, len(meas), gate, [], logdet)
+
+    def _wrench_jump(self, t: float, tau: np.ndarray, meas: np.ndarray, gate: float, nis: float,
+                     logdet: float) -> tuple[float, int, float]:
+        """An accelerometer sample beyond :meth:`imu_gate` while the filter carries wrench states: the
+        likeliest cause is a wrench that jumped (a contact, a push) faster than its random walk
+        allows. The wrench states' variances grow by ``process.wrench_jump_stddev``^2 and the sample
+        is tried once more against the full gate ``gate``: taken, the estimate follows the jump
+        within the period; gated again, it stays an outlier (the first result is kept, the
+        variances grown)."""
+        pc = self.cfg.process
+        ws = np.arange(self.nx - self.nw, self.nx)
+        couple = np.abs(self.model.wrench_axes[:, 3:]).sum(axis=1) > 0
+        self.P[ws, ws] += np.where(couple, pc.wrench_jump_torque_stddev, pc.wrench_jump_stddev) ** 2
+        again = self._correct_imu(tau, meas, gate, np.empty(3))
+        if again[1] == 0:
+            self.wrench_jumps.append(t)
+            return again
+        return nis, 1, logdet
 
     def sample_timing(self) -> str:
         """The accelerometer sample timing in use: before_command | after_command (auto: ``auto
@@ -448,7 +470,7 @@ class Observer(Ekf):
         r = self._pin(period.sample_step)(self.mech.arrays, self.model.fixed, self._proc, self._state(), cmd, ctl,
                                           self._timing, timing.evidence, enc,
                                           self.gate(dof_e) if has_enc else np.inf, self._imu_bundle,
-                                          self.gate(len(meas)) if has_imu else np.inf, float(t), has_enc, enc_m,
+                                          self.imu_gate(len(meas)) if has_imu else np.inf, float(t), has_enc, enc_m,
                                           has_imu, meas, self._work, self._save, row)
         if r == 0:
             return None
@@ -486,7 +508,8 @@ class Observer(Ekf):
         row = self._row
         done = self._pin(period.command_step)(self.mech.arrays, self.model.fixed, self._proc, self._state(), cmd, ctl,
                                               self._timing, timing.evidence, self._imu_bundle,
-                                              self.gate(len(meas)) if len(meas) else np.inf, float(t), tau, waiting,
+                                              self.imu_gate(len(meas)) if len(meas) else np.inf, float(t), tau,
+                                              waiting,
                                               meas, work, self._save, row)
         if not done:
             return False

@@ -65,6 +65,7 @@ from elastic_pm_dyn.ros.markers import MechanismMarkers
 from elastic_pm_dyn.ros.messages import EstimateMessages, stamp
 from elastic_pm_dyn.ros.observer.input_order import AFTER, BEFORE, COMMAND, PRIMARY, InputOrder
 from elastic_pm_dyn.ros.observer.session import ObserverSession, Outcome, observer_config, parameter_message
+from elastic_pm_dyn.ros.observer.wrench_output import WrenchOutput
 from elastic_pm_dyn.ros.params import COMMAND_JOINTS, Param, ParameterError, read_parameters
 from elastic_pm_dyn.ros.qos import DIAGNOSTICS_QOS, OBSERVER_INPUT_QOS, STATE_OUT_QOS, VIEWER_QOS
 from elastic_pm_dyn.ros.throttle import KindThrottle
@@ -131,6 +132,8 @@ class ObserverMode:
         self.pub_stddev = node.create_publisher(JointState, p["topics.joint_states_stddev"], STATE_OUT_QOS)
         self.pub_markers = node.create_publisher(MarkerArray, p["topics.markers"], VIEWER_QOS)
         self.pub_diagnostics = node.create_publisher(DiagnosticArray, "/diagnostics", DIAGNOSTICS_QOS)
+        obs = self.session.obs  # with wrench states: their estimate and the contact events
+        self.wrench = WrenchOutput(node, obs.layout, p["frames.base"]) if obs.nw else None
 
         topics = cfg.topics
         inputs = [(JointState if p["command_type"] == "joint_state" else Float64MultiArray,
@@ -295,11 +298,14 @@ class ObserverMode:
     # ----------------------------------------------------------------- outputs
     def _publish(self, ns: int) -> None:
         m = self.messages
-        m.fill(ns, self.session.estimate())
+        e = self.session.estimate()
+        m.fill(ns, e)
         self.pub_joint_states.publish(m.joint_state)
         self.pub_branch_forces.publish(m.branch_forces)
         self.pub_ee_pose.publish(m.ee_pose)
         self.pub_stddev.publish(m.stddev)
+        if self.wrench is not None:
+            self.wrench.publish(ns, e)
         self.session.published += 1
         self.last_stamp = ns
 

@@ -110,6 +110,7 @@ from elastic_pm_dyn.ros.plant.services import PlantServices
 from elastic_pm_dyn.ros.plant.stats import PlantStats
 from elastic_pm_dyn.ros.plant.step_check import rk4_step_warning
 from elastic_pm_dyn.ros.plant.sync_modes import SYNC_MODES
+from elastic_pm_dyn.ros.plant.wrench_input import WRENCH_PARAMS, WrenchIO, external_wrench
 from elastic_pm_dyn.ros.qos import (
     CLOCK_QOS,
     COMMAND_QOS,
@@ -172,6 +173,7 @@ PARAMS = [
     *PROCESS_PARAMS,
     *SENSOR_PARAMS,
     *DISTURBANCE_PARAMS,
+    *WRENCH_PARAMS,
     # the wall-clock rates may change while the plant runs (their timers are made anew)
     *(dataclasses.replace(s, runtime=True) if s.name in RUNTIME_RATES else s for s in MACHINE_PARAMS),
     *DESCRIPTION_PARAMS,
@@ -181,7 +183,8 @@ PARAMS = [
 ONLY = {"plant": ("formulation", "integrator", "dt", "start", "stabilization", "publish_rate", "sync_mode",
                   "command_timeout", "topics.command", "topics.applied_torque", "topics.clock", "hardware_id",
                   *(s.name for s in PARAMS if s.name.startswith(("lockstep.", "realtime."))),
-                  *(s.name for s in SENSOR_PARAMS), *(s.name for s in DISTURBANCE_PARAMS)),
+                  *(s.name for s in SENSOR_PARAMS), *(s.name for s in DISTURBANCE_PARAMS),
+                  *(s.name for s in WRENCH_PARAMS)),
         "observer": tuple(s.name for s in ESTIMATE_PARAMS)}
 OBSERVER_PREFIX = "observer."
 TOPIC_PARAMS = ("topics.", "sensors.topics.")  # every topic name among the parameters
@@ -229,7 +232,8 @@ class PlantNode(ManagedNode):
         options = SimulationOptions(formulation=p["formulation"], integrator=p["integrator"], dt=p["dt"],
                                     stabilization=p["stabilization"], sample=period)
         spec = sensor_spec(p)
-        self.plant = Plant(mech, options, period, spectrum_disturbance(p, len(mech.active)), start=p["start"])
+        self.plant = Plant(mech, options, period, spectrum_disturbance(p, len(mech.active)), start=p["start"],
+                           wrench=external_wrench(p))
         if p["integrator"] == "rk4":  # as elastic-pm-dyn check computes it, at the start pose
             coarse = rk4_step_warning(mech, self.plant.q, min(p["dt"], period))
             if coarse:
@@ -263,6 +267,7 @@ class PlantNode(ManagedNode):
         self.command_gaps = SequenceGaps()  # commands that never reached the callback (overwritten)
         # Sensors and disturbance: nothing of them exists unless configured (the topics stay as they were).
         self.sensors = SensorOutputs(self, self.plant, spec, p) if spec.any else None
+        self.wrench_io = WrenchIO(self, self.plant, p, p["frames.base"]) if self.plant.wrench is not None else None
         # Commands (and the disturbance input): the callbacks give them, the stepping takes the torque.
         self.hold = CommandHold(len(mech.active), self.sync_mode == "lockstep", p["command_timeout"],
                                 p["disturbance.input"], p["disturbance.timeout"])
@@ -438,6 +443,8 @@ class PlantNode(ManagedNode):
                 self.sensors.publish_again()
         elif self.sensors is not None:
             self.sensors.publish_state(m.stamp_ns, m.force)
+        if self.wrench_io is not None:  # the true external wrench at t_k
+            self.wrench_io.publish(m.stamp_ns)
         if self.pub_disturbance is not None:  # the truth at t_k: the held part of the period that ended + d(t_k)
             self.pub_disturbance.publish(disturbance_message(
                 self.plant.mech.active_names, m.stamp_ns, self.plant.disturbance_at(self.plant.t)))

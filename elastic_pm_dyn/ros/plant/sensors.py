@@ -187,11 +187,13 @@ class SensorOutputs:
             self.pub_encoders.publish(self.encoders.raw())
 
     def publish_imu(self, ns: int, torque: np.ndarray) -> None:
-        """The accelerometer at the plant's state under the motor ``torque`` (commands + disturbance)."""
+        """The accelerometer at the plant's state under the motor ``torque`` (commands + disturbance)
+        and the external wrench."""
         if self.pub_imu is None:
             return
         self.imu.set_stamp(*divmod(ns, NS))
-        self.imu.arrays[0][:] = self.model.accelerometer(self.plant.q, self.plant.qd, torque)
+        self.imu.arrays[0][:] = self.model.accelerometer(self.plant.q, self.plant.qd, torque,
+                                                         self.plant.wrench_tree_forces())
         self.pub_imu.publish(self.imu.raw())
         self.imu_published = True
 
