@@ -36,7 +36,7 @@ from elastic_pm_dyn.sim.torque import HeldPlusSmooth  # noqa: E402
 SECONDS = 0.5
 TRUE = {"stiffness.left_spring": 0.84, "stiffness.right_spring": 1.13, "damping.left_spring": 1.4,
         "damping.right_spring": 0.6, "payload.mass": 1.3}
-FACTORS = np.linspace(0.70, 1.00, 31)
+FACTORS = np.linspace(0.70, 1.00, 16)
 
 
 def output_error(mech: Mechanism, rec, noise: Noise) -> float:

@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from elastic_pm_dyn.calibration.fit import FitResult, fit
+from elastic_pm_dyn.calibration.fit import RADIUS_START, FitResult, fit
 from elastic_pm_dyn.calibration.identifiability import Identifiability, identifiability, unexcited
 from elastic_pm_dyn.calibration.likelihood import Recording, Score, read_recording, score
 from elastic_pm_dyn.calibration.parameters import ModelFile, Parameter, available, dump, select
@@ -41,6 +41,10 @@ from elastic_pm_dyn.output_files import write_text
 
 COARSE_SECONDS = 1.0  # [s] of each recording in the first stage
 MAX_PASSES = 120  # filter passes of each stage at most
+COARSE_TOL = 5.0  # [nats] the coarse stages stop when a step gains less, or ...
+COARSE_REL_TOL = 1e-3  # ... less than this share of the NLL (a stage-1 optimum is not the final one)
+FINE_PASSES = 2  # Gauss-Newton iterations at most on the whole recordings after the coarse stages
+FINE_RADIUS = 0.005  # [log ratio] the second stage's first trust radius: the first stage is that close
 
 
 @dataclass
@@ -123,14 +127,27 @@ def calibrate(model: str | Path, bags: Sequence[str | Path], out: str | Path | N
         log("  not excited, kept at the file's values: " + ", ".join(chosen[i].name for i in fixed))
     stages = []
     theta = np.zeros(len(chosen))
-    if any(r.seconds > 1.5 * COARSE_SECONDS for r in recordings):
-        log(f"stage 1: the first {COARSE_SECONDS:g} s of each recording")
-        stages.append(fit(evaluator(coarse), len(chosen), theta, max_passes, tol=0.5, threads=threads, log=log,
-                          fixed=fixed))
+    springs = [i for i, p in enumerate(chosen) if p.group == "stiffness"]
+    # Stage 1, the springs alone: with its modes off, the filter likes a model that damps the
+    # vibration it cannot predict, so dampers (and a payload) fitted from the file's values run
+    # away (x6 measured) before the springs move; each mode is mostly one spring's
+    if springs and len(springs) < len(chosen):
+        log(f"stage 1: the springs alone, on the first {COARSE_SECONDS:g} s of each recording")
+        stages.append(fit(evaluator(coarse), len(chosen), theta, max_passes, tol=COARSE_TOL, rel_tol=COARSE_REL_TOL,
+                          threads=threads, log=log, fixed=sorted(set(fixed) | set(range(len(chosen))) - set(springs))))
         theta = stages[-1].theta
-    log("stage 2: the whole recordings" if stages else "fit on the whole recordings")
-    stages.append(fit(evaluator(recordings), len(chosen), theta, max_passes, tol=0.5, threads=threads, log=log,
-                      fixed=fixed))
+    long = any(r.seconds > 1.5 * COARSE_SECONDS for r in recordings)
+    if long:
+        log(f"stage 2: every parameter, on the first {COARSE_SECONDS:g} s of each recording")
+        stages.append(fit(evaluator(coarse), len(chosen), theta, max_passes, tol=COARSE_TOL, rel_tol=COARSE_REL_TOL,
+                          threads=threads, log=log, fixed=fixed))
+        theta = stages[-1].theta
+    # the last stage on all the data: a few steps from near the optimum, and the information there
+    log("stage 3: every parameter, the whole recordings")
+    n = len(chosen)
+    budget = min(max_passes, n + 1 + FINE_PASSES * (n + 3)) if long else max_passes
+    stages.append(fit(evaluator(recordings), n, theta, budget, tol=0.5, threads=threads, log=log, fixed=fixed,
+                      radius=FINE_RADIUS if long else RADIUS_START))
     final = stages[-1]
     values = nominal * np.exp(final.theta)
     ident = identifiability(final.information, values, [p.name for p in chosen], fixed)

@@ -54,9 +54,11 @@ class FitResult:
 
 def fit(evaluate: Callable[[np.ndarray], Score], n: int, theta0: np.ndarray | None = None, max_passes: int = 120,
         tol: float = 0.5, threads: int = 2, log: Callable[[str], object] = print,
-        fixed: Sequence[int] = ()) -> FitResult:
+        fixed: Sequence[int] = (), radius: float = RADIUS_START, rel_tol: float = 0.0) -> FitResult:
     """Minimise the NLL of ``evaluate(theta)`` over the n log ratios (module docstring).
-    ``fixed``: indices kept at theta0 (parameters the recording does not excite)."""
+    ``fixed``: indices kept at theta0 (parameters the recording does not excite); ``radius``: the
+    first trust radius (small when theta0 is near the optimum already); a step gaining less than
+    max(``tol``, ``rel_tol`` |NLL|) nats counts as small."""
     wall = time.perf_counter()
     theta = np.zeros(n) if theta0 is None else np.asarray(theta0, dtype=float).copy()
     free = np.array([i for i in range(n) if i not in set(fixed)], dtype=np.int64)
@@ -75,7 +77,7 @@ def fit(evaluate: Callable[[np.ndarray], Score], n: int, theta0: np.ndarray | No
         if not here.ok:
             raise ValueError(f"the filter fails on the starting model: {here.fault}")
         history = [(passes[0], here.nll)]
-        mu, radius, it, stopped, small = MU_START, RADIUS_START, 0, "budget", 0
+        mu, it, stopped, small, misses = MU_START, 0, "budget", 0, 0
         while passes[0] + len(free) + 3 <= max_passes:
             it += 1
             g = scores.sum(axis=0)
@@ -95,20 +97,29 @@ def fit(evaluate: Callable[[np.ndarray], Score], n: int, theta0: np.ndarray | No
             results = run([theta + t for t in trials])
             k = int(np.argmin([nll(r) for r in results]))
             gain = here.nll - nll(results[k])
+            small_gain = max(tol, rel_tol * abs(here.nll))
             taken = float(np.abs(trials[k]).max())
             log(f"  iteration {it}: NLL {here.nll:.7g} -> {nll(results[k]):.7g} (step {taken:.3g} in log ratio)")
+            whole = length <= 0.25 * radius  # the second trial was the Gauss-Newton step itself
             if gain > 0:
+                misses = 0
                 theta = theta + trials[k]
                 radius = min(radius * 3.0, MAX_STEP) if k == 0 else max(2.0 * taken, MIN_RADIUS)
                 mu = max(mu / 10.0, MU_MIN)
                 here, scores = scores_at(run, theta, free, n, results[k])
                 history.append((passes[0], here.nll))
-                # converged: two steps in a row gain little
-                small = small + 1 if gain < tol else 0
-                if small >= 2:
+                # converged: the Gauss-Newton step itself gains little, or two steps in a row do
+                small = small + 1 if gain < small_gain else 0
+                if small >= 2 or (gain < small_gain and k == 1 and whole):
                     stopped = "converged"
                     break
             else:
+                # two misses in a row, the Gauss-Newton step among them: at the optimum within what
+                # the forward differences resolve
+                misses += 1
+                if misses >= 2 and whole:
+                    stopped = "converged (no step gains)"
+                    break
                 radius = max(radius / 8.0, MIN_RADIUS)
                 mu *= 10.0
                 if mu > MU_MAX:
