@@ -130,6 +130,29 @@ def table(rows: list[dict]) -> str:
     return "\n".join(out)
 
 
+def figure(rows: list[dict]) -> None:
+    """modes.png: each case's mode errors against the truth, the file's and the calibrated model's."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, ax = plt.subplots(figsize=(8, 3.4))
+    labels, x = [], 0
+    for r in rows:
+        for k, (a, b) in enumerate(zip(r["mode_error_file_pct"], r["mode_error_calibrated_pct"], strict=True)):
+            ax.bar(x - 0.2, a, 0.4, color="tab:red", label="file" if x == 0 else None)
+            ax.bar(x + 0.2, max(b, 1e-4), 0.4, color="tab:green", label="calibrated" if x == 0 else None)
+            labels.append(f"{r['case']}\nmode {k + 1}")
+            x += 1
+    ax.axhline(1.0, color="k", lw=0.8, ls="--")
+    ax.set_yscale("log")
+    ax.set_xticks(range(x), labels, fontsize=7)
+    ax.set_ylabel("|f / f_true - 1| [%]")
+    ax.set_title("elastic modes against the true machine (dashed: the 1 % aim)")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(HERE / "modes.png", dpi=110)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--cases", nargs="+", default=[c for c in CASES if c.startswith("five_bar")], choices=list(CASES))
@@ -148,6 +171,7 @@ def main() -> None:
         old.update({r["case"]: r for r in rows})
         res.write_text(json.dumps(old, indent=1) + "\n")
         print(table([old[c] for c in CASES if c in old]))
+        figure([old[c] for c in CASES if c in old])
 
 
 if __name__ == "__main__":

@@ -5,9 +5,9 @@ other parameter at its true value, the left stiffness is scanned from 0.70 to 1.
 - output error (OE): the candidate simulated open loop from rest under the recorded commands
   (RK4, 1e-4 s), sum of squared normalised errors of the encoders, accelerometer and strain gauges;
 - prediction error (PEM): the filter's NLL (calibration.likelihood), as calibrate minimises it.
-Prints both curves and the local minima of each, writes results/criteria.json and criteria.png.
+Prints both curves and the local minima of each, writes results/criteria_<S>s.json and criteria_<S>s.png.
 
-    PYTHONPATH=. python bench/calibration/study_criteria.py
+    PYTHONPATH=. python bench/calibration/study_criteria.py [SECONDS (default 0.5)]
 """
 
 from __future__ import annotations
@@ -74,7 +74,8 @@ def main() -> None:
     params = available(mf)
     cfg = load_config(REPO / "config/observer.yaml")
     cfg = ObserverConfig.from_parameters(dict(cfg.parameters, sensors=["encoders", "imu", "branch_forces"]), "bench")
-    rec = read_recording(HERE / "recordings" / "five_bar_A", cfg, SECONDS)
+    seconds = float(sys.argv[1]) if len(sys.argv) > 1 else SECONDS
+    rec = read_recording(HERE / "recordings" / "five_bar_A", cfg, seconds)
     rows = []
     for f in FACTORS:
         values = [p.nominal * (f if p.name == "stiffness.left_spring" else TRUE.get(p.name, 1.0)) for p in params]
@@ -88,11 +89,16 @@ def main() -> None:
     def minima(y: np.ndarray) -> list[float]:
         return [float(arr[i, 0]) for i in range(1, len(y) - 1) if y[i] < y[i - 1] and y[i] < y[i + 1]]
 
-    out = {"factors": arr[:, 0].tolist(), "pem_nll": arr[:, 1].tolist(), "output_error": arr[:, 2].tolist(),
+    # the residual level: each criterion's minimum over what white noise of the assumed levels gives
+    # (half the number of sample entries): 1 for a model that explains the samples to their noise
+    entries = sum(len(e.data[1]) if e.kind != "imu" else 2 for e in rec.events if e.kind != "command")
+    out = {"seconds": seconds, "noise_level_oe": float(arr[:, 2].min() / (entries / 2)),
+           "factors": arr[:, 0].tolist(), "pem_nll": arr[:, 1].tolist(), "output_error": arr[:, 2].tolist(),
            "pem_minima": minima(arr[:, 1]), "oe_minima": minima(arr[:, 2]), "true_factor": 0.84}
     (HERE / "results").mkdir(exist_ok=True)
-    (HERE / "results" / "criteria.json").write_text(json.dumps(out, indent=1) + "\n")
-    print("PEM local minima at", out["pem_minima"], "; OE local minima at", out["oe_minima"])
+    (HERE / "results" / f"criteria_{seconds:g}s.json").write_text(json.dumps(out, indent=1) + "\n")
+    print("PEM local minima at", out["pem_minima"], "; OE local minima at", out["oe_minima"],
+          f"; OE's minimum is {out['noise_level_oe']:.3g} x its noise level")
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -105,7 +111,7 @@ def main() -> None:
         a.set_title(name)
     ax[0].set_ylabel("criterion - its minimum + 1")
     fig.tight_layout()
-    fig.savefig(HERE / "criteria.png", dpi=110)
+    fig.savefig(HERE / f"criteria_{seconds:g}s.png", dpi=110)
 
 
 if __name__ == "__main__":
