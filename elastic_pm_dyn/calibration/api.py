@@ -32,7 +32,7 @@ from elastic_pm_dyn.calibration.likelihood import Recording, Score, read_recordi
 from elastic_pm_dyn.calibration.parameters import ModelFile, Parameter, available, dump, select
 from elastic_pm_dyn.dynamics.linear import elastic_modes
 from elastic_pm_dyn.dynamics.statics import rest_state
-from elastic_pm_dyn.errors import InputError
+from elastic_pm_dyn.errors import ElasticPmDynError, InputError
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.model.description import Model
 from elastic_pm_dyn.observer.cli import DEFAULT_CONFIG
@@ -116,7 +116,7 @@ def calibrate(model: str | Path, bags: Sequence[str | Path], out: str | Path | N
         def evaluate(theta: np.ndarray) -> Score:
             try:
                 return score(mf.model(chosen, nominal * np.exp(theta)), cfg, recs)
-            except InputError as exc:  # a parameter set the model's checks refuse
+            except ElasticPmDynError as exc:  # a parameter set the model's checks (or its assembly) refuse
                 return Score(np.zeros(0), np.zeros(0), math.inf, {}, str(exc))
         return evaluate
 

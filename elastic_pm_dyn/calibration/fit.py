@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from elastic_pm_dyn.calibration.likelihood import Score
+from elastic_pm_dyn.errors import InputError
 
 FD_STEP = 1e-4  # log-ratio step of the forward differences (0.01 %): the NLL is smooth and noise-free there
 MAX_STEP = 0.4  # the longest step in log ratio (a factor 1.5) per iteration: far off, B's model is poor
@@ -75,7 +76,8 @@ def fit(evaluate: Callable[[np.ndarray], Score], n: int, theta0: np.ndarray | No
     try:
         here, scores = scores_at(run, theta, free, n)
         if not here.ok:
-            raise ValueError(f"the filter fails on the starting model: {here.fault}")
+            raise InputError(f"the observer fails on the model it starts from ({here.fault or 'no likelihood'}): "
+                             "check the recording's topics, --sensors and --config")
         history = [(passes[0], here.nll)]
         mu, it, stopped, small, misses = MU_START, 0, "budget", 0, 0
         while passes[0] + len(free) + 3 <= max_passes:
