@@ -37,6 +37,7 @@ MAX_STEP = 0.4  # the longest step in log ratio (a factor 1.5) per iteration: fa
 MU_START, MU_MIN, MU_MAX = 1e-3, 1e-9, 1e6
 RADIUS_START = 0.05  # [log ratio] the first trust radius: 5 %
 MIN_RADIUS = 1e-6
+MAX_MISSES = 3  # steps in a row that gain nothing, each at an 8x smaller radius: stop
 FAILED = 1e30
 
 
@@ -116,10 +117,10 @@ def fit(evaluate: Callable[[np.ndarray], Score], n: int, theta0: np.ndarray | No
                     stopped = "converged"
                     break
             else:
-                # two misses in a row, the Gauss-Newton step among them: at the optimum within what
-                # the forward differences resolve
+                # two misses in a row, the Gauss-Newton step among them, or MAX_MISSES at shrinking
+                # radii: at the optimum within what the forward differences resolve
                 misses += 1
-                if misses >= 2 and whole:
+                if (misses >= 2 and whole) or misses >= MAX_MISSES:
                     stopped = "converged (no step gains)"
                     break
                 radius = max(radius / 8.0, MIN_RADIUS)
