@@ -127,23 +127,14 @@ def calibrate(model: str | Path, bags: Sequence[str | Path], out: str | Path | N
         log("  not excited, kept at the file's values: " + ", ".join(chosen[i].name for i in fixed))
     stages = []
     theta = np.zeros(len(chosen))
-    springs = [i for i, p in enumerate(chosen) if p.group == "stiffness"]
-    # Stage 1, the springs alone: with its modes off, the filter likes a model that damps the
-    # vibration it cannot predict, so dampers (and a payload) fitted from the file's values run
-    # away (x6 measured) before the springs move; each mode is mostly one spring's
-    if springs and len(springs) < len(chosen):
-        log(f"stage 1: the springs alone, on the first {COARSE_SECONDS:g} s of each recording")
-        stages.append(fit(evaluator(coarse), len(chosen), theta, max_passes, tol=COARSE_TOL, rel_tol=COARSE_REL_TOL,
-                          threads=threads, log=log, fixed=sorted(set(fixed) | set(range(len(chosen))) - set(springs))))
-        theta = stages[-1].theta
     long = any(r.seconds > 1.5 * COARSE_SECONDS for r in recordings)
-    if long:
-        log(f"stage 2: every parameter, on the first {COARSE_SECONDS:g} s of each recording")
+    for k, (what, held) in enumerate(coarse_stages(chosen, long), start=1):
+        log(f"stage {k}: {what}, on the first {COARSE_SECONDS:g} s of each recording")
         stages.append(fit(evaluator(coarse), len(chosen), theta, max_passes, tol=COARSE_TOL, rel_tol=COARSE_REL_TOL,
-                          threads=threads, log=log, fixed=fixed))
+                          threads=threads, log=log, fixed=sorted(set(fixed) | set(held))))
         theta = stages[-1].theta
     # the last stage on all the data: a few steps from near the optimum, and the information there
-    log("stage 3: every parameter, the whole recordings")
+    log(f"stage {len(stages) + 1}: every parameter, the whole recordings")
     n = len(chosen)
     budget = min(max_passes, n + 1 + FINE_PASSES * (n + 3)) if long else max_passes
     stages.append(fit(evaluator(recordings), n, theta, budget, tol=0.5, threads=threads, log=log, fixed=fixed,
@@ -159,6 +150,27 @@ def calibrate(model: str | Path, bags: Sequence[str | Path], out: str | Path | N
     if out is not None:
         write_model(res, out, mf.path)
     return res
+
+
+def coarse_stages(chosen: Sequence[Parameter], long: bool) -> list[tuple[str, list[int]]]:
+    """The stages on the first second, each as (what, indices held at their current values).
+
+    With its modes off, the filter likes a model that dissipates the vibration it cannot predict:
+    from the file's values with everything free, the five-bar's dampers ran away (x6) and its payload
+    (x4) before the springs moved, and the Triglide's drive friction (x0.05) kept its modes 7 % off.
+    So the springs first, alone (each mode is mostly one spring's), then everything but friction,
+    then (on a long recording, whose last stage would otherwise start far) everything."""
+    n = len(chosen)
+    springs = {i for i, p in enumerate(chosen) if p.group == "stiffness"}
+    friction = {i for i, p in enumerate(chosen) if p.group == "friction"}
+    out = []
+    if springs and len(springs) < n:
+        out.append(("the springs alone", sorted(set(range(n)) - springs)))
+    if friction and len(friction) < n:
+        out.append(("every parameter but friction", sorted(friction)))
+    if long or (friction and len(friction) < n):
+        out.append(("every parameter", []))
+    return out
 
 
 def write_model(res: Calibration, out: str | Path, source: str) -> Path:
