@@ -137,3 +137,16 @@ def test_bad_input_is_one_line(tmp_path, capsys) -> None:
     assert "model YAML" in capsys.readouterr().err
     assert cli_main(["excite", "--model", str(MODEL), "--out", str(tmp_path / "e.csv"), "--max-torque", "-1"]) == 2
     assert capsys.readouterr().err.count("\n") == 1
+
+
+def test_the_per_sample_terms_are_the_filters_likelihood(perturbed) -> None:
+    """The terms calibration differentiates sum to the NLL the filter's statistics keep (fast path and
+    per-message path alike), one per sensor sample."""
+    from elastic_pm_dyn.calibration.likelihood import read_recording, score
+    from elastic_pm_dyn.observer.config import ObserverConfig
+    _, _, out, bag = perturbed
+    cfg = ObserverConfig.from_parameters({"sensors": SENSORS})
+    s = score(load_model(out), cfg, [read_recording(bag, cfg)])
+    assert s.terms.size == sum(d["samples"] for d in s.per_sensor.values())
+    assert s.terms.sum() == pytest.approx(sum(d["nll"] for d in s.per_sensor.values()), rel=1e-12)
+    assert np.all(s.nis >= 0)
