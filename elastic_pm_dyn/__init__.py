@@ -58,6 +58,9 @@ _EXPORTS: dict[str, tuple[str, str]] = {
     "analyze": ("elastic_pm_dyn.analysis.report", "analyze"),
     "AnalysisReport": ("elastic_pm_dyn.analysis.report_types", "AnalysisReport"),
     "batch": ("elastic_pm_dyn.fleet.api", "batch"),
+    "calibrate": ("elastic_pm_dyn.calibration.api", "calibrate"),
+    "Calibration": ("elastic_pm_dyn.calibration.api", "Calibration"),
+    "excitation": ("elastic_pm_dyn.calibration.excitation", "excitation"),
     "ElasticPmDynError": ("elastic_pm_dyn.errors", "ElasticPmDynError"),
     "ModelError": ("elastic_pm_dyn.errors", "ModelError"),
     "InputError": ("elastic_pm_dyn.errors", "InputError"),
@@ -70,6 +73,7 @@ __all__ = [  # written out, not derived from _EXPORTS: static tools read it lite
     "REFERENCE_MANOEUVRE",
     "AnalysisReport",
     "AssemblyError",
+    "Calibration",
     "ConstantTorque",
     "Dynamics",
     "ElasticPmDynError",
@@ -86,7 +90,9 @@ __all__ = [  # written out, not derived from _EXPORTS: static tools read it lite
     "TorqueTable",
     "analyze",
     "batch",
+    "calibrate",
     "elastic_modes",
+    "excitation",
     "feedforward_table",
     "initial_state",
     "line_torques",
@@ -102,6 +108,8 @@ __all__ = [  # written out, not derived from _EXPORTS: static tools read it lite
 if TYPE_CHECKING:  # what type checkers and IDEs see; at run time __getattr__ below loads them
     from elastic_pm_dyn.analysis.report import analyze
     from elastic_pm_dyn.analysis.report_types import AnalysisReport
+    from elastic_pm_dyn.calibration.api import Calibration, calibrate
+    from elastic_pm_dyn.calibration.excitation import excitation
     from elastic_pm_dyn.dynamics.direct import FORMULATIONS, Dynamics
     from elastic_pm_dyn.dynamics.linear import elastic_modes
     from elastic_pm_dyn.errors import (

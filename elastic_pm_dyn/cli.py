@@ -594,11 +594,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--kd", type=float, nargs="+", help="--observer: [N m s/rad], one or one per motor")
     p.set_defaults(func=cmd_ros_demo)
     from elastic_pm_dyn.analysis.cli import register_cli as register_analysis
+    from elastic_pm_dyn.calibration.cli import register_cli as register_calibration
     from elastic_pm_dyn.fleet.cli import register_cli as register_batch
     from elastic_pm_dyn.observer.cli import register_cli as register_observer
     register_analysis(sub)
     register_observer(sub)
     register_batch(sub)
+    register_calibration(sub)
     return parser
 
 

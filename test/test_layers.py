@@ -28,7 +28,7 @@ LAYERS: list[set[str]] = [
     {"motion"},
     {"sim"},
     {"observer", "analysis"},
-    {"demo", "fleet"},
+    {"demo", "fleet", "calibration"},
     {"ros"},
     {"cli"},
     {"entry"},

@@ -65,6 +65,8 @@ class Observer(Ekf):
     :func:`~elastic_pm_dyn.observer.core.observer_model.model_key`); the observer holds the rest of
     its configuration (disturbance model, noise levels, gates, timing) and the filter's state."""
 
+    # statistics made by reset keep each sample's NLL term (calibration's per-sample scores)
+    keep_terms: bool = False
     # the parts' state as the observer's own (read only)
     tau_hold = property(attrgetter("commands.tau_hold"))  # the held command (active joint order)
     t_command = property(attrgetter("commands.t_command"))  # ... acting from here
@@ -117,7 +119,7 @@ class Observer(Ekf):
         self._set_state(q, qd, P0)
         self.tau_last = self.commands.tau_hold.copy()
         self.initialised = initialised
-        self.stats = sensor_stats.fresh_stats()
+        self.stats = sensor_stats.fresh_stats(self.keep_terms)
         self.recovery.reset()
         self.imu_timing.reset(self.t)
         if self.with_point:

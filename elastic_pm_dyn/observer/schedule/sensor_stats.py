@@ -56,10 +56,13 @@ class SensorStats:
     nll: float = 0.0
     nis_sum: float = 0.0  # NIS of the accepted samples, summed
     recoveries: int = 0  # re-initialisations from this sensor after a run of gated samples (schedule.recovery)
+    # each weighed sample's (NIS, NLL term) in order, when a list (calibration's per-sample scores); None: not kept
+    terms: list[tuple[float, float]] | None = None
 
 
-def fresh_stats() -> dict[str, SensorStats]:
-    return {s: SensorStats() for s in SENSOR_NAMES}
+def fresh_stats(keep_terms: bool = False) -> dict[str, SensorStats]:
+    """New statistics; ``keep_terms``: each keeps its samples' NLL terms (``SensorStats.terms``)."""
+    return {s: SensorStats(terms=[] if keep_terms else None) for s in SENSOR_NAMES}
 
 
 def nll_term(nis: float, logdet: float, dof: int) -> float:
@@ -76,12 +79,16 @@ def record(st: SensorStats, sensor: str, t: float, nis: float, gated: bool, dof:
         st.rejected += 1
         st.consecutive_rejections += 1
         st.nll += nll_term(min(nis, gate), logdet, dof)
+        if st.terms is not None:
+            st.terms.append((min(nis, gate), nll_term(min(nis, gate), logdet, dof)))
         st.last_reason = f"gated out at t = {t:.6f} s: NIS {nis:.3g} > {gate:.3g} ({dof} dof)"
         return UpdateResult(sensor, t, False, nis, dof, "gate", dropped, logdet)
     st.accepted += 1
     st.consecutive_rejections = 0
     st.nll += nll_term(nis, logdet, dof)
     st.nis_sum += nis
+    if st.terms is not None:
+        st.terms.append((nis, nll_term(nis, logdet, dof)))
     st.window.append((nis, dof))
     if len(st.window) > window:
         st.window.popleft()
@@ -98,6 +105,8 @@ def record_accepted(st: SensorStats, nis: list[float], dof: int, logdet: list[fl
         nll += nll_term(v, ld, dof)
         nis_sum += v
     st.nll, st.nis_sum = nll, nis_sum
+    if st.terms is not None:
+        st.terms.extend((v, nll_term(v, ld, dof)) for v, ld in zip(nis, logdet, strict=True))
     st.accepted += len(nis)
     st.consecutive_rejections = 0
     w = st.window
