@@ -25,7 +25,7 @@ from elastic_pm_dyn.observer.testing.excited import excited_recording
 from elastic_pm_dyn.observer.testing.recordings import write_bag
 from elastic_pm_dyn.sim.torque import load_torque_csv
 
-CONFIG = Path(__file__).resolve().parent.parent / "config"
+CONFIG = Path(__file__).resolve().parents[1].parent / "config"
 MODEL = CONFIG / "five_bar.yaml"
 SENSORS = ["encoders", "imu", "branch_forces"]
 # not a case the method was developed on (bench/calibration's A); payload +25 %, springs -9 % / +11 %
@@ -132,7 +132,7 @@ def test_bad_input_is_one_line(tmp_path, capsys) -> None:
                      "--params", "stiffness.nosuch"]) == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "no such parameter" in err
-    urdf = Path(__file__).resolve().parent / "robots" / "five_bar_urdf" / "robot.urdf"
+    urdf = Path(__file__).resolve().parents[1] / "robots" / "five_bar_urdf" / "robot.urdf"
     assert cli_main(["calibrate", "--model", str(urdf), "--bag", str(tmp_path), "--out", str(tmp_path / "c.yaml")]) == 2
     assert "model YAML" in capsys.readouterr().err
     assert cli_main(["excite", "--model", str(MODEL), "--out", str(tmp_path / "e.csv"), "--max-torque", "-1"]) == 2
