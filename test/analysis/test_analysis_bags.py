@@ -67,7 +67,8 @@ def test_reads_every_storage_with_and_without_definitions(run, bag_dir, storage,
     assert data.storage == storage
     assert data.roles == {"joint_states": "/joint_states", "branch_forces": "/branch_forces",
                           "torque_command": "/torque_command", "reference": "/reference_joint_states",
-                          "measured": None, "ee_pose": "/ee_pose", "diagnostics": "/diagnostics"}
+                          "measured": None, "ee_pose": "/ee_pose", "diagnostics": "/diagnostics",
+                          "wrench": None, "wrench_stddev": None, "wrench_truth": None, "contact": None}
     bf = data.series["branch_forces"]
     assert bf.stamp_source == "header" and bf.stride == 1 and bf.count == len(run.t_force)
     np.testing.assert_array_equal(bf.fields["force"], run.forces)  # exact, through CDR
