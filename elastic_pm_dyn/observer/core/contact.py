@@ -29,8 +29,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.special import gammainccinv
 
+from elastic_pm_dyn.observer.core.chi_square import chi2_upper_quantile
 from elastic_pm_dyn.observer.core.estimate import EstimateLayout
 
 DEFAULT_PROBABILITY = 1e-7  # false-alarm probability per sample
@@ -59,8 +59,7 @@ class ContactDetector:
         if not (0.0 < probability < 0.5 and 0.0 < release < 1.0):
             raise ValueError(f"probability in (0, 0.5) and release in (0, 1), got {probability!r}, {release!r}")
         self.layout = layout
-        # chi2.isf(probability, n_w), as scipy.stats computes it (scipy.stats itself costs start-up)
-        self.threshold = float(2.0 * gammainccinv(nw / 2.0, probability))
+        self.threshold = float(chi2_upper_quantile(probability, nw))
         self.release = release
         self.states = np.arange(layout.nx - nw, layout.nx)  # the wrench states: the last n_w of x
         self.in_contact = False
