@@ -16,7 +16,7 @@ def plant_status(node: Any) -> DiagnosticStatus:
     """The status of ``node`` (a :class:`~elastic_pm_dyn.ros.plant.node.PlantNode`) now; starts the
     next window of its statistics."""
     s, plant, sync = node.stats, node.plant, node.sync
-    if getattr(sync, "keep_gc_out", False):  # between periods: the collection's time shows in gc_time_ms
+    if sync.keep_gc_out:  # between periods: the collection's time shows in gc_time_ms
         s.gc_time = collect_young()
     wall = time.monotonic()
     command_age = node.hold.age(node.command_clock())
@@ -42,8 +42,7 @@ def plant_status(node: Any) -> DiagnosticStatus:
         "zero_torque_periods": str(s.stale), "overruns": str(s.overruns),
         "commands_overwritten": str(node.command_gaps.missed),
     }
-    if sync.name == "realtime":
-        values["overrun"] = sync.overrun
+    values |= sync.diagnostic_values()
     status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
     s.new_window(plant.t, plant.k, wall)
     s.window_overwritten = node.command_gaps.missed
@@ -65,6 +64,6 @@ def _issues(node: Any, wall: float) -> list[str]:
          f"{s.slowed_periods - s.window_slowed} period(s) slowed)"),
         (s.window_slipped != s.slipped_periods,
          f"realtime overrun: the schedule slipped ({s.slipped_periods - s.window_slipped} period(s))"),
-        (s.window_overwritten != node.command_gaps.missed and node.sync.name == "lockstep",
+        (s.window_overwritten != node.command_gaps.missed and node.sync.answers_every_command,
          "commands overwritten (unanswered)"))
         if changed]

@@ -240,8 +240,10 @@ class PlantNode(ManagedNode):
                 self.get_logger().warning(coarse)
         self.period_ns = round(period * NS)
         self.formulation = p["formulation"]
+        # what paces the periods (its timers start at the end of set-up)
+        self.sync = SYNC_MODES[self.sync_mode](self, p, period)
         # The stamps are the plant's clock, not the wall clock: fast, lockstep, realtime slowing
-        self.own_clock = self.sync_mode != "realtime" or p["realtime.overrun"] == "slow"
+        self.own_clock = self.sync.own_clock
         self.hardware_id = p["hardware_id"] or f"{mech.model.name} {self.get_fully_qualified_name()}"
         self.messages = PlantMessages(self.plant, p["frames.base"])
         self.markers = MechanismMarkers(mech, p["frames.base"])
@@ -263,13 +265,13 @@ class PlantNode(ManagedNode):
         msg_type = JointState if p["command_type"] == "joint_state" else Float64MultiArray
         self.command_sub = self.create_subscription(
             msg_type, p["topics.command"], lambda msg, info: self._on_command(msg, info),  # two args: with info
-            LOCKSTEP_COMMAND_QOS if self.sync_mode == "lockstep" else COMMAND_QOS)
+            LOCKSTEP_COMMAND_QOS if self.sync.answers_every_command else COMMAND_QOS)
         self.command_gaps = SequenceGaps()  # commands that never reached the callback (overwritten)
         # Sensors and disturbance: nothing of them exists unless configured (the topics stay as they were).
         self.sensors = SensorOutputs(self, self.plant, spec, p) if spec.any else None
         self.wrench_io = WrenchIO(self, self.plant, p, p["frames.base"]) if self.plant.wrench is not None else None
         # Commands (and the disturbance input): the callbacks give them, the stepping takes the torque.
-        self.hold = CommandHold(len(mech.active), self.sync_mode == "lockstep", p["command_timeout"],
+        self.hold = CommandHold(len(mech.active), self.sync.answers_every_command, p["command_timeout"],
                                 p["disturbance.input"], p["disturbance.timeout"])
         self.pub_disturbance = None
         if p["disturbance.input"] or self.plant.disturbance is not None:
@@ -288,7 +290,6 @@ class PlantNode(ManagedNode):
         self.diagnostics_timer = self.create_timer(1.0 / p["diagnostics_rate"], self._publish_diagnostics,
                                                    clock=self.steady)
         self.step_timer = None  # realtime and fast: the timer that steps (cancelled while paused or stopped)
-        self.sync = SYNC_MODES[self.sync_mode](self, p, period)
         extra = self.sync.start(p, period)
         self.get_logger().info(
             f"{mech.model.name}: {self.formulation}, {p['integrator']} dt {p['dt']:g} s, "
@@ -297,7 +298,8 @@ class PlantNode(ManagedNode):
             + (f"; clock on '{self.pub_clock.topic_name}'" if self.pub_clock is not None else ""))
 
     def destroy_node(self) -> None:
-        restore(getattr(getattr(self, "sync", None), "keep_gc_out", False))  # the process may go on without it
+        if hasattr(self, "sync"):  # the process may go on without this node (tests)
+            restore(self.sync.keep_gc_out)
         super().destroy_node()
 
     # ------------------------------------------------------- runtime parameters
@@ -331,7 +333,7 @@ class PlantNode(ManagedNode):
                    else self.decoder.from_array(msg.data))
         except InputError as err:
             self.stats.rejected += 1
-            held = "; holding the last valid one for the period" if self.sync_mode == "lockstep" else ""
+            held = "; holding the last valid one for the period" if self.sync.answers_every_command else ""
             self.warn.warning(getattr(err, "kind", "rejected"), f"command rejected: {err}{held}")
             self.sync.command_rejected(arrival)
             return
@@ -343,7 +345,7 @@ class PlantNode(ManagedNode):
     def _count_overwritten(self, seq: int | None) -> None:
         """Lockstep answers every command it gets: one that a queue overwrote is reported, never silent."""
         skipped = self.command_gaps.take(seq, self.command_sub.get_publisher_count())
-        if skipped and self.sync_mode == "lockstep":
+        if skipped and self.sync.answers_every_command:
             self.warn.warning("overwritten", f"{self.command_gaps.missed} command(s) overwritten before the plant "
                               "took them (unanswered; publish the next command after the state, or deepen the "
                               "publisher's queue)")

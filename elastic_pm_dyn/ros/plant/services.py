@@ -70,7 +70,7 @@ class PlantServices:
         if node.step_timer is not None:
             node.step_timer.cancel()
         response.message = (f"paused at t = {node.plant.t:.6g} s ({node.plant.k} periods)"
-                            + ("; commands queue until unpause or step" if node.sync.name == "lockstep" else ""))
+                            + ("; commands queue until unpause or step" if node.sync.answers_every_command else ""))
         node.get_logger().info(response.message)
         return response
 

@@ -37,6 +37,9 @@ class SyncMode:
     :class:`~elastic_pm_dyn.ros.plant.command_hold.CommandHold`), no wait to report."""
 
     name = ""
+    answers_every_command = False  # lockstep: each command is one period, answered even when rejected
+    own_clock = True  # the stamps are the plant's clock (simulated time), published on topics.clock
+    keep_gc_out = False  # the node collects the young generations between periods (realtime)
 
     def __init__(self, node: Any, p: dict[str, Any], period: float):
         self.node = node
@@ -64,6 +67,10 @@ class SyncMode:
         """What the plant waits for, if it waits (empty otherwise)."""
         return ""
 
+    def diagnostic_values(self) -> dict[str, str]:
+        """The mode's own /diagnostics values."""
+        return {}
+
     def apply_parameter(self, name: str, value: Any) -> bool:
         """Take a runtime parameter of this mode; False if it is not one."""
         return False
@@ -80,6 +87,7 @@ class Realtime(SyncMode):
         self.overrun: str = p["realtime.overrun"]
         self.schedule = RealtimeSchedule(period, p["realtime.max_catch_up"], self.overrun)
         self.keep_gc_out: bool = p["realtime.keep_gc_out"]
+        self.own_clock = self.overrun == "slow"  # skip: the stamps follow the wall clock
 
     def start(self, p: dict[str, Any], period: float) -> str:
         node = self.node
@@ -90,6 +98,9 @@ class Realtime(SyncMode):
 
     def resume(self, publish: bool) -> None:
         self.schedule.stop()  # a fresh schedule; its first tick publishes the state
+
+    def diagnostic_values(self) -> dict[str, str]:
+        return {"overrun": self.overrun}
 
     def tick(self) -> None:
         node = self.node
@@ -148,6 +159,7 @@ class Lockstep(SyncMode):
     command); before the first command the state and its samples are published again."""
 
     name = "lockstep"
+    answers_every_command = True
 
     def __init__(self, node: Any, p: dict[str, Any], period: float):
         super().__init__(node, p, period)
