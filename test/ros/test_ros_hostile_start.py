@@ -97,7 +97,8 @@ def test_a_long_step_ends_on_ctrl_c(tmp_path: Path) -> None:
     ("topics.joint_states:=bad name", "is no topic name"),
     ("sensors.encoders.position_stddev:=1.0e308", "must be a number in [0, 1000]"),
     ("disturbance.rms:=1.0e300", "must be a number in [0, 10000]"),
-    ("disturbance.duration:=1.0e12", "must be at most 60 s"),
+    ("disturbance.duration:=1.0e12", "must be in (0, 60] s"),
+    ("disturbance.duration:=-1.0", "must be a positive number"),
 ])
 def test_absurd_settings_are_one_line_at_start_up(tmp_path: Path, override: str, words: str) -> None:
     require("rclpy")

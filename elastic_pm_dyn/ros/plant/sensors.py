@@ -74,7 +74,7 @@ DISTURBANCE_PARAMS = [
     Param("disturbance.band", [], "[Hz] [low, high] of the spectrum; unset = its own (flat, pink 2-200, tones "
           "5-150, drift 0.05-1)", item=float),
     Param("disturbance.seed", 0, "seed: a test recording with this seed and duration has the same d(t)"),
-    Param("disturbance.duration", 1.0, "[s] window over which the RMS is scaled (periodic beyond; at most 60)",
+    Param("disturbance.duration", 1.0, "[s] window over which the RMS is scaled (periodic beyond; above 0, at most 60)",
           positive=True),
     Param("disturbance.input", False, "subscribe topics.disturbance_torque: an unknown torque added to the command"),
     Param("disturbance.timeout", 0.1, "[s] an older disturbance_torque means zero (as command_timeout: on the "
@@ -108,8 +108,8 @@ def spectrum_disturbance(p: dict[str, Any], channels: int) -> SpectrumDisturbanc
         raise ParameterError(f"parameter 'disturbance.rms' must be a number in [0, {MAX_DISTURBANCE_RMS:g}] "
                              f"[N m or N], got {rms!r}")
     duration = p["disturbance.duration"]
-    if not duration <= MAX_DISTURBANCE_DURATION:
-        raise ParameterError(f"parameter 'disturbance.duration' must be at most {MAX_DISTURBANCE_DURATION:g} s "
+    if not 0 < duration <= MAX_DISTURBANCE_DURATION:
+        raise ParameterError(f"parameter 'disturbance.duration' must be in (0, {MAX_DISTURBANCE_DURATION:g}] s "
                              f"(its spectrum is scaled on a 0.1 ms grid over it; periodic beyond), got {duration!r}")
     if band and not (len(band) == 2 and np.all(np.isfinite(band)) and 0 < band[0] < band[1]):
         raise ParameterError(f"parameter 'disturbance.band' must be [low, high] with 0 < low < high [Hz], got {band!r}")
