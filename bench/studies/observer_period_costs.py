@@ -36,13 +36,8 @@ sys.path.insert(0, str(ROOT / "bench"))
 from tools.observer_runs import machine, recording  # noqa: E402
 
 from elastic_pm_dyn.observer import Observer, ObserverConfig  # noqa: E402
-from elastic_pm_dyn.observer.core.kernels import (  # noqa: E402
-    encoder_correct,
-    estimate_flat,
-    imu_correct,
-    imu_correct_auto,
-    predict_checked,
-)
+from elastic_pm_dyn.observer.core.correction import encoder_correct, imu_correct, imu_correct_auto  # noqa: E402
+from elastic_pm_dyn.observer.core.kernels import FX_TRANSMISSION, estimate_flat, predict_checked  # noqa: E402
 from elastic_pm_dyn.observer.core.period import _snapshot, snapshot_buffers  # noqa: E402
 from elastic_pm_dyn.observer.testing.evaluation import feed  # noqa: E402
 from elastic_pm_dyn.sim.exponential import etd2_workspace  # noqa: E402
@@ -126,9 +121,8 @@ def study(spec: str) -> dict:
     feed(obs, rec, SENSORS)
     ma, fixed, proc, state = mech.arrays, obs.model.fixed, obs._proc, obs._state()
     n = ma.jf.shape[0]
-    tree_b, tree_a = np.zeros(n), np.zeros(n)
-    tree_b[fixed[4]] = obs.tau_hold
-    tree_a[fixed[4]] = 1.01 * obs.tau_hold
+    tree_b = fixed[FX_TRANSMISSION] @ obs.tau_hold  # tree forces of the holding input, tau_t = B u
+    tree_a = 1.01 * tree_b
     n_sub = max(1, int(np.ceil(1e-3 / obs.dt - 1e-9)))
     plan = obs.encoders.fast_plan(rec.active_names, obs.nx)
     enc = plan[1:5]
