@@ -26,7 +26,7 @@
 - Markers and diagnostics: reliable, keep last 1-10, volatile (viewers only need the latest).
 - Observer inputs (plant node in ``mode: observer``: ``torque_command``,
   ``measured_joint_states``, ``ee_imu``, ``measured_branch_forces``): reliable, keep last
-  100, volatile. Reliable and deep (0.1 s at 1 kHz of reader history) because every lost
+  1000, volatile. Reliable and deep (1 s at 1 kHz of reader history) because every lost
   sample changes the estimates, and then the live node no longer equals the offline pass
   over a recording of the same messages; volatile because an observer that starts late
   must start from fresh samples, not from a publisher's history. A driver that publishes

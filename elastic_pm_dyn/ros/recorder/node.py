@@ -69,6 +69,7 @@ from elastic_pm_dyn.bags.queued_writer import QueuedWriter
 from elastic_pm_dyn.bags.typestore import register_msg_text
 from elastic_pm_dyn.bags.writer import STORAGES, BagWriter
 from elastic_pm_dyn.errors import InputError
+from elastic_pm_dyn.ros.drain import Drain
 from elastic_pm_dyn.ros.graph_checks import resolve_topic
 from elastic_pm_dyn.ros.losses import TopicLosses
 from elastic_pm_dyn.ros.node_main import ManagedNode, run_node
@@ -161,6 +162,7 @@ class RecorderNode(ManagedNode):
 
     def __init__(self, **node_kwargs: Any):
         super().__init__("recorder", **node_kwargs)
+        self.drains: dict[Any, Drain] = {}  # per participant's node (each spun by its own thread)
         reject_unknown(self, [s.name for s in PARAMS])
         p = read_parameters(self, PARAMS)
         schedule_process(self, p)
@@ -278,6 +280,9 @@ class RecorderNode(ManagedNode):
         def lost(event: Any) -> None:
             losses.dds_lost += event.total_count_change
 
+        # the executor wakes the node for one message; what else is queued on its readers is taken in the
+        # same turn (ros/drain.py: a dozen topics at 1 kHz cost a core through the executor alone)
+        drain = self.drains.setdefault(node, Drain())
         reader = object()  # this reader's key: a topic may have several (the most matched counts)
 
         def matched(event: Any) -> None:
@@ -287,14 +292,15 @@ class RecorderNode(ManagedNode):
         if self.lost_events_supported:
             try:
                 state.subscription = node.create_subscription(
-                    state.msg_class, topic, take, qos, raw=True,
+                    state.msg_class, topic, drain.callback(take), qos, raw=True,
                     event_callbacks=SubscriptionEventCallbacks(message_lost=lost, matched=matched))
             except UnsupportedEventTypeError:  # an RMW without them: sequence gaps remain
                 self.lost_events_supported = False
                 self.get_logger().warning("this RMW reports no message-lost events: losses are counted "
                                           "from sequence gaps only")
         if not self.lost_events_supported:
-            state.subscription = node.create_subscription(state.msg_class, topic, take, qos, raw=True)
+            state.subscription = node.create_subscription(state.msg_class, topic, drain.callback(take), qos, raw=True)
+        drain.add(state.subscription, take)
         state.node = node
         where = "" if node is self else f" through a new DDS participant ({node.get_name()})"
         self.get_logger().info(f"subscribed to {topic} [{conn.msgtype}], depth {qos.depth}{where}")
@@ -311,6 +317,7 @@ class RecorderNode(ManagedNode):
         wanted, current = self._qos(topic), s.subscription.qos_profile
         if s.losses.received == 0 and (wanted.durability, wanted.reliability) != (current.durability,
                                                                                  current.reliability):
+            self.drains[s.node].remove(s.subscription)
             s.node.destroy_subscription(s.subscription)
             s.losses.gaps.last = None
             self._create_subscription(topic, s, wanted, s.node)
