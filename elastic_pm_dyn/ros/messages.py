@@ -218,22 +218,67 @@ class PlantMessages:
         return deserialize_message(self.clock_raw, Clock)
 
 
-class EstimateMessages(StateMessages):
+class EstimateMessages:
     """An observer :class:`~elastic_pm_dyn.observer.core.estimate.Estimate` as the plant's state messages
     (``branch_forces`` with ``force_stddev``) plus ``stddev``: a JointState whose position and
-    velocity hold the 1-sigma standard deviations of every tree joint (effort empty)."""
+    velocity hold the 1-sigma standard deviations of every tree joint (effort empty). Serialized
+    once and refilled in place as :class:`PlantMessages` (:meth:`fill`, then the ``*_raw`` bytes);
+    field by field what :class:`StateMessages` builds from the same estimate."""
 
     def __init__(self, mech: Mechanism, base_frame: str):
-        super().__init__(mech, base_frame)
-        self.stddev = JointState()
-        self.stddev.name = list(mech.joint_names)
+        n, names = mech.n, list(mech.joint_names)
+        branches = [b.name for b in mech.model.branches]
+        nb = len(branches)
+        self._js = SerializedMessage(lambda a: cdr.encode_joint_state(0, names, *a), (n, n, n))
+        self._bf = SerializedMessage(lambda a: cdr.encode_branch_forces(0, branches, *a), (nb, nb, nb, nb))
+        self._pose = SerializedMessage(lambda a: cdr.encode_pose_stamped_batch([0], a[0][:3], base_frame)[0],
+                                       (3,))
+        self._std = SerializedMessage(lambda a: cdr.encode_joint_state(0, names, *a, np.zeros(0)), (n, n))
+        self._ee_unit, self._ee_axes = mech.ee_unit, mech.ee_axes
 
     def fill(self, ns: int, e: Estimate) -> None:
-        self._set(ns, e.q, e.qd, e.effort, e.branch_force, e.deflection, e.deflection_rate, e.ee)
-        self.branch_forces.force_stddev = doubles(e.branch_force_std)
-        self._set_stamp(ns, (self.stddev.header,))
-        self.stddev.position = doubles(e.q_std)
-        self.stddev.velocity = doubles(e.qd_std)
+        sec, nanosec = divmod(ns, NS)
+        for m in (self._js, self._bf, self._pose, self._std):
+            m.set_stamp(sec, nanosec)
+        for view, values in zip((*self._js.arrays, *self._bf.arrays, *self._std.arrays),
+                                (e.q, e.qd, e.effort, e.branch_force, e.deflection, e.deflection_rate,
+                                 e.branch_force_std, e.q_std, e.qd_std), strict=True):
+            view[:] = values
+        self._pose.arrays[0][:] = ee_in_base(e.ee, self._ee_unit, self._ee_axes)
+
+    # What to publish: the bytes of each message as last filled.
+    @property
+    def joint_state_raw(self) -> bytes:
+        return self._js.raw()
+
+    @property
+    def branch_forces_raw(self) -> bytes:
+        return self._bf.raw()
+
+    @property
+    def ee_pose_raw(self) -> bytes:
+        return self._pose.raw()
+
+    @property
+    def stddev_raw(self) -> bytes:
+        return self._std.raw()
+
+    # The same as rclpy messages (decoded from the bytes: for inspection, not for the 1 kHz path).
+    @property
+    def joint_state(self) -> JointState:
+        return deserialize_message(self.joint_state_raw, JointState)
+
+    @property
+    def branch_forces(self) -> BranchForces:
+        return deserialize_message(self.branch_forces_raw, BranchForces)
+
+    @property
+    def ee_pose(self) -> PoseStamped:
+        return deserialize_message(self.ee_pose_raw, PoseStamped)
+
+    @property
+    def stddev(self) -> JointState:
+        return deserialize_message(self.stddev_raw, JointState)
 
 
 def torque_command(kind: str, names: Sequence[str], tau: np.ndarray, ns: int) -> JointState | Float64MultiArray:

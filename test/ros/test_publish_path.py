@@ -161,3 +161,36 @@ def test_lockstep_node_publishes_the_expected_messages() -> None:
         assert all(k in received["clock"] for k in range(1, n + 1))
     finally:
         h.close()
+
+
+@pytest.mark.parametrize("name", ["five_bar", "hexa"])
+def test_estimate_messages_carry_the_estimate_bit_for_bit(name: str) -> None:
+    """The observer's serialized estimate messages decode to the Estimate's own numbers, field by
+    field (an estimate with wrench-free random numbers in every field, an epoch-sized stamp)."""
+    require("rclpy")
+    from elastic_pm_dyn.observer.core.estimate import Estimate
+    from elastic_pm_dyn.ros.messages import EstimateMessages, ee_in_base
+    file, n_ek, _, _ = MACHINES[name]
+    mech = Mechanism(load_model(CONFIG / file, elastic_dof_per_chain=n_ek) if n_ek else load_model(CONFIG / file))
+    rng = np.random.default_rng(11)
+    n, nb, ne = mech.n, len(mech.model.branches), len(mech.ee_names)
+    messages = EstimateMessages(mech, "base")
+    for k in range(3):
+        e = Estimate(0.0, *rng.normal(size=(5, n)), [b.name for b in mech.model.branches], *rng.normal(size=(4, nb)),
+                     rng.normal(size=ne), rng.normal(size=ne), [], np.zeros(0), np.zeros(0), np.zeros(0),
+                     np.zeros((0, 0)))
+        ns = 1_700_000_000 * 10**9 + 987_654_321 + k * 1_000_000
+        messages.fill(ns, e)
+        sec, nanosec = divmod(ns, 10**9)
+        js, bf, pose, std = messages.joint_state, messages.branch_forces, messages.ee_pose, messages.stddev
+        for m in (js, bf, pose, std):
+            assert (m.header.stamp.sec, m.header.stamp.nanosec) == (sec, nanosec)
+        assert list(js.name) == list(std.name) == list(mech.joint_names) and js.header.frame_id == ""
+        assert [_bits(js.position), _bits(js.velocity), _bits(js.effort)] == [_bits(e.q), _bits(e.qd), _bits(e.effort)]
+        assert [_bits(std.position), _bits(std.velocity), len(std.effort)] == [_bits(e.q_std), _bits(e.qd_std), 0]
+        assert list(bf.name) == [b.name for b in mech.model.branches]
+        assert [_bits(bf.force), _bits(bf.force_stddev), _bits(bf.deflection), _bits(bf.deflection_rate)] == [
+            _bits(e.branch_force), _bits(e.branch_force_std), _bits(e.deflection), _bits(e.deflection_rate)]
+        p, o = pose.pose.position, pose.pose.orientation
+        assert pose.header.frame_id == "base" and (o.x, o.y, o.z, o.w) == (0.0, 0.0, 0.0, 1.0)
+        assert _bits([p.x, p.y, p.z]) == _bits(ee_in_base(e.ee, mech.ee_unit, mech.ee_axes))
