@@ -6,6 +6,7 @@ import sys
 
 import numpy as np
 import rclpy
+from rclpy.executors import SingleThreadedExecutor
 from sensor_msgs.msg import JointState
 
 import elastic_pm_dyn as epd
@@ -15,10 +16,8 @@ from elastic_pm_dyn.ros.demos.loop_demo import default_gains  # kp = m w^2, kd =
 MODEL, PERIODS, LISTENERS = (sys.argv[1:] + ["config/five_bar.yaml", "1000", "2"][len(sys.argv) - 1:])[:3]
 mech = epd.Mechanism(epd.load_model(MODEL))
 rest = rest_state(mech)  # the plant's `start: static` pose: hold it
-target, hold, (kp, kd) = rest[mech.active], holding_torques(mech, rest), default_gains(mech)
-motors = list(mech.active_names)
+target, hold, (kp, kd), motors = rest[mech.active], holding_torques(mech, rest), default_gains(mech), mech.active_names
 last = {"ns": -1, "q": None, "left": int(PERIODS)}  # commands to send, then stop
-
 
 def on_encoders(msg: JointState) -> None:
     ns = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
@@ -30,11 +29,12 @@ def on_encoders(msg: JointState) -> None:
     command.publish(JointState(header=msg.header, name=motors, effort=list(hold + kp * (target - q) - kd * qd)))
 
 rclpy.init()
-node = rclpy.create_node("my_controller")
+node, executor = rclpy.create_node("my_controller"), SingleThreadedExecutor()
+executor.add_node(node)  # one executor for the run: rclpy.spin_once(node) adds and removes the node on every call
 command = node.create_publisher(JointState, "torque_command", 10)
 while command.get_subscription_count() < int(LISTENERS):  # plant, observer: discovery takes a moment, and a
-    rclpy.spin_once(node, timeout_sec=0.1)  # command sent before a reader matched is lost to it
+    executor.spin_once(timeout_sec=0.1)  # command sent before a reader matched is lost to it
 node.create_subscription(JointState, "measured_joint_states", on_encoders, 10)
 while last["left"] > 0 and rclpy.ok():
-    rclpy.spin_once(node, timeout_sec=0.1)
+    executor.spin_once(timeout_sec=0.1)
 print(f"{MODEL}: commands sent up to t = {last['ns'] * 1e-9:.3f} s")
