@@ -12,13 +12,17 @@ released as soon as it finishes (the scheduler keeps no result that a dying work
 the result was taken) finds the item complete on disk and returns that record. Attempts are
 counted on disk (``OUT/attempts/``), a hung item ends by its worker's watchdog
 (:mod:`~elastic_pm_dyn.fleet.watchdog`), and every second the engine looks at what each
-worker holds, to log a worker that is gone with its item.
+worker holds, to log a worker that is gone with its item. A worker whose watchdog cannot run
+(SIGSTOPped, wedged in native code) is ended from outside once its item is ``OVERDUE_S`` past
+its limit: SIGKILLed where it runs on this host (its nanny starts a fresh one), else removed
+by the scheduler; either way the scheduler runs the item again or gives it up.
 """
 
 from __future__ import annotations
 
 import contextlib
 import logging
+import threading
 from collections.abc import Callable, Mapping
 from pathlib import Path
 
@@ -32,6 +36,7 @@ from elastic_pm_dyn.fleet.warm import warm_up
 
 OnRecord = Callable[[dict], None]
 LOOK_S = 1.0  # how often the engine looks at the workers (a result that arrives wakes it sooner)
+OVERDUE_S = 10.0  # [s] past an item's limit, its worker's own watchdog has had its chance
 
 
 class DaskEngine:
@@ -80,7 +85,7 @@ class DaskEngine:
             futures = {client.submit(run_item, it, str(out), None, limits.get(it.id), key=f"epd-{it.id}-{it.key}",
                                      pure=False): it for it in items}
             try:
-                _collect(client, futures, out, on_record, retries, watch)
+                _collect(client, futures, out, on_record, retries, watch, limits)
             except BaseException:  # Ctrl-C: cancel what has not finished; finished items stay
                 with contextlib.suppress(Exception):
                     client.cancel(list(futures))
@@ -88,13 +93,14 @@ class DaskEngine:
         store.sweep_items(out)  # every task has ended: what is half-written is a dead worker's
 
 
-def _collect(client, futures: dict, out: Path, on_record: OnRecord, retries: int, watch: Watch) -> None:
+def _collect(client, futures: dict, out: Path, on_record: OnRecord, retries: int, watch: Watch,
+             limits: Mapping[str, float]) -> None:
     """Each record as its task ends (its future released at once); the workers looked at
     every ``LOOK_S``."""
     from distributed import wait
     pending = dict(futures)
     by_key = {str(f.key): it for f, it in pending.items()}
-    workers = _Workers(client, out, watch)
+    workers = _Workers(client, out, watch, limits)
     while pending:
         with contextlib.suppress(TimeoutError):
             wait(list(pending), timeout=LOOK_S, return_when="FIRST_COMPLETED")
@@ -136,20 +142,21 @@ class _Workers:
     gone since is logged with the items it was running (and its half-written folders
     removed); each lost start of an item is told once."""
 
-    def __init__(self, client, out: Path, watch: Watch):
+    def __init__(self, client, out: Path, watch: Watch, limits: Mapping[str, float] | None = None):
         self.client, self.out, self.watch = client, out, watch
+        self.limits = limits or {}
         self.held: dict[str, list[str]] = {}
         self.who: dict[str, str] = {}  # address -> "pid host"
+        self.asked: set[str] = set()  # addresses asked for it
         self.told: set[tuple[str, int]] = set()  # (item, attempt)
 
     def look(self, running: dict[str, Item]) -> None:
         try:
             now = {str(a): [str(k) for k in keys] for a, keys in self.client.processing().items()}
-            new = [a for a in now if a not in self.who]
-            if new:
-                self.who.update({str(a): w for a, w in self.client.run(_whoami, workers=new).items()})
         except Exception:  # the scheduler busy or gone: the next look, or the results, will tell
             return
+        for address in now:
+            self._ask_who(address)
         for address, keys in self.held.items():
             if address not in now:
                 for key in keys:
@@ -157,6 +164,47 @@ class _Workers:
                         self._lost(address, running[key])
         self.held = now
         self.watch.running(sum(len(k) for k in now.values()))
+        for address, keys in now.items():
+            for key in keys:
+                if key in running:
+                    self._end_if_overdue(address, running[key])
+
+    def _ask_who(self, address: str) -> None:
+        """Learn a new worker's process, in a thread of its own: a stopped worker never answers,
+        and the looks (which end it when it is overdue) must go on meanwhile."""
+        if address in self.asked:
+            return
+        self.asked.add(address)
+
+        def ask() -> None:
+            with contextlib.suppress(Exception):  # gone or stopped: its items' start lines still name it
+                self.who.update({str(a): w for a, w in self.client.run(_whoami, workers=[address]).items()})
+        threading.Thread(target=ask, name=f"who is {address}", daemon=True).start()
+
+    def _end_if_overdue(self, address: str, item: Item) -> None:
+        """End the worker of an item ``OVERDUE_S`` past its limit (its watchdog did not fire)."""
+        import os
+        import signal
+        import time
+        limit, since = self.limits.get(item.id), store.running_since(self.out, item)
+        if limit is None or since is None or time.time() - since < limit + OVERDUE_S:
+            return
+        store.note_timeout(self.out, item, limit)  # its row says timed out, as the watchdog's would
+        starts = store.attempts(self.out, item)
+        who = starts[-1]
+        self.told.add((item.id, len(starts)))  # this line says it; the worker's loss needs no second one
+        pid, _, host = who.partition(" ")
+        if host == _whoami().split(" ", 1)[1] and pid.isdigit():
+            with contextlib.suppress(OSError):
+                os.kill(int(pid), signal.SIGKILL)  # a stopped process dies too; its nanny starts a fresh one
+            how = "killed"
+        else:
+            with contextlib.suppress(Exception):
+                self.client.run_on_scheduler(_remove_worker, address)
+            how = "removed from the scheduler"
+        self.watch.say(f"elastic-pm-dyn: worker {address} (pid {who.replace(' ', ' on ', 1)}) {how}: item {item.id} "
+                       f"ran {limit + OVERDUE_S:g} s past its start, {OVERDUE_S:g} s over its {limit:g} s limit, and "
+                       "its own watchdog did not end it (a stopped or wedged worker)")
 
     def _lost(self, address: str, item: Item) -> None:
         starts = store.attempts(self.out, item)
@@ -164,6 +212,8 @@ class _Workers:
         if not mine:  # queued there and never started, or a worker not seen yet: its record tells
             return
         attempt = mine[-1]
+        if (item.id, attempt) in self.told:  # said already (ended from outside when overdue)
+            return
         self.told.add((item.id, attempt))
         pid = int(starts[attempt - 1].split()[0])
         if starts[attempt - 1].split(" ", 1)[1] == _whoami().split(" ", 1)[1]:  # a pid of this host
@@ -181,6 +231,11 @@ class _Workers:
                 self.told.add((item.id, n))
                 self.watch.say(f"elastic-pm-dyn: worker pid {line.replace(' ', ' on ', 1)} was lost holding item "
                                f"{item.id} (attempt {n})")
+
+
+async def _remove_worker(address: str, dask_scheduler=None) -> None:
+    """On the scheduler: forget a worker that does not answer; its tasks go to the others."""
+    await dask_scheduler.remove_worker(address=address, stimulus_id="elastic-pm-dyn-item-overdue", close=False)
 
 
 def engine(cluster: str | None = None, workers: int | None = None) -> LocalPool | DaskEngine:

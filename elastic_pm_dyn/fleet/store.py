@@ -126,6 +126,17 @@ def timed_out(out: Path, item: Item) -> float | None:
     return float(last.split()[1]) if last.startswith("timeout") else None
 
 
+def running_since(out: Path, item: Item) -> float | None:
+    """When ``item``'s last attempt started (epoch seconds) if it has not ended by a watchdog, else None."""
+    path = _attempts_path(out, item)
+    try:
+        lines = path.read_text().splitlines()
+        started = path.stat().st_mtime  # the last line written: that start
+    except OSError:
+        return None
+    return started if lines and not lines[-1].startswith("timeout") else None
+
+
 def last_pid(out: Path, item: Item) -> int | None:
     """The process of ``item``'s last start on this host (another host's pid means nothing here)."""
     for line in reversed(attempts(out, item)):

@@ -320,3 +320,36 @@ def test_an_item_timeout_on_dask_ends_the_item_by_its_watchdog(fleet_long, tmp_p
                 progress=False, plots_on=False)
     bad = res.records[0]
     assert bad["status"] == "failed" and bad["error"].startswith("timed out after 3 s, 1 time(s)"), bad["error"]
+
+
+def test_a_stopped_dask_worker_is_ended_from_outside_and_its_item_runs_again(fleet_long, bags, one_by_one,  # noqa: F811
+                                                                             tmp_path) -> None:
+    """A SIGSTOPped worker runs no watchdog: the engine kills it OVERDUE_S past its item's limit
+    (the worker is on this host), the scheduler gives the item to a fresh worker, and the batch
+    ends by itself with every item once."""
+    pytest.importorskip("distributed", reason="Dask distributed not installed (extra 'batch')")
+    from elastic_pm_dyn.fleet.engines import OVERDUE_S
+    inputs = tmp_path / "in"
+    for k in range(3):
+        shutil.copytree(bags / f"robot{k}", inputs / f"r{k}")
+    out = tmp_path / "out"
+    thread, hit = _tamper(out, {"r1": signal.SIGSTOP})
+    lines: list[str] = []
+    try:
+        res = batch("observe", [inputs], out, model=MODEL, options=OPTIONS, cluster="local:2", item_timeout_s=LIMIT_S,
+                    progress=False, plots_on=False, log=lines.append)
+    finally:
+        thread.stop.set()
+        for pid in hit.values():
+            with contextlib.suppress(OSError):
+                os.kill(pid, signal.SIGKILL)
+    assert hit, "the item finished before it could be stopped"
+    assert res.counts["ok"] == 3 and res.counts["failed"] == 0
+    assert {r["id"]: r["attempt"] for r in res.records} == {"r0": 1, "r1": 2, "r2": 1}
+    told = [ln for ln in lines if "item r1" in ln]
+    assert len(told) == 1 and f"(pid {hit['r1']} on" in told[0] and "killed" in told[0], lines
+    assert f"{OVERDUE_S:g} s over its {LIMIT_S:g} s limit" in told[0]
+    for k in range(3):
+        assert (out / "items" / f"r{k}" / "estimates.csv").read_bytes() == \
+            (one_by_one / f"robot{k}" / "estimates.csv").read_bytes()
+    assert not list((out / "items").glob(".*.tmp"))
