@@ -322,13 +322,18 @@ def test_an_item_timeout_on_dask_ends_the_item_by_its_watchdog(fleet_long, tmp_p
     assert bad["status"] == "failed" and bad["error"].startswith("timed out after 3 s, 1 time(s)"), bad["error"]
 
 
+@pytest.mark.parametrize("where", ["this host", "another host"])
 def test_a_stopped_dask_worker_is_ended_from_outside_and_its_item_runs_again(fleet_long, bags, one_by_one,  # noqa: F811
-                                                                             tmp_path) -> None:
-    """A SIGSTOPped worker runs no watchdog: the engine kills it OVERDUE_S past its item's limit
-    (the worker is on this host), the scheduler gives the item to a fresh worker, and the batch
-    ends by itself with every item once."""
+                                                                             tmp_path, monkeypatch, where) -> None:
+    """A SIGSTOPped worker runs no watchdog: OVERDUE_S past its item's limit the engine kills it
+    (on this host) or has the scheduler remove it (a worker on another host: the batch takes its
+    own host for another here), another worker runs the item, and the batch ends by itself with
+    every item once."""
     pytest.importorskip("distributed", reason="Dask distributed not installed (extra 'batch')")
+    from elastic_pm_dyn.fleet import engines
     from elastic_pm_dyn.fleet.engines import OVERDUE_S
+    if where == "another host":
+        monkeypatch.setattr(engines, "_whoami", lambda: f"{os.getpid()} elsewhere")  # in this process only
     inputs = tmp_path / "in"
     for k in range(3):
         shutil.copytree(bags / f"robot{k}", inputs / f"r{k}")
@@ -347,7 +352,8 @@ def test_a_stopped_dask_worker_is_ended_from_outside_and_its_item_runs_again(fle
     assert res.counts["ok"] == 3 and res.counts["failed"] == 0
     assert {r["id"]: r["attempt"] for r in res.records} == {"r0": 1, "r1": 2, "r2": 1}
     told = [ln for ln in lines if "item r1" in ln]
-    assert len(told) == 1 and f"(pid {hit['r1']} on" in told[0] and "killed" in told[0], lines
+    how = "killed" if where == "this host" else "removed from the scheduler"
+    assert len(told) == 1 and f"(pid {hit['r1']} on" in told[0] and how in told[0], lines
     assert f"{OVERDUE_S:g} s over its {LIMIT_S:g} s limit" in told[0]
     for k in range(3):
         assert (out / "items" / f"r{k}" / "estimates.csv").read_bytes() == \
