@@ -3,8 +3,8 @@
 rclpy's executor spends 100-270 us on each message it hands to a callback (it rebuilds its wait
 set over every entity of the node: parameter services, timers, events, for each message), while
 taking a message from a subscription directly costs 3-12 us (raw bytes) to 14-50 us (a message
-object; quiet and loaded machine, ``bench/benchmarks/bench_take.py``). At the loop's rate that is the difference between a node
-that keeps up and one that falls behind: the observer reads three messages a period, the
+object; quiet and loaded machine, ``bench/benchmarks/bench_take.py``). At the loop's rate that is
+the difference between a node that keeps up and one that falls behind: the observer reads three messages a period, the
 recorder a dozen. So the executor only wakes the node for the first message; the callback then
 takes whatever else is queued on the node's drained subscriptions itself, one message per
 subscription per round (as a wait set yields each ready subscription once: arrival order across

@@ -71,6 +71,6 @@ def test_a_turn_takes_at_most_max_per_turn(harness: RosHarness) -> None:
 
 def test_a_destroyed_subscription_is_skipped(harness: RosHarness) -> None:
     _, got, _, reader = _wire(harness, max_per_turn=1000)
-    reader.destroy_subscription(list(reader.subscriptions)[1])  # behind the drain's back (a node resubscribing removes it)
+    reader.destroy_subscription(list(reader.subscriptions)[1])  # behind the drain's back
     harness.executor.spin_once(timeout_sec=5.0)
     assert got["a"] == list(range(N)) and got["b"] == []
