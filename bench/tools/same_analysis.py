@@ -1,6 +1,6 @@
 """Byte-for-byte: every output of ``analyze`` (and ``paper-figures``) of this tree against another commit's.
 
-    .venv/bin/python bench/tools/same_analysis.py --base HEAD~3
+    .venv/bin/python bench/tools/same_analysis.py                    # against the commit before the analysis was typed
     .venv/bin/python bench/tools/same_analysis.py --base-tree /tmp/wt-base --keep /tmp/same-analysis
 
 The bags are written once, by this tree, with the test fixtures (``test/bag_factory.py``):
@@ -31,6 +31,7 @@ import tempfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
+BASE = "ccc0239"  # the commit before the analysis was typed from the start (issue #39 item 4)
 EPOCH = 1_765_000_000.0  # [s] header stamp of the manoeuvre start in the epoch-stamped bag
 
 # label: (bags, extra arguments of analyze)
@@ -190,7 +191,7 @@ def differences(a: Path, b: Path) -> tuple[list[str], int]:
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--base", default="HEAD", help="commit to compare with (default HEAD)")
+    ap.add_argument("--base", default=BASE, help=f"commit to compare with (default {BASE})")
     ap.add_argument("--base-tree", type=Path, help="an existing checkout of the base (instead of --base)")
     ap.add_argument("--keep", type=Path, help="folder for the inputs and both outputs (default: a temporary one)")
     args = ap.parse_args()
