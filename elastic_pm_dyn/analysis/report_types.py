@@ -85,14 +85,14 @@ class Part:
     fields are cleaned (:func:`clean`) once, in ``__post_init__``, and the key paths of
     the numbers that were not finite kept in ``non_finite``."""
 
-    _KEEP_NAN: ClassVar[tuple[str, ...]] = ()  # fields whose NaN means something (kept, null in JSON)
+    _KEEP_NAN: ClassVar[tuple[str, ...]] = ()  # fields where not finite means something: NaN (null in JSON)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "_non_finite", [p for k, v in self._items().items() for p in non_finite(v, k)])
         for f in fields(self):
             v = getattr(self, f.name)
             if f.name in self._KEEP_NAN and v is not None:
-                object.__setattr__(self, f.name, math.nan if math.isnan(v) else float(v))
+                object.__setattr__(self, f.name, float(v) if math.isfinite(v) else math.nan)
             else:
                 object.__setattr__(self, f.name, clean(v))
 

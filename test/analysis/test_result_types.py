@@ -109,6 +109,7 @@ def test_parts_are_json_ready_when_made_and_name_what_was_not_finite() -> None:
     assert gap.final_m is None and math.isnan(gap.at_hold_start_m)
     assert gap.non_finite == ["final_m", "at_hold_start_m"]
     assert gap.to_dict() == {"source": "g", "max_m": 1e-6, "t_max_s": 0.1, "final_m": None, "at_hold_start_m": None}
+    assert Gap("g", 1.0, 0.1, 1.0, at_hold_start_m=math.inf).to_dict()["at_hold_start_m"] is None  # as NaN
     run = RunMetrics(label="x", time_zero=TimeZero(np.float64(2.0), "first stamp"), hold_phase=HoldPhase(0.2, "h"),
                      path=None, vibration={"left": Note("constant")}, command_age={"from_stamps": {"max_s": np.nan}},
                      streams={}, warnings=["w"], gap=gap, torques=torques, diagnostics={"values": np.array([1, 2])})
