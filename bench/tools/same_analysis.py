@@ -7,7 +7,8 @@ The bags are written once, by this tree, with the test fixtures (``test/bag_fact
 the reference run (mcap), a second run (sqlite3 without definitions, Float64MultiArray
 commands), an epoch-stamped run (header stamps near 1.77e9 s), a run with the observer's wrench
 topics (estimate, standard deviations, the plant's truth, contact events), a run with infinite and
-NaN efforts, one with NaN joint states around the hold start and a branch force all NaN (metrics
+NaN efforts, one whose plant reports infinite and NaN closure gaps and command ages (and has no
+joint states), one with NaN joint states around the hold start and a branch force all NaN (metrics
 that are NaN or infinite: null in JSON, named in the warnings, null differences), and a run of
 joint states and commands only. Each tree's own code (the other in a
 ``git worktree``, run through ``PYTHONPATH``) then analyses them: one bag, two and three side by
@@ -45,6 +46,8 @@ ANALYSES: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "non_finite_plots": (("non_finite_mcap",), ()),
     "nan": (("nan_mcap",), ()),
     "two_nan": (("ref_mcap", "nan_mcap"), ("--no-plots",)),
+    "inf": (("inf_mcap",), ()),
+    "two_inf": (("ref_mcap", "inf_mcap"), ()),
     "partial": (("partial_sqlite",), ()),
     "partial_hold": (("partial_sqlite",), ("--hold-start", "0.2", "--no-plots")),
     "decimated": (("ref_mcap",), ("--max-samples", "200", "--window-samples", "800")),
@@ -104,6 +107,23 @@ def _wrench_messages(run: object, ts: object) -> list:
     return out
 
 
+def _infinite_diagnostics(messages: list, m: object) -> list:
+    """Without joint states (the gap from the plant's diagnostics); the plant reports an infinite closure
+    gap at the hold start (0.2 s), a NaN one at the end and an infinite command age once."""
+    from elastic_pm_dyn.bags.msgtypes import DIAGNOSTIC_ARRAY
+
+    out = []
+    for topic, msgtype, t_ns, msg in messages:
+        if topic == "/joint_states":
+            continue
+        if msgtype == DIAGNOSTIC_ARRAY:
+            t = round(msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9 - 1000.0, 6)
+            gap = {0.2: "inf", 0.5: "nan"}.get(t, "1e-9")
+            msg = m.diagnostics(t, {"command_age_s": "inf" if t == 0.3 else "0.001", "closure_gap_m": gap})
+        out.append((topic, msgtype, t_ns, msg))
+    return out
+
+
 def make_bags(inputs: Path) -> None:
     """The input bags (see module doc), written by this tree's test fixtures."""
     from dataclasses import replace
@@ -141,6 +161,7 @@ def make_bags(inputs: Path) -> None:
     q[200:203] = np.nan  # around the hold start: NaN gap there
     forces[:, 1] = np.nan  # one branch all NaN: NaN and infinite metrics
     bag("nan_mcap", run_messages(replace(run, q=q, forces=forces), ts))
+    bag("inf_mcap", _infinite_diagnostics(run_messages(run, ts), bag_factory.Messages(ts)))
     bag("partial_sqlite", run_messages(run, ts, topics={"/joint_states", "/torque_command"}), "sqlite3")
 
 
