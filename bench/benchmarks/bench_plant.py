@@ -64,10 +64,10 @@ def run_realtime(duration: float, log_dir: Path, domain: int) -> dict:
     step = [float(d["step_time_mean_us"]) for d in diags]
     cycle = [float(d["cycle_time_mean_us"]) for d in diags]
     return {
-        "window_s": duration, "received": stats["count"], "rate_hz": stats["rate"],
-        "mean_rate_hz": (stats["count"] - 1) / stats["duration"], "period_std_ms": stats["period_std"] * 1e3,
-        "period_p99_ms": stats["period_p99"] * 1e3, "period_max_ms": stats["period_max"] * 1e3,
-        "gaps_over_2_periods": stats["gaps"], "step_time_mean_us": float(np.median(step)),
+        "window_s": duration, "received": stats.count, "rate_hz": stats.rate,
+        "mean_rate_hz": (stats.count - 1) / stats.duration, "period_std_ms": stats.period_std * 1e3,
+        "period_p99_ms": stats.period_p99 * 1e3, "period_max_ms": stats.period_max * 1e3,
+        "gaps_over_2_periods": stats.gaps, "step_time_mean_us": float(np.median(step)),
         "step_time_max_us": max(float(d["step_time_max_us"]) for d in diags),
         "cycle_time_mean_us": float(np.median(cycle)),
         "cycle_time_max_us": max(float(d["cycle_time_max_us"]) for d in diags),

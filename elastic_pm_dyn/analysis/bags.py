@@ -32,6 +32,7 @@ from typing import Any
 
 import numpy as np
 
+from elastic_pm_dyn.analysis.metrics import StreamTiming
 from elastic_pm_dyn.analysis.streams import HoldDetector, SampleBuffer, StreamTimer, WindowBuffer
 from elastic_pm_dyn.bags.errors import BagError
 from elastic_pm_dyn.bags.msgtypes import (
@@ -80,8 +81,9 @@ class TopicSeries:
     (both relative to the origins in :class:`BagData`).
     ``count`` messages were read; ``stride`` > 1 means only every stride-th is in the
     arrays (then ``window`` holds full-rate rows). ``peak_lo``/``peak_hi`` are exact
-    per-column minima/maxima over all messages; ``timing`` follows
-    :func:`metrics.stream_stats` (over ``t``), ``timing_receive`` over receive times.
+    per-column minima/maxima over all messages; ``timing`` is a
+    :class:`~elastic_pm_dyn.analysis.metrics.StreamTiming` over ``t``, ``timing_receive`` over
+    receive times (None in a ``window``).
     """
 
     topic: str
@@ -93,8 +95,8 @@ class TopicSeries:
     count: int
     stride: int
     stamp_source: str  # "header" or "receive"
-    timing: dict
-    timing_receive: dict
+    timing: StreamTiming | None
+    timing_receive: StreamTiming | None
     peak_lo: dict[str, np.ndarray]
     peak_hi: dict[str, np.ndarray]
     window: TopicSeries | None = None
@@ -324,7 +326,7 @@ class _TopicReader:
         fields = {f: rows[:, 2 + k * n : 2 + (k + 1) * n].copy() for k, f in enumerate(self.fields)}
         return TopicSeries(self.topic, self.msgtype, list(self.names), t.copy(), rows[:, 1].copy(), fields,
                            count=len(rows), stride=1, stamp_source="header" if use_header else "receive",
-                           timing={}, timing_receive={}, peak_lo={}, peak_hi={})
+                           timing=None, timing_receive=None, peak_lo={}, peak_hi={})
 
     def arm(self, start: float) -> None:
         if self.window is not None:

@@ -1,8 +1,9 @@
 """Numerical metrics of a run: path deviation, residual vibration, spectra, timing.
 
 All inputs are plain numpy arrays in SI units (s, m, N, Hz); nothing here knows
-about ROS, bags or the model. Functions return floats, arrays or dicts of them so
-that a caller can dump the result to JSON after converting the arrays.
+about ROS, bags or the model. Functions return floats, arrays or typed results
+(:class:`PathDeviation`, :class:`DampedSinusoid`, :class:`StreamTiming`) whose fields say
+what each number is.
 """
 
 from __future__ import annotations
@@ -117,7 +118,22 @@ def project_to_polyline(p: ArrayLike, poly: ArrayLike) -> tuple[FloatArray, Floa
     return dist[first], s
 
 
-def path_deviation(t: ArrayLike, p: ArrayLike, p_ref: ArrayLike) -> dict:
+@dataclass(frozen=True)
+class PathDeviation:
+    """Deviation of an end-effector path from a reference [m] (:func:`path_deviation`)."""
+
+    euclidean: FloatArray  # |p(t_k) - p_ref(t_k)| per sample (time-matched: contains lag along the path)
+    perpendicular: FloatArray  # distance of p(t_k) from the reference path as a curve, per sample
+    max: float  # of euclidean
+    rms: float
+    t_max: float  # [s] where euclidean is largest
+    perpendicular_max: float
+    perpendicular_rms: float
+    final_error: float  # euclidean at the last sample
+    final_error_vector: FloatArray  # p - p_ref at the last sample
+
+
+def path_deviation(t: ArrayLike, p: ArrayLike, p_ref: ArrayLike) -> PathDeviation:
     """Deviation of an end-effector path ``p`` from a reference ``p_ref`` [m].
 
     ``p`` and ``p_ref`` are N x 2 or N x 3, sampled at the same times ``t`` [s].
@@ -128,10 +144,9 @@ def path_deviation(t: ArrayLike, p: ArrayLike, p_ref: ArrayLike) -> dict:
       (polyline through ``p_ref``, clipped to its segments); lag along the path
       does not count, only leaving the path does.
 
-    Returns a dict with ``euclidean`` and ``perpendicular`` (time series),
-    ``max``, ``rms``, ``t_max`` (Euclidean), ``perpendicular_max``,
-    ``perpendicular_rms``, ``final_error`` (Euclidean at the last sample) and
-    ``final_error_vector`` (p - p_ref at the last sample).
+    Returns a :class:`PathDeviation`: both time series, ``max``, ``rms``, ``t_max``
+    (Euclidean), ``perpendicular_max``, ``perpendicular_rms``, ``final_error`` (Euclidean
+    at the last sample) and ``final_error_vector`` (p - p_ref at the last sample).
     """
     t = np.asarray(t, dtype=float)
     pts = _as_points(p, "p")
@@ -144,17 +159,9 @@ def path_deviation(t: ArrayLike, p: ArrayLike, p_ref: ArrayLike) -> dict:
     eucl = np.linalg.norm(err, axis=1)
     perp, _ = project_to_polyline(pts, ref)
     k = int(np.argmax(eucl))
-    return {
-        "euclidean": eucl,
-        "perpendicular": perp,
-        "max": float(eucl[k]),
-        "rms": rms(eucl),
-        "t_max": float(t[k]),
-        "perpendicular_max": float(perp.max()),
-        "perpendicular_rms": rms(perp),
-        "final_error": float(eucl[-1]),
-        "final_error_vector": err[-1].copy(),
-    }
+    return PathDeviation(euclidean=eucl, perpendicular=perp, max=float(eucl[k]), rms=rms(eucl), t_max=float(t[k]),
+                         perpendicular_max=float(perp.max()), perpendicular_rms=rms(perp),
+                         final_error=float(eucl[-1]), final_error_vector=err[-1].copy())
 
 
 def alias_frequency(f: float, fs: float) -> float:
@@ -451,10 +458,29 @@ def residual_vibration(
         warnings=warnings)
 
 
-def stream_stats(stamps: ArrayLike) -> dict:
+@dataclass(frozen=True)
+class StreamTiming:
+    """Timing statistics of a message stream [s, Hz] (:func:`stream_stats`, ``StreamTimer.stats``)."""
+
+    count: int  # stamps
+    duration: float  # last - first (NaN without stamps)
+    rate: float  # 1 / median period (NaN with fewer than two stamps)
+    period_median: float
+    period_mean: float
+    period_std: float
+    period_p99: float
+    period_max: float
+    gaps: int  # inter-arrival times above twice the median period
+    longest_gap: float  # = period_max
+    longest_gap_at: float  # stamp where it starts
+    out_of_order: int  # stamps earlier than their predecessor
+    exact: bool = True  # False: median, p99 and gaps from a histogram of the periods (long streams)
+
+
+def stream_stats(stamps: ArrayLike) -> StreamTiming:
     """Timing statistics of a message stream from its time stamps [s].
 
-    Returns ``count``, ``duration`` [s], ``rate`` [Hz] (1 / median period),
+    Returns a :class:`StreamTiming`: ``count``, ``duration`` [s], ``rate`` [Hz] (1 / median period),
     ``period_median``, ``period_mean``, ``period_std``, ``period_p99``,
     ``period_max`` [s], ``gaps`` (number of inter-arrival times above twice the
     median period), ``longest_gap`` [s] (= period_max), ``longest_gap_at`` (stamp where it
@@ -466,34 +492,16 @@ def stream_stats(stamps: ArrayLike) -> dict:
     out_of_order = int(np.count_nonzero(np.diff(s) < 0.0))
     s = np.sort(s)
     nan = float("nan")
-    result = {
-        "count": len(s),
-        "duration": float(s[-1] - s[0]) if len(s) else nan,
-        "rate": nan,
-        "period_median": nan,
-        "period_mean": nan,
-        "period_std": nan,
-        "period_p99": nan,
-        "period_max": nan,
-        "gaps": 0,
-        "longest_gap": nan,
-        "longest_gap_at": nan,
-        "out_of_order": out_of_order,
-    }
+    duration = float(s[-1] - s[0]) if len(s) else nan
     if len(s) < 2:
-        return result
+        return StreamTiming(count=len(s), duration=duration, rate=nan, period_median=nan, period_mean=nan,
+                            period_std=nan, period_p99=nan, period_max=nan, gaps=0, longest_gap=nan,
+                            longest_gap_at=nan, out_of_order=out_of_order)
     dt = np.diff(s)
     med = float(np.median(dt))
     k = int(np.argmax(dt))
-    result.update(
-        rate=1.0 / med if med > 0.0 else float("inf"),
-        period_median=med,
-        period_mean=float(dt.mean()),
-        period_std=float(dt.std()),
-        period_p99=float(np.percentile(dt, 99)),
-        period_max=float(dt[k]),
-        gaps=int(np.count_nonzero(dt > 2.0 * med)),
-        longest_gap=float(dt[k]),
-        longest_gap_at=float(s[k]),
-    )
-    return result
+    return StreamTiming(count=len(s), duration=duration, rate=1.0 / med if med > 0.0 else float("inf"),
+                        period_median=med, period_mean=float(dt.mean()), period_std=float(dt.std()),
+                        period_p99=float(np.percentile(dt, 99)), period_max=float(dt[k]),
+                        gaps=int(np.count_nonzero(dt > 2.0 * med)), longest_gap=float(dt[k]),
+                        longest_gap_at=float(s[k]), out_of_order=out_of_order)

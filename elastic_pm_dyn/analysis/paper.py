@@ -15,8 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from elastic_pm_dyn.analysis.report import PLOT_NAMES, clean, write_report
-from elastic_pm_dyn.analysis.report_types import AnalysisReport
+from elastic_pm_dyn.analysis.report import PLOT_NAMES, write_report
+from elastic_pm_dyn.analysis.report_types import AnalysisReport, clean
 from elastic_pm_dyn.analysis.run_data import ModelInfo, RunData, run_from_simulation
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.model.description import Model

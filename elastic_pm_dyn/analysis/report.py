@@ -1,9 +1,12 @@
 """Metrics of runs, side by side: summary.json, summary.md and the PNG plots.
 
-:func:`run_metrics` reduces a :class:`RunData` to numbers (path deviation, final error,
+:func:`run_metrics` reduces a :class:`RunData` to its typed numbers, a
+:class:`~elastic_pm_dyn.analysis.report_types.RunMetrics` (path deviation, final error,
 branch-force peaks, residual vibration of the hold phase, closure gap, torques, stream
-timing, command age); :func:`write_report` writes them for one run or several (the
-first is the baseline of the differences) with the plots of :mod:`plots`.
+timing, command age); :func:`compare` gives the differences of two runs (a ``Comparison``);
+:func:`write_report` makes the report of one run or several (the first is the baseline of
+the differences) from them, with the plots of :mod:`plots`, and writes its ``to_dict()``
+(summary.json) and summary.md.
 :func:`analyze` is ``elastic-pm-dyn analyze``: bags in, report out (an
 :class:`~elastic_pm_dyn.analysis.report_types.AnalysisReport`, summary.json as objects).
 """
@@ -18,7 +21,19 @@ from pathlib import Path
 import numpy as np
 
 from elastic_pm_dyn.analysis import metrics, plots
-from elastic_pm_dyn.analysis.report_types import AnalysisReport
+from elastic_pm_dyn.analysis.report_types import (
+    AnalysisReport,
+    BranchForces,
+    Comparison,
+    Gap,
+    HoldPhase,
+    Note,
+    PathMetrics,
+    RunMetrics,
+    TimeZero,
+    Torques,
+    VibrationFit,
+)
 from elastic_pm_dyn.analysis.run_data import ModelInfo, RunData
 from elastic_pm_dyn.errors import InputError
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
@@ -41,7 +56,7 @@ def _finite_rows(*arrays: np.ndarray) -> np.ndarray:
     return ok
 
 
-def path_metrics(run: RunData) -> dict | None:
+def path_metrics(run: RunData) -> PathMetrics | Note | None:
     """Deviation of the end effector from the reference, on the states inside the reference's span."""
     if run.ee is None or run.t is None:
         return None
@@ -50,15 +65,14 @@ def path_metrics(run: RunData) -> dict | None:
         return None
     ok = _finite_rows(run.ee, ref) & (run.t >= run.t_ref.min() - 1e-9) & (run.t <= run.t_ref.max() + 1e-9)
     if ok.sum() < 2:
-        return {"note": "joint states and reference do not overlap in time"}
+        return Note("joint states and reference do not overlap in time")
     dev = metrics.path_deviation(run.t[ok], run.ee[ok], ref[ok])
-    return {
-        "max_error_m": dev["max"], "rms_error_m": dev["rms"], "t_max_error_s": dev["t_max"],
-        "max_path_deviation_m": dev["perpendicular_max"], "rms_path_deviation_m": dev["perpendicular_rms"],
-        "final_position_error_m": dev["final_error"], "final_error_vector_m": dev["final_error_vector"].tolist(),
-        "samples": int(ok.sum()), "compared_from_s": float(run.t[ok][0]), "compared_to_s": float(run.t[ok][-1]),
-        "actual": run.ee_source, "reference": run.ee_ref_source,
-    }
+    return PathMetrics(
+        max_error_m=dev.max, rms_error_m=dev.rms, t_max_error_s=dev.t_max, max_path_deviation_m=dev.perpendicular_max,
+        rms_path_deviation_m=dev.perpendicular_rms, final_position_error_m=dev.final_error,
+        final_error_vector_m=dev.final_error_vector.tolist(), samples=int(ok.sum()),
+        compared_from_s=float(run.t[ok][0]), compared_to_s=float(run.t[ok][-1]), actual=run.ee_source,
+        reference=run.ee_ref_source)
 
 
 def _f_hint(natural_hz: Sequence[float]) -> float | None:
@@ -66,29 +80,29 @@ def _f_hint(natural_hz: Sequence[float]) -> float | None:
     return float(np.median(natural_hz)) if len(natural_hz) else None
 
 
-def vibration_metrics(run: RunData, natural_hz: Sequence[float]) -> dict:
-    """Damped-sinusoid fit of each branch force in the hold phase (see metrics.residual_vibration)."""
+def vibration_metrics(run: RunData, natural_hz: Sequence[float]) -> dict[str, VibrationFit | Note]:
+    """Damped-sinusoid fit of each branch force in the hold phase (see metrics.residual_vibration), by branch."""
     if run.hold_start is None or run.t_vib is None:
         return {}
-    out = {}
+    out: dict[str, VibrationFit | Note] = {}
     for b, f in run.forces_vib.items():
         ok = _finite_rows(f) & (run.t_vib >= run.hold_start)
         if ok.sum() < 10:
-            out[b] = {"note": f"only {int(ok.sum())} samples after the hold start {run.hold_start:.4g} s"}
+            out[b] = Note(f"only {int(ok.sum())} samples after the hold start {run.hold_start:.4g} s")
             continue
         if np.ptp(f[ok]) <= 1e-12 * max(1.0, float(np.abs(f[ok]).max())):
-            out[b] = {"note": "constant in the hold phase: no vibration to fit"}
+            out[b] = Note("constant in the hold phase: no vibration to fit")
             continue
         try:
             v = metrics.residual_vibration(run.t_vib[ok], f[ok], run.hold_start, f_hint=_f_hint(natural_hz))
         except ValueError as err:
-            out[b] = {"note": str(err)}
+            out[b] = Note(str(err))
             continue
         nearest = min(natural_hz, key=lambda fn: abs(fn - v.f_d)) if len(natural_hz) else None
-        out[b] = {"f_d_hz": v.f_d, "f_n_hz": v.f_n, "zeta": v.zeta, "amplitude_N": v.amplitude,
-                  "decay_rate_1_s": v.sigma, "offset_N": v.offset, "f_apparent_hz": v.f_apparent,
-                  "aliased": v.aliased, "sample_rate_hz": v.fs, "samples": v.n_samples,
-                  "residual_rms_N": v.residual_rms, "model_f_n_hz": nearest, "warnings": v.warnings}
+        out[b] = VibrationFit(f_d_hz=v.f_d, f_n_hz=v.f_n, zeta=v.zeta, amplitude_N=v.amplitude, decay_rate_1_s=v.sigma,
+                              offset_N=v.offset, f_apparent_hz=v.f_apparent, aliased=v.aliased, sample_rate_hz=v.fs,
+                              samples=v.n_samples, residual_rms_N=v.residual_rms, model_f_n_hz=nearest,
+                              warnings=v.warnings)
     return out
 
 
@@ -97,58 +111,61 @@ def _value_at(t: np.ndarray, x: np.ndarray, at: float) -> float:
     return float(x[k])
 
 
-def run_metrics(run: RunData, natural_hz: Sequence[float]) -> dict:
-    """All numbers of one run (JSON-ready after :func:`clean`)."""
-    m: dict = {"label": run.label, "time_zero": {"stamp_s": run.t0, "from": run.t0_source},
-               "hold_phase": {"start_s": run.hold_start, "from": run.hold_source or None}}
-    if run.bag:
-        m["bag"] = run.bag
-    m["path"] = path_metrics(run)
+def _gap(run: RunData) -> Gap | None:
+    if run.gap is None or not np.isfinite(run.gap).any():
+        return None
+    g = run.gap
+    k = int(np.nanargmax(g))
+    return Gap(source=run.gap_source, max_m=float(g[k]), t_max_s=float(run.t_gap[k]), final_m=float(g[-1]),
+               at_hold_start_m=None if run.hold_start is None else _value_at(run.t_gap, g, run.hold_start))
+
+
+def run_metrics(run: RunData, natural_hz: Sequence[float]) -> RunMetrics:
+    """All numbers of one run."""
+    branch_forces = torques = None
     if run.forces:
-        m["branch_forces"] = {"source": run.force_source, "peak_N": run.peak_force,
-                              "max_N": {b: float(np.nanmax(f)) for b, f in run.forces.items()},
-                              "min_N": {b: float(np.nanmin(f)) for b, f in run.forces.items()}}
-    m["vibration"] = vibration_metrics(run, natural_hz)
-    if run.gap is not None and np.isfinite(run.gap).any():
-        g = run.gap
-        k = int(np.nanargmax(g))
-        m["gap"] = {"source": run.gap_source, "max_m": float(g[k]), "t_max_s": float(run.t_gap[k]),
-                    "final_m": float(g[-1])}
-        if run.hold_start is not None:
-            m["gap"]["at_hold_start_m"] = _value_at(run.t_gap, g, run.hold_start)
+        branch_forces = BranchForces(source=run.force_source, peak_N=run.peak_force,
+                                     max_N={b: float(np.nanmax(f)) for b, f in run.forces.items()},
+                                     min_N={b: float(np.nanmin(f)) for b, f in run.forces.items()})
+    vibration = vibration_metrics(run, natural_hz)
     bad_torques = {}
     if run.torques:
         finite = {n: np.asarray(x)[np.isfinite(x)] for n, x in run.torques.items()}
         bad_torques = {n: len(x) - len(finite[n]) for n, x in run.torques.items() if len(x) != len(finite[n])}
-        m["torques"] = {"source": run.torque_source,
-                        "peak_Nm": {n: float(np.max(np.abs(f))) if len(f) else None for n, f in finite.items()}}
-    m["command_age"] = run.command_age
-    m["streams"] = run.streams
-    if run.diagnostics:
-        m["diagnostics"] = run.diagnostics
-    m["warnings"] = _warnings(run, m, natural_hz)
+        torques = Torques(source=run.torque_source,
+                          peak_Nm={n: float(np.max(np.abs(f))) if len(f) else None for n, f in finite.items()})
+    warnings = _warnings(run, vibration, natural_hz)
     if bad_torques:  # named, never a silent null
-        m["warnings"].append("torques not finite (NaN or Inf): " + ", ".join(
+        warnings.append("torques not finite (NaN or Inf): " + ", ".join(
             f"{n} {k} of {len(run.torques[n])} samples" for n, k in bad_torques.items())
             + "; peak_Nm over the finite ones (null: none)")
-    return m
+    return RunMetrics(label=run.label, time_zero=TimeZero(run.t0, run.t0_source),
+                      hold_phase=HoldPhase(run.hold_start, run.hold_source or None), path=path_metrics(run),
+                      vibration=vibration, command_age=run.command_age, streams=run.streams, warnings=warnings,
+                      bag=run.bag, branch_forces=branch_forces, gap=_gap(run), torques=torques,
+                      diagnostics=run.diagnostics or None)
 
 
-def _warnings(run: RunData, m: dict, natural_hz: Sequence[float]) -> list[str]:
+def _ms(x: float | None) -> float:
+    return (math.nan if x is None else x) * 1e3
+
+
+def _warnings(run: RunData, vibration: Mapping[str, VibrationFit | Note], natural_hz: Sequence[float]) -> list[str]:
     w = list(run.notes)
     for s in run.streams.values():
-        if s.get("gaps"):
-            w.append(f"{s['topic']}: {s['gaps']} gaps in the stream (longest {s['longest_gap_s'] * 1e3:.3g} ms, "
-                     f"median period {s['period_median_s'] * 1e3:.3g} ms)")
-        if s.get("out_of_order"):
-            w.append(f"{s['topic']}: {s['out_of_order']} stamps earlier than their predecessor")
+        if s.gaps:
+            w.append(f"{s.topic}: {s.gaps} gaps in the stream (longest {_ms(s.longest_gap_s):.3g} ms, "
+                     f"median period {_ms(s.period_median_s):.3g} ms)")
+        if s.out_of_order:
+            w.append(f"{s.topic}: {s.out_of_order} stamps earlier than their predecessor")
     fs = _force_rate(run)
     if natural_hz and fs:
         text = metrics.nyquist_warning(max(natural_hz), fs)
         if text:
             w.append(f"branch forces: {text}")
-    for b, v in m["vibration"].items():
-        w.extend(f"vibration fit {b}: {x}" for x in v.get("warnings", []) if not x.startswith("aliased"))
+    for b, v in vibration.items():
+        if isinstance(v, VibrationFit):
+            w.extend(f"vibration fit {b}: {x}" for x in v.warnings if not x.startswith("aliased"))
     return w
 
 
@@ -162,26 +179,31 @@ def _force_rate(run: RunData) -> float | None:
 
 
 # --------------------------------------------------------------------------- comparison
-def _leaves(d: Mapping, prefix: str = "") -> dict[str, float]:
+def _leaves(d: Mapping, prefix: str = "", nan: frozenset[str] = frozenset()) -> dict[str, float]:
+    """Every number of ``d`` by its dotted key path; the paths in ``nan`` (null: not finite) as NaN."""
     out = {}
     for k, v in d.items():
         key = f"{prefix}{k}"
         if isinstance(v, Mapping):
-            out.update(_leaves(v, key + "."))
-        elif isinstance(v, (int, float)) and not isinstance(v, bool) and v is not None:
+            out.update(_leaves(v, key + ".", nan))
+        elif isinstance(v, (int, float)) and not isinstance(v, bool):
             out[key] = float(v)
+        elif v is None and key in nan:
+            out[key] = math.nan
     return out
 
 
 COMPARED = ("path", "branch_forces", "vibration", "gap", "torques", "command_age")
 
 
-def compare(base: RunData, other: RunData, m_base: dict, m_other: dict) -> dict:
+def _compared(m: RunMetrics) -> dict[str, float]:
+    content = m.to_dict()
+    return _leaves({k: content.get(k) or {} for k in COMPARED}, nan=frozenset(m.non_finite))
+
+
+def compare(base: RunData, other: RunData, m_base: RunMetrics, m_other: RunMetrics) -> Comparison:
     """``other`` - ``base``: every scalar metric both have, plus differences of the time series."""
-    a = _leaves({k: m_base.get(k) or {} for k in COMPARED})
-    b = _leaves({k: m_other.get(k) or {} for k in COMPARED})
-    out: dict = {"baseline": base.label, "other": other.label,
-                 "metric_difference": {k: b[k] - a[k] for k in a if k in b}}
+    a, b = _compared(m_base), _compared(m_other)
     series = {}
     for br in base.forces:
         if br in other.forces and base.t_force is not None and other.t_force is not None:
@@ -194,8 +216,8 @@ def compare(base: RunData, other: RunData, m_base: dict, m_other: dict) -> dict:
         if d is not None:
             series["end_effector_max_distance_m"] = float(np.nanmax(d))
             series["end_effector_rms_distance_m"] = float(np.sqrt(np.nanmean(d * d)))
-    out["series_difference"] = series
-    return out
+    return Comparison(baseline=base.label, other=other.label, metric_difference={k: b[k] - a[k] for k in a if k in b},
+                      series_difference=series)
 
 
 def _on_base(t_a: np.ndarray, x_a: np.ndarray, t_b: np.ndarray, x_b: np.ndarray) -> np.ndarray | None:
@@ -324,37 +346,6 @@ def _difference_plots(out: Path, runs: Sequence[RunData], names: Mapping[str, st
 
 
 # ----------------------------------------------------------------------------- output
-def clean(x: object) -> object:
-    """JSON-ready: numpy scalars/arrays to Python, NaN and infinities to None."""
-    if isinstance(x, Mapping):
-        return {str(k): clean(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [clean(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return clean(x.tolist())
-    if isinstance(x, (np.bool_, bool)):
-        return bool(x)
-    if isinstance(x, (np.integer, int)):
-        return int(x)
-    if isinstance(x, (np.floating, float)):
-        return float(x) if math.isfinite(x) else None
-    if isinstance(x, Path):
-        return str(x)
-    return x
-
-
-def non_finite(x: object, path: str = "") -> list[str]:
-    """Key paths (``torques.left_motor.peak_Nm``) of the NaN and infinite numbers in ``x``."""
-    if isinstance(x, Mapping):
-        return [p for k, v in x.items() for p in non_finite(v, f"{path}.{k}" if path else str(k))]
-    if isinstance(x, (list, tuple, np.ndarray)):
-        return [p for i, v in enumerate(np.asarray(x, dtype=object).ravel().tolist() if isinstance(x, np.ndarray)
-                                        else x) for p in non_finite(v, f"{path}[{i}]")]
-    if isinstance(x, (np.floating, float)) and not math.isfinite(x):
-        return [path]
-    return []
-
-
 def write_report(out: Path, runs: Sequence[RunData], info: ModelInfo, plots_on: bool = True,
                  names: Mapping[str, str] = PLOT_NAMES, extra: Mapping | None = None) -> AnalysisReport:
     """summary.json, summary.md and (``plots_on``) the plots of ``runs`` in ``out``; ``extra``: more
@@ -362,25 +353,19 @@ def write_report(out: Path, runs: Sequence[RunData], info: ModelInfo, plots_on: 
     out.mkdir(parents=True, exist_ok=True)
     q_hold = _hold_pose(runs[0])
     natural = info.natural_hz(q_hold)
-    summary: dict = {"model": str(info.path), "model_natural_hz": natural,
-                     "natural_hz_at": "hold pose of the first run" if q_hold is not None else "start pose",
-                     "runs": {r.label: run_metrics(r, natural) for r in runs}}
-    if len(runs) > 1:
-        base = runs[0]
-        summary["comparison"] = [compare(base, r, summary["runs"][base.label], summary["runs"][r.label])
-                                 for r in runs[1:]]
-    if extra:
-        summary.update(extra)
+    by_label = {r.label: run_metrics(r, natural) for r in runs}
+    base = runs[0]
+    comparison = [compare(base, r, by_label[base.label], by_label[r.label]) for r in runs[1:]] or None
+    files = None
     if plots_on:
-        summary["plots"], notes = write_plots(out, runs, natural, names)
+        files, notes = write_plots(out, runs, natural, names)
         for label, note in notes:
-            summary["runs"][label]["warnings"].append(note)
-    for run_summary in summary["runs"].values():  # a null in summary.json is named, never silent
-        bad = non_finite({k: v for k, v in run_summary.items() if k != "warnings"})
-        if bad:
-            shown = ", ".join(bad[:6]) + (f" and {len(bad) - 6} more" if len(bad) > 6 else "")
-            run_summary["warnings"].append(f"not finite, null in summary.json: {shown} (NaN or Inf in the bag?)")
-    report = AnalysisReport.from_dict(clean(summary))
+            by_label[label].warnings.append(note)
+    for m in by_label.values():  # a null in summary.json is named, never silent
+        m.warn_non_finite()
+    report = AnalysisReport(model=str(info.path), model_natural_hz=natural,
+                            natural_hz_at="hold pose of the first run" if q_hold is not None else "start pose",
+                            runs=by_label, comparison=comparison, plots=files, extra=dict(extra or {}))
     content = report.to_dict()
     write_text(out / "summary.json", json.dumps(content, indent=2))
     write_text(out / "summary.md", markdown(content))

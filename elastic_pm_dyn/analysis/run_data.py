@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from elastic_pm_dyn.analysis.bags import BagData, TopicSeries
+from elastic_pm_dyn.analysis.report_types import BagInfo, StreamStats
 from elastic_pm_dyn.analysis.streams import hold_start as find_hold_start
 from elastic_pm_dyn.kinematics.mechanism import Mechanism, as_mechanism
 from elastic_pm_dyn.model.description import Model
@@ -96,10 +97,10 @@ class RunData:
     hold_start: float | None = None
     hold_source: str = ""
     decimated: bool = False
-    streams: dict[str, dict] = field(default_factory=dict)
+    streams: dict[str, StreamStats] = field(default_factory=dict)  # by role
     command_age: dict = field(default_factory=dict)
     diagnostics: dict = field(default_factory=dict)
-    bag: dict = field(default_factory=dict)
+    bag: BagInfo | None = None  # None: not from a bag
     notes: list[str] = field(default_factory=list)
 
     def reference_at(self, t: np.ndarray) -> np.ndarray | None:
@@ -162,16 +163,13 @@ class Timebase:
         return s.t + np.nanmedian(s.t_receive - s.t) - self.t0  # header stamps onto the receive clock
 
 
-def _stream_summary(s: TopicSeries) -> dict:
+def _stream_stats(s: TopicSeries) -> StreamStats:
     tm, tr = s.timing, s.timing_receive
-    return {
-        "topic": s.topic, "type": s.msgtype, "messages": s.count, "stamps": s.stamp_source,
-        "rate_hz": tm.get("rate"), "period_median_s": tm.get("period_median"), "period_p99_s": tm.get("period_p99"),
-        "period_max_s": tm.get("period_max"), "gaps": tm.get("gaps"), "longest_gap_s": tm.get("longest_gap"),
-        "out_of_order": tm.get("out_of_order"), "exact": tm.get("exact"),
-        "receive_rate_hz": tr.get("rate"), "receive_gaps": tr.get("gaps"),
-        "receive_period_p99_s": tr.get("period_p99"), "decimated_by": s.stride,
-    }
+    return StreamStats(
+        topic=s.topic, type=s.msgtype, messages=s.count, stamps=s.stamp_source, rate_hz=tm.rate,
+        period_median_s=tm.period_median, period_p99_s=tm.period_p99, period_max_s=tm.period_max, gaps=tm.gaps,
+        longest_gap_s=tm.longest_gap, out_of_order=tm.out_of_order, exact=tm.exact, receive_rate_hz=tr.rate,
+        receive_gaps=tr.gaps, receive_period_p99_s=tr.period_p99, decimated_by=s.stride)
 
 
 def _command_age(cmd: TopicSeries, states: TopicSeries) -> dict:
@@ -210,9 +208,9 @@ def run_from_bag(bag: BagData, info: ModelInfo, label: str, hold_start: float | 
     s = bag.series
     rel = Timebase(bag)
     run = RunData(label, t0=rel.stamp_s, t0_source=rel.source, notes=list(bag.notes))
-    run.bag = {"path": str(bag.path), "storage": bag.storage, "duration_s": (bag.end_ns - bag.start_ns) * 1e-9,
-               "topics": {k: {"type": ty, "messages": n} for k, (ty, n) in bag.topics.items()}, "roles": bag.roles}
-    run.streams = {role: _stream_summary(x) for role, x in s.items()}
+    run.bag = BagInfo(path=str(bag.path), storage=bag.storage, duration_s=(bag.end_ns - bag.start_ns) * 1e-9,
+                      topics={k: {"type": ty, "messages": n} for k, (ty, n) in bag.topics.items()}, roles=bag.roles)
+    run.streams = {role: _stream_stats(x) for role, x in s.items()}
     run.decimated = any(x.stride > 1 for x in s.values())
 
     js = s.get("joint_states") or s.get("measured")

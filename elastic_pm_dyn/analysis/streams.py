@@ -167,10 +167,10 @@ class StreamTimer:
     def exact(self) -> bool:
         return self._stamps is not None
 
-    def stats(self) -> dict:
-        """The keys of :func:`metrics.stream_stats`, plus ``exact`` (False: histogram estimates)."""
+    def stats(self) -> metrics.StreamTiming:
+        """As :func:`metrics.stream_stats`, with ``exact`` False when from the histogram (estimates)."""
         if self._stamps is not None:
-            return {**metrics.stream_stats(np.frombuffer(self._stamps, dtype=float)), "exact": True}
+            return metrics.stream_stats(np.frombuffer(self._stamps, dtype=float))
         hist = self._hist
         # Quantiles: the mean period of the bin they fall in (exact for a periodic stream).
         centres = self._hist_sum / np.maximum(hist, 1)
@@ -178,21 +178,21 @@ class StreamTimer:
         n = max(int(cum[-1]), 1)
         med = float(centres[np.searchsorted(cum, 0.5 * n)])
         mean = self._sum / n
-        return {
-            "count": self.count,
-            "duration": self.hi - self.lo,
-            "rate": 1.0 / med if med > 0.0 else math.inf,
-            "period_median": med,
-            "period_mean": mean,
-            "period_std": math.sqrt(max(self._sum2 / n - mean * mean, 0.0)),
-            "period_p99": float(centres[np.searchsorted(cum, 0.99 * n)]),
-            "period_max": self._max_dt,
-            "gaps": int(hist[self._edges_above(2.0 * med)].sum()),
-            "longest_gap": self._max_dt,
-            "longest_gap_at": self._max_dt_at,
-            "out_of_order": self.out_of_order,
-            "exact": False,
-        }
+        return metrics.StreamTiming(
+            count=self.count,
+            duration=self.hi - self.lo,
+            rate=1.0 / med if med > 0.0 else math.inf,
+            period_median=med,
+            period_mean=mean,
+            period_std=math.sqrt(max(self._sum2 / n - mean * mean, 0.0)),
+            period_p99=float(centres[np.searchsorted(cum, 0.99 * n)]),
+            period_max=self._max_dt,
+            gaps=int(hist[self._edges_above(2.0 * med)].sum()),
+            longest_gap=self._max_dt,
+            longest_gap_at=self._max_dt_at,
+            out_of_order=self.out_of_order,
+            exact=False,
+        )
 
 
 class HoldDetector:

@@ -75,7 +75,7 @@ def test_reads_every_storage_with_and_without_definitions(run, bag_dir, storage,
     np.testing.assert_allclose(bf.t - bf.t[0], run.t_force, atol=1e-12)
     js = data.series["joint_states"]
     np.testing.assert_array_equal(js.columns("position", run.joint_names), run.q)  # by name, not order
-    assert js.timing["rate"] == pytest.approx(1000.0) and js.timing["gaps"] == 0
+    assert js.timing.rate == pytest.approx(1000.0) and js.timing.gaps == 0
     assert data.diagnostics.values["plant: plant/command_age_s"][1][0] == 0.001
 
 
@@ -202,8 +202,8 @@ def test_large_bag_is_decimated_with_a_full_rate_window(run, bag_dir):
     assert len(w.t) == 800
     np.testing.assert_array_equal(w.fields["force"], run.forces[1000:1800])
     # More stamps than 5 x max_samples: timing from a histogram of 1 % bins, counts exact.
-    assert not bf.timing["exact"] and bf.timing["count"] == len(run.t_force) and bf.timing["gaps"] == 0
-    assert bf.timing["rate"] == pytest.approx(5000.0, rel=0.01)
+    assert not bf.timing.exact and bf.timing.count == len(run.t_force) and bf.timing.gaps == 0
+    assert bf.timing.rate == pytest.approx(5000.0, rel=0.01)
     s = analyze(MODEL, [path], bag_dir / "out_decimated", plots_on=False, max_samples=200,
                 window_samples=800).runs["ref_mcap"]
     assert abs(s.vibration["left"].f_d_hz - 552.0) < 1.0
@@ -229,11 +229,11 @@ def test_sample_buffer_window_and_timer_stay_bounded():
         exact.add(s)
         timer.add(s)
     a, b = exact.stats(), timer.stats()
-    assert a["exact"] and not b["exact"]
-    assert b["count"] == a["count"] and b["gaps"] == a["gaps"] == 1
-    assert b["longest_gap"] == pytest.approx(a["longest_gap"], rel=1e-12)
-    assert b["period_median"] == pytest.approx(a["period_median"], rel=0.01)
-    assert b["period_p99"] == pytest.approx(a["period_p99"], rel=0.01)
+    assert a.exact and not b.exact
+    assert b.count == a.count and b.gaps == a.gaps == 1
+    assert b.longest_gap == pytest.approx(a.longest_gap, rel=1e-12)
+    assert b.period_median == pytest.approx(a.period_median, rel=0.01)
+    assert b.period_p99 == pytest.approx(a.period_p99, rel=0.01)
 
 
 # ---------------------------------------------------------------- export, command line

@@ -102,14 +102,14 @@ def test_path_deviation_constant_offset() -> None:
     ref = np.column_stack((-0.05 + 0.1 * s, 0.35 + 0.1 * s))
     offset = np.array([3e-6, -4e-6])  # 5 µm
     r = path_deviation(t, ref + offset, ref)
-    assert r["max"] == pytest.approx(5e-6, rel=1e-9)
-    assert r["rms"] == pytest.approx(5e-6, rel=1e-9)
-    assert r["final_error"] == pytest.approx(5e-6, rel=1e-9)
-    np.testing.assert_allclose(r["final_error_vector"], offset, rtol=1e-9)
+    assert r.max == pytest.approx(5e-6, rel=1e-9)
+    assert r.rms == pytest.approx(5e-6, rel=1e-9)
+    assert r.final_error == pytest.approx(5e-6, rel=1e-9)
+    np.testing.assert_allclose(r.final_error_vector, offset, rtol=1e-9)
     # Perpendicular to the 45° line: the component of the offset across it, 7/sqrt(2) µm;
     # except where the path ends, the distance is to an end point: the full 5 µm.
     n = np.array([-1.0, 1.0]) / math.sqrt(2.0)
-    perp = r["perpendicular"]
+    perp = r.perpendicular
     assert perp.min() == pytest.approx(abs(offset @ n), rel=1e-6)
     assert perp.max() == pytest.approx(5e-6, rel=1e-6)
 
@@ -120,16 +120,16 @@ def test_path_deviation_lag_is_not_perpendicular() -> None:
     ref = np.column_stack((t, 2.0 * t))
     late = np.column_stack((0.9 * t, 1.8 * t))
     r = path_deviation(t, late, ref)
-    assert r["max"] == pytest.approx(0.1 * math.sqrt(5.0))
-    assert r["t_max"] == pytest.approx(1.0)
-    assert r["perpendicular_max"] < 1e-12
+    assert r.max == pytest.approx(0.1 * math.sqrt(5.0))
+    assert r.t_max == pytest.approx(1.0)
+    assert r.perpendicular_max < 1e-12
 
 
 def test_path_deviation_3d_and_shape_check() -> None:
     t = np.arange(4.0)
     ref = np.zeros((4, 3))
     r = path_deviation(t, ref + [0.0, 0.0, 2e-3], ref)
-    assert r["max"] == pytest.approx(2e-3)
+    assert r.max == pytest.approx(2e-3)
     with pytest.raises(ValueError):
         path_deviation(t, ref[:3], ref)
 
@@ -200,22 +200,22 @@ def test_stream_stats_counts_injected_gaps() -> None:
     )
     stamps = np.delete(stamps, drop)
     r = stream_stats(stamps)
-    assert r["count"] == 5000 - len(drop)
-    assert r["rate"] == pytest.approx(1000.0, rel=1e-3)
-    assert r["gaps"] == 3
-    assert r["longest_gap"] == pytest.approx(10 * period, rel=1e-2)
-    assert r["longest_gap_at"] == pytest.approx(2.0, abs=2e-5)
-    assert r["period_max"] == r["longest_gap"]
-    assert r["period_p99"] < 2.0 * period
-    assert r["out_of_order"] == 0
+    assert r.count == 5000 - len(drop)
+    assert r.rate == pytest.approx(1000.0, rel=1e-3)
+    assert r.gaps == 3
+    assert r.longest_gap == pytest.approx(10 * period, rel=1e-2)
+    assert r.longest_gap_at == pytest.approx(2.0, abs=2e-5)
+    assert r.period_max == r.longest_gap
+    assert r.period_p99 < 2.0 * period
+    assert r.out_of_order == 0
 
 
 def test_stream_stats_degenerate_and_unordered() -> None:
-    assert stream_stats([])["count"] == 0
+    assert stream_stats([]).count == 0
     one = stream_stats([1.0])
-    assert one["count"] == 1 and math.isnan(one["rate"]) and one["gaps"] == 0
+    assert one.count == 1 and math.isnan(one.rate) and one.gaps == 0
     r = stream_stats([0.0, 0.002, 0.001, 0.003])
-    assert r["out_of_order"] == 1 and r["rate"] == pytest.approx(1000.0)
+    assert r.out_of_order == 1 and r.rate == pytest.approx(1000.0)
 
 
 def test_rms() -> None:

@@ -99,6 +99,30 @@ def test_run_metrics_keep_absent_and_null_apart() -> None:
     assert list(r.to_dict()) == list(extra)
 
 
+def test_parts_are_json_ready_when_made_and_name_what_was_not_finite() -> None:
+    """Made from computations (numpy values, NaN, Inf): Python values, None for the non-finite ones
+    and their key paths in the file's order; a NaN gap at the hold start stays NaN (null in JSON)."""
+    torques = Torques(source="t", peak_Nm={"left": np.float64(np.inf), "right": np.float64(1.5)})
+    assert torques.peak_Nm == {"left": None, "right": 1.5} and type(torques.peak_Nm["right"]) is float
+    assert torques.non_finite == ["peak_Nm.left"]
+    gap = Gap("g", np.float64(1e-6), 0.1, float("nan"), at_hold_start_m=np.float64("nan"))
+    assert gap.final_m is None and math.isnan(gap.at_hold_start_m)
+    assert gap.non_finite == ["final_m", "at_hold_start_m"]
+    assert gap.to_dict() == {"source": "g", "max_m": 1e-6, "t_max_s": 0.1, "final_m": None, "at_hold_start_m": None}
+    assert Gap("g", 1.0, 0.1, 1.0, at_hold_start_m=math.inf).to_dict()["at_hold_start_m"] is None  # as NaN
+    run = RunMetrics(label="x", time_zero=TimeZero(np.float64(2.0), "first stamp"), hold_phase=HoldPhase(0.2, "h"),
+                     path=None, vibration={"left": Note("constant")}, command_age={"from_stamps": {"max_s": np.nan}},
+                     streams={}, warnings=["w"], gap=gap, torques=torques, diagnostics={"values": np.array([1, 2])})
+    assert run.non_finite == ["gap.final_m", "gap.at_hold_start_m", "torques.peak_Nm.left",
+                              "command_age.from_stamps.max_s"]
+    assert run.diagnostics == {"values": [1, 2]} and type(run.time_zero.stamp_s) is float
+    run.warn_non_finite()
+    assert run.warnings[-1] == ("not finite, null in summary.json: gap.final_m, gap.at_hold_start_m, "
+                                "torques.peak_Nm.left, command_age.from_stamps.max_s (NaN or Inf in the bag?)")
+    content = json.loads(json.dumps(run.to_dict()))
+    assert RunMetrics.from_dict(content) == run and content["command_age"] == {"from_stamps": {"max_s": None}}
+
+
 # ---------------------------------------------------------------------------- observe
 @pytest.fixture(scope="module")
 def observed(five_bar, tmp_path_factory):

@@ -12,7 +12,8 @@ from pathlib import Path
 import numpy as np
 from bag_factory import run_messages, synthetic_run, write_bag
 
-from elastic_pm_dyn.analysis.report import analyze, non_finite
+from elastic_pm_dyn.analysis.report import analyze
+from elastic_pm_dyn.analysis.report_types import non_finite
 from elastic_pm_dyn.bags.reader import open_bag
 from elastic_pm_dyn.bags.typestore import make_typestore
 
