@@ -44,7 +44,7 @@ from common import REPO
 
 from elastic_pm_dyn.dynamics.evaluate import FORMULATION_CODES, accelerations
 from elastic_pm_dyn.kinematics.assembly import initial_state
-from elastic_pm_dyn.kinematics.kernels import closure_rows, serial_chain_terms
+from elastic_pm_dyn.kinematics.kernels import Tree, TreeSweep, TreeTerms, closure_rows, serial_chain_terms
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.model.loader import load_model
 from elastic_pm_dyn.pinned_kernels import PinnedKernel
@@ -69,7 +69,8 @@ def chain_block(c, jf, ji, chain_start, points, point_body, grav, closure_pairs,
             J[p, 0, i] = 0.0
             J[p, 1, i] = 0.0
             J[p, 2, i] = 0.0
-    serial_chain_terms(jf, ji, s, e, points, point_body, grav, q, qd, M, h, J, a_pt, p_pt, wz, wo, jv, jw)
+    serial_chain_terms(Tree(jf, ji, chain_start, points, point_body, grav), s, e, q, qd, TreeTerms(M, h, J, a_pt, p_pt),
+                       TreeSweep(wz, wo, jv, jw, np.empty((0, 18))))
     k = leg_pair[c]
     if k == -2:  # the platform: coupled in couple()
         return True

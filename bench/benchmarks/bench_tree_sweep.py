@@ -66,10 +66,13 @@ def make_loops(kernels, frames: bool):
     sweep's extra (n_t x 18) array)."""
     tree_terms_into, closure_rows = kernels.tree_terms_into, kernels.closure_rows
 
-    if frames:
+    if frames:  # this tree's: the bundles of kinematics.kernels
+        Tree, TreeTerms, TreeSweep = kernels.Tree, kernels.TreeTerms, kernels.TreeSweep
+
         @njit
         def terms(jf, ji, cs, pts, pidx, g, q, qd, M, h, J, a, p, wz, wo, jv, jw, fr):
-            tree_terms_into(jf, ji, cs, pts, pidx, g, q, qd, M, h, J, a, p, wz, wo, jv, jw, fr)
+            tree_terms_into(Tree(jf, ji, cs, pts, pidx, g), q, qd, TreeTerms(M, h, J, a, p),
+                            TreeSweep(wz, wo, jv, jw, fr))
     else:
         @njit
         def terms(jf, ji, cs, pts, pidx, g, q, qd, M, h, J, a, p, wz, wo, jv, jw, fr):

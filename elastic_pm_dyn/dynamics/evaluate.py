@@ -22,7 +22,14 @@ from elastic_pm_dyn.dynamics.kernels import (
     scdd_platform_into,
     scdd_work,
 )
-from elastic_pm_dyn.kinematics.kernels import all_closure_rows, point_buffers, tree_terms, tree_terms_into
+from elastic_pm_dyn.kinematics.kernels import (
+    TreeSweep,
+    TreeTerms,
+    all_closure_rows,
+    point_buffers,
+    tree_terms,
+    tree_terms_into,
+)
 from elastic_pm_dyn.model.layout import (
     JF_FORCE_HI,
     JF_FORCE_LO,
@@ -128,8 +135,8 @@ def accelerations_into(form, ma, q, qd, tau, baumgarte_alpha, baumgarte_beta, qd
     or on a platform allocates nothing (allocation was a third of an evaluation on the
     five-bar, 17 arrays of the platform SCDD's per call). The tree terms (ws.M, h, J, a_pt,
     p_pt) and the closure rows (ws.A, gamma, res) of (q, qd) stay in ``ws`` for the caller."""
-    tree_terms_into(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_body, ma.gravity, q, qd, ws.M, ws.h, ws.J,
-                    ws.a_pt, ws.p_pt, ws.wz, ws.wo, ws.jv, ws.jw, ws.fr)
+    tree_terms_into(ma, q, qd, TreeTerms(ws.M, ws.h, ws.J, ws.a_pt, ws.p_pt),
+                    TreeSweep(ws.wz, ws.wo, ws.jv, ws.jw, ws.fr))
     servo_force_ranges(ma.jf, q, qd, tau, ws.h)
     gap = _closure_terms(ma, q, qd, ws.J, ws.a_pt, ws.p_pt, ws.A, ws.gamma, ws.res, baumgarte_alpha, baumgarte_beta,
                          ws.bm)

@@ -17,6 +17,8 @@ vectors are world-frame. Subtrees are independent, so the tree terms of eq 19 ar
 subtree terms stacked block-diagonally.
 """
 
+from typing import NamedTuple
+
 import numpy as np
 from numba import njit
 
@@ -43,6 +45,40 @@ from elastic_pm_dyn.model.layout import (
 
 IDENTITY = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
 ZERO = (0.0, 0.0, 0.0)
+
+
+class Tree(NamedTuple):
+    """The model arrays the tree sweep reads: a mechanism's own ``Mechanism.arrays`` has them
+    under the same names and is passed as it is (this bundle is for callers holding the parts)."""
+
+    jf: np.ndarray  # (n_t, ...) joint floats (model.layout JF_*)
+    ji: np.ndarray  # (n_t, ...) joint integers (JI_*)
+    chain_start: np.ndarray  # (n_chains + 1,) first tree index of each subtree
+    points: np.ndarray  # (n_points, 3 or 12) attachment points in their bodies' frames
+    point_body: np.ndarray  # (n_points,) the body (tree index) of each point, -1 the base
+    gravity: np.ndarray  # (3,) in the world
+
+
+class TreeTerms(NamedTuple):
+    """What the sweep writes (eq 19): M (n_t x n_t; 0 x 0: not asked), h (n_t; empty: the
+    kinematics alone), J (n_points x 3 or 6 x n_t), a_pt (n_points x 3 or 6), p_pt (n_points x 3 or 12)."""
+
+    M: np.ndarray
+    h: np.ndarray
+    J: np.ndarray
+    a_pt: np.ndarray
+    p_pt: np.ndarray
+
+
+class TreeSweep(NamedTuple):
+    """The sweep's scratch: joint axes wz and origins wo in the world, a body centre's
+    Jacobian columns jv (linear) and jw (angular), all (n_t, 3), and the stored frames fr (n_t, 18)."""
+
+    wz: np.ndarray
+    wo: np.ndarray
+    jv: np.ndarray
+    jw: np.ndarray
+    fr: np.ndarray
 
 
 @njit(cache=True)
@@ -156,14 +192,18 @@ def _joint_step(jf, ji, k, q, qd, R, o, w, al, ao):
 
 
 @njit(cache=True)
-def serial_chain_terms(jf, ji, s, e, points, point_body, grav, q, qd, M, h, J, a_pt, p_pt, wz, wo, jv, jw):
+def serial_chain_terms(tree, s, e, q, qd, out, sweep):
     """:func:`subtree_terms` of a serial chain (joint k's parent k - 1) whose points all sit
     on its last body and have no frames (``ji[s, JI_SUBTREE] == 0``): the sweep carries one
     body's frame and rates along, every body's Jacobian has the columns s..k. The general
     sweep's parent lookups and stored frames cost such a chain 7 % (bench/benchmarks/bench_tree_sweep.py).
     An empty M (0 x 0) and h ask for the kinematics alone (points, their Jacobians and bias
     accelerations): no inertia, M and h untouched; an empty M with a full h for the bias
-    forces without the mass matrix."""
+    forces without the mass matrix. ``tree``: :class:`Tree` (or ``Mechanism.arrays``), ``out``:
+    :class:`TreeTerms`, ``sweep``: :class:`TreeSweep`."""
+    jf, ji, points, point_body, grav = tree.jf, tree.ji, tree.points, tree.point_body, tree.gravity
+    M, h, J, a_pt, p_pt = out
+    wz, wo, jv, jw = sweep.wz, sweep.wo, sweep.jv, sweep.jw
     g = (grav[0], grav[1], grav[2])
     inertia = h.shape[0] > 0
     mass = M.shape[0] > 0
@@ -217,7 +257,7 @@ def serial_chain_terms(jf, ji, s, e, points, point_body, grav, q, qd, M, h, J, a
 
 
 @njit(cache=True)
-def subtree_terms(jf, ji, s, e, points, point_body, grav, q, qd, M, h, J, a_pt, p_pt, wz, wo, jv, jw, fr):
+def subtree_terms(tree, s, e, q, qd, out, sweep):
     """Terms of the subtree whose joints are tree indices s..e-1 (written in place).
 
     Each joint's parent (``ji[k, JI_PARENT]``) is -1 (the base) or an earlier joint of the
@@ -228,10 +268,14 @@ def subtree_terms(jf, ji, s, e, points, point_body, grav, q, qd, M, h, J, a_pt, 
     in J (n_points x 3 x n_t; rows 3-5 the angular velocity's where J has 6), its bias
     acceleration in a_pt and position in p_pt (n_points x 3; with 12 columns also the
     world orientation of the point's frame, row-major, ``points`` then holding its
-    orientation in the body frame). wz, wo, jv, jw are (n_t, 3) and fr (n_t, 18) scratch.
+    orientation in the body frame). ``tree``: :class:`Tree` (or ``Mechanism.arrays``), ``out``:
+    :class:`TreeTerms` (M, h, J, a_pt, p_pt), ``sweep``: :class:`TreeSweep` (the scratch).
     An empty M (0 x 0) and h ask for the kinematics alone: no inertia, M and h untouched; an
     empty M with a full h for the bias forces without the mass matrix.
     """
+    jf, ji, points, point_body, grav = tree.jf, tree.ji, tree.points, tree.point_body, tree.gravity
+    M, h, J, a_pt, p_pt = out
+    wz, wo, jv, jw, fr = sweep
     g = (grav[0], grav[1], grav[2])
     inertia = h.shape[0] > 0
     mass = M.shape[0] > 0
@@ -320,27 +364,35 @@ def tree_terms(jf, ji, chain_start, points, point_body, grav, q, qd, M, h, J, a_
     Jdot qd and positions (see :func:`subtree_terms` for the wider forms with frames).
     """
     n = q.shape[0]
-    tree_terms_into(jf, ji, chain_start, points, point_body, grav, q, qd, M, h, J, a_pt, p_pt,
-                    np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 18)))
+    tree_terms_into(Tree(jf, ji, chain_start, points, point_body, grav), q, qd, TreeTerms(M, h, J, a_pt, p_pt),
+                    tree_sweep(n))
 
 
 @njit(cache=True)
-def tree_terms_into(jf, ji, chain_start, points, point_body, grav, q, qd, M, h, J, a_pt, p_pt, wz, wo, jv, jw, fr):
-    """:func:`tree_terms` with its work arrays given: four (n_t x 3), one (n_t x 18). With an
-    empty M (0 x 0) and h, the kinematics alone (what a closure residual needs); with an empty
-    M and a full h, the bias forces without the mass matrix (what a change of velocity changes)."""
-    M[:, :] = 0.0
-    h[:] = 0.0
-    J[:, :, :] = 0.0
+def tree_sweep(n):
+    """A :class:`TreeSweep` for n_t joints (allocate once, reuse)."""
+    return TreeSweep(np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 18)))
+
+
+@njit(cache=True)
+def tree_terms_into(tree, q, qd, out, sweep):
+    """:func:`tree_terms` into ``out`` (:class:`TreeTerms`) with the scratch ``sweep``
+    (:class:`TreeSweep`); ``tree``: :class:`Tree` or ``Mechanism.arrays``. With an empty M
+    (0 x 0) and h, the kinematics alone (what a closure residual needs); with an empty M and a
+    full h, the bias forces without the mass matrix (what a change of velocity changes)."""
+    out.M[:, :] = 0.0
+    out.h[:] = 0.0
+    out.J[:, :, :] = 0.0
+    chain_start, ji = tree.chain_start, tree.ji
     for c in range(chain_start.shape[0] - 1):
         s, e = chain_start[c], chain_start[c + 1]
         # The dispatch here, not in a function of its own: a compiled call that is not inlined
         # passes every array field by field and cost a serial machine half its time.
         if ji[s, JI_SUBTREE] == 0:
-            serial_chain_terms(jf, ji, s, e, points, point_body, grav, q, qd, M, h, J, a_pt, p_pt, wz, wo, jv, jw)
+            serial_chain_terms(tree, s, e, q, qd, out, sweep)
         else:
-            subtree_terms(jf, ji, s, e, points, point_body, grav, q, qd, M, h, J, a_pt, p_pt, wz, wo, jv, jw, fr)
-    fixed_points(points, point_body, a_pt, p_pt)
+            subtree_terms(tree, s, e, q, qd, out, sweep)
+    fixed_points(tree.points, tree.point_body, out.a_pt, out.p_pt)
 
 
 @njit(cache=True)

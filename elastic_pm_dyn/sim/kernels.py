@@ -21,7 +21,14 @@ from numba import njit
 
 from elastic_pm_dyn.dynamics.evaluate import LDA, accelerations_into, workspace
 from elastic_pm_dyn.dynamics.kernels import chain_size_max
-from elastic_pm_dyn.kinematics.kernels import all_closure_rows, point_buffers, tree_terms, tree_terms_into
+from elastic_pm_dyn.kinematics.kernels import (
+    TreeSweep,
+    TreeTerms,
+    all_closure_rows,
+    point_buffers,
+    tree_terms,
+    tree_terms_into,
+)
 from elastic_pm_dyn.small_linalg import cholesky_recip, cholesky_solve_rows, lu_factor, lu_solve, matvec
 
 STAB_BAUMGARTE = 1
@@ -227,12 +234,11 @@ def _chain_responses_sparse(M, A, chain_start, Y, S, L, dinv, XY, rows, n_rows):
 def _closure_at(ma, q, pws, inertia=True):
     """Closure residual (pws.res) and Jacobian (pws.A) at q, with the tree terms M, h at
     zero velocity or (inertia False) the kinematics alone; returns |h(q)|."""
+    sweep = TreeSweep(pws.wz, pws.wo, pws.jv, pws.jw, pws.fr)
     if inertia:
-        tree_terms_into(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_body, ma.gravity, q, pws.zero, pws.M,
-                        pws.h, pws.J, pws.a_pt, pws.p_pt, pws.wz, pws.wo, pws.jv, pws.jw, pws.fr)
+        tree_terms_into(ma, q, pws.zero, TreeTerms(pws.M, pws.h, pws.J, pws.a_pt, pws.p_pt), sweep)
     else:
-        tree_terms_into(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_body, ma.gravity, q, pws.zero,
-                        pws.M[:0, :0], pws.h[:0], pws.J, pws.a_pt, pws.p_pt, pws.wz, pws.wo, pws.jv, pws.jw, pws.fr)
+        tree_terms_into(ma, q, pws.zero, TreeTerms(pws.M[:0, :0], pws.h[:0], pws.J, pws.a_pt, pws.p_pt), sweep)
     all_closure_rows(ma.closure_pairs, ma.closure_axes, ma.points, ma.couplings, q, pws.J, pws.a_pt, pws.p_pt,
                      pws.A, pws.gamma, pws.res)
     return np.sqrt(np.sum(pws.res * pws.res))

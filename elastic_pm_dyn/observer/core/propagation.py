@@ -42,7 +42,7 @@ and the dense expm of the whole linearisation (Hexa: 66 x 66, nine squarings). H
 import numpy as np
 from numba import njit
 
-from elastic_pm_dyn.kinematics.kernels import all_closure_rows, point_buffers, tree_terms_into
+from elastic_pm_dyn.kinematics.kernels import TreeSweep, TreeTerms, all_closure_rows, point_buffers, tree_terms_into
 from elastic_pm_dyn.model.layout import JF_STIFFNESS, JI_ROLE
 from elastic_pm_dyn.sim.exponential import gains_workspace
 from elastic_pm_dyn.small_linalg import lu_factor, lu_solve
@@ -125,8 +125,7 @@ def rate_columns(ma, q, qd, point, with_point, eps_v, W, ws, Bf, Av, Ev):
         e = eps_v[j]
         for i in range(n):
             vp[i] = qd[i] + W[i, j] * e
-        tree_terms_into(ma.jf, ma.ji, ma.chain_start, ma.points, ma.point_body, ma.gravity, q, vp, no_mass, hj,
-                        J2, a2, p2, ws.wz, ws.wo, ws.jv, ws.jw, ws.fr)
+        tree_terms_into(ma, q, vp, TreeTerms(no_mass, hj, J2, a2, p2), TreeSweep(ws.wz, ws.wo, ws.jv, ws.jw, ws.fr))
         all_closure_rows(ma.closure_pairs, ma.closure_axes, ma.points, ma.couplings, q, J2, a2, p2, A2, g2, r2)
         for i in range(m):
             dc[i] = (g2[i] - gamma0[i]) / e
