@@ -115,10 +115,15 @@ def plot_path(
 
     if reference is not None:
         ax = axes[1]
-        dev = {
-            name: project_to_polyline(np.asarray(p, dtype=float)[:, :2], ref[:, :2])
-            for name, p in runs.items()
-        }
+        # NaN or infinite samples (a joint state that was) are left out of the distances, as the
+        # metrics leave them out; the path panel shows them as gaps
+        ref_xy = ref[np.all(np.isfinite(ref[:, :2]), axis=1), :2]
+        dev = {}
+        for name, p in runs.items():
+            xy = np.asarray(p, dtype=float)[:, :2]
+            xy = xy[np.all(np.isfinite(xy), axis=1)]
+            if len(xy) and len(ref_xy):
+                dev[name] = project_to_polyline(xy, ref_xy)
         max_dev = max((float(d.max()) for d, _ in dev.values()), default=0.0)
         scale, unit = _si_scale(max_dev, "m")
         for name, (d, s) in dev.items():

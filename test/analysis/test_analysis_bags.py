@@ -127,6 +127,17 @@ def test_report_files_and_plots(summary):
         assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 10_000
 
 
+def test_nan_joint_states_are_plotted_as_gaps(run, bag_dir, tmp_path):
+    """Joint states with NaN rows (a recording of a fault) give every plot, the path's deviation
+    panel too, from the finite samples (it raised 'x must be finite' before)."""
+    from dataclasses import replace
+    q = run.q.copy()
+    q[200:203] = np.nan
+    s = analyze(MODEL, [_bag(bag_dir, "nan_q_mcap", replace(run, q=q))], tmp_path)
+    png = tmp_path / s.plots["path"]
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 10_000
+
+
 def test_aliasing_at_the_control_rate_is_detected_and_unfolded(bag_dir):
     """Branch forces sampled at 1 kHz: the 552 Hz mode shows at 448 Hz; the model's modes unfold it."""
     slow = synthetic_run(force_rate=1000.0)
