@@ -114,6 +114,10 @@ def test_a_pendulum_slips_from_rest_as_mujoco(tmp_path, kind):
           f"{err:.2e} rad")
     assert abs(run.q[-1, 0]) > 0.4
     assert err < 1e-6
+    rk4 = simulate(mech, [0.0], 0.2, sample=SAMPLE)  # every setting the default: RK4 at 1e-4 s
+    err = float(np.abs(peer - rk4.q).max())
+    print(f"  the default RK4: max |q - q_mujoco| {err:.2e} rad")
+    assert err < 1e-6
 
 
 def test_a_regularised_stick_creeps(tmp_path):
