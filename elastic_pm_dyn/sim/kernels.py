@@ -595,8 +595,8 @@ def stop_within_step(form, ma, q, qd, tau_coef, s0, dt, a, b, tol, qdd_prev, lam
         qa[:] = q_out
         va[:] = qd_out
         done += t
-    q_out[:] = qa
-    qd_out[:] = va
+    # more stops than that in one step: the rest of it as the plain step takes it
+    rk4_piece(form, ma, qa, va, tau_coef, s0 + done, dt - done, a, b, tol, qdd_prev, lam, ws, q_out, qd_out)
 @njit(cache=True)
 def rk4_piece(form, ma, q, qd, tau_coef, s, h, a, b, tol, qdd_prev, lam, ws, q_out, qd_out):
     """One classical RK4 step of h from (q, qd) at the time s of the call's torque polynomial
