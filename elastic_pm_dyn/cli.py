@@ -93,8 +93,8 @@ def _add_model(p: argparse.ArgumentParser, positional: bool = False, dof: bool =
                    help="URDF, MJCF: loops the file's geometry closes only within this (m, rad; default 1e-6, 0: "
                         "exactly) load, their anchors moved to close, with a warning")
     p.add_argument("--slip-speed", type=float, default=None, metavar="V",
-                   help="dry friction (MJCF frictionloss, URDF friction) regularised as F tanh(qd / V) (m/s, rad/s; "
-                        "default 1e-3): smaller sticks better, and needs a smaller RK4 step")
+                   help="dry friction (MJCF frictionloss, URDF friction) regularised as F tanh(qd / V) (m/s, rad/s); "
+                        "default 0: Coulomb's law, a joint sticks while the force it needs is within F")
     if dof:
         p.add_argument("--elastic-dof-per-chain", type=int, default=None,
                        help="override the model's discretisation of flexible links")

@@ -8,6 +8,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from elastic_pm_dyn.dynamics.dry_friction import coulomb_at_rest, count_at_rest, joints_at_rest
 from elastic_pm_dyn.dynamics.kernels import (
     PlatformWork,
     ScddWork,
@@ -31,6 +32,7 @@ from elastic_pm_dyn.kinematics.kernels import (
     tree_terms_into,
 )
 from elastic_pm_dyn.model.layout import (
+    JF_COULOMB,
     JF_FORCE_HI,
     JF_FORCE_LO,
     JF_SERVO_C,
@@ -124,9 +126,53 @@ def accelerations(form, ma, q, qd, tau, baumgarte_alpha, baumgarte_beta, qdd_pre
     servo_force_ranges(ma.jf, q, qd, tau, h)
     A, gamma, res = np.empty((m, n)), np.empty(m), np.empty(m)
     gap = _closure_terms(ma, q, qd, J, a_pt, p_pt, A, gamma, res, baumgarte_alpha, baumgarte_beta, np.empty(m))
+    cond = _formulate(form, ma, M, h, A, gamma, tau, qdd_prev, qdd, lam)
+    at_rest = count_at_rest(ma.jf, qd)
+    if at_rest > 0:
+        _coulomb_at_rest(form, ma, M, h, A, gamma, tau, qd, at_rest, qdd_prev, qdd, lam)
+    return cond, gap
+
+
+@njit(cache=True)
+def _formulate(form, ma, M, h, A, gamma, tau, qdd_prev, qdd, lam):
+    """The formulation ``form`` on the tree terms (allocating its work arrays): qdd, lam; its conditioning."""
     if form in (SCDD, SCDD_STACKED) and not (form == SCDD and ma.hub >= 0):
-        return scdd(M, h, A, gamma, tau, ma.chain_start, qdd, lam), gap
-    return _other_formulations(form, ma, M, h, A, gamma, tau, qdd_prev, qdd, lam), gap
+        return scdd(M, h, A, gamma, tau, ma.chain_start, qdd, lam)
+    return _other_formulations(form, ma, M, h, A, gamma, tau, qdd_prev, qdd, lam)
+
+
+@njit(cache=True)
+def _coulomb_at_rest(form, ma, M, h, A, gamma, tau, qd, at_rest, qdd_prev, qdd, lam):
+    """qdd and lam, the accelerations without friction on the ``at_rest`` joints at rest with
+    Coulomb friction, made those with it (dynamics/dry_friction.py): each joint's response to its
+    friction F is the formulation's own (qdd at tau + F e_j less qdd), the forces Coulomb's law at
+    rest, and a joint that sticks gets an acceleration of exactly 0."""
+    idx = joints_at_rest(ma.jf, qd, at_rest)
+    c = at_rest
+    n = qd.shape[0]
+    F, a0, f = np.empty(c), np.empty(c), np.empty(c)
+    G = np.empty((c, c))
+    stick = np.empty(c, dtype=np.bool_)
+    for j in range(c):
+        F[j] = ma.jf[idx[j], JF_COULOMB]
+        a0[j] = qdd[idx[j]]
+    pushed, spare = tau.copy(), np.empty(n)
+    for j in range(c):
+        pushed[idx[j]] += F[j]
+        _formulate(form, ma, M, h, A, gamma, pushed, qdd_prev, spare, lam.copy())
+        pushed[idx[j]] = tau[idx[j]]
+        for i in range(c):
+            G[i, j] = (spare[idx[i]] - a0[i]) / F[j]
+    for i in range(c):  # symmetric in exact arithmetic
+        for j in range(i):
+            G[i, j] = G[j, i] = 0.5 * (G[i, j] + G[j, i])
+    coulomb_at_rest(a0, G, F, f, stick)
+    for j in range(c):
+        pushed[idx[j]] = tau[idx[j]] + f[j]
+    _formulate(form, ma, M, h, A, gamma, pushed, qdd_prev, qdd, lam)
+    for j in range(c):
+        if stick[j]:
+            qdd[idx[j]] = 0.0
 
 
 @njit(cache=True)
@@ -142,11 +188,15 @@ def accelerations_into(form, ma, q, qd, tau, baumgarte_alpha, baumgarte_beta, qd
                          ws.bm)
     if form in (SCDD, SCDD_STACKED) and not (form == SCDD and ma.hub >= 0):
         cond = scdd_into(ws.M, ws.h, ws.A, ws.gamma, tau, ma.chain_start, qdd, lam, ws.sw)
-        return cond, gap
-    if form == SCDD:  # with a platform hub
-        return scdd_platform_into(ws.M, ws.h, ws.A, ws.gamma, tau, ma.chain_start, ws.pc, ma.closure_pairs,
-                                  ma.closure_axes.shape[0], ma.hub, qdd, lam, ws.pw), gap
-    return _other_formulations(form, ma, ws.M, ws.h, ws.A, ws.gamma, tau, qdd_prev, qdd, lam), gap
+    elif form == SCDD:  # with a platform hub
+        cond = scdd_platform_into(ws.M, ws.h, ws.A, ws.gamma, tau, ma.chain_start, ws.pc, ma.closure_pairs,
+                                  ma.closure_axes.shape[0], ma.hub, qdd, lam, ws.pw)
+    else:
+        cond = _other_formulations(form, ma, ws.M, ws.h, ws.A, ws.gamma, tau, qdd_prev, qdd, lam)
+    at_rest = count_at_rest(ma.jf, qd)
+    if at_rest > 0:  # (allocates: a machine at rest on its friction)
+        _coulomb_at_rest(form, ma, ws.M, ws.h, ws.A, ws.gamma, tau, qd, at_rest, qdd_prev, qdd, lam)
+    return cond, gap
 
 
 @njit(cache=True, inline="always")

@@ -14,7 +14,10 @@ def tree_inverse_dynamics(mech: Mechanism, q: np.ndarray, qd: np.ndarray, qdd: n
     The tree forces M_t qdd_t + h_t are those of the real and virtual actuators of the
     tree (eq 11); W^T maps them onto the non-redundant coordinates. Entries for the
     elastic coordinates are the structure forces the motion would need (zero for a
-    motion the free elastic machine can perform).
+    motion the free elastic machine can perform). Dry friction (Coulomb's law) is in h as
+    F sign(qd) on a joint that moves, so the forces compensate it; a joint at rest (|qd| <=
+    layout.STICK_SPEED) gets none: at rest its friction is any force within +-F, which a
+    motion alone does not determine (docs/robot_files.md, "Dry friction").
     """
     t = mech.terms(q, qd)
     W, _ = mech.passive_map(t)

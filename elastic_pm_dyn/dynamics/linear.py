@@ -100,9 +100,10 @@ RK4_REAL_LIMIT = 2.785  # RK4 is stable for a real eigenvalue -lambda while h la
 def dry_friction_step(mech: Mechanism, q: np.ndarray) -> tuple[float, str] | None:
     """The fixed RK4 step the regularised dry friction allows (about): F / v_s is a viscous slope
     within the slip band, over the joint's own inertia (the mass matrix's diagonal at q) a rate
-    lambda; (2.785 / the largest lambda, its joint), None without dry friction."""
+    lambda; (2.785 / the largest lambda, its joint), None without regularised dry friction (Coulomb's
+    law, slip speed 0, has no slope: its stops are found within the steps, sim/kernels.py)."""
     jf = mech.arrays.jf
-    dry = np.flatnonzero(jf[:, JF_COULOMB] > 0)
+    dry = np.flatnonzero((jf[:, JF_COULOMB] > 0) & (jf[:, JF_SLIP] > 0))
     if not len(dry):
         return None
     M = mech.terms(q).M

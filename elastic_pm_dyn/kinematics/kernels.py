@@ -41,6 +41,7 @@ from elastic_pm_dyn.model.layout import (
     JI_PARENT,
     JI_SUBTREE,
     JI_TYPE,
+    STICK_SPEED,
 )
 
 IDENTITY = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
@@ -156,7 +157,10 @@ def _body_loads(jf, k, m, g, R, o, w, al, ao):
 @njit(cache=True, inline="always")
 def _joint_elements(jf, s, e, q, qd, M, h):
     """What acts in the joints s..e-1 themselves: rotor inertia on M's diagonal (if M is not
-    empty); spring, damper, viscous and dry (Coulomb, regularised: F tanh(qd / v_s)) friction forces in h."""
+    empty); spring, damper, viscous and dry friction forces in h. Dry (Coulomb) friction: F sign(qd)
+    on a sliding joint (|qd| > STICK_SPEED), none on one at rest, whose force Coulomb's law leaves
+    to the accelerations (dynamics/dry_friction.py); regularised instead, F tanh(qd / v_s), where
+    the joint has a slip speed v_s > 0."""
     mass = M.shape[0] > 0
     for k in range(s, e):
         if mass:
@@ -164,7 +168,12 @@ def _joint_elements(jf, s, e, q, qd, M, h):
         h[k] += jf[k, JF_STIFFNESS] * (q[k] - jf[k, JF_REST]) + \
             (jf[k, JF_DAMPING] + jf[k, JF_FRICTION]) * qd[k]
         if jf[k, JF_COULOMB] != 0.0:
-            h[k] += jf[k, JF_COULOMB] * np.tanh(qd[k] / jf[k, JF_SLIP])
+            if jf[k, JF_SLIP] > 0.0:
+                h[k] += jf[k, JF_COULOMB] * np.tanh(qd[k] / jf[k, JF_SLIP])
+            elif qd[k] > STICK_SPEED:
+                h[k] += jf[k, JF_COULOMB]
+            elif qd[k] < -STICK_SPEED:
+                h[k] -= jf[k, JF_COULOMB]
 
 
 @njit(cache=True, inline="always")

@@ -55,9 +55,18 @@ class Body:
         return Body(self.mass, rotation @ self.com + offset, rotation @ self.inertia @ rotation.T)
 
 
-# Dry friction's slip speed: below it the regularised Coulomb force tanh(qd / v_s) is viscous-like
-# (a stick that creeps); measured against MuJoCo's friction loss in test/dynamics/test_friction_loss.py.
-SLIP_SPEED = 1e-3
+# Dry friction's slip speed: 0 (the default) is Coulomb's law itself, a joint at rest sticks while the
+# force it needs is within F and slides against -F sign(qd) otherwise (dynamics/dry_friction.py); a
+# speed v_s > 0 regularises it instead as F tanh(qd / v_s), viscous-like below v_s (a stick that
+# creeps). Both measured against MuJoCo's friction loss in test/dynamics/test_friction_loss.py.
+SLIP_SPEED = 0.0
+
+
+def dry_friction_law(slip: float = SLIP_SPEED) -> str:
+    """How dry friction acts at slip speed ``slip``, in the words of a load's notes."""
+    if slip > 0:
+        return f"regularised over a slip speed of {slip:g} (m/s, rad/s: F tanh(qd / v_s))"
+    return "Coulomb's law (a joint at rest sticks while the force it needs is within F, else slides against F)"
 
 
 @dataclass(frozen=True)
@@ -76,8 +85,8 @@ class Joint:
     rest: float = 0.0  # spring's unloaded position
     friction: float = 0.0  # viscous friction [N s/m or N m s/rad]
     rotor_inertia: float = 0.0  # reflected rotor inertia (armature) [kg m^2 or kg]
-    coulomb: float = 0.0  # dry (Coulomb) friction [N or N m]: coulomb tanh(qd / slip) opposes the motion
-    slip: float = SLIP_SPEED  # the regularisation's slip speed [m/s or rad/s] (docs/robot_files.md)
+    coulomb: float = 0.0  # dry (Coulomb) friction [N or N m]: it opposes the motion, holds a joint at rest within it
+    slip: float = SLIP_SPEED  # 0: Coulomb's stick and slip; > 0: regularised, coulomb tanh(qd / slip) [m/s or rad/s]
     # a servo's force range (MJCF forcerange): (G, K, C, rest, low, high), layout.JF_SERVO_G's terms
     force_range: tuple[float, float, float, float, float, float] | None = None
 
@@ -386,10 +395,11 @@ class Model:
         return replace(self, gravity=g.copy())
 
     def with_slip_speed(self, speed: float) -> Model:
-        """The same machine with dry friction regularised over another slip speed [m/s or rad/s]:
-        smaller sticks better and makes the equations stiffer (docs/robot_files.md)."""
-        if not (np.isfinite(speed) and speed > 0):
-            raise ValueError(f"slip speed must be a finite number > 0, got {speed!r}")
+        """The same machine with dry friction regularised over another slip speed [m/s or rad/s]
+        (F tanh(qd / v_s): smaller sticks better and makes the equations stiffer), or, at 0, Coulomb's
+        own stick and slip, the default (docs/robot_files.md)."""
+        if not (np.isfinite(speed) and speed >= 0):
+            raise ValueError(f"slip speed must be a finite number >= 0 (0: Coulomb's law), got {speed!r}")
         chains = tuple(replace(c, joints=tuple(replace(j, slip=float(speed)) for j in c.joints)) for c in self.chains)
         return replace(self, chains=chains)
 

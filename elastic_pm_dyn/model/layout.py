@@ -17,7 +17,12 @@ JF_DAMPING = 30
 JF_FRICTION = 31
 JF_REST = 32
 JF_COULOMB = 33  # dry (Coulomb) friction force [N or N m], regularised over JF_SLIP
-JF_SLIP = 34  # its slip speed v_s: the force is JF_COULOMB tanh(qd / v_s) [m/s or rad/s]
+JF_SLIP = 34  # 0: Coulomb's law (dynamics/dry_friction.py); v_s > 0: JF_COULOMB tanh(qd / v_s) [m/s or rad/s]
+# A joint with Coulomb friction (JF_SLIP 0) is at rest, its friction force left to Coulomb's law at
+# rest, while |qd| <= STICK_SPEED [m/s or rad/s]: exactly 0 in a stick, but a velocity projected
+# onto a loop's closure keeps a rounding error of ~1e-16 of the others' speed. A joint slides
+# against -F sign(qd) beyond it.
+STICK_SPEED = 1e-12
 # A servo's force range (MJCF forcerange): the joint feels G f, f = (tau - K (q - REST) - C qd) / G
 # clamped to [LO, HI] (K, C, REST: the servo's own bias as a spring and damper); G = 0: none
 JF_SERVO_G = 35

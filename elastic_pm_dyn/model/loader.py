@@ -52,7 +52,8 @@ def load_model(path: str | Path, elastic_dof_per_chain: int | None = None,
     ``gravity`` (3 numbers, world frame [m/s^2]) replaces the file's gravity, whatever the format.
     ``closure_tol`` (URDF, MJCF; default 1e-6 m, rad; 0: exact only): loops the file's geometry
     closes only within it load, their anchors moved to close, with a warning. ``slip_speed``
-    (default 1e-3 m/s, rad/s): the speed over which dry friction is regularised, F tanh(qd / v_s).
+    (default 0: Coulomb's stick and slip): a speed v_s > 0 [m/s, rad/s] regularises dry friction
+    instead, F tanh(qd / v_s).
     """
     if closure_tol is not None and not (np.isfinite(closure_tol) and closure_tol >= 0):
         raise ModelError(str(path), "closure_tol", f"must be a finite number >= 0 (m, rad), got {closure_tol!r}")

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from elastic_pm_dyn.model.description import SLIP_SPEED
+from elastic_pm_dyn.model.description import dry_friction_law
 
 MAX_NAMED = 6  # elements named in a line; the rest counted
 
@@ -51,8 +51,8 @@ def dropped_lines(m, mujoco, names: dict[str, list[str]], coupled_tendons: set[i
     if not off & int(bit.mjDSBL_FRICTIONLOSS):
         dry = [f"{joints[m.dof_jntid[d]]} {m.dof_frictionloss[d]:.4g}" for d in range(m.nv) if m.dof_frictionloss[d]]
         if dry:
-            out.append(f"friction loss is dry (Coulomb) friction regularised over a slip speed of {SLIP_SPEED:g} (m/s, "
-                       f"rad/s: F tanh(qd / v_s), MuJoCo's a soft constraint): {listed(list(dict.fromkeys(dry)))}")
+            out.append(f"friction loss is dry (Coulomb) friction, {dry_friction_law()} (MuJoCo's a soft constraint): "
+                       f"{listed(list(dict.fromkeys(dry)))}")
         dry = [f"{tendons[t]} {m.tendon_frictionloss[t]:.4g}" for t in range(m.ntendon) if m.tendon_frictionloss[t]]
         if dry:
             out.append(f"tendon friction loss is left out: {listed(dry)}")

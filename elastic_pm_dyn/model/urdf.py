@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from elastic_pm_dyn.model.description import SLIP_SPEED, Body, rpy_to_matrix
+from elastic_pm_dyn.model.description import Body, dry_friction_law, rpy_to_matrix
 from elastic_pm_dyn.model.kinematic_tree import (
     FIXED,
     PRISMATIC,
@@ -84,8 +84,7 @@ def _dropped(src: XmlSource, root: ET.Element) -> list[str]:
     if efforts:
         out.append(f"effort and velocity limits are not applied (inputs are not clamped): {listed(efforts)}")
     if friction:
-        out.append(f"<dynamics friction> is dry (Coulomb) friction regularised over a slip speed of {SLIP_SPEED:g} "
-                   f"(m/s, rad/s: F tanh(qd / v_s)): {listed(friction)}")
+        out.append(f"<dynamics friction> is dry (Coulomb) friction, {dry_friction_law()}: {listed(friction)}")
     reductions = [el.get("name") or f"line {src.line(el)}" for el in root.findall("transmission")]
     if reductions:
         out.append(f"<transmission>s are not read (inputs are joint torques, reductions left out): "

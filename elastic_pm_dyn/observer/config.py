@@ -89,6 +89,10 @@ DEFAULT_PARAMETERS: dict[str, Any] = {
     "process.torque_noise_psd": 1.0e-10,  # white torque on active joints [(N m)^2 s]
     "process.elastic_force_psd": 1.0e-12,  # white force on elastic joints (model error) [N^2 s]
     "process.vibration_noise": 2.0e-11,  # ... plus this times the vibration-force amplitude^2 [s]
+    # dry friction F on a q_ae joint (MJCF frictionloss, URDF friction), a known term with its own
+    # uncertainty: a white force of PSD this times F^2 on it [s]. 1e-4 s is 2 sigma^2 tau of a
+    # friction force off by sigma = 0.1 F for tau = 5 ms at a time (the PSD of such a process)
+    "process.friction_noise": 1.0e-4,
     # --- initial uncertainty (1 sigma)
     "initial.source": "measurement",  # measurement (first joint state) | model (its initial_state)
     "initial.active_position_stddev": 1.0e-4,  # [rad]
@@ -170,6 +174,11 @@ class ProcessConfig:
     wrench_jump_stddev: float = 10.0
     wrench_jump_torque_stddev: float = 1.0
     wrench_jump_probability: float = 0.999
+    friction_noise: float = 1.0e-4  # [s] PSD of a q_ae joint's friction uncertainty over its F^2
+
+    def friction_psd(self, coulomb: np.ndarray) -> np.ndarray:
+        """The white force's PSD [(N m)^2 s or N^2 s] on joints with dry friction ``coulomb`` (F)."""
+        return self.friction_noise * np.asarray(coulomb, dtype=float) ** 2
 
 
 @dataclass
@@ -260,7 +269,8 @@ class ObserverConfig:
                                   p["process.torque_noise_psd"], p["process.elastic_force_psd"],
                                   p["process.vibration_noise"], p["process.wrench"], p["process.wrench_intensity"],
                                   p["process.wrench_torque_intensity"], p["process.wrench_jump_stddev"],
-                                  p["process.wrench_jump_torque_stddev"], p["process.wrench_jump_probability"]),
+                                  p["process.wrench_jump_torque_stddev"], p["process.wrench_jump_probability"],
+                                  p["process.friction_noise"]),
             initial=InitialConfig(p["initial.source"], p["initial.active_position_stddev"],
                                   p["initial.elastic_position_stddev"], p["initial.active_velocity_stddev"],
                                   p["initial.elastic_velocity_stddev"], p["initial.disturbance_stddev"],
@@ -329,6 +339,7 @@ class ObserverConfig:
                         "process.torque_noise_psd": self.process.torque_noise_psd,
                         "process.elastic_force_psd": self.process.elastic_force_psd,
                         "process.vibration_noise": self.process.vibration_noise,
+                        "process.friction_noise": self.process.friction_noise,
                         "process.wrench_intensity": self.process.wrench_intensity,
                         "process.wrench_torque_intensity": self.process.wrench_torque_intensity,
                         "process.wrench_jump_stddev": self.process.wrench_jump_stddev,

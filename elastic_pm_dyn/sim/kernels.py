@@ -29,6 +29,8 @@ from elastic_pm_dyn.kinematics.kernels import (
     tree_terms,
     tree_terms_into,
 )
+from elastic_pm_dyn.model.arrays import ModelArrays
+from elastic_pm_dyn.model.layout import JF_COULOMB, JF_SLIP, STICK_SPEED
 from elastic_pm_dyn.small_linalg import cholesky_recip, cholesky_solve_rows, lu_factor, lu_solve, matvec
 
 STAB_BAUMGARTE = 1
@@ -447,14 +449,18 @@ def rk4_steps(form, ma, q, qd, tau_coef, dt, n_steps, stab, alpha, beta, tol, si
                 info[1] = cond
                 info[2] = g
                 return SINGULAR
+        stop = stops_within(ma.jf, qd, v2, v3, v4)  # a sliding joint with Coulomb friction stops at a stage
         # the new state goes to q4, v4 first: a step that diverges leaves (q, qd) as they were
         for i in range(n):
             q4[i] = q[i] + dt / 6.0 * (qd[i] + 2.0 * v2[i] + 2.0 * v3[i] + v4[i])
             v4[i] = qd[i] + dt / 6.0 * (a1[i] + 2.0 * a2[i] + 2.0 * a3[i] + a4[i])
+        if stop or stops_within(ma.jf, qd, v4, v4, v4):  # ... or at the step's end
+            stop_within_step(form, ma, q, qd, tau_coef, s0, dt, a, b, tol, qdd_prev, lam, ws, q4, v4)
         if not _sane(q4, v4, limit):
             return unsound_step(worst, a1, a4, gap, info)
         q[:] = q4
         qd[:] = v4
+        settle_at_rest(ma.jf, qd)
         if form == LDA:
             gap, cond = partition(ma, q, qd, tol, np.int64(4))
             if cond < lda_tol or not gap <= NEWTON_FAILED:
@@ -491,3 +497,141 @@ def _diverged(ma, qs, vs, tau, a, b, qdd_prev, acc, lam, ws, form, info):
     info[1] = np.max(np.abs(acc))
     info[2] = g
     return DIVERGED
+
+
+# A sliding joint with Coulomb friction that stops within an RK4 step (its velocity at a stage or
+# at the step's end reaches STICK_SPEED or beyond): the step is taken again in pieces, each under
+# the law of its start frozen, every sliding joint's friction a constant -F sign(qd) (smooth, so
+# RK4 keeps its order and the velocity's zero is found by the Illinois method to STICK_SPEED in
+# at most STOP_ITERATIONS pieces); the first joint to stop gets a velocity of exactly 0 there, and
+# the rest of the step is taken from that state, where Coulomb's law at rest decides whether it
+# sticks (at most STOPS_PER_STEP stops a step). Without it the friction's sign would flip within
+# the step's stages and the joint chatter about zero speed instead of sticking.
+STOP_ITERATIONS = 40
+STOPS_PER_STEP = 8
+
+
+@njit(cache=True)
+def _sliding(jf, k, v):
+    """Joint k has Coulomb friction (no slip speed) and slides at v (|v| > STICK_SPEED)."""
+    return jf[k, JF_COULOMB] > 0.0 and jf[k, JF_SLIP] == 0.0 and abs(v) > STICK_SPEED
+
+
+@njit(cache=True)
+def stops_within(jf, qd0, v2, v3, v4):
+    """A joint sliding at qd0 whose velocity at a later stage (v2, v3, v4) or at the step's end
+    has reached STICK_SPEED or crossed zero."""
+    for k in range(jf.shape[0]):
+        if _sliding(jf, k, qd0[k]):
+            s = 1.0 if qd0[k] > 0.0 else -1.0
+            if s * v2[k] <= STICK_SPEED or s * v3[k] <= STICK_SPEED or s * v4[k] <= STICK_SPEED:
+                return True
+    return False
+
+
+@njit(cache=True)
+def settle_at_rest(jf, qd):
+    """A joint with Coulomb friction whose velocity a step ends within +-STICK_SPEED (its stop
+    fell on the step's end) is at rest: its velocity set to exactly 0."""
+    for k in range(jf.shape[0]):
+        if jf[k, JF_COULOMB] > 0.0 and jf[k, JF_SLIP] == 0.0 and abs(qd[k]) <= STICK_SPEED:
+            qd[k] = 0.0
+
+
+@njit(cache=True)
+def _first_zero(jf, qd0, qd1):
+    """The joint sliding at qd0 whose velocity qd1 has crossed zero, the first by linear
+    interpolation; -1: none."""
+    first = -1
+    when = 2.0
+    for k in range(jf.shape[0]):
+        if _sliding(jf, k, qd0[k]) and (qd0[k] > 0.0) != (qd1[k] > 0.0):
+            theta = qd0[k] / (qd0[k] - qd1[k])
+            if theta < when:
+                first, when = k, theta
+    return first
+
+
+@njit(cache=True)
+def frozen_slip(ma, qd, tau_coef):
+    """The model and torque polynomial with every joint sliding at qd under a constant friction:
+    its Coulomb friction moved out of the model into the torque, -F sign(qd)."""
+    jf = ma.jf.copy()
+    coef = tau_coef.copy()
+    for k in range(jf.shape[0]):
+        if _sliding(ma.jf, k, qd[k]):
+            coef[0, k] -= jf[k, JF_COULOMB] if qd[k] > 0.0 else -jf[k, JF_COULOMB]
+            jf[k, JF_COULOMB] = 0.0
+    return ModelArrays(jf, ma.ji, ma.chain_start, ma.points, ma.point_body, ma.gravity, ma.closure_pairs,
+                       ma.closure_axes, ma.hub, ma.ae_index, ma.p_index, ma.couplings), coef
+
+
+@njit(cache=True)
+def stop_within_step(form, ma, q, qd, tau_coef, s0, dt, a, b, tol, qdd_prev, lam, ws, q_out, qd_out):
+    """The RK4 step of dt from (q, qd) at s0 into (q_out, qd_out) through the stops of its
+    sliding joints with Coulomb friction (see STOP_ITERATIONS)."""
+    qa, va = q.copy(), qd.copy()  # the state after the part of the step done
+    done = 0.0
+    for _ in range(STOPS_PER_STEP):
+        rest = dt - done
+        mf, coef = frozen_slip(ma, va, tau_coef)
+        rk4_piece(form, mf, qa, va, coef, s0 + done, rest, a, b, tol, qdd_prev, lam, ws, q_out, qd_out)
+        j = _first_zero(ma.jf, va, qd_out)
+        if j < 0:
+            return
+        lo, hi, vlo, vhi, side = 0.0, rest, va[j], qd_out[j], 0
+        t = rest
+        for _ in range(STOP_ITERATIONS):
+            t = (lo * vhi - hi * vlo) / (vhi - vlo)
+            rk4_piece(form, mf, qa, va, coef, s0 + done, t, a, b, tol, qdd_prev, lam, ws, q_out, qd_out)
+            v = qd_out[j]
+            if abs(v) <= STICK_SPEED or hi - lo <= 1e-15 * dt:
+                break
+            if (v > 0.0) == (vlo > 0.0):
+                lo, vlo = t, v
+                if side < 0:
+                    vhi *= 0.5
+                side = -1
+            else:
+                hi, vhi = t, v
+                if side > 0:
+                    vlo *= 0.5
+                side = 1
+        qd_out[j] = 0.0
+        qa[:] = q_out
+        va[:] = qd_out
+        done += t
+    # more stops than that in one step: the rest of it as the plain step takes it
+    rk4_piece(form, ma, qa, va, tau_coef, s0 + done, dt - done, a, b, tol, qdd_prev, lam, ws, q_out, qd_out)
+@njit(cache=True)
+def rk4_piece(form, ma, q, qd, tau_coef, s, h, a, b, tol, qdd_prev, lam, ws, q_out, qd_out):
+    """One classical RK4 step of h from (q, qd) at the time s of the call's torque polynomial
+    into (q_out, qd_out), as :func:`rk4_steps` takes them, without its checks."""
+    n = q.shape[0]
+    k = np.empty((4, n))
+    qs, vs, tau = q.copy(), qd.copy(), np.empty(n)
+    acc = np.empty(n)
+    for stage in range(4):
+        c = 0.0 if stage == 0 else (1.0 if stage == 3 else 0.5)
+        if stage > 0:
+            for i in range(n):
+                qs[i] = q[i] + c * h * vs[i]
+                vs[i] = qd[i] + c * h * k[stage - 1, i]
+        st = s + c * h
+        for i in range(n):
+            tau[i] = tau_coef[0, i] + st * (tau_coef[1, i] + st * tau_coef[2, i])
+        if form == LDA:
+            partition(ma, qs, vs, tol, np.int64(4))
+        accelerations_into(form, ma, qs, vs, tau, a, b, qdd_prev, acc, lam, ws)
+        qdd_prev[:] = acc
+        k[stage] = acc
+        if stage == 0:
+            for i in range(n):
+                q_out[i] = qd[i]  # the stage velocities' weighted sum, for q
+        else:
+            w = 1.0 if stage == 3 else 2.0
+            for i in range(n):
+                q_out[i] += w * vs[i]
+    for i in range(n):
+        q_out[i] = q[i] + h / 6.0 * q_out[i]
+        qd_out[i] = qd[i] + h / 6.0 * (k[0, i] + 2.0 * k[1, i] + 2.0 * k[2, i] + k[3, i])

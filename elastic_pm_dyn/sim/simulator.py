@@ -17,6 +17,13 @@ from elastic_pm_dyn.kinematics.assembly import initial_state
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.pinned_kernels import KernelPins
 from elastic_pm_dyn.sim import batch, exponential, integrators, kernels
+from elastic_pm_dyn.sim.coulomb_events import (
+    coulomb_joints,
+    frozen_slip,
+    segment_events,
+    settle_at_rest,
+    settle_stops,
+)
 from elastic_pm_dyn.sim.result import SimulationResult
 from elastic_pm_dyn.sim.stopped import integration_error
 from elastic_pm_dyn.sim.torque import TorqueSource
@@ -41,6 +48,8 @@ STEPS_PER_CALL = 1000
 # Intervals between output samples and torque breakpoints planned at once by an offline run
 # (a few arrays of this length): bounds its memory on long runs.
 INTERVALS_PER_BLOCK = 2**16
+# DOP853 segments (between Coulomb friction's stops and breakaways) per interval of a run
+MAX_SEGMENTS = 10000
 
 @dataclass
 class SimulationOptions:
@@ -105,6 +114,7 @@ class Simulator:
         self.method = self.integrator.kernel  # (method, exponential scheme) of the compiled kernels
         # one piece of a run: compiled fixed steps, or scipy's adaptive DOP853
         self._advance_piece = self._advance_fixed if self.integrator.fixed_step else self._advance_adaptive
+        self._coulomb = coulomb_joints(mech.arrays.jf)  # joints whose stops DOP853 finds as events
 
     # ------------------------------------------------------------------ stepping
     def advance(self, q: np.ndarray, qd: np.ndarray, torque: TorqueSource, t0: float, t1: float) -> None:
@@ -189,6 +199,7 @@ class Simulator:
         coef = None if torque.smooth else torque.coefficients(t0, t1 - t0)
         tau = np.zeros(n)
         qdd = np.empty(n)
+        law = [mech.arrays, None]  # a segment's arrays and friction force of its sliding joints (frozen_slip)
 
         def evaluate(t: float, y: np.ndarray, qdd_prev: np.ndarray) -> tuple[float, np.ndarray]:
             qq, vv = y[:n].copy(), y[n:].copy()
@@ -196,7 +207,9 @@ class Simulator:
                 kernels.partition(mech.arrays, qq, vv, o.closure_tol, 4)
             s = t - t0
             mech.split_tau(torque.value(t) if coef is None else coef[0] + s * (coef[1] + s * coef[2]), out=tau)
-            cond, _ = evaluate_kernel(self.code, mech.arrays, qq, vv, tau, a, b, qdd_prev, qdd, self.lam)
+            if law[1] is not None:
+                tau[:] += law[1]
+            cond, _ = evaluate_kernel(self.code, law[0], qq, vv, tau, a, b, qdd_prev, qdd, self.lam)
             return cond, vv
 
         def rhs(t: float, y: np.ndarray) -> np.ndarray:
@@ -204,18 +217,35 @@ class Simulator:
             self.qdd_prev[:] = qdd
             return np.concatenate([vv, qdd])
 
-        sol = solve_ivp(rhs, (t0, t1), np.concatenate([q, qd]), method="DOP853", rtol=o.rtol, atol=o.atol)
-        # The conditioning where the solution went (its accepted steps), not at the stages of
-        # the steps it tried and rejected: those probe states far off the path (the Triglide at
-        # n_ek = 4 under a 1 kHz-sampled chirp "failed" at 5e-9 on a path whose conditioning
-        # stays at 0.65 for RK4 and ETD2)
-        worst = min((evaluate(float(t), y, self.qdd_prev.copy())[0] for t, y in zip(sol.t[1:], sol.y.T[1:],
-                                                                                    strict=True)), default=1.0)
-        if not sol.success or worst < o.singular_tol:
+        y, t = np.concatenate([q, qd]), t0
+        for _ in range(MAX_SEGMENTS):  # segments between Coulomb friction's events (sim/coulomb_events.py)
+            events = None
+            if len(self._coulomb):  # the segment's law: its sliding joints' friction frozen
+                law[:] = frozen_slip(mech.arrays, self._coulomb, y[n:])
+                events = segment_events(self._coulomb, n, y)
+            sol = solve_ivp(rhs, (t, t1), y, method="DOP853", rtol=o.rtol, atol=o.atol, events=events)
+            # The conditioning where the solution went (its accepted steps), not at the stages of
+            # the steps it tried and rejected: those probe states far off the path (the Triglide at
+            # n_ek = 4 under a 1 kHz-sampled chirp "failed" at 5e-9 on a path whose conditioning
+            # stays at 0.65 for RK4 and ETD2)
+            worst = min((evaluate(float(s), yy, self.qdd_prev.copy())[0] for s, yy in zip(sol.t[1:], sol.y.T[1:],
+                                                                                          strict=True)), default=1.0)
+            if not sol.success or worst < o.singular_tol:
+                raise SingularConfigurationError(
+                    f"adaptive integration failed between t = {t0:.6g} and {t1:.6g} s "
+                    f"(conditioning {worst:.3g}; {sol.message})", time=t0, residual=mech.gap(q))
+            end = sol.y[:, -1].copy()
+            settle_at_rest(self._coulomb, end[n:])
+            if sol.status != 1:  # reached t1
+                y = end
+                break
+            settle_stops(self._coulomb, n, y, [len(te) > 0 for te in sol.t_events], end)
+            y, t = end, float(sol.t[-1])
+        else:
             raise SingularConfigurationError(
-                f"adaptive integration failed between t = {t0:.6g} and {t1:.6g} s "
-                f"(conditioning {worst:.3g}; {sol.message})", time=t0, residual=mech.gap(q))
-        q[:], qd[:] = sol.y[:n, -1], sol.y[n:, -1]
+                f"adaptive integration between t = {t0:.6g} and {t1:.6g} s stopped at {t:.6g} s: more than "
+                f"{MAX_SEGMENTS} stops and breakaways of joints with Coulomb friction", time=t, residual=mech.gap(q))
+        q[:], qd[:] = y[:n], y[n:]
         if self.code == LDA:
             kernels.partition(mech.arrays, q, qd, o.closure_tol, 4)
         elif self.stab & kernels.STAB_PROJECTION:

@@ -35,6 +35,7 @@ import numpy as np
 from elastic_pm_dyn.errors import ElasticPmDynError, InputError
 from elastic_pm_dyn.kinematics.mechanism import Mechanism
 from elastic_pm_dyn.model.description import ACTIVE
+from elastic_pm_dyn.model.layout import JF_COULOMB
 from elastic_pm_dyn.observer.config import RUNTIME_PARAMETERS, ObserverConfig
 from elastic_pm_dyn.observer.core import correction, disturbance, kernels, period, wrench_kernels
 from elastic_pm_dyn.observer.core.chi_square import chi2_quantile
@@ -87,6 +88,7 @@ class Ekf:
         self.nx = 2 * nae + self.nz
         roles = model.roles
         self.psd_ae = np.array([pc.torque_noise_psd if r == ACTIVE else pc.elastic_force_psd for r in roles])
+        self.psd_ae += pc.friction_psd(self.mech.arrays.jf[self.ae, JF_COULOMB])  # friction's own uncertainty
         self.rel_ae = np.array([0.0 if r == ACTIVE else pc.vibration_noise for r in roles])
         self._psd_scale = 1.0  # the noise intensities' factor (a recovery grows it; a reset undoes it)
         # the kernels' bundle of this configuration (psd_ae and psd_z grow in place at a recovery)
