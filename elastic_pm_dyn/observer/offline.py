@@ -5,7 +5,8 @@ the filter (:mod:`~elastic_pm_dyn.observer.drivers.event_filter`: the same
 :class:`~elastic_pm_dyn.observer.drivers.stream.ObserverStream` as the live node, ordinary periods
 many at once in one compiled call) and writes (:mod:`~elastic_pm_dyn.observer.drivers.bag_output`)
 ``estimates.csv``, ``estimates/`` (a bag of estimates) and ``summary.json`` (counts,
-rejections, mean NIS, speed, the observability report; :mod:`~elastic_pm_dyn.observer.drivers.results`).
+rejections, mean NIS, speed, the observability report; :mod:`~elastic_pm_dyn.observer.drivers.results`);
+with wrench states also ``contacts.csv`` (:mod:`~elastic_pm_dyn.observer.drivers.contacts`).
 
 ``smoother="rts"`` (``observe --smoother rts``): after the filter pass, a backward
 Rauch-Tung-Striebel pass over its rows (:mod:`~elastic_pm_dyn.observer.tuning.smoother`);

@@ -109,6 +109,22 @@ def test_observe_bag_and_analyze_plot_the_wrench(five_bar, tmp_path):
         rows = list(csv.DictReader(fh))
     fx = np.array([float(r["wrench_force_x"]) for r in rows])
     assert abs(np.mean(fx[20:55])) < 0.3 and np.mean(fx[80:]) > 1.0  # nothing, then a push along +x
+    # the push is a contact: in contacts.csv and summary.json, at the stamp the bag's event has
+    import json
+
+    from elastic_pm_dyn.bags.reader import open_bag
+    with open(tmp_path / "out" / "contacts.csv") as fh:
+        events = list(csv.DictReader(fh))
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert events and events[0]["kind"] == "contact" and len(summary["contacts"]) == len(events)
+    assert [int(e["stamp_ns"]) for e in events] == [c["stamp_ns"] for c in summary["contacts"]]
+    stamp_of = {int(r["stamp_ns"]): float(r["t"]) for r in rows}
+    t_row = stamp_of[int(events[0]["stamp_ns"])]  # the event sits on a row, from the push on
+    assert abs(float(events[0]["t"]) - t_row) < 1e-12 and t_row > 0.06 - 1e-9
+    topics = ("/observer/contact", "/observer/contact_release")
+    with open_bag(tmp_path / "out" / "estimates") as b:
+        bag_events = sorted(ns for _, ns, _ in b.messages([c for c in b.connections if c.topic in topics]))
+    assert bag_events == [int(e["stamp_ns"]) for e in events]
     report = analyze(five_bar, tmp_path / "out" / "estimates", tmp_path / "an")
     assert (tmp_path / "an" / "wrench.png").exists()
     assert report is not None

@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from elastic_pm_dyn.observer.core.estimate import Estimate
+from elastic_pm_dyn.observer.drivers import contacts
 from elastic_pm_dyn.observer.drivers.rows import (  # noqa: F401 - all but Rows: their old import path
     SENSORS,
     Rows,
@@ -77,6 +78,7 @@ class ObserveSummary:
     wall_read_s: float
     wall_filter_s: float
     observability: str  # the observability report (text)
+    contacts: list[dict] | None = None  # with wrench states: the contact events (drivers/contacts.py), else no key
     smoother: str | None = None  # the smoother's name (observe --smoother), its numbers in ``smoothing``
     smoothing: dict | None = None  # None: no smoother (no key in JSON)
     # wall times [s]: writing (None, no key, without an output folder), total; bag seconds per wall second
@@ -89,7 +91,7 @@ class ObserveSummary:
         d = {f.name: getattr(self, f.name) for f in fields(self)}
         d["health"] = list(self.health)
         d["sensors"] = {k: v.to_dict() for k, v in self.sensors.items()}
-        for key in ("smoothing", "wall_write_s"):
+        for key in ("contacts", "smoothing", "wall_write_s"):
             if d[key] is None:
                 del d[key]
         return d
@@ -159,6 +161,11 @@ def summary(bag: str | Path, topics: Any, counts: dict, order: str, events: list
 def finish(summary: ObserveSummary, out: str | Path | None, wall0: float, rows: Rows, obs: Observer,
            filtered: Rows | None = None) -> OfflineResult:
     """Total wall time (since ``wall0``) and speed into ``summary``, written as ``out/summary.json``."""
+    events = contacts.contact_events(rows)
+    if events is not None:
+        summary.contacts = contacts.summary_entries(events)
+        if out is not None:
+            contacts.write_csv(Path(out) / "contacts.csv", rows, events)
     summary.wall_total_s = time.perf_counter() - wall0
     summary.speed_factor = summary.duration_s / summary.wall_total_s if summary.wall_total_s > 0 else float("inf")
     if out is not None:
