@@ -126,7 +126,41 @@ class SerializedMessage:
         return bytes(self.buffer)
 
 
-class PlantMessages:
+class SerializedStates:
+    """``joint_states``, ``branch_forces`` and ``ee_pose`` kept as CDR bytes (:class:`SerializedMessage`
+    ``_js``, ``_bf``, ``_pose``, made by the subclass): the bytes to publish, and the same decoded as
+    rclpy messages (for inspection, not for the 1 kHz path)."""
+
+    _js: SerializedMessage
+    _bf: SerializedMessage
+    _pose: SerializedMessage
+
+    @property
+    def joint_state_raw(self) -> bytes:
+        return self._js.raw()
+
+    @property
+    def branch_forces_raw(self) -> bytes:
+        return self._bf.raw()
+
+    @property
+    def ee_pose_raw(self) -> bytes:
+        return self._pose.raw()
+
+    @property
+    def joint_state(self) -> JointState:
+        return deserialize_message(self.joint_state_raw, JointState)
+
+    @property
+    def branch_forces(self) -> BranchForces:
+        return deserialize_message(self.branch_forces_raw, BranchForces)
+
+    @property
+    def ee_pose(self) -> PoseStamped:
+        return deserialize_message(self.ee_pose_raw, PoseStamped)
+
+
+class PlantMessages(SerializedStates):
     """The plant's ``joint_states``, ``branch_forces``, ``ee_pose`` and ``/clock``, serialized once and
     refilled from a :class:`Plant` in place for each publication (:meth:`fill`, then the ``*_raw``
     bytes to publish). Field by field they are what :class:`StateMessages` would build from the
@@ -183,42 +217,16 @@ class PlantMessages:
         else:
             np.dot(self._ee_projector, self._tips[self._ee_chain], out=self.ee_xyz)
 
-    # What to publish: the bytes of each message as last filled.
-    @property
-    def joint_state_raw(self) -> bytes:
-        return self._js.raw()
-
-    @property
-    def branch_forces_raw(self) -> bytes:
-        return self._bf.raw()
-
-    @property
-    def ee_pose_raw(self) -> bytes:
-        return self._pose.raw()
-
     @property
     def clock_raw(self) -> bytes:
         return bytes(self._clock)
-
-    # The same as rclpy messages (decoded from the bytes: for inspection, not for the 1 kHz path).
-    @property
-    def joint_state(self) -> JointState:
-        return deserialize_message(self.joint_state_raw, JointState)
-
-    @property
-    def branch_forces(self) -> BranchForces:
-        return deserialize_message(self.branch_forces_raw, BranchForces)
-
-    @property
-    def ee_pose(self) -> PoseStamped:
-        return deserialize_message(self.ee_pose_raw, PoseStamped)
 
     @property
     def clock(self) -> Clock:
         return deserialize_message(self.clock_raw, Clock)
 
 
-class EstimateMessages:
+class EstimateMessages(SerializedStates):
     """An observer :class:`~elastic_pm_dyn.observer.core.estimate.Estimate` as the plant's state messages
     (``branch_forces`` with ``force_stddev``) plus ``stddev``: a JointState whose position and
     velocity hold the 1-sigma standard deviations of every tree joint (effort empty). Serialized
@@ -246,35 +254,9 @@ class EstimateMessages:
             view[:] = values
         self._pose.arrays[0][:] = ee_in_base(e.ee, self._ee_unit, self._ee_axes)
 
-    # What to publish: the bytes of each message as last filled.
-    @property
-    def joint_state_raw(self) -> bytes:
-        return self._js.raw()
-
-    @property
-    def branch_forces_raw(self) -> bytes:
-        return self._bf.raw()
-
-    @property
-    def ee_pose_raw(self) -> bytes:
-        return self._pose.raw()
-
     @property
     def stddev_raw(self) -> bytes:
         return self._std.raw()
-
-    # The same as rclpy messages (decoded from the bytes: for inspection, not for the 1 kHz path).
-    @property
-    def joint_state(self) -> JointState:
-        return deserialize_message(self.joint_state_raw, JointState)
-
-    @property
-    def branch_forces(self) -> BranchForces:
-        return deserialize_message(self.branch_forces_raw, BranchForces)
-
-    @property
-    def ee_pose(self) -> PoseStamped:
-        return deserialize_message(self.ee_pose_raw, PoseStamped)
 
     @property
     def stddev(self) -> JointState:
