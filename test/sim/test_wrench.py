@@ -1,10 +1,11 @@
-"""The external wrench on the end effector: its joint forces, checked by physics.
+"""The external wrench on the end effector: its joint forces, checked by physics and by MuJoCo.
 
 - J^T w projected on q_ae equals the parallel Jacobian of seed eq 31 (a different route:
   branch directions and the static matrix S) on all three machines, couples included;
 - static equilibrium: motors that push back with eq 31's torques hold still under the
   wrench (springs settle), while without them the same wrench moves the machine;
-- a wall pushes only when the tool is inside it, along its normal.
+- a wall pushes only when the tool is inside it, along its normal;
+- MuJoCo's ``mj_applyFT`` of the same force adds the same accelerations to the five-bar.
 """
 
 import numpy as np
@@ -103,3 +104,54 @@ def test_work_of_a_constant_force_is_the_energy_gained(name):
     gained = sum(mech.energy(plant.q, plant.qd)) - e0 - hold @ (plant.q[mech.active] - initial_state(mech)[mech.active])
     assert abs(work) > 1e-3  # it moved
     assert gained == pytest.approx(work, rel=1e-4)
+
+
+def test_a_force_at_the_end_effector_accelerates_as_in_mujoco():
+    """MuJoCo, an engine we did not write, maps the same force at the end-effector point
+    (``mj_applyFT`` on the body that carries it) to generalised forces; the accelerations it adds
+    to the reference five-bar (test/robots/five_bar.xml, the loop a nearly hard ``connect``)
+    equal ours from WrenchMap's J^T f within MuJoCo's soft loop (~2e-5, docs/peers.md)."""
+    import sys
+    from pathlib import Path
+
+    mujoco = pytest.importorskip("mujoco")
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # test/: consistent_states
+    from consistent_states import consistent_states
+
+    from elastic_pm_dyn.dynamics.evaluate import FORMULATION_CODES, accelerations
+    mjcf = Path(__file__).resolve().parents[1] / "robots" / "five_bar.xml"
+    mech = Mechanism(load_model(mjcf))
+    wmap = WrenchMap(mech)
+    m = mujoco.MjModel.from_xml_path(str(mjcf))
+    d = mujoco.MjData(m)
+    adr = [m.jnt_dofadr[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, n)] for n in mech.joint_names]
+    carrier = mech.joint_names[mech.arrays.point_body[wmap.point]]  # the joint of the point's body
+    body = m.jnt_bodyid[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, carrier)]
+
+    def ours(q, qd, tau):
+        qdd = np.empty(mech.n)
+        accelerations(FORMULATION_CODES["scdd"], mech.arrays, q, qd, tau, 0.0, 0.0, np.zeros(mech.n), qdd,
+                      np.zeros(mech.m))
+        return qdd
+
+    def theirs(q, qd, tau, f, p):
+        mujoco.mj_resetData(m, d)
+        d.qpos[adr], d.qvel[adr] = q, qd
+        mujoco.mj_forward(m, d)  # positions first: mj_applyFT reads the body's frame
+        qfrc = np.zeros(m.nv)
+        mujoco.mj_applyFT(m, d, f, np.zeros(3), p, body, qfrc)
+        d.qfrc_applied[adr] = tau
+        d.qfrc_applied[:] += qfrc
+        mujoco.mj_forward(m, d)
+        return d.qacc[adr].copy()
+
+    rng = np.random.default_rng(43)
+    worst = 0.0
+    for q, qd, tau in consistent_states(mech, rng, 6):
+        f = np.array([*rng.uniform(-3.0, 3.0, 2), 0.0])  # [N], in the machine's plane
+        p, _ = wmap.point_state(q, qd)
+        ours_added = ours(q, qd, tau + wmap.tree_forces(q, np.concatenate([f, np.zeros(3)]))) - ours(q, qd, tau)
+        theirs_added = theirs(q, qd, tau, f, p) - theirs(q, qd, tau, np.zeros(3), p)
+        worst = max(worst, float(np.abs(ours_added - theirs_added).max() / np.abs(ours_added).max()))
+    print(f"MuJoCo five-bar, a force at the end effector: max rel. difference of the added qdd {worst:.2e}")
+    assert worst < 1e-3
