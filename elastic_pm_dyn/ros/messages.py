@@ -127,13 +127,23 @@ class SerializedMessage:
 
 
 class SerializedStates:
-    """``joint_states``, ``branch_forces`` and ``ee_pose`` kept as CDR bytes (:class:`SerializedMessage`
-    ``_js``, ``_bf``, ``_pose``, made by the subclass): the bytes to publish, and the same decoded as
-    rclpy messages (for inspection, not for the 1 kHz path)."""
+    """``joint_states``, ``branch_forces`` and ``ee_pose`` of ``mech`` kept as CDR bytes
+    (:class:`SerializedMessage` ``_js``, ``_bf`` (with ``force_stddev`` if ``with_stddev``, else
+    empty), ``_pose``): the bytes to publish, and the same decoded as rclpy messages (for
+    inspection, not for the 1 kHz path)."""
 
-    _js: SerializedMessage
-    _bf: SerializedMessage
-    _pose: SerializedMessage
+    def __init__(self, mech: Mechanism, base_frame: str, with_stddev: bool):
+        n, names = mech.n, list(mech.joint_names)
+        branches = [b.name for b in mech.model.branches]
+        nb = len(branches)
+        self._js = SerializedMessage(lambda a: cdr.encode_joint_state(0, names, *a), (n, n, n))
+        if with_stddev:
+            self._bf = SerializedMessage(lambda a: cdr.encode_branch_forces(0, branches, *a), (nb,) * 4)
+        else:
+            self._bf = SerializedMessage(lambda a: cdr.encode_branch_forces(0, branches, *a, np.zeros(0)), (nb,) * 3)
+        # PoseStamped: position xyz, then the orientation (0, 0, 0, 1): a point end effector has none.
+        self._pose = SerializedMessage(lambda a: cdr.encode_pose_stamped_batch([0], a[0][:3], base_frame)[0],
+                                       (3,))
 
     @property
     def joint_state_raw(self) -> bytes:
@@ -170,15 +180,8 @@ class PlantMessages(SerializedStates):
     def __init__(self, plant: Plant, base_frame: str):
         self.plant = plant
         mech = plant.mech
-        n, names = mech.n, list(mech.joint_names)
-        branches = [b.name for b in mech.model.branches]
-        nb = len(branches)
-        self._js = SerializedMessage(lambda a: cdr.encode_joint_state(0, names, *a), (n, n, n))
-        self._bf = SerializedMessage(lambda a: cdr.encode_branch_forces(0, branches, *a, np.zeros(0)),
-                                     (nb, nb, nb))
-        # PoseStamped: position xyz, then the orientation (0, 0, 0, 1): a point end effector has none.
-        self._pose = SerializedMessage(lambda a: cdr.encode_pose_stamped_batch([0], a[0][:3], base_frame)[0],
-                                       (3,))
+        super().__init__(mech, base_frame, with_stddev=False)
+        n = mech.n
         self._clock = bytearray(cdr.ENCAPSULATION + bytes(_CLOCK_SIZE - len(cdr.ENCAPSULATION)))
         self.position, self.velocity, self.effort = self._js.arrays
         self.force, self.deflection, self.rate = self._bf.arrays
@@ -234,14 +237,9 @@ class EstimateMessages(SerializedStates):
     field by field what :class:`StateMessages` builds from the same estimate."""
 
     def __init__(self, mech: Mechanism, base_frame: str):
-        n, names = mech.n, list(mech.joint_names)
-        branches = [b.name for b in mech.model.branches]
-        nb = len(branches)
-        self._js = SerializedMessage(lambda a: cdr.encode_joint_state(0, names, *a), (n, n, n))
-        self._bf = SerializedMessage(lambda a: cdr.encode_branch_forces(0, branches, *a), (nb, nb, nb, nb))
-        self._pose = SerializedMessage(lambda a: cdr.encode_pose_stamped_batch([0], a[0][:3], base_frame)[0],
-                                       (3,))
-        self._std = SerializedMessage(lambda a: cdr.encode_joint_state(0, names, *a, np.zeros(0)), (n, n))
+        super().__init__(mech, base_frame, with_stddev=True)
+        names = list(mech.joint_names)
+        self._std = SerializedMessage(lambda a: cdr.encode_joint_state(0, names, *a, np.zeros(0)), (mech.n,) * 2)
         self._ee_unit, self._ee_axes = mech.ee_unit, mech.ee_axes
 
     def fill(self, ns: int, e: Estimate) -> None:
