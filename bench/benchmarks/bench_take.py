@@ -63,10 +63,10 @@ def burst(way: str, n: int, context) -> float:
         got[0] += 1
     drain = Drain(max_per_turn=n)
     raw = way == "drain, raw"
-    callback = drain.callback(count) if way.startswith("drain") else count
-    sub = reader.create_subscription(JointState, "/take_bench", callback, qos, raw=raw)
     if way.startswith("drain"):
-        drain.add(sub, count)
+        drain.subscribe(reader, JointState, "/take_bench", count, qos, raw=raw)
+    else:
+        reader.create_subscription(JointState, "/take_bench", count, qos, raw=raw)
     pub = writer.create_publisher(JointState, "/take_bench", qos)
     executor = SingleThreadedExecutor(context=context)
     executor.add_node(reader)

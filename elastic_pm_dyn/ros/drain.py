@@ -20,6 +20,7 @@ from collections.abc import Callable
 from typing import Any
 
 from rclpy.exceptions import InvalidHandle
+from rclpy.node import Node
 from rclpy.subscription import Subscription
 
 MAX_PER_TURN = 300  # messages taken in one executor turn: timers and services wait at most this long
@@ -37,17 +38,16 @@ class Drain:
         self.turns = 0  # executor turns that took messages
         self.taken = 0  # messages taken directly (beyond the one the executor handed over)
 
-    def callback(self, handler: Handler) -> Handler:
-        """The callback to subscribe with: ``handler`` for the message the executor hands over,
-        then every queued message of the drained subscriptions."""
+    def subscribe(self, node: Node, msg_type: Any, topic: str, handler: Handler, qos: Any,
+                  **kwargs: Any) -> Subscription:
+        """``node.create_subscription`` (``kwargs``: raw, event_callbacks, ...) whose messages go to
+        ``handler``: the one the executor hands over, then every queued message of this drain's
+        subscriptions."""
 
         def on_message(msg: Any, info: dict[str, Any]) -> None:
             handler(msg, info)
             self.drain()
-        return on_message
-
-    def add(self, subscription: Subscription, handler: Handler) -> Subscription:
-        """Drain ``subscription`` (made with ``callback(handler)``) from now on."""
+        subscription = node.create_subscription(msg_type, topic, on_message, qos, **kwargs)
         self._inputs.append((subscription, handler))
         return subscription
 

@@ -40,8 +40,7 @@ def _wire(h: RosHarness, max_per_turn: int) -> tuple[Any, dict[str, list[int]], 
             got[topic].append(msg.data)
             order.append(topic)
             assert info["publication_sequence_number"] >= 1  # the message info travels with a direct take
-        sub = reader.create_subscription(Int64, topic, drain.callback(handler), OBSERVER_INPUT_QOS)
-        drain.add(sub, handler)
+        drain.subscribe(reader, Int64, topic, handler, OBSERVER_INPUT_QOS)
     pubs = [writer.create_publisher(Int64, t, OBSERVER_INPUT_QOS) for t in ("a", "b")]
     h.wait_until(lambda: all(p.get_subscription_count() == 1 for p in pubs), 600.0, "the readers to match")
     for k in range(N):

@@ -153,15 +153,13 @@ class ObserverMode:
         # this node lagged): counted per topic from the publication sequence numbers, said once a kind
         self.lost: dict[str, SequenceGaps] = {}
         # the executor wakes the node for one input message; what else is queued on the inputs is
-        # taken in the same turn (ros/drain.py: the executor costs 5-30x a direct take per message)
+        # taken in the same turn (ros/drain.py: the executor costs 5-20x a direct take per message)
         self.drain = Drain()
         for msg_type, topic, callback in inputs:  # a copy each: rclpy writes the overrides into the profile
             gaps = SequenceGaps()
             take, made = self._counted(gaps, callback)
-            made.append(node.create_subscription(msg_type, topic, self.drain.callback(take),
-                                                 copy.copy(OBSERVER_INPUT_QOS),
-                                                 qos_overriding_options=QoSOverridingOptions.with_default_policies()))
-            self.drain.add(made[0], take)
+            made.append(self.drain.subscribe(node, msg_type, topic, take, copy.copy(OBSERVER_INPUT_QOS),
+                                             qos_overriding_options=QoSOverridingOptions.with_default_policies()))
             self.lost[made[0].topic_name] = gaps
         node.create_service(Trigger, "~/reset", self._on_reset)
         node.create_service(SetJointState, "~/set_state", self._on_set_state)

@@ -291,16 +291,15 @@ class RecorderNode(ManagedNode):
 
         if self.lost_events_supported:
             try:
-                state.subscription = node.create_subscription(
-                    state.msg_class, topic, drain.callback(take), qos, raw=True,
+                state.subscription = drain.subscribe(
+                    node, state.msg_class, topic, take, qos, raw=True,
                     event_callbacks=SubscriptionEventCallbacks(message_lost=lost, matched=matched))
             except UnsupportedEventTypeError:  # an RMW without them: sequence gaps remain
                 self.lost_events_supported = False
                 self.get_logger().warning("this RMW reports no message-lost events: losses are counted "
                                           "from sequence gaps only")
         if not self.lost_events_supported:
-            state.subscription = node.create_subscription(state.msg_class, topic, drain.callback(take), qos, raw=True)
-        drain.add(state.subscription, take)
+            state.subscription = drain.subscribe(node, state.msg_class, topic, take, qos, raw=True)
         state.node = node
         where = "" if node is self else f" through a new DDS participant ({node.get_name()})"
         self.get_logger().info(f"subscribed to {topic} [{conn.msgtype}], depth {qos.depth}{where}")
