@@ -22,7 +22,10 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import os
+import signal
 import threading
+import time
 from collections.abc import Callable, Mapping
 from pathlib import Path
 
@@ -183,9 +186,6 @@ class _Workers:
 
     def _end_if_overdue(self, address: str, item: Item) -> None:
         """End the worker of an item ``OVERDUE_S`` past its limit (its watchdog did not fire)."""
-        import os
-        import signal
-        import time
         limit, since = self.limits.get(item.id), store.running_since(self.out, item)
         if limit is None or since is None or time.time() - since < limit + OVERDUE_S:
             return
