@@ -22,7 +22,7 @@ def contact_events(rows: Rows) -> list[tuple[int, ContactEvent]] | None:
         return None
     detector = ContactDetector(rows.layout)
     events = []
-    for ns, row in zip(rows.t, rows.table(), strict=True):
+    for ns, row in zip(rows.t, rows.flat, strict=True):  # row by row: no stacked copy of every covariance
         event = detector.update(row)
         if event is not None:
             events.append((int(ns), event))
