@@ -292,16 +292,18 @@ def _run_nodes(out: Path, bag: Path, mech: Mechanism, opts: LoopOptions) -> None
         procs.append(NodeProcess("plant", "elastic_pm_dyn.ros.plant.node", args["plant"], env, logs))
         procs.append(NodeProcess("recorder", "elastic_pm_dyn.ros.recorder.node", args["recorder"], env, logs))
         procs.append(NodeProcess("observer", "elastic_pm_dyn.ros.observer.node", args["observer"], env, logs))
-        controller = NodeProcess("controller", "elastic_pm_dyn.ros.feedforward.node", args["controller"], env, logs)
-        procs.append(controller)
-        print(f"  plant (lockstep), recorder, observer and controller started on ROS domain {domain_id}; "
-              f"logs in {logs}")
+        print(f"  plant (lockstep), recorder and observer started on ROS domain {domain_id}; logs in {logs}")
         with Kicker(domain_id, opts.topics(), pace_on_observer=opts.pace_on_observer) as kick:
-            kick.wait_for_graph(opts.timeout, procs)
+            kick.wait_for_graph(opts.timeout, procs, controller=False)
             # A subscriber in the graph is not yet a reader the plant serves (issue #29): the
-            # loop starts once the recorder has the plant's start state.
+            # controller starts (and with it the loop) once the recorder has the plant's start
+            # state. Started with the others, it could run the whole loop before the recorder
+            # was served, and end before this wait did (a CI run).
             wait_for_recording([opts.topics()["truth"]], domain_id, opts.timeout, procs)
-            print("  every node subscribed, the recorder receiving")
+            controller = NodeProcess("controller", "elastic_pm_dyn.ros.feedforward.node", args["controller"],
+                                     env, logs)
+            procs.append(controller)
+            print("  every node subscribed, the recorder receiving; controller started")
             how = kick.start_loop(opts.timeout, procs[:3])  # the controller may have finished already
             print(f"  loop running ({how})")
             kick.watch(controller, procs[:3], opts.timeout, logs)
@@ -342,7 +344,7 @@ class Kicker:
         self.needed = Counter({topics[k] for k in ("truth", "estimate", "command", "encoders", "imu", "reference")
                                if topics[k]})
         self.needed.update(t for t in (topics["command"], topics["encoders"], topics["imu"]) if t)
-        self.needed.update((topics["encoders"], topics["estimate" if pace_on_observer else "truth"]))
+        self.controller_reads = Counter((topics["encoders"], topics["estimate" if pace_on_observer else "truth"]))
         self.sensor_topics = [t for t in (topics["encoders"], topics["imu"]) if t]
         if localhost:  # the demo's loopback-only domain (ros_env); a launch keeps the user's setting
             os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
@@ -379,10 +381,13 @@ class Kicker:
                 p.check_running()
             self.executor.spin_once(timeout_sec=0.05)
 
-    def wait_for_graph(self, timeout: float, watch: list[NodeProcess]) -> None:
+    def wait_for_graph(self, timeout: float, watch: list[NodeProcess], controller: bool = True) -> None:
+        """Until every node reads and writes its topics (``controller`` False: every node but the
+        controller)."""
         deadline = time.monotonic() + timeout
+        needed = self.needed + self.controller_reads if controller else self.needed
         # the plant's robot_description comes after its t = 0 state: from then on it publishes only on commands
-        while (missing := [t for t, n in self.needed.items() if self.node.count_subscribers(t) < n]
+        while (missing := [t for t, n in needed.items() if self.node.count_subscribers(t) < n]
                + [t for t in (*self.sensor_topics, "/robot_description") if not self.node.count_publishers(t)]):
             if time.monotonic() > deadline:
                 raise NodeProcessError(f"no complete loop within {timeout:g} s: missing readers or writers on "
