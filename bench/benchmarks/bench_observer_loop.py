@@ -3,6 +3,7 @@
     .venv/bin/python bench/benchmarks/bench_observer_loop.py                # ~6 min on 2 cores
     .venv/bin/python bench/benchmarks/bench_observer_loop.py --quick        # 0.3 s recordings, no reference
     .venv/bin/python bench/benchmarks/bench_observer_loop.py --machines five_bar hexa:2
+    .venv/bin/python bench/benchmarks/bench_observer_loop.py --rates 1000 2000  # the 1 and 2 kHz loops
 
 For each machine (the reference five-bar, the Triglide and the Hexa at n_ek = 2) a 1 s
 recording of a chirp through the spring modes on a PD loop that holds the start pose against
@@ -15,8 +16,13 @@ column differenced, dense expm), in the same run:
 
 - one live period: the wall time of the per-message calls of one stamp (joint state,
   accelerometer, command) through ``ObserverStream``, as the observer node makes them;
-  median, p90, p99 and p99 / median over the recording; beside it the same with one
-  compiled step per message (``Observer.steps_compiled``), in the same run;
+  median, p90, p99, p99.9 and p99 / median over the recording; beside it the same with one
+  compiled step per message (``Observer.steps_compiled``), in the same run; at each loop
+  rate of ``--rates`` (the recording's commands and samples at that rate, the observer's
+  prediction pieces as long as a period);
+- the flop-count limit of the filter's period: one dense covariance step (n_x^3
+  multiply-adds for Phi P Phi^T) at 5 Gflop/s, the floor issue #40 names for a filter that
+  keeps a dense covariance;
 - offline ``observe`` over the recording's bag: the filter's real-time factor (duration /
   ``wall_filter_s`` of summary.json, the quantity the issue measured) and the whole run's,
   best of three passes (the first loads the compiled kernels);
@@ -67,7 +73,16 @@ def live_periods(mech: Mechanism, rec, params: dict, compiled: bool = False) -> 
     t = run.update_times[5:] * 1e6  # the first periods initialise and compile
     med = float(np.median(t))
     return {"median_us": med, "p90_us": float(np.percentile(t, 90)), "p99_us": float(np.percentile(t, 99)),
-            "p99_over_median": float(np.percentile(t, 99) / med), "periods": len(t), "run": run}
+            "p999_us": float(np.percentile(t, 99.9)), "p99_over_median": float(np.percentile(t, 99) / med),
+            "periods": len(t), "nx": obs.nx, "run": run}
+
+
+FLOP_RATE = 5e9  # [flop/s] the rate issue #40 prices a dense covariance step at
+
+
+def covariance_floor_us(nx: int) -> float:
+    """[us] one dense covariance step Phi P Phi^T (n_x^3 multiply-adds, the issue's count) at FLOP_RATE."""
+    return nx ** 3 / FLOP_RATE * 1e6
 
 
 def offline(mech: Mechanism, rec, params: dict, tmp: Path, tag: str, repeats: int = 3) -> dict:
@@ -83,15 +98,17 @@ def offline(mech: Mechanism, rec, params: dict, tmp: Path, tag: str, repeats: in
 
 
 def markdown(result: dict) -> str:
-    lines = [f"Measured {result['date']} on {result['machine']} (`{result['command']}`).", "",
-             "| machine | configuration | live period median [us] | p99 [us] | p99 / median "
-             "| one compiled step per message, median [us] | offline filter x real time | F error / open loop "
-             "| NEES in 95 % band |",
-             "|---|---|---|---|---|---|---|---|---|"]
+    lines = [f"Measured {result['date']} on {result['machine']}, load {result.get('load', '?')} "
+             f"(`{result['command']}`).", "",
+             "| machine | rate [Hz] | configuration | live period median [us] | p99 [us] | p99.9 [us] "
+             "| one compiled step per message, median [us] | flop limit [us] | offline filter x real time "
+             "| F error / open loop | NEES in 95 % band |",
+             "|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for row in result["rows"]:
-        lines.append(f"| {row['machine']} | {row['config']} | {row['live']['median_us']:.0f} | "
-                     f"{row['live']['p99_us']:.0f} | {row['live']['p99_over_median']:.2f} | "
-                     f"{row['live']['steps_median_us']:.0f} | "
+        live = row["live"]
+        lines.append(f"| {row['machine']} | {row.get('rate_hz', 1000):.0f} | {row['config']} | "
+                     f"{live['median_us']:.0f} | {live['p99_us']:.0f} | {live.get('p999_us', float('nan')):.0f} | "
+                     f"{live['steps_median_us']:.0f} | {covariance_floor_us(live.get('nx', 0)):.0f} | "
                      f"{row['offline']['filter_rtf']:.1f} | {row['vs_open_loop']:.2f} | {row['nees_in_band']:.2f} |")
     return "\n".join(lines) + "\n"
 
@@ -101,6 +118,7 @@ def main() -> int:
     ap.add_argument("--machines", nargs="+", default=["five_bar", "triglide:2", "hexa:2"])
     ap.add_argument("--duration", type=float, default=1.0)
     ap.add_argument("--quick", action="store_true", help="0.3 s recordings, the default configuration only")
+    ap.add_argument("--rates", nargs="+", type=float, default=[1000.0], help="[Hz] loop rates to run")
     ap.add_argument("--out", default=str(ROOT / "bench" / "results"))
     a = ap.parse_args()
     duration = 0.3 if a.quick else a.duration
@@ -110,30 +128,34 @@ def main() -> int:
         tmp = Path(tmpdir)
         for spec in a.machines:
             name, mech = machine(spec)
-            t0 = time.perf_counter()
-            rec = recording(name, mech, duration)
-            ol, F_qs = open_loop(rec, dt=2.5e-5), quasi_static_series(rec)
-            print(f"{spec}: recording {time.perf_counter() - t0:.1f} s", flush=True)
-            for label, params in configs.items():
-                live = live_periods(mech, rec, params)
-                steps = live_periods(mech, rec, params, compiled=True)
-                live["steps_median_us"] = steps["median_us"]
-                live["steps_p99_us"] = steps["p99_us"]
-                s = score(rec, live.pop("run"), ol, F_qs, settle=0.05)
-                off = offline(mech, rec, params, tmp, spec.replace(":", "_"))
-                row = {"machine": spec, "config": label, "live": live, "offline": off,
-                       "F_ratio": s["F_ratio"], "F_ratio_open_loop": s["F_ratio_open_loop"],
-                       "vs_open_loop": s["F_ratio"] / s["F_ratio_open_loop"], "nees_in_band": s["nees_in_band"],
-                       "motor_rmse_over_noise": s["motor_rmse_over_noise"]}
-                rows.append(row)
-                print(f"  {label}: live median {live['median_us']:.0f} us, p99 {live['p99_us']:.0f} us "
-                      f"({live['p99_over_median']:.2f}x); offline filter {off['filter_rtf']:.1f}x real time; "
-                      f"F error / open loop {row['vs_open_loop']:.3f}; NEES in band {row['nees_in_band']:.2f}",
-                      flush=True)
+            for rate in a.rates:
+                t0 = time.perf_counter()
+                rec = recording(name, mech, duration, period=1.0 / rate)
+                ol, F_qs = open_loop(rec, dt=2.5e-5), quasi_static_series(rec)
+                print(f"{spec} at {rate:g} Hz: recording {time.perf_counter() - t0:.1f} s", flush=True)
+                for label, params in configs.items():
+                    params = {**params, "process.max_interval": 1.0 / rate}  # one prediction piece a period
+                    live = live_periods(mech, rec, params)
+                    steps = live_periods(mech, rec, params, compiled=True)
+                    live["steps_median_us"] = steps["median_us"]
+                    live["steps_p99_us"] = steps["p99_us"]
+                    s = score(rec, live.pop("run"), ol, F_qs, settle=0.05)
+                    off = offline(mech, rec, params, tmp, f"{spec.replace(':', '_')}_{rate:g}")
+                    row = {"machine": spec, "rate_hz": rate, "config": label, "live": live, "offline": off,
+                           "covariance_floor_us": covariance_floor_us(live["nx"]),
+                           "F_ratio": s["F_ratio"], "F_ratio_open_loop": s["F_ratio_open_loop"],
+                           "vs_open_loop": s["F_ratio"] / s["F_ratio_open_loop"], "nees_in_band": s["nees_in_band"],
+                           "motor_rmse_over_noise": s["motor_rmse_over_noise"]}
+                    rows.append(row)
+                    print(f"  {label}: live median {live['median_us']:.0f} us, p99 {live['p99_us']:.0f} us, "
+                          f"p99.9 {live['p999_us']:.0f} us ({live['p99_over_median']:.2f}x); offline filter "
+                          f"{off['filter_rtf']:.1f}x real time; F error / open loop {row['vs_open_loop']:.3f}; "
+                          f"NEES in band {row['nees_in_band']:.2f}", flush=True)
     cores = len(os.sched_getaffinity(0))
     result = {"date": time.strftime("%Y-%m-%d"),
               "machine": f"{platform.processor() or platform.machine()}, {cores} cores",
               "command": " ".join(["bench/benchmarks/bench_observer_loop.py", *sys.argv[1:]]),
+              "load": " ".join(f"{x:.1f}" for x in os.getloadavg()),
               "duration_s": duration, "rows": rows}
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)

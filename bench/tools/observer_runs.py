@@ -23,14 +23,15 @@ def machine(spec: str) -> tuple[str, Mechanism]:
     return name, Mechanism(model)
 
 
-def recording(name: str, mech: Mechanism, duration: float):
+def recording(name: str, mech: Mechanism, duration: float, period: float = 1e-3):
     """The chirp on a PD loop, its gains scaled with the motors' reduced inertia (the
     five-bar's own: 40 N m/rad, 1 N m s/rad, 3 N m). The Hexa's motors carry light hubs
-    behind the arm springs: a differenced D term at 1 kHz destabilises them, so P only."""
+    behind the arm springs: a differenced D term at 1 kHz destabilises them, so P only.
+    ``period``: the loop's (commands held, samples taken), 1 ms or 0.5 ms."""
     if name == "five_bar":
-        return chirp_recording(mech, seed=SEEDS[name], duration=duration, truth_dt=2.5e-5)
+        return chirp_recording(mech, seed=SEEDS[name], duration=duration, truth_dt=2.5e-5, period=period)
     m = {"triglide": 3.34, "hexa": 0.0493}[name]  # [kg or kg m^2] a motor's reduced inertia
     kd = 0.0 if name == "hexa" else 12.5 * m
     amplitude = (0.375 if name == "triglide" else 3.75) * m  # the Triglide's platform mode rings easily
     return chirp_recording(mech, seed=SEEDS[name], duration=duration, amplitude=amplitude, kp=500.0 * m, kd=kd,
-                           truth_dt=TRUTH_DT.get(name, 2.5e-5))
+                           truth_dt=TRUTH_DT.get(name, 2.5e-5), period=period)
