@@ -251,6 +251,33 @@ def _add_z_noise(X, Z, psd_z, w, Qd, nm):
 
 
 @njit(cache=True)
+def _bh_times(X, up, Bbot):
+    """Bh X for Bh = [[0, diag(up)], Bbot]: the top rows scale X's bottom rows, the bottom
+    rows are one product of half the size."""
+    nae = up.shape[0]
+    out = np.empty(X.shape)
+    for i in range(nae):
+        for c in range(X.shape[1]):
+            out[i, c] = up[i] * X[nae + i, c]
+    out[nae:, :] = Bbot @ X
+    return out
+
+
+@njit(cache=True)
+def _times_bh(X, up, Bq, Bv):
+    """X Bh for Bh = [[0, diag(up)], [Bq, Bv]]: [X_2 Bq, X_1 diag(up) + X_2 Bv], X = [X_1, X_2]."""
+    nae = up.shape[0]
+    X2 = np.ascontiguousarray(X[:, nae:])
+    out = np.empty(X.shape)
+    out[:, :nae] = X2 @ Bq
+    out[:, nae:] = X2 @ Bv
+    for r in range(X.shape[0]):
+        for i in range(nae):
+            out[r, nae + i] += X[r, i] * up[i]
+    return out
+
+
+@njit(cache=True)
 def discretize_structured(Aq, Av, Bf, dist_col, Lz, Fz, psd_m, psd_z, T, Phi_z, Qd_z, Phi, Qd):
     """Phi = expm(A T) and Van Loan's Qd of x = [q_ae, qd_ae, z] from their blocks (module docstring).
 
@@ -292,6 +319,14 @@ def discretize_structured(Aq, Av, Bf, dist_col, Lz, Fz, psd_m, psd_z, T, Phi_z, 
         n_sq += 1
     h = T / 2.0 ** n_sq
     Bh = B * h
+    # Bh = [[0, diag(up)], [Bq, Bv]] (balancing keeps the zero block and makes the identity a
+    # diagonal): products with it need only its dense bottom half (:func:`_times_bh`)
+    up = np.empty(nae)
+    for i in range(nae):
+        up[i] = Bh[i, nae + i]
+    Bq = np.ascontiguousarray(Bh[nae:, :nae])
+    Bv = np.ascontiguousarray(Bh[nae:, nae:])
+    Bbot = np.ascontiguousarray(Bh[nae:, :])
     E = np.eye(nm)
     term = np.eye(nm)
     # Psi_k(h) = h^(k+1) sum_j (B h)^j C_b / (j + k + 1)!: the columns (k, input) side by side
@@ -300,9 +335,9 @@ def discretize_structured(Aq, Av, Bf, dist_col, Lz, Fz, psd_m, psd_z, T, Phi_z, 
     fact = 1.0
     for j in range(PHI_TERMS + 1):
         if j > 0:
-            term = term @ Bh / j
+            term = _times_bh(term, up, Bq, Bv) / j
             E += term
-            V = Bh @ V
+            V = _bh_times(V, up, Bbot)
         fact *= j + 1  # (j + 1)!
         hk = h
         fk = fact
@@ -315,7 +350,8 @@ def discretize_structured(Aq, Av, Bf, dist_col, Lz, Fz, psd_m, psd_z, T, Phi_z, 
     G = Qb * h
     Q = G.copy()
     for k in range(1, Q_TERMS + 1):
-        G = (Bh @ G + G @ Bh.T) / (k + 1)
+        X = _bh_times(G, up, Bbot)  # G stays symmetric: G Bh^T = (Bh G)^T
+        G = (X + X.T) / (k + 1)
         Q += G
     Psi_quarter = Psi.copy()
     Psi_half = Psi.copy()
