@@ -15,8 +15,9 @@ filter recovered from, ``gating.recover_after``; its window then holds the sampl
 - NIS >> dof otherwise: the sensor's noise level set too low, or the disturbance model too
   narrow for the machine's unknown torques (both make the innovations larger than S says);
 - NIS << dof: the noise level set too high;
-- gated out with no NIS to judge (fewer than :data:`MIN_SAMPLES` accepted): the
-  candidates (for the accelerometer: sample timing, frame / bias, noise level far too low);
+- gated out with no NIS to judge (fewer than :data:`MIN_SAMPLES` accepted, or under
+  :data:`SELECTED` of its samples: those passed the gate, so their NIS is small by selection):
+  the candidates (for the accelerometer: sample timing, frame / bias, noise level far too low);
 - the encoders far off or gated out while nearly every accelerometer sample is accepted:
   the filter follows an accelerometer that is wrong by an offset (its disturbance states
   absorb it: an accelerometer this precise pulls the estimate away from the encoders rather
@@ -33,6 +34,7 @@ from typing import Any
 MIN_SAMPLES = 10  # accepted samples in a window before its mean NIS is judged
 MIN_GATED = 20  # gated samples before a sensor with too few accepted ones is named
 AGREES = 0.95  # the accelerometer "agrees": at least this share of its samples accepted
+SELECTED = 0.1  # below this share accepted, a gated-out sensor's window NIS is not judged
 NOISE_KEYS = {"encoders": "encoders.position_stddev", "imu": "imu.stddev", "branch_forces": "branch_forces.stddev"}
 NARROW = "disturbance model too narrow (process.disturbance_stddev, disturbance_bandwidth)"
 OFFSET = "frame / bias (imu.rpy, specific_force)"
@@ -55,6 +57,8 @@ def findings(obs: Any, switch_evidence: float) -> dict[str, str]:
             continue
         ratio = _ratio(st, least)
         gated = _gated(st, limit)
+        if gated and _share_accepted(st) < SELECTED:
+            ratio = None  # the few accepted samples are those the gate let through: their NIS says nothing
         if gated:  # the window holds the samples accepted before
             what = gated + (f", NIS {ratio:.2g}x its dof" if ratio is not None else "")
         elif ratio is not None and not 1.0 / f <= ratio <= f:
