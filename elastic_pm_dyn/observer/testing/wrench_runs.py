@@ -47,6 +47,7 @@ class WrenchRun:
     rows: list[np.ndarray] = field(default_factory=list)  # estimate rows (observer layout), if kept
     stopped_at: float | None = None  # t at which ``stop`` returned True (the run then ends)
     period_s: np.ndarray | None = None  # wall time of the observer's calls per period (its live cost)
+    jumps: list[float] = field(default_factory=list)  # stamps where the observer let the wrench jump
 
 
 def wrench_config(**overrides) -> ObserverConfig:
@@ -116,7 +117,7 @@ def run(mech: Mechanism, wrench: ExternalWrench, duration: float, config: Observ
         if k < n:
             plant.step(tau)
     return WrenchRun(np.array(t_out), np.array(true), np.array(est), np.array(sd), list(obs.model.wrench_names),
-                     np.array(ee), np.array(cov), rows, stopped, np.array(wall))
+                     np.array(ee), np.array(cov), rows, stopped, np.array(wall), list(obs.wrench_jumps))
 
 
 def step_scores(run_: WrenchRun, t_step: float, component: int, size: float) -> dict:
