@@ -75,14 +75,14 @@ def hold(name: str) -> dict:
     return {"kp": kp, "kd": kd}
 
 
-def steps(name: str, mech: Mechanism) -> list[dict]:
+def steps(name: str, mech: Mechanism, seed_base: int = 4301) -> list[dict]:
     out = []
     comps = [(0, 2.0), (1, 2.0)] + ([(2, 2.0)] if name != "five_bar" else []) \
         + ([(3, 0.2), (4, 0.2), (5, 0.2)] if name == "hexa" else [])
     for comp, size in comps:
         w = np.zeros(6)
         w[comp] = size
-        r = run(mech, ExternalWrench([StepWrench(0.2, w)]), 0.6, seed=4301 + comp, **hold(name))
+        r = run(mech, ExternalWrench([StepWrench(0.2, w)]), 0.6, seed=seed_base + comp, **hold(name))
         s = step_scores(r, 0.2, comp, size)
         out.append({"component": r.names[comp], "size": size, **s,
                     "period_median_us": float(np.median(r.period_s[5:]) * 1e6),
@@ -138,9 +138,9 @@ def cost(name: str, mech: Mechanism, seconds: float = 2.0) -> dict:
     return out
 
 
-def run_part(part: str, name: str, mech: Mechanism, quiet_seconds: float) -> Any:
+def run_part(part: str, name: str, mech: Mechanism, quiet_seconds: float, seed_base: int = 4301) -> Any:
     if part == "steps":
-        return steps(name, mech)
+        return steps(name, mech, seed_base)
     if part == "contact":
         return contact(name, mech)
     if part == "quiet":
@@ -182,14 +182,19 @@ def main() -> int:
     ap.add_argument("--machines", nargs="+", default=list(MACHINES))
     ap.add_argument("--quiet-seconds", type=float, default=60.0)
     ap.add_argument("--parts", nargs="+", default=list(PARTS), choices=PARTS, help="what to run (default: all)")
+    ap.add_argument("--seed-base", type=int, default=4301,
+                    help="the steps' seeds: this + the component's index (4301: the seeds the settings were chosen on; "
+                         "others are held out)")
     args = ap.parse_args()
     result = {"date": str(date.today()), "machine": platform.node(), "commit": common.commit(),
               "command": "python bench/benchmarks/bench_wrench.py " + " ".join(sys.argv[1:]), "machines": {}}
     for name in args.machines:
         mech = mech_of(name)
-        result["machines"][name] = {part: run_part(part, name, mech, args.quiet_seconds) for part in args.parts}
+        result["machines"][name] = {part: run_part(part, name, mech, args.quiet_seconds, args.seed_base)
+                                    for part in args.parts}
         print(name, result["machines"][name], flush=True)
-    stem = "wrench_" + "_".join(args.machines) + ("" if len(args.parts) == len(PARTS) else "_" + "_".join(args.parts))
+    stem = "wrench_" + "_".join(args.machines) + ("" if len(args.parts) == len(PARTS) else "_" + "_".join(args.parts)) \
+        + ("" if args.seed_base == 4301 else f"_seeds{args.seed_base}")
     common.write(common.RESULTS, stem, result, markdown(result))
     return 0
 
