@@ -1,13 +1,14 @@
 """Sensorless force sensing (issue 43): the wrench states and contact detection on every machine.
 
-    .venv/bin/python bench/benchmarks/bench_wrench.py --machines five_bar                      # ~7 min, 2 cores
-    .venv/bin/python bench/benchmarks/bench_wrench.py --machines triglide --quiet-seconds 20   # ~4 min
-    .venv/bin/python bench/benchmarks/bench_wrench.py --machines hexa --quiet-seconds 20       # ~5 min
+    .venv/bin/python bench/benchmarks/bench_wrench.py --parts steps contact            # ~3 min, 2 cores
+    .venv/bin/python bench/benchmarks/bench_wrench.py --parts steps --seed-base 7301   # held-out seeds
+    .venv/bin/python bench/benchmarks/bench_wrench.py --parts quiet --quiet-seconds 20 # ~11 min
 
 Lockstep plant + observer (``observer.testing.wrench_runs``: the plant's ETD2 at 0.1 ms with the
 wrench evaluated per step, PD hold, encoders + accelerometer a(t_k-), a flat 2-200 Hz multisine of
 0.02 N m (N on the Triglide's linear motors) on every motor, seeds 4301+), the five-bar, the
-Triglide and the Hexa at n_ek = 2, default wrench settings (``process.wrench: random_walk``):
+Triglide and the Hexa at n_ek = 2, ``process.wrench: random_walk`` with ``wrench_runs.FORCE_SENSING``
+(the disturbance model that goes with the wrench states; bench/benchmarks/README_wrench.md):
 
 - steps: 2 N along x, y, z (the five-bar: x, y) and 0.2 N m about x, y, z on the Hexa's platform
   at t = 0.2 s: |error| / step 20 ms after it, the mean |error| / step over the last 30 % of
