@@ -1,13 +1,14 @@
 """Sensorless force sensing (issue 43): the wrench states and contact detection on every machine.
 
-    .venv/bin/python bench/benchmarks/bench_wrench.py --machines five_bar                      # ~7 min, 2 cores
-    .venv/bin/python bench/benchmarks/bench_wrench.py --machines triglide --quiet-seconds 20   # ~4 min
-    .venv/bin/python bench/benchmarks/bench_wrench.py --machines hexa --quiet-seconds 20       # ~5 min
+    .venv/bin/python bench/benchmarks/bench_wrench.py --parts steps contact            # ~3 min, 2 cores
+    .venv/bin/python bench/benchmarks/bench_wrench.py --parts steps --seed-base 7301   # held-out seeds
+    .venv/bin/python bench/benchmarks/bench_wrench.py --parts quiet --quiet-seconds 20 # ~11 min
 
 Lockstep plant + observer (``observer.testing.wrench_runs``: the plant's ETD2 at 0.1 ms with the
 wrench evaluated per step, PD hold, encoders + accelerometer a(t_k-), a flat 2-200 Hz multisine of
 0.02 N m (N on the Triglide's linear motors) on every motor, seeds 4301+), the five-bar, the
-Triglide and the Hexa at n_ek = 2, default wrench settings (``process.wrench: random_walk``):
+Triglide and the Hexa at n_ek = 2, ``process.wrench: random_walk`` with ``wrench_runs.FORCE_SENSING``
+(the disturbance model that goes with the wrench states; bench/benchmarks/README_wrench.md):
 
 - steps: 2 N along x, y, z (the five-bar: x, y) and 0.2 N m about x, y, z on the Hexa's platform
   at t = 0.2 s: |error| / step 20 ms after it, the mean |error| / step over the last 30 % of
@@ -75,14 +76,14 @@ def hold(name: str) -> dict:
     return {"kp": kp, "kd": kd}
 
 
-def steps(name: str, mech: Mechanism) -> list[dict]:
+def steps(name: str, mech: Mechanism, seed_base: int = 4301) -> list[dict]:
     out = []
     comps = [(0, 2.0), (1, 2.0)] + ([(2, 2.0)] if name != "five_bar" else []) \
         + ([(3, 0.2), (4, 0.2), (5, 0.2)] if name == "hexa" else [])
     for comp, size in comps:
         w = np.zeros(6)
         w[comp] = size
-        r = run(mech, ExternalWrench([StepWrench(0.2, w)]), 0.6, seed=4301 + comp, **hold(name))
+        r = run(mech, ExternalWrench([StepWrench(0.2, w)]), 0.6, seed=seed_base + comp, **hold(name))
         s = step_scores(r, 0.2, comp, size)
         out.append({"component": r.names[comp], "size": size, **s,
                     "period_median_us": float(np.median(r.period_s[5:]) * 1e6),
@@ -138,9 +139,9 @@ def cost(name: str, mech: Mechanism, seconds: float = 2.0) -> dict:
     return out
 
 
-def run_part(part: str, name: str, mech: Mechanism, quiet_seconds: float) -> Any:
+def run_part(part: str, name: str, mech: Mechanism, quiet_seconds: float, seed_base: int = 4301) -> Any:
     if part == "steps":
-        return steps(name, mech)
+        return steps(name, mech, seed_base)
     if part == "contact":
         return contact(name, mech)
     if part == "quiet":
@@ -182,14 +183,19 @@ def main() -> int:
     ap.add_argument("--machines", nargs="+", default=list(MACHINES))
     ap.add_argument("--quiet-seconds", type=float, default=60.0)
     ap.add_argument("--parts", nargs="+", default=list(PARTS), choices=PARTS, help="what to run (default: all)")
+    ap.add_argument("--seed-base", type=int, default=4301,
+                    help="the steps' seeds: this + the component's index (4301: the seeds the settings were chosen on; "
+                         "others are held out)")
     args = ap.parse_args()
     result = {"date": str(date.today()), "machine": platform.node(), "commit": common.commit(),
               "command": "python bench/benchmarks/bench_wrench.py " + " ".join(sys.argv[1:]), "machines": {}}
     for name in args.machines:
         mech = mech_of(name)
-        result["machines"][name] = {part: run_part(part, name, mech, args.quiet_seconds) for part in args.parts}
+        result["machines"][name] = {part: run_part(part, name, mech, args.quiet_seconds, args.seed_base)
+                                    for part in args.parts}
         print(name, result["machines"][name], flush=True)
-    stem = "wrench_" + "_".join(args.machines) + ("" if len(args.parts) == len(PARTS) else "_" + "_".join(args.parts))
+    stem = "wrench_" + "_".join(args.machines) + ("" if len(args.parts) == len(PARTS) else "_" + "_".join(args.parts)) \
+        + ("" if args.seed_base == 4301 else f"_seeds{args.seed_base}")
     common.write(common.RESULTS, stem, result, markdown(result))
     return 0
 

@@ -20,10 +20,10 @@ from elastic_pm_dyn.observer.testing.wrench_runs import run, step_scores
 from elastic_pm_dyn.sim.wrench import ExternalWrench, StepWrench, Wall
 
 
-def _step(mech, comp, size, duration=0.45, t_step=0.2):
+def _step(mech, comp, size, duration=0.45, t_step=0.2, **kw):
     w = np.zeros(6)
     w[comp] = size
-    r = run(mech, ExternalWrench([StepWrench(t_step, w)]), duration, integrator="rk4")
+    r = run(mech, ExternalWrench([StepWrench(t_step, w)]), duration, integrator="rk4", **kw)
     return r, step_scores(r, t_step, comp, size)
 
 
@@ -31,6 +31,7 @@ def _step(mech, comp, size, duration=0.45, t_step=0.2):
 def test_five_bar_step_force(five_bar, comp):
     r, s = _step(five_bar, comp, 2.0)
     assert s["error_at_20ms"] < 0.10 and s["steady_error"] < 0.05, s
+    assert s["steady_abs_error"] < 0.05, s  # bias and noise: the unknown torque's share in the wrench
     assert s["nees_in_band"] > 0.7, s
     before = r.t < 0.2
     assert np.all(np.abs(r.estimate[before & (r.t > 0.05)]) < 0.5)  # nothing pushes before the step
@@ -41,6 +42,22 @@ def test_hexa_step_couple():
     r, s = _step(mech, 3, 0.2, duration=0.35)
     assert r.names[3] == "torque_x"
     assert s["error_at_20ms"] < 0.10 and s["steady_error"] < 0.06, s
+
+
+def test_hexa_step_force_z():
+    """The Hexa's z axis, where a motor torque maps to the largest force (12 N per N m): the
+    0.02 N m unknown torque is 12 % of the 2 N step if the wrench states take it all, as they did
+    with the generic [5, 50] Hz disturbance bands and a fast wrench random walk. Three seeds: an
+    accelerometer sample that the unknown torque pushes past the jump gate after the step (about
+    one run in ten) leaves a few percent of bias in that run's steady state."""
+    mech = Mechanism(load_model("config/hexa.yaml", elastic_dof_per_chain=2))
+    mae = []
+    for seed in (4343, 4344, 4345):
+        r, s = _step(mech, 2, 2.0, duration=0.6, seed=seed, kp=60.0, kd=0.5)  # the bench's stiffer hold
+        assert r.names[2] == "force_z" and 0.2 in np.round(r.jumps, 6), r.jumps  # the step carried by the jump
+        assert s["error_at_20ms"] < 0.10 and s["nees_in_band"] > 0.7, (seed, s)
+        mae.append(s["steady_abs_error"])
+    assert np.median(mae) < 0.05 and max(mae) < 0.08, mae
 
 
 def test_wall_detected_within_5ms_and_stopped(five_bar):
