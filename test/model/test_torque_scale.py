@@ -73,5 +73,5 @@ def test_holding_and_inverse_dynamics_need_one_over_the_scale(tmp_path: Path) ->
 def test_only_motors_take_a_positive_scale(tmp_path: Path) -> None:
     with pytest.raises(ModelError, match="torque_scale"):
         load_model(_scaled(tmp_path, "five_bar.yaml", {"left_spring": 1.1}))
-    with pytest.raises(ModelError, match="positive|> 0"):
+    with pytest.raises(ModelError, match=r"positive|> 0"):
         load_model(_scaled(tmp_path, "five_bar.yaml", {"left_motor": 0.0}))
