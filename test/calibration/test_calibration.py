@@ -209,3 +209,26 @@ def test_scores_of_sensors_at_different_rates_share_one_time_axis() -> None:
     (S,) = time_scores(np.vstack([fast, slow]), [(0, 1.0, 1000), (0, 1.0, 250)])
     assert S.shape == (1000, 1)
     assert np.array_equal(S[::4, 0], 1.0 + np.arange(250)) and np.all(S[1::4, 0] == 1.0)
+
+
+def test_the_hessian_by_second_differences_is_a_quadratics_own() -> None:
+    """fit.hessian_at on a likelihood whose Hessian is known: per-sample terms l_k = (a_k . theta
+    - y_k)^2 / 2, so A = sum a_k a_k^T exactly; a fixed parameter's row and column stay zero."""
+    from elastic_pm_dyn.calibration.fit import hessian_at, scores_at
+    from elastic_pm_dyn.calibration.likelihood import Score
+    rng = np.random.default_rng(5)
+    a, y = rng.standard_normal((400, 3)), rng.standard_normal(400)
+
+    def run(points):
+        out = []
+        for t in points:
+            terms = 0.5 * (a @ t - y) ** 2
+            out.append(Score(terms, 2 * terms, float(terms.sum()), {}, ""))
+        return out
+
+    theta, free = np.array([0.1, -0.2, 0.3]), np.array([0, 2])
+    here, G = scores_at(run, theta, free, 3)
+    A = hessian_at(run, theta, free, 3, here, G)
+    exact = a.T @ a
+    np.testing.assert_allclose(A[np.ix_(free, free)], exact[np.ix_(free, free)], rtol=1e-4)
+    assert np.all(A[1] == 0) and np.all(A[:, 1] == 0)
