@@ -21,13 +21,20 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from elastic_pm_dyn.calibration.fit import RADIUS_START, FitResult, fit
-from elastic_pm_dyn.calibration.identifiability import Identifiability, identifiability, unexcited
+from elastic_pm_dyn.calibration.fit import RADIUS_START, FitResult, fit, hessian_at
+from elastic_pm_dyn.calibration.identifiability import (
+    Identifiability,
+    identifiability,
+    sandwich,
+    score_covariance,
+    unexcited,
+)
 from elastic_pm_dyn.calibration.likelihood import Recording, Score, read_recording, score
 from elastic_pm_dyn.calibration.parameters import ModelFile, Parameter, available, dump, select
 from elastic_pm_dyn.dynamics.linear import elastic_modes
@@ -68,12 +75,19 @@ class Calibration:
         from elastic_pm_dyn.calibration.parameters import model_of
         return model_of(self.data, self.source)
 
+    def _std_fisher(self) -> np.ndarray:
+        sf = self.ident.std_fisher
+        return self.ident.std if sf is None else sf
+
     def as_dict(self) -> dict:
         """Everything reported, JSON-ready."""
         return {
             "parameters": [{"name": p.name, "file": float(a), "calibrated": float(b), "std": float(s),
-                            "std_relative": float(s / b) if b else math.nan, "fixed": p.name in self.fixed}
-                           for p, a, b, s in zip(self.params, self.nominal, self.values, self.ident.std, strict=True)],
+                            "std_relative": float(s / b) if b else math.nan, "std_fisher": float(sf),
+                            "fixed": p.name in self.fixed}
+                           for p, a, b, s, sf in zip(self.params, self.nominal, self.values, self.ident.std,
+                                                     self._std_fisher(), strict=True)],
+            "covariance": self.ident.covariance,
             "correlations": self.ident.correlation.tolist(),
             "not_excited": self.ident.findings,
             "nll": {"before": self.before.nll, "after": self.after.nll},
@@ -141,7 +155,17 @@ def calibrate(model: str | Path, bags: Sequence[str | Path], out: str | Path | N
                       radius=FINE_RADIUS if long else RADIUS_START))
     final = stages[-1]
     values = nominal * np.exp(final.theta)
-    ident = identifiability(final.information, values, [p.name for p in chosen], fixed)
+    # the standard deviations: the sandwich of the NLL's Hessian and the scores' autocovariance
+    # (the filter's noise model is not the data's: identifiability.py, bench/calibration/README.md)
+    free = np.array([i for i in range(n) if i not in set(fixed)], dtype=np.int64)
+    log(f"standard deviations: the NLL's Hessian ({len(free) * (len(free) + 1) // 2} passes)")
+    ev_all = evaluator(recordings)
+    with ThreadPoolExecutor(max(1, threads)) as pool:
+        A = hessian_at(lambda pts: list(pool.map(ev_all, pts)), final.theta, free, n, final.score, final.scores)
+    robust = sandwich(A, score_covariance(final.scores, final.score.segments), free)
+    if robust is None:
+        log("  the Hessian is not positive definite there: standard deviations from the Fisher information")
+    ident = identifiability(final.information, values, [p.name for p in chosen], fixed, robust)
     before = evaluator(recordings)(np.zeros(len(chosen)))
     data = mf.with_values(chosen, values)
     res = Calibration(chosen, nominal, values, ident, before, final.score, modes_of(mf.model(chosen, nominal)),

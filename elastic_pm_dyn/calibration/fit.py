@@ -163,3 +163,26 @@ def _step(B: np.ndarray, g: np.ndarray, mu: float, free: np.ndarray) -> np.ndarr
     step = -np.linalg.solve(Bf + mu * np.diag(d) + 1e-12 * d.max() * np.eye(len(free)), g[free])
     out[free] = step
     return out
+
+
+def hessian_at(run: Callable[[list[np.ndarray]], list[Score]], theta: np.ndarray, free: np.ndarray, n: int,
+               here: Score, scores: np.ndarray, h: float = FD_STEP) -> np.ndarray:
+    """The NLL's Hessian at theta by second forward differences: A_ij = (f(theta + h e_i + h e_j)
+    - f(theta + h e_i) - f(theta + h e_j) + f(theta)) / h^2, the single steps' values taken from
+    the scores (their column sums are (f(theta + h e_i) - f(theta)) / h): n (n + 1) / 2 more passes.
+    The observed information, which the outer product of the scores (BHHH) equals only when the
+    filter's noise model is the data's (Huber 1967; White 1982, "Maximum likelihood estimation of
+    misspecified models"). Rows and columns of fixed parameters are zero; NaN where a pass failed."""
+    pairs = [(int(i), int(j)) for a, i in enumerate(free) for j in free[a:]]
+    points = []
+    for i, j in pairs:
+        t = theta.copy()
+        t[i] += h
+        t[j] += h
+        points.append(t)
+    g = scores.sum(axis=0)
+    A = np.zeros((n, n))
+    for (i, j), r in zip(pairs, run(points), strict=True):
+        v = (r.nll - here.nll - h * (g[i] + g[j])) / h ** 2 if r.ok else np.nan
+        A[i, j] = A[j, i] = v
+    return A

@@ -24,6 +24,7 @@ from elastic_pm_dyn.calibration.likelihood import Score
 NOT_EXCITED_STD = 0.5  # [log ratio] a factor 1.6 either way: the recording says nothing useful
 RANK_TOL = 1e-8  # eigenvalue ratio of the scaled information below which a combination is free
 WEAK_STD = 0.05  # [relative] named as weakly determined beyond this (5 %)
+HAC_SECONDS = 0.5  # [s] Bartlett window of the scores' autocovariance (bench/calibration/README.md)
 
 
 @dataclass
@@ -33,11 +34,15 @@ class Identifiability:
     std_log: np.ndarray  # ... of its log ratio (relative)
     correlation: np.ndarray  # (n, n)
     findings: list[str]  # one line per parameter or combination the recordings leave open
+    std_fisher: np.ndarray | None = None  # the Fisher information's (BHHH) alone, for comparison
+    covariance: str = "fisher"  # which covariance std is: fisher (B^-1) or sandwich (A^-1 S A^-1)
 
 
-def identifiability(B: np.ndarray, values: np.ndarray, names: Sequence[str], fixed: Sequence[int] = ()
-                    ) -> Identifiability:
-    """Standard deviations, correlations and findings of the information ``B`` at ``values``."""
+def identifiability(B: np.ndarray, values: np.ndarray, names: Sequence[str], fixed: Sequence[int] = (),
+                    robust: np.ndarray | None = None) -> Identifiability:
+    """Standard deviations, correlations and findings of the information ``B`` at ``values``;
+    ``robust`` (n, n): a covariance of the log ratios (:func:`sandwich`) that the standard deviations
+    and correlations are taken from instead of B^-1 (the findings stay B's)."""
     n = len(names)
     free = [i for i in range(n) if i not in set(fixed)]
     cov = np.full((n, n), np.nan)
@@ -53,13 +58,84 @@ def identifiability(B: np.ndarray, values: np.ndarray, names: Sequence[str], fix
             findings.append(f"rank-deficient: {combo} is not determined by the recordings")
         cf = np.linalg.pinv(scaled) / np.outer(d, d)
         cov[np.ix_(free, free)] = cf
+    fisher_log = np.sqrt(np.abs(np.diag(cov)))
+    kind = "fisher"
+    if robust is not None and free and np.all(np.isfinite(robust[np.ix_(free, free)])):
+        cov = np.full((n, n), np.nan)
+        cov[np.ix_(free, free)] = robust[np.ix_(free, free)]
+        kind = "sandwich"
     std_log = np.sqrt(np.abs(np.diag(cov)))
     for i in free:
         if std_log[i] > WEAK_STD:
             findings.append(f"{names[i]}: weakly determined (std {100 * std_log[i]:.3g} %)")
     with np.errstate(invalid="ignore", divide="ignore"):
         corr = cov / np.outer(std_log, std_log)
-    return Identifiability(list(names), np.asarray(values) * std_log, std_log, corr, findings)
+    return Identifiability(list(names), np.asarray(values) * std_log, std_log, corr, findings,
+                           np.asarray(values) * fisher_log, kind)
+
+
+def time_scores(scores: np.ndarray, segments: Sequence[tuple[int, float, int]]) -> list[np.ndarray]:
+    """The per-sample scores summed per time bin, one (bins, n) array per recording: each sensor's
+    block (``Score.segments``) spread evenly over its recording, bins at the fastest sensor's rate."""
+    rows: dict[int, list[tuple[float, np.ndarray]]] = {}
+    start = 0
+    for rec, seconds, count in segments:
+        rows.setdefault(rec, []).append((seconds, scores[start:start + count]))
+        start += count
+    out = []
+    for blocks in rows.values():
+        bins = max(len(b) for _, b in blocks)
+        S = np.zeros((bins, scores.shape[1]))
+        for _, b in blocks:
+            if len(b):
+                np.add.at(S, (np.arange(len(b)) * bins) // len(b), b)
+        out.append(S)
+    return out
+
+
+def score_covariance(scores: np.ndarray, segments: Sequence[tuple[int, float, int]],
+                     window_s: float = HAC_SECONDS) -> np.ndarray:
+    """The covariance of the scores' sum allowing for their correlation in time: Newey-West
+    (Bartlett kernel, "A simple, positive semi-definite, heteroskedasticity and autocorrelation
+    consistent covariance matrix", Econometrica 1987) over lags up to ``window_s`` within each
+    recording, recordings independent. With white innovations it is the outer product B."""
+    n = scores.shape[1]
+    out = np.zeros((n, n))
+    for S, (_, seconds, _) in zip(time_scores(scores, segments), _first_of_each(segments), strict=True):
+        L = min(len(S) - 1, round(window_s * len(S) / seconds)) if seconds > 0 else 0
+        out += S.T @ S
+        for lag in range(1, L + 1):
+            C = S[lag:].T @ S[:-lag]
+            out += (1.0 - lag / (L + 1)) * (C + C.T)
+    return out
+
+
+def sandwich(A: np.ndarray, Sc: np.ndarray, free: Sequence[int]) -> np.ndarray | None:
+    """The robust (Huber-White) covariance A^-1 S A^-1 of the log ratios on the ``free`` ones: A the
+    NLL's Hessian (:func:`.fit.hessian_at`), S the scores' covariance (:func:`score_covariance`).
+    None when A is not positive definite there (not at a minimum, or a failed pass)."""
+    n = len(A)
+    f = list(free)
+    if not f:
+        return None
+    Af = A[np.ix_(f, f)]
+    if not np.all(np.isfinite(Af)):
+        return None
+    Af = 0.5 * (Af + Af.T)
+    w, V = np.linalg.eigh(Af)
+    if w.min() <= 0:
+        return None
+    Ai = (V / w) @ V.T
+    cov = np.full((n, n), np.nan)
+    cov[np.ix_(f, f)] = Ai @ Sc[np.ix_(f, f)] @ Ai
+    return cov
+
+
+def _first_of_each(segments: Sequence[tuple[int, float, int]]) -> list[tuple[int, float, int]]:
+    seen: dict[int, tuple[int, float, int]] = {}
+    for s in segments:
+        seen.setdefault(s[0], s)
+    return list(seen.values())
 
 
 def unexcited(evaluate: Callable[[np.ndarray], Score], n: int, threads: int = 2) -> list[int]:

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -63,6 +63,9 @@ class Score:
     nll: float
     per_sensor: dict[str, dict]  # sensor -> {samples, nll, mean_nis_per_dof}
     fault: str
+    # (recording, its duration [s], terms) of each consecutive block of ``terms``: one sensor of
+    # one recording, its samples evenly spread over the recording (the robust covariance's time axis)
+    segments: list[tuple[int, float, int]] = field(default_factory=list)
 
     @property
     def ok(self) -> bool:
@@ -72,8 +75,8 @@ class Score:
 def score(model: Model, cfg: ObserverConfig, recordings: Sequence[Recording]) -> Score:
     """The filter of ``cfg`` on ``model`` over ``recordings`` (module docstring)."""
     mech = Mechanism(model)
-    parts, per, faults = [], {}, []
-    for rec in recordings:
+    parts, per, faults, segments = [], {}, [], []
+    for ri, rec in enumerate(recordings):
         prep = prepare(mech, cfg, rec.events)
         obs = Observer(prep.model, cfg, t0=0.0)
         obs.gating = False  # a candidate must not win by throwing samples away
@@ -89,6 +92,7 @@ def score(model: Model, cfg: ObserverConfig, recordings: Sequence[Recording]) ->
         for s in cfg.sensors:
             st = obs.stats[s]
             parts.append(np.asarray(st.terms, dtype=float).reshape(-1, 2))
+            segments.append((ri, rec.seconds, len(parts[-1])))
             d = per.setdefault(s, {"samples": 0, "nll": 0.0, "nis": 0.0, "dof": 0.0})
             d["samples"] += st.accepted
             d["nll"] += st.nll
@@ -98,4 +102,4 @@ def score(model: Model, cfg: ObserverConfig, recordings: Sequence[Recording]) ->
         d["mean_nis_per_dof"] = d["nis"] / d["dof"] if d["dof"] else float("nan")
     both = np.concatenate(parts) if parts else np.zeros((0, 2))
     nll = float(both[:, 1].sum()) if len(both) else float("nan")
-    return Score(both[:, 1].copy(), both[:, 0].copy(), nll, per, "; ".join(faults))
+    return Score(both[:, 1].copy(), both[:, 0].copy(), nll, per, "; ".join(faults), segments)

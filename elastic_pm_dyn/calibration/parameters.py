@@ -11,6 +11,9 @@ comments' meaning included (the comments themselves are not kept). Names:
 - ``payload.mass``: the end effector's point mass (``end_effector.mass``) or the platform body's mass;
 - ``payload.inertia``: the platform body's inertia tensor, one factor on all its entries;
 - ``friction.<joint>``: the viscous ``friction`` of a joint whose file gives one.
+- ``torque_scale.<motor>``: a motor's ``torque_scale`` (torque per unit command, 1 where the file
+  gives none; the model's transmission column of that motor, :meth:`Model.transmission`); fitted
+  only when ``--params`` asks for it.
 
 Values are fitted as log ratios to the file's (every parameter positive, steps relative).
 """
@@ -27,13 +30,13 @@ from typing import Any
 import yaml
 
 from elastic_pm_dyn.errors import InputError
-from elastic_pm_dyn.model.description import ELASTIC, Model
+from elastic_pm_dyn.model.description import ACTIVE, ELASTIC, Model
 from elastic_pm_dyn.model.formats import model_format
 from elastic_pm_dyn.model.loader import parse_model
 from elastic_pm_dyn.model.yaml_source import YamlSource
 
 KeyPath = tuple[Any, ...]
-# fitted when --params is not given; friction only where the file has some, inertia only when asked
+# fitted when --params is not given; friction only where the file has some, inertia and torque_scale only when asked
 DEFAULT_GROUPS = ("stiffness", "damping", "payload.mass", "friction")
 INERTIA_KEYS = ("ixx", "iyy", "izz", "ixy", "ixz", "iyz")
 
@@ -109,6 +112,9 @@ def available(mf: ModelFile) -> list[Parameter]:
                 out += _positive(f"stiffness.{entry['name']}", (*base, "stiffness"), entry.get("stiffness"))
                 out += _positive(f"damping.{entry['name']}", (*base, "damping"), entry.get("damping"))
             out += _positive(f"friction.{entry['name']}", (*base, "friction"), entry.get("friction"))
+            if entry.get("role") == ACTIVE:  # a motor's gain: 1 where the file gives none
+                out += _positive(f"torque_scale.{entry['name']}", (*base, "torque_scale"),
+                                 entry.get("torque_scale", 1.0))
     out += _payload(data)
     return out
 

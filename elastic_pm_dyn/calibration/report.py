@@ -18,6 +18,9 @@ def report(res: Calibration) -> str:
             lines.append(f"  {p.name}: {a:.6g} (not excited: kept)")
         else:
             lines.append(f"  {p.name}: {a:.6g} -> {b:.6g} +- {s:.3g} ({100 * r:.2g} %; x{b / a:.4f} of the file)")
+    lines.append("  (+- : the sandwich of the NLL's Hessian and the scores' autocovariance; it counts a noise model "
+                 "that is not the data's, not a bias of the likelihood: docs/calibration.md)"
+                 if res.ident.covariance == "sandwich" else "  (+- : the Fisher information's, B^-1)")
     n = len(res.params)
     pairs = [(abs(res.ident.correlation[i, j]), i, j) for i in range(n) for j in range(i + 1, n)
              if np.isfinite(res.ident.correlation[i, j])]

@@ -89,6 +89,9 @@ class Joint:
     slip: float = SLIP_SPEED  # 0: Coulomb's stick and slip; > 0: regularised, coulomb tanh(qd / slip) [m/s or rad/s]
     # a servo's force range (MJCF forcerange): (G, K, C, rest, low, high), layout.JF_SERVO_G's terms
     force_range: tuple[float, float, float, float, float, float] | None = None
+    # a motor's torque per unit command (a drive's torque constant or gain off its data sheet): the
+    # force it applies is torque_scale u; it scales the motor's column of the transmission B
+    torque_scale: float = 1.0
 
     def origin_rotation(self) -> np.ndarray:
         return rpy_to_matrix(self.origin_rpy)
@@ -314,7 +317,8 @@ class Model:
     def transmission(self) -> np.ndarray:
         """B (n_t, n_a): the tree generalised forces per unit input of each motor (active order),
         tau_t = B u. A motor drives its own joint with 1 unless :attr:`transmissions` spreads it
-        (a fixed tendon: its force f does the work of c_i f on each joint i of the tendon)."""
+        (a fixed tendon: its force f does the work of c_i f on each joint i of the tendon). Each
+        motor's column is scaled by its ``torque_scale`` (1 unless the file gives one)."""
         names = self.joint_names
         active = self.active_names
         B = np.zeros((len(names), len(active)))
@@ -329,6 +333,9 @@ class Model:
                 if joint not in names:
                     raise ValueError(f"transmission of {motor!r}: no joint {joint!r} in the model")
                 B[names.index(joint), k] += coefficient
+        scales = [j.torque_scale for j in self.joints if j.role == ACTIVE]
+        if any(x != 1.0 for x in scales):  # without a torque_scale B is exactly as before
+            B = B * np.asarray(scales)
         return B
 
     @property

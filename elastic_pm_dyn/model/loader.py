@@ -32,7 +32,7 @@ _FLEX_KEYS = {"name", "kind", "length", "mass", "direction", "axis", "bending_st
               "damping", "origin"}
 MAX_ELASTIC_DOF_PER_CHAIN = 8
 _JOINT_KEYS = {"name", "type", "role", "axis", "origin", "body", "stiffness", "damping",
-               "rest", "friction", "rotor_inertia"}
+               "rest", "friction", "rotor_inertia", "torque_scale"}
 
 
 def load_model(path: str | Path, elastic_dof_per_chain: int | None = None,
@@ -223,12 +223,15 @@ def _parse_joint(r: YamlReader, path: KeyPath) -> Joint:
         raise r.src.error(path + ("stiffness",), "an elastic joint needs stiffness > 0")
     if role != ELASTIC and (r.has(path + ("stiffness",)) or r.has(path + ("damping",))):
         raise r.src.error(path, f"stiffness/damping belong to elastic joints, this one is {role}")
+    if role != ACTIVE and r.has(path + ("torque_scale",)):
+        raise r.src.error(path + ("torque_scale",), f"torque_scale is a motor's (role: active), not a {role} joint's")
     return Joint(
         name=name, type=jtype, role=role, axis=axis / norm, origin_xyz=xyz, origin_rpy=rpy,
         body=body, stiffness=stiffness, damping=damping,
         rest=r.number(path + ("rest",), default=0.0),
         friction=r.number(path + ("friction",), default=0.0, nonnegative=True),
         rotor_inertia=r.number(path + ("rotor_inertia",), default=0.0, nonnegative=True),
+        torque_scale=r.number(path + ("torque_scale",), default=1.0, positive=True),
     )
 
 
