@@ -9,9 +9,12 @@
   a couple on the Hexa's platform (the Hexa rebuilt in MuJoCo from the package's URDF writer).
 """
 
+from functools import partial
+
 import numpy as np
 import pytest
 
+from elastic_pm_dyn.dynamics.evaluate import FORMULATION_CODES, accelerations
 from elastic_pm_dyn.dynamics.jacobian import parallel_jacobian_transpose
 from elastic_pm_dyn.dynamics.statics import holding_torques
 from elastic_pm_dyn.errors import InputError
@@ -107,6 +110,22 @@ def test_work_of_a_constant_force_is_the_energy_gained(name):
     assert gained == pytest.approx(work, rel=1e-4)
 
 
+def _mujoco_addresses(m, mech, wmap):
+    """MuJoCo's dof address of each of our tree joints, and the body that carries the wrench's point
+    (the body of the point's joint)."""
+    import mujoco
+    adr = [m.jnt_dofadr[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, n)] for n in mech.joint_names]
+    carrier = mech.joint_names[mech.arrays.point_body[wmap.point]]
+    return adr, m.jnt_bodyid[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, carrier)]
+
+
+def _scdd_accelerations(mech, q, qd, tau):
+    qdd = np.empty(mech.n)
+    accelerations(FORMULATION_CODES["scdd"], mech.arrays, q, qd, tau, 0.0, 0.0, np.zeros(mech.n), qdd,
+                  np.zeros(mech.m))
+    return qdd
+
+
 def test_a_force_at_the_end_effector_accelerates_as_in_mujoco():
     """MuJoCo, an engine we did not write, maps the same force at the end-effector point
     (``mj_applyFT`` on the body that carries it) to generalised forces; the accelerations it adds
@@ -119,21 +138,13 @@ def test_a_force_at_the_end_effector_accelerates_as_in_mujoco():
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # test/: consistent_states
     from consistent_states import consistent_states
 
-    from elastic_pm_dyn.dynamics.evaluate import FORMULATION_CODES, accelerations
     mjcf = Path(__file__).resolve().parents[1] / "robots" / "five_bar.xml"
     mech = Mechanism(load_model(mjcf))
     wmap = WrenchMap(mech)
     m = mujoco.MjModel.from_xml_path(str(mjcf))
     d = mujoco.MjData(m)
-    adr = [m.jnt_dofadr[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, n)] for n in mech.joint_names]
-    carrier = mech.joint_names[mech.arrays.point_body[wmap.point]]  # the joint of the point's body
-    body = m.jnt_bodyid[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, carrier)]
-
-    def ours(q, qd, tau):
-        qdd = np.empty(mech.n)
-        accelerations(FORMULATION_CODES["scdd"], mech.arrays, q, qd, tau, 0.0, 0.0, np.zeros(mech.n), qdd,
-                      np.zeros(mech.m))
-        return qdd
+    adr, body = _mujoco_addresses(m, mech, wmap)
+    ours = partial(_scdd_accelerations, mech)
 
     def theirs(q, qd, tau, f, p):
         mujoco.mj_resetData(m, d)
@@ -175,7 +186,6 @@ def test_a_couple_on_the_hexa_platform_accelerates_as_in_mujoco():
     mujoco = pytest.importorskip("mujoco")
     import yaml
 
-    from elastic_pm_dyn.dynamics.evaluate import FORMULATION_CODES, accelerations
     from elastic_pm_dyn.kinematics.assembly import solve_pose
     from elastic_pm_dyn.model.urdf_writer import closure_sidecar, model_to_urdf
 
@@ -205,16 +215,9 @@ def test_a_couple_on_the_hexa_platform_accelerates_as_in_mujoco():
     m = spec.compile()
     d = mujoco.MjData(m)
     assert m.nv == mech.n
-    adr = [m.jnt_dofadr[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, n)] for n in mech.joint_names]
-    carrier = mech.joint_names[mech.arrays.point_body[wmap.point]]
-    body = m.jnt_bodyid[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, carrier)]
+    adr, body = _mujoco_addresses(m, mech, wmap)
     assert m.body(body).name == "platform_roll_link"
-
-    def ours(q, qd, tau):
-        qdd = np.empty(mech.n)
-        accelerations(FORMULATION_CODES["scdd"], mech.arrays, q, qd, tau, 0.0, 0.0, np.zeros(mech.n), qdd,
-                      np.zeros(mech.m))
-        return qdd
+    ours = partial(_scdd_accelerations, mech)
 
     def theirs(q, qd, tau, w, p):
         """MuJoCo's tree forces of w, the accelerations its soft solver adds, those of the hard loop."""
