@@ -34,7 +34,7 @@ class Identifiability:
     std_log: np.ndarray  # ... of its log ratio (relative)
     correlation: np.ndarray  # (n, n)
     findings: list[str]  # one line per parameter or combination the recordings leave open
-    std_fisher: np.ndarray | None = None  # the Fisher information's (BHHH) alone, for comparison
+    std_fisher: np.ndarray  # the Fisher information's (BHHH) alone, for comparison
     covariance: str = "fisher"  # which covariance std is: fisher (B^-1) or sandwich (A^-1 S A^-1)
 
 
@@ -77,6 +77,11 @@ def identifiability(B: np.ndarray, values: np.ndarray, names: Sequence[str], fix
 def time_scores(scores: np.ndarray, segments: Sequence[tuple[int, float, int]]) -> list[np.ndarray]:
     """The per-sample scores summed per time bin, one (bins, n) array per recording: each sensor's
     block (``Score.segments``) spread evenly over its recording, bins at the fastest sensor's rate."""
+    return [S for S, _ in _binned(scores, segments)]
+
+
+def _binned(scores: np.ndarray, segments: Sequence[tuple[int, float, int]]) -> list[tuple[np.ndarray, float]]:
+    """:func:`time_scores`' arrays, each with its recording's length [s] (its first block's)."""
     rows: dict[int, list[tuple[float, np.ndarray]]] = {}
     start = 0
     for rec, seconds, count in segments:
@@ -89,7 +94,7 @@ def time_scores(scores: np.ndarray, segments: Sequence[tuple[int, float, int]]) 
         for _, b in blocks:
             if len(b):
                 np.add.at(S, (np.arange(len(b)) * bins) // len(b), b)
-        out.append(S)
+        out.append((S, blocks[0][0]))
     return out
 
 
@@ -101,7 +106,7 @@ def score_covariance(scores: np.ndarray, segments: Sequence[tuple[int, float, in
     recording, recordings independent. With white innovations it is the outer product B."""
     n = scores.shape[1]
     out = np.zeros((n, n))
-    for S, (_, seconds, _) in zip(time_scores(scores, segments), _first_of_each(segments), strict=True):
+    for S, seconds in _binned(scores, segments):
         L = min(len(S) - 1, round(window_s * len(S) / seconds)) if seconds > 0 else 0
         out += S.T @ S
         for lag in range(1, L + 1):
@@ -129,13 +134,6 @@ def sandwich(A: np.ndarray, Sc: np.ndarray, free: Sequence[int]) -> np.ndarray |
     cov = np.full((n, n), np.nan)
     cov[np.ix_(f, f)] = Ai @ Sc[np.ix_(f, f)] @ Ai
     return cov
-
-
-def _first_of_each(segments: Sequence[tuple[int, float, int]]) -> list[tuple[int, float, int]]:
-    seen: dict[int, tuple[int, float, int]] = {}
-    for s in segments:
-        seen.setdefault(s[0], s)
-    return list(seen.values())
 
 
 def unexcited(evaluate: Callable[[np.ndarray], Score], n: int, threads: int = 2) -> list[int]:
