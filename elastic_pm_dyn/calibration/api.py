@@ -75,10 +75,6 @@ class Calibration:
         from elastic_pm_dyn.calibration.parameters import model_of
         return model_of(self.data, self.source)
 
-    def _std_fisher(self) -> np.ndarray:
-        sf = self.ident.std_fisher
-        return self.ident.std if sf is None else sf
-
     def as_dict(self) -> dict:
         """Everything reported, JSON-ready."""
         return {
@@ -86,7 +82,7 @@ class Calibration:
                             "std_relative": float(s / b) if b else math.nan, "std_fisher": float(sf),
                             "fixed": p.name in self.fixed}
                            for p, a, b, s, sf in zip(self.params, self.nominal, self.values, self.ident.std,
-                                                     self._std_fisher(), strict=True)],
+                                                     self.ident.std_fisher, strict=True)],
             "covariance": self.ident.covariance,
             "correlations": self.ident.correlation.tolist(),
             "not_excited": self.ident.findings,

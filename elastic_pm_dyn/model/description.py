@@ -333,10 +333,8 @@ class Model:
                 if joint not in names:
                     raise ValueError(f"transmission of {motor!r}: no joint {joint!r} in the model")
                 B[names.index(joint), k] += coefficient
-        scales = [j.torque_scale for j in self.joints if j.role == ACTIVE]
-        if any(x != 1.0 for x in scales):  # without a torque_scale B is exactly as before
-            B = B * np.asarray(scales)
-        return B
+        # a scale of 1 (no torque_scale) multiplies exactly: B as before, bit for bit
+        return B * np.array([j.torque_scale for j in self.joints if j.role == ACTIVE])
 
     @property
     def ee_components(self) -> tuple[int, ...]:
